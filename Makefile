@@ -1,0 +1,41 @@
+# pedrl: `make help` lists the targets. Every target installs what it needs first (`setup`).
+.DEFAULT_GOAL := help
+SHELL := /bin/bash
+VENV ?= .venv
+PY := $(VENV)/bin/python
+TORCH_PIN := torch==2.13.0
+STAMP := $(VENV)/.pedrl-installed
+
+.PHONY: help setup run test test-all lint bench clean
+
+help: ## list the targets
+	@grep -hE '^[a-zA-Z_-]+:.*?## ' $(MAKEFILE_LIST) | awk 'BEGIN {FS = ":.*?## "}; {printf "  \033[36m%-10s\033[0m %s\n", $$1, $$2}'
+
+$(STAMP): pyproject.toml
+	@test -x $(PY) || python3 -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q $(TORCH_PIN)
+	$(PY) -m pip install -q -e '.[dev]'
+	@touch $(STAMP)
+
+setup: $(STAMP) ## create .venv with torch==2.13.0 (CPU) and pedrl[dev]; does nothing when done
+
+run: setup ## the main job: train the default experiment (minutes on a 2-core CPU)
+	$(VENV)/bin/pedrl-train $(ARGS)
+
+test: setup ## the fast test suite (not slow)
+	$(PY) -m pytest -q -m "not slow" $(ARGS)
+
+test-all: setup ## every test, slow ones included
+	$(PY) -m pytest -q $(ARGS)
+
+lint: setup ## ruff check and format check
+	$(VENV)/bin/ruff check pedrl tests
+	$(VENV)/bin/ruff format --check pedrl tests
+
+bench: setup ## benchmarks: writes outputs/bench/bench.json
+	$(PY) -m pip install -q -e '.[dev,bench]'
+	$(PY) -m pedrl.bench $(ARGS)
+
+clean: ## remove caches (keeps .venv and outputs/)
+	rm -rf .pytest_cache .ruff_cache build *.egg-info
