@@ -1,0 +1,649 @@
+"""The machinery shared by VQQL, IT-VQQL and IN-VQQL.
+
+Every algorithm of the paper is a sequence of *phases* (an IT-VQQL iteration, an IN-VQQL stage, or the single
+VQQL run). A phase reads top to bottom as:
+
+1. gather states from the room, following the previous phase's policy (or a random walk),
+2. fit a vector quantizer on them (k-means over standardised states),
+3. learn Q tables from scratch over its prototypes, trial after trial,
+4. log the learning curve and write a checkpoint.
+
+Subclasses say what the phases are and how states are quantized; this class does the rest once.
+
+All ``R`` learning processes (the paper averages 20) run in lock-step in one tensor program: process ``r`` owns
+the tables ``q_values[r]`` and ``E = rooms_per_process`` rooms whose agents all learn into them. With the
+default ``E = 1`` this is the paper's setting; ``E > 1`` gives each table ``E`` times more experience per
+decision (and larger tensor batches), at the price of learning from several rooms at once.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+from tqdm.auto import tqdm
+
+from pedrl.io import CheckpointError, CsvWriter, RunLogger, load_checkpoint, save_checkpoint
+from pedrl.rl import LinearSchedule, epsilon_greedy, td_update
+from pedrl.sim import RoomEnv
+from pedrl.vq import Quantizer
+
+CURVE_METRICS = ("success_rate", "episodic_return", "crashes_agent", "crashes_wall", "mean_speed", "td_error")
+CURVE_COLUMNS = (
+    "phase",
+    "agents",
+    "trial",
+    "global_trial",
+    "epsilon",
+    *(f"{m}_{s}" for m in CURVE_METRICS for s in ("mean", "std")),
+    "decisions_per_s",
+)
+
+
+@dataclass(frozen=True)
+class Phase:
+    """One iteration (IT-VQQL), stage (IN-VQQL) or the single VQQL run.
+
+    Attributes:
+        index: 1-based phase number, as in the paper's figures.
+        num_agents: agents in the room, all of them learning.
+        trials: learning trials of this phase.
+        gather_trials: trials run to gather the quantizer's training states.
+        gather_epsilon: exploration rate while gathering (1.0 is a random walk).
+    """
+
+    index: int
+    num_agents: int
+    trials: int
+    gather_trials: int
+    gather_epsilon: float
+
+
+@dataclass(frozen=True)
+class VQSettings:
+    """How quantizers are fitted (the ``vq`` config group).
+
+    Attributes:
+        num_prototypes: K, the number of prototypes (the paper's best: 4096).
+        max_iterations: Lloyd iteration cap.
+        tolerance: stop when the relative decrease of distortion falls below it.
+        max_states: cap on gathered states kept for k-means (a uniform random subset is kept).
+        init: k-means initialisation (see :func:`pedrl.vq.kmeans`).
+        chunk_size: rows per block in distance computations (bounds memory).
+    """
+
+    num_prototypes: int = 4096
+    max_iterations: int = 50
+    tolerance: float = 1e-4
+    max_states: int = 200_000
+    init: str = "kmeans++"
+    chunk_size: int = 8192
+
+
+@dataclass
+class TrialStats:
+    """Per-process statistics of one trial, each ``(R,)``."""
+
+    success_rate: torch.Tensor
+    episodic_return: torch.Tensor
+    crashes_agent: torch.Tensor
+    crashes_wall: torch.Tensor
+    mean_speed: torch.Tensor
+    td_error: torch.Tensor
+    decisions: int = 0
+
+
+@dataclass
+class TrainResult:
+    """What :meth:`Trainer.fit` returns: final figures and where the outputs are."""
+
+    final: dict[str, float]
+    run_dir: Path
+    checkpoint: Path
+    wall_time_s: float
+    phases: list[dict[str, Any]] = field(default_factory=list)
+
+
+class Trainer:
+    """Base class of the paper's trainers.
+
+    Args:
+        env: a callable building the room, ``env(num_replicas=, num_agents=, device=)`` (a ``functools.partial`` of
+            :class:`pedrl.sim.RoomEnv`, as Hydra's ``_partial_`` gives).
+        vq: quantizer settings.
+        processes: R, independent learning processes run in lock-step.
+        rooms_per_process: E, rooms whose agents share their process's tables.
+        alpha: learning rate of equation 1.
+        gamma: discount of equation 1.
+        epsilon_start: initial exploration rate (Table 3: 0.4).
+        epsilon_end: final exploration rate.
+        epsilon_decay_fraction: fraction of a phase's trials over which epsilon decays linearly to ``epsilon_end``.
+        void_features: how empty neighbour slots are quantized: ``"zero"`` (left at 0) or ``"random"``
+            (filled with random valid values, paper section 5.1).
+        checkpoint_every: also write ``last.safetensors`` every this many trials inside a phase (0: only at the
+            end of each phase).
+        device: ``"cpu"`` or ``"cuda"``.
+        seed: the run's seed; phase ``i`` seeds its generators from ``(seed, i)``.
+        run_dir: where outputs go.
+        tensorboard: write TensorBoard events.
+        progress: show a progress bar.
+        config: the resolved config, stored in checkpoints and compared on resume.
+    """
+
+    name = "base"
+
+    def __init__(
+        self,
+        *,
+        env: Callable[..., RoomEnv],
+        vq: VQSettings | Mapping[str, Any],
+        processes: int = 20,
+        rooms_per_process: int = 1,
+        alpha: float = 0.35,
+        gamma: float = 0.91,
+        epsilon_start: float = 0.4,
+        epsilon_end: float = 0.0,
+        epsilon_decay_fraction: float = 0.8,
+        void_features: str = "zero",
+        checkpoint_every: int = 0,
+        device: str | torch.device = "cpu",
+        seed: int = 0,
+        run_dir: str | Path = ".",
+        tensorboard: bool = True,
+        progress: bool = True,
+        config: Mapping[str, Any] | None = None,
+    ) -> None:
+        self.vq = vq if isinstance(vq, VQSettings) else VQSettings(**dict(vq))
+        _check_int("processes", processes, 1)
+        _check_int("rooms_per_process", rooms_per_process, 1)
+        _check_int("checkpoint_every", checkpoint_every, 0)
+        _check_int("vq.num_prototypes", self.vq.num_prototypes, 2)
+        _check_range("alpha", alpha, 0.0, 1.0, low_open=True)
+        _check_range("gamma", gamma, 0.0, 1.0)
+        _check_range("epsilon_start", epsilon_start, 0.0, 1.0)
+        _check_range("epsilon_end", epsilon_end, 0.0, 1.0)
+        _check_range("epsilon_decay_fraction", epsilon_decay_fraction, 0.0, 1.0, low_open=True)
+        if void_features not in ("zero", "random"):
+            raise ValueError(f"void_features={void_features!r} is invalid: must be 'zero' or 'random'")
+        self.device = _check_device(device)
+        self.env_factory = env
+        self.processes = processes
+        self.rooms_per_process = rooms_per_process
+        self.alpha = alpha
+        self.gamma = gamma
+        self.epsilon_start = epsilon_start
+        self.epsilon_end = epsilon_end
+        self.epsilon_decay_fraction = epsilon_decay_fraction
+        self.void_features = void_features
+        self.checkpoint_every = checkpoint_every
+        self.seed = seed
+        self.run_dir = Path(run_dir)
+        self.tensorboard = tensorboard
+        self.progress = progress
+        self.config = dict(config or {})
+        self.generator = torch.Generator(device=self.device)
+        self._envs: dict[int, RoomEnv] = {}
+        for phase in self.phases():
+            self._check_phase(phase)
+
+    # ------------------------------------------------------------------ what subclasses define
+    def phases(self) -> list[Phase]:
+        """The phases of the algorithm, in order."""
+        raise NotImplementedError
+
+    def fit_quantizer(
+        self, phase: Phase, states: torch.Tensor, num_sensed: torch.Tensor, previous: Any | None
+    ) -> tuple[Any, float]:
+        """Fit this phase's quantizer on gathered ``states (M, F)`` with ``num_sensed (M,)`` neighbours.
+
+        ``previous`` is the previous phase's quantizer (None in the first phase).
+
+        Returns:
+            The quantizer (anything with ``encode``, ``num_prototypes`` and ``state_dict``) and the final
+            distortion (mean squared distance to the nearest prototype, standardised units).
+        """
+        raise NotImplementedError
+
+    def encode(self, quantizer: Any, obs: torch.Tensor, num_sensed: torch.Tensor) -> torch.Tensor:
+        """Prototype ids ``(B,)`` of observations ``(B, F)``."""
+        raise NotImplementedError
+
+    def quantizer_from_state_dict(self, tensors: dict[str, torch.Tensor]) -> Any:
+        raise NotImplementedError
+
+    def continues_previous(self, phase: Phase) -> bool:
+        """True when ``phase`` keeps the previous phase's quantizer and tables instead of starting afresh."""
+        return False
+
+    def gather_tables(self, phase: Phase, previous: tuple[Any, torch.Tensor] | None):
+        """The (quantizer, q_values) followed while gathering phase ``phase``'s states, or None (random walk)."""
+        return previous
+
+    # ------------------------------------------------------------------ the shared loop
+    def fit(self, *, resume_from: str | Path | None = None) -> TrainResult:
+        """Run every phase (or the rest of them, when resuming) and return the final figures."""
+        start_time = time.perf_counter()
+        phases = self.phases()
+        start_phase, start_trial, previous, resumed = 0, 0, None, None
+        if resume_from is not None:
+            resumed = self._load_resume(resume_from, phases)
+            start_phase, start_trial = resumed["phase_position"], resumed["trial"]
+            previous = resumed["previous"]
+        global_trial = sum(p.trials for p in phases[:start_phase]) + start_trial
+        logger = RunLogger(self.run_dir, tensorboard=self.tensorboard, purge_step=global_trial if resumed else None)
+        if not resumed:
+            logger.log_text("config", _markdown_table(self.config))
+        curve = CsvWriter(
+            self.run_dir / "learning_curve.csv",
+            CURVE_COLUMNS,
+            keep_rows=(lambda row: int(row["global_trial"]) < global_trial) if resumed else None,
+        )
+        summaries: list[dict[str, Any]] = list(resumed["summaries"]) if resumed else []
+        last_stats: TrialStats | None = None
+        checkpoint_path = self.run_dir / "checkpoints" / "last.safetensors"
+        try:
+            for position in range(start_phase, len(phases)):
+                phase = phases[position]
+                env = self._env(phase.num_agents)
+                if resumed and position == start_phase and start_trial > 0:
+                    quantizer, q_values = resumed["quantizer"], resumed["q_values"]
+                    self.generator.set_state(resumed["rng_trainer"])
+                    env.generator.set_state(resumed["rng_env"])
+                    distortion = resumed["distortion"]
+                elif self.continues_previous(phase) and previous is not None:
+                    quantizer, q_values = previous
+                    self._seed_phase(phase, env)
+                else:
+                    self._seed_phase(phase, env)
+                    # --- 1. gather states following the previous policy (or a random walk)
+                    states, num_sensed, gather_success = self.gather(phase, env, previous)
+                    # --- 2. fit the quantizer
+                    quantizer, distortion = self.fit_quantizer(
+                        phase, states, num_sensed, previous[0] if previous else None
+                    )
+                    # --- 3. new tables, learned from scratch (paper: no transfer between phases)
+                    q_values = torch.zeros(
+                        (self.processes, phase.num_agents, quantizer.num_prototypes, env.num_actions),
+                        device=self.device,
+                    )
+                    summaries.append(
+                        {
+                            "phase": phase.index,
+                            "agents": phase.num_agents,
+                            "gathered_states": int(states.shape[0]),
+                            "gather_success_rate": gather_success,
+                            "prototypes": int(quantizer.num_prototypes),
+                            "distortion": distortion,
+                            "q_table_mib": q_values.numel() * q_values.element_size() / 2**20,
+                        }
+                    )
+                    logger.log_scalars(
+                        global_trial,
+                        {
+                            "vq/distortion": distortion,
+                            "vq/prototypes": quantizer.num_prototypes,
+                            "vq/gather_success_rate": gather_success,
+                            "vq/q_table_mib": summaries[-1]["q_table_mib"],
+                        },
+                    )
+                first_trial = start_trial if (resumed and position == start_phase) else 0
+                schedule = LinearSchedule(
+                    start=self.epsilon_start,
+                    end=self.epsilon_end,
+                    decay_trials=max(1, round(self.epsilon_decay_fraction * phase.trials)),
+                )
+                bar = tqdm(
+                    range(first_trial, phase.trials),
+                    desc=f"{self.name} phase {phase.index}/{len(phases)} ({phase.num_agents} agents)",
+                    disable=not self.progress,
+                    leave=False,
+                )
+                for trial in bar:
+                    epsilon = schedule(trial)
+                    tic = time.perf_counter()
+                    stats = self.run_trial(env, quantizer, q_values, epsilon=epsilon, learn=True)
+                    elapsed = time.perf_counter() - tic
+                    rate = stats.decisions * self.processes * self.rooms_per_process * phase.num_agents / elapsed
+                    self._log_trial(logger, curve, phase, trial, global_trial, epsilon, stats, rate)
+                    global_trial += 1
+                    last_stats = stats
+                    bar.set_postfix(success=f"{stats.success_rate.mean():.2f}", eps=f"{epsilon:.3f}")
+                    done = trial + 1
+                    if self.checkpoint_every and done % self.checkpoint_every == 0 and done < phase.trials:
+                        self._save(phase, done, quantizer, q_values, distortion, summaries, env, iteration=False)
+                bar.close()
+                self._save(phase, phase.trials, quantizer, q_values, distortion, summaries, env, iteration=True)
+                previous = (quantizer, q_values)
+                logger.flush()
+        finally:
+            curve.close()
+            logger.close()
+        final = _final_figures(last_stats) if last_stats is not None else {}
+        return TrainResult(
+            final=final,
+            run_dir=self.run_dir,
+            checkpoint=checkpoint_path,
+            wall_time_s=time.perf_counter() - start_time,
+            phases=summaries,
+        )
+
+    def gather(
+        self, phase: Phase, env: RoomEnv, previous: tuple[Any, torch.Tensor] | None
+    ) -> tuple[torch.Tensor, torch.Tensor, float]:
+        """Record the states visited in ``phase.gather_trials`` trials.
+
+        Returns:
+            states ``(M, F)`` (void slots filled as configured), their neighbour counts ``(M,)``, and the success
+            rate while gathering.
+        """
+        policy = self.gather_tables(phase, previous)
+        rooms = self.processes * self.rooms_per_process
+        chunks, counts, successes = [], [], []
+        for _ in range(phase.gather_trials):
+            obs, info = env.reset()
+            reached = torch.zeros(rooms, phase.num_agents, dtype=torch.bool, device=self.device)
+            while True:
+                active = env.active.reshape(-1)
+                flat_obs = self._prepare(obs.reshape(-1, env.num_features), info["num_sensed"].reshape(-1))
+                chunks.append(flat_obs[active])
+                counts.append(info["num_sensed"].reshape(-1)[active])
+                if policy is None:
+                    actions = torch.randint(
+                        env.num_actions, (rooms * phase.num_agents,), generator=self.generator, device=self.device
+                    )
+                else:
+                    quantizer, q_values = policy
+                    rows = self._rows(q_values, phase.num_agents) + self.encode(
+                        quantizer, flat_obs, info["num_sensed"].reshape(-1)
+                    )
+                    actions = epsilon_greedy(q_values, rows, phase.gather_epsilon, self.generator)
+                obs, _, terminated, truncated, info = env.step(actions.view(rooms, phase.num_agents))
+                reached |= info["reached"]
+                if not bool(env.active.any()):
+                    break
+            successes.append(reached.float().mean())
+        states = torch.cat(chunks)
+        num_sensed = torch.cat(counts)
+        if states.shape[0] > self.vq.max_states:
+            keep = torch.randperm(states.shape[0], generator=self.generator, device=self.device)[: self.vq.max_states]
+            states, num_sensed = states[keep], num_sensed[keep]
+        return states, num_sensed, float(torch.stack(successes).mean())
+
+    def run_trial(
+        self, env: RoomEnv, quantizer: Any, q_values: torch.Tensor, *, epsilon: float, learn: bool
+    ) -> TrialStats:
+        """Run one trial in every room, acting epsilon-greedily and (if ``learn``) applying equation 1.
+
+        ``q_values`` is ``(R, A, K, U)`` with ``A`` equal to the room's agents (or dividing it: agent ``n`` uses
+        table ``n mod A``).
+        """
+        rooms, num_agents = env.num_replicas, env.num_agents
+        obs, info = env.reset()
+        base_rows = self._rows(q_values, num_agents)
+        rows = base_rows + self.encode(
+            quantizer, self._prepare(obs.reshape(-1, env.num_features), info["num_sensed"].reshape(-1)),
+            info["num_sensed"].reshape(-1),
+        )
+        returns = torch.zeros(rooms * num_agents, device=self.device)
+        crashes_agent = torch.zeros_like(returns)
+        crashes_wall = torch.zeros_like(returns)
+        reached = torch.zeros_like(returns)
+        speed_sum = torch.zeros_like(returns)
+        moves = torch.zeros_like(returns)
+        td_sum = torch.zeros((), device=self.device)
+        td_count = torch.zeros((), device=self.device)
+        decisions = 0
+        while True:
+            valid = env.active.reshape(-1)
+            actions = epsilon_greedy(q_values, rows, epsilon, self.generator)
+            obs, reward, terminated, truncated, info = env.step(actions.view(rooms, num_agents))
+            next_rows = base_rows + self.encode(
+                quantizer, self._prepare(obs.reshape(-1, env.num_features), info["num_sensed"].reshape(-1)),
+                info["num_sensed"].reshape(-1),
+            )
+            if learn:
+                td = td_update(
+                    q_values,
+                    rows,
+                    actions,
+                    reward.reshape(-1),
+                    next_rows,
+                    terminated.reshape(-1),
+                    valid,
+                    alpha=self.alpha,
+                    gamma=self.gamma,
+                )
+                td_sum += td.abs().sum()
+                td_count += valid.sum()
+            validf = valid.float()
+            returns += reward.reshape(-1)
+            crashes_agent += info["crashed_agent"].reshape(-1).float()
+            crashes_wall += info["crashed_wall"].reshape(-1).float()
+            reached += info["reached"].reshape(-1).float()
+            speed_sum += info["speed"].reshape(-1) * validf
+            moves += validf
+            rows = next_rows
+            decisions += 1
+            if not bool(env.active.any()):
+                break
+        per_process = self.processes
+
+        def by_process(values: torch.Tensor) -> torch.Tensor:
+            return values.view(per_process, -1).mean(dim=1)
+
+        speed = speed_sum.view(per_process, -1).sum(1) / moves.view(per_process, -1).sum(1).clamp_min(1)
+        td_error = (td_sum / td_count.clamp_min(1)).expand(per_process) if learn else torch.zeros(per_process)
+        return TrialStats(
+            success_rate=by_process(reached).cpu(),
+            episodic_return=by_process(returns).cpu(),
+            crashes_agent=by_process(crashes_agent).cpu(),
+            crashes_wall=by_process(crashes_wall).cpu(),
+            mean_speed=speed.cpu(),
+            td_error=td_error.cpu(),
+            decisions=decisions,
+        )
+
+    # ------------------------------------------------------------------ helpers
+    def fit_plain_quantizer(self, states: torch.Tensor) -> tuple[Quantizer, float]:
+        """Fit one :class:`pedrl.vq.Quantizer` on ``states (M, F)`` with the ``vq`` settings."""
+        quantizer, result = Quantizer.fit(
+            states,
+            self.vq.num_prototypes,
+            generator=self.generator,
+            max_iterations=self.vq.max_iterations,
+            tolerance=self.vq.tolerance,
+            init=self.vq.init,
+            chunk_size=self.vq.chunk_size,
+        )
+        return quantizer, float(result.distortion[-1])
+
+    def _prepare(self, obs: torch.Tensor, num_sensed: torch.Tensor) -> torch.Tensor:
+        if self.void_features == "random":
+            return self._fill_void(obs, num_sensed)
+        return obs
+
+    def _fill_void(self, obs: torch.Tensor, num_sensed: torch.Tensor) -> torch.Tensor:
+        from pedrl.sim.sensing import fill_void_neighbours
+
+        env = next(iter(self._envs.values()))
+        return fill_void_neighbours(
+            obs,
+            num_sensed,
+            num_neighbours=env.num_neighbours,
+            num_walls=env.num_walls,
+            max_distance=math.hypot(env.width, env.length),
+            max_speed=env.max_speed,
+            generator=self.generator,
+        )
+
+    def _rows(self, q_values: torch.Tensor, num_agents: int) -> torch.Tensor:
+        """Flat row offsets ``(R * E * N,)`` of every agent's table in ``q_values.view(-1, U)``."""
+        processes, tables, num_states, _ = q_values.shape
+        process = torch.arange(self.processes, device=self.device).repeat_interleave(
+            self.rooms_per_process * num_agents
+        )
+        table = torch.arange(num_agents, device=self.device).remainder(tables).repeat(
+            self.processes * self.rooms_per_process
+        )
+        return (process * tables + table) * num_states
+
+    def _env(self, num_agents: int) -> RoomEnv:
+        if num_agents not in self._envs:
+            self._envs[num_agents] = self.env_factory(
+                num_replicas=self.processes * self.rooms_per_process, num_agents=num_agents, device=self.device
+            )
+        return self._envs[num_agents]
+
+    def _check_phase(self, phase: Phase) -> None:
+        _check_int("num_agents", phase.num_agents, 1)
+        _check_int("trials", phase.trials, 1)
+        _check_int("gather_trials", phase.gather_trials, 1)
+        _check_range("gather_epsilon", phase.gather_epsilon, 0.0, 1.0)
+
+    def _seed_phase(self, phase: Phase, env: RoomEnv) -> None:
+        phase_seed = self.seed * 10_007 + phase.index
+        self.generator.manual_seed(phase_seed)
+        env.reset(seed=phase_seed + 1)
+
+    def _log_trial(self, logger, curve, phase, trial, global_trial, epsilon, stats: TrialStats, rate) -> None:
+        row: dict[str, Any] = {
+            "phase": phase.index,
+            "agents": phase.num_agents,
+            "trial": trial,
+            "global_trial": global_trial,
+            "epsilon": epsilon,
+            "decisions_per_s": rate,
+        }
+        for metric in CURVE_METRICS:
+            values = getattr(stats, metric).double()
+            row[f"{metric}_mean"] = float(values.mean())
+            row[f"{metric}_std"] = float(values.std(unbiased=False))
+            tag = "losses/td_error" if metric == "td_error" else f"charts/{metric}"
+            logger.log_spread(global_trial, tag, values)
+        logger.log_scalars(
+            global_trial, {"charts/decisions_per_s": rate, "charts/epsilon": epsilon, "charts/phase": phase.index}
+        )
+        curve.write(row)
+
+    def _save(self, phase, trial, quantizer, q_values, distortion, summaries, env, *, iteration: bool) -> None:
+        tensors = {
+            "q_values": q_values,
+            "rng/trainer": self.generator.get_state(),
+            "rng/env": env.generator.get_state(),
+            **{f"quantizer/{k}": v for k, v in quantizer.state_dict().items()},
+        }
+        metadata = {
+            "algo": self.name,
+            "iteration": phase.index,
+            "trial": trial,
+            "phase_complete": trial >= phase.trials,
+            "agents": phase.num_agents,
+            "distortion": distortion,
+            "summaries": summaries,
+            "config": self.config,
+        }
+        folder = self.run_dir / "checkpoints"
+        if iteration:
+            save_checkpoint(folder / f"iter_{phase.index:04d}.safetensors", tensors=tensors, metadata=metadata)
+        save_checkpoint(folder / "last.safetensors", tensors=tensors, metadata=metadata)
+
+    def _load_resume(self, path: str | Path, phases: list[Phase]) -> dict[str, Any]:
+        checkpoint = load_checkpoint(path, device=self.device)
+        meta = checkpoint.metadata
+        if meta.get("algo") != self.name:
+            raise CheckpointError(f"checkpoint {str(path)!r} was written by algo={meta.get('algo')!r}, not {self.name!r}")
+        mismatch = _config_mismatch(meta.get("config", {}), self.config)
+        if mismatch:
+            raise CheckpointError(f"checkpoint {str(path)!r} comes from an incompatible configuration: {mismatch}")
+        indices = [p.index for p in phases]
+        if meta["iteration"] not in indices:
+            raise CheckpointError(f"checkpoint {str(path)!r} is at phase {meta['iteration']}, not one of {indices}")
+        position = indices.index(meta["iteration"])
+        quantizer = self.quantizer_from_state_dict(checkpoint.tensors_with_prefix("quantizer"))
+        q_values = checkpoint.tensors["q_values"].to(self.device)
+        result = {
+            "summaries": meta.get("summaries", []),
+            "quantizer": quantizer,
+            "q_values": q_values,
+            "distortion": meta.get("distortion", float("nan")),
+            "rng_trainer": checkpoint.tensors["rng/trainer"].cpu(),
+            "rng_env": checkpoint.tensors["rng/env"].cpu(),
+        }
+        if meta["phase_complete"]:
+            result.update(phase_position=position + 1, trial=0, previous=(quantizer, q_values))
+        else:
+            result.update(phase_position=position, trial=int(meta["trial"]), previous=None)
+        return result
+
+
+# ---------------------------------------------------------------------- small pure helpers
+_RESUME_INDEPENDENT = ("resume", "device", "progress", "logger", "hydra")
+
+
+def _config_mismatch(saved: Mapping[str, Any], current: Mapping[str, Any], prefix: str = "") -> str:
+    """The first differing key between two nested configs, ignoring keys that may change on resume."""
+    for key in sorted(set(saved) | set(current)):
+        if not prefix and key in _RESUME_INDEPENDENT:
+            continue
+        a, b = saved.get(key, "<absent>"), current.get(key, "<absent>")
+        if isinstance(a, Mapping) and isinstance(b, Mapping):
+            found = _config_mismatch(a, b, f"{prefix}{key}.")
+            if found:
+                return found
+        elif a != b:
+            return f"{prefix}{key} was {json.dumps(a)} there and is {json.dumps(b)} here"
+    return ""
+
+
+def _final_figures(stats: TrialStats) -> dict[str, float]:
+    figures = {}
+    for metric in CURVE_METRICS:
+        values = getattr(stats, metric).double()
+        figures[f"{metric}_mean"] = float(values.mean())
+        figures[f"{metric}_std"] = float(values.std(unbiased=False))
+    return figures
+
+
+def _markdown_table(config: Mapping[str, Any]) -> str:
+    rows = ["|parameter|value|", "|-|-|"]
+
+    def walk(node: Mapping[str, Any], prefix: str) -> None:
+        for key, value in node.items():
+            if isinstance(value, Mapping):
+                walk(value, f"{prefix}{key}.")
+            else:
+                rows.append(f"|{prefix}{key}|{value}|")
+
+    walk(config, "")
+    return "\n".join(rows)
+
+
+def _check_int(name: str, value: Any, minimum: int) -> None:
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        raise ValueError(f"{name}={value!r} is invalid: must be an integer >= {minimum}")
+
+
+def _check_range(name: str, value: Any, low: float, high: float, *, low_open: bool = False) -> None:
+    ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+    ok = ok and (low < value if low_open else low <= value) and value <= high
+    if not ok:
+        bracket = "(" if low_open else "["
+        raise ValueError(f"{name}={value!r} is invalid: must be a number in {bracket}{low}, {high}]")
+
+
+def _check_device(device: str | torch.device) -> torch.device:
+    try:
+        parsed = torch.device(device)
+    except (RuntimeError, TypeError):
+        raise ValueError(f"device={device!r} is invalid: must be 'cpu' or 'cuda[:index]'") from None
+    if parsed.type not in ("cpu", "cuda"):
+        raise ValueError(f"device={device!r} is invalid: must be 'cpu' or 'cuda[:index]'")
+    if parsed.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"device={device!r} is invalid here: no CUDA GPU is available (use device=cpu)")
+    return parsed

@@ -1,0 +1,109 @@
+"""IN-VQQL: incremental in the number of agents, with projection and a union of quantizers (Figure 3, 5.2)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import torch
+
+from pedrl.algos.base import Phase, Trainer
+from pedrl.algos.it_vqql import _budgets
+from pedrl.sim.sensing import feature_indices
+from pedrl.vq import UnionQuantizer
+
+PAPER_STAGES = (1, 2, 3, 4, 5, 6, 7, 8, 10, 20)
+
+
+def replicate_tables(q_values: torch.Tensor, num_agents: int) -> torch.Tensor:
+    """Tables for ``num_agents`` agents from ``q_values (R, A, K, U)``: agent ``n`` gets a copy of table ``n mod A``.
+
+    Returns:
+        ``(R, num_agents, K, U)``.
+    """
+    source = torch.arange(num_agents, device=q_values.device).remainder(q_values.shape[1])
+    return q_values.index_select(1, source)
+
+
+class INVQQL(Trainer):
+    """Incremental VQQL.
+
+    Stage ``i`` has ``stages[i]`` agents; with ``m`` agents an agent senses ``min(m - 1, k)`` neighbours, so the
+    state grows from stage to stage. States of stage ``i`` are gathered while following stage ``i - 1``'s tables,
+    replicated to the new agents, epsilon-greedily; a state with more neighbours than the previous quantizer knows
+    is projected (Gamma: only the features of its nearest neighbours that quantizer knows are kept). A new
+    quantizer is fitted on the stage's full states (those with ``min(m - 1, k)`` neighbours) and united with the
+    previous ones: the union encodes a state with the sub-quantizer of its number of sensed neighbours. New tables
+    over the union's prototypes are then learned from scratch.
+
+    Memory: the union grows by ``K`` prototypes per stage, and the tables are ``(R, m, K_union, 81)`` float32.
+    At paper scale (10 stages of K = 4096, R = 20, 20 agents) that is 40960 prototypes and 5.3 GB of tables,
+    within this machine's 24 GiB; ``vq.num_prototypes`` or ``processes`` shrink it linearly.
+
+    Args:
+        stages: agents per stage (paper: 1, 2, 3, 4, 5, 6, 7, 8, 10, 20).
+        trials: learning trials per stage: one number for all, or one per stage (the paper grows them).
+        trials_growth: when ``trials`` is one number, stage ``i`` learns ``trials * trials_growth**(i-1)`` trials.
+        gather_trials: trials recorded per stage for the quantizer.
+        gather_epsilon: exploration while gathering from stage 2 on (stage 1 is a random walk).
+        **common: the keyword arguments of :class:`pedrl.algos.base.Trainer`.
+    """
+
+    name = "in_vqql"
+
+    def __init__(
+        self,
+        *,
+        stages: Sequence[int] = PAPER_STAGES,
+        trials: int | Sequence[int] = 1000,
+        trials_growth: float = 1.0,
+        gather_trials: int = 5,
+        gather_epsilon: float = 0.07,
+        **common: Any,
+    ) -> None:
+        self.stages = [int(m) for m in stages]
+        if not self.stages or any(m < 1 for m in self.stages) or self.stages != sorted(set(self.stages)):
+            raise ValueError(f"stages={list(stages)!r} is invalid: must be increasing agent counts >= 1")
+        self.trial_budgets = _budgets("trials", trials, len(self.stages), trials_growth)
+        self.gather_trials = gather_trials
+        self.gather_epsilon = gather_epsilon
+        super().__init__(**common)
+
+    def phases(self) -> list[Phase]:
+        return [
+            Phase(index=i + 1, num_agents=m, trials=budget, gather_trials=self.gather_trials,
+                  gather_epsilon=1.0 if i == 0 else self.gather_epsilon)
+            for i, (m, budget) in enumerate(zip(self.stages, self.trial_budgets, strict=True))
+        ]
+
+    def gather_tables(self, phase: Phase, previous: tuple[Any, torch.Tensor] | None):
+        if previous is None:
+            return None
+        quantizer, q_values = previous
+        return quantizer, replicate_tables(q_values, phase.num_agents)
+
+    def sensed_neighbours(self, num_agents: int) -> int:
+        """Neighbours an agent senses when ``num_agents`` agents are in the room: ``min(m - 1, k)``."""
+        return min(num_agents - 1, self._env(num_agents).num_neighbours)
+
+    def fit_quantizer(
+        self, phase: Phase, states: torch.Tensor, num_sensed: torch.Tensor, previous: Any | None
+    ) -> tuple[Any, float]:
+        env = self._env(phase.num_agents)
+        n = self.sensed_neighbours(phase.num_agents)
+        index = feature_indices(n, env.num_neighbours, env.num_walls).to(self.device)
+        full = states[num_sensed == n][:, index]
+        if full.shape[0] < self.vq.num_prototypes:
+            raise ValueError(
+                f"stage {phase.index} ({phase.num_agents} agents) gathered {full.shape[0]} states with {n} "
+                f"neighbours, fewer than vq.num_prototypes={self.vq.num_prototypes}: raise gather_trials"
+            )
+        quantizer, distortion = self.fit_plain_quantizer(full)
+        union = previous if previous is not None else UnionQuantizer()
+        return union.unite(n, index, quantizer), distortion
+
+    def encode(self, quantizer: UnionQuantizer, obs: torch.Tensor, num_sensed: torch.Tensor) -> torch.Tensor:
+        return quantizer.encode(obs, num_sensed)
+
+    def quantizer_from_state_dict(self, tensors: dict[str, torch.Tensor]) -> UnionQuantizer:
+        return UnionQuantizer.from_state_dict(tensors)

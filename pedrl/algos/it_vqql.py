@@ -1,0 +1,88 @@
+"""IT-VQQL: iterative re-quantization over a fixed number of agents (paper Figure 2, section 5.1)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import torch
+
+from pedrl.algos.base import Phase, Trainer
+from pedrl.vq import Quantizer
+
+
+class ITVQQL(Trainer):
+    """Iterative VQQL.
+
+    Iteration ``i`` gathers states while following iteration ``i - 1``'s tables epsilon-greedily
+    (``gather_epsilon``, paper: 0.07; iteration 1 is a random walk because its tables are zero), fits a new
+    quantizer on them and learns new tables from scratch. Empty neighbour slots are filled with random valid
+    values before quantization (``void_features="random"``, section 5.1) so the quantizer always sees full states.
+
+    Args:
+        num_agents: learning agents (paper: 20).
+        iterations: number of iterations (paper: 15).
+        trials: learning trials per iteration: one number for all, or one per iteration.
+        trials_growth: when ``trials`` is one number, iteration ``i`` learns ``trials * trials_growth**(i-1)``
+            trials (budgets grow per iteration, as in Figure 4).
+        gather_trials: trials recorded per iteration for the quantizer.
+        gather_epsilon: exploration while gathering from iteration 2 on.
+        **common: the keyword arguments of :class:`pedrl.algos.base.Trainer` (``void_features`` defaults to
+            ``"random"`` here).
+    """
+
+    name = "it_vqql"
+
+    def __init__(
+        self,
+        *,
+        num_agents: int = 20,
+        iterations: int = 15,
+        trials: int | Sequence[int] = 1000,
+        trials_growth: float = 1.0,
+        gather_trials: int = 5,
+        gather_epsilon: float = 0.07,
+        **common: Any,
+    ) -> None:
+        self.num_agents = num_agents
+        self.iterations = iterations
+        self.trial_budgets = _budgets("trials", trials, iterations, trials_growth)
+        self.gather_trials = gather_trials
+        self.gather_epsilon = gather_epsilon
+        common.setdefault("void_features", "random")
+        super().__init__(**common)
+
+    def phases(self) -> list[Phase]:
+        return [
+            Phase(index=i + 1, num_agents=self.num_agents, trials=budget, gather_trials=self.gather_trials,
+                  gather_epsilon=1.0 if i == 0 else self.gather_epsilon)
+            for i, budget in enumerate(self.trial_budgets)
+        ]
+
+    def fit_quantizer(
+        self, phase: Phase, states: torch.Tensor, num_sensed: torch.Tensor, previous: Any | None
+    ) -> tuple[Any, float]:
+        return self.fit_plain_quantizer(states)
+
+    def encode(self, quantizer: Quantizer, obs: torch.Tensor, num_sensed: torch.Tensor) -> torch.Tensor:
+        return quantizer.encode(obs)
+
+    def quantizer_from_state_dict(self, tensors: dict[str, torch.Tensor]) -> Quantizer:
+        return Quantizer.from_state_dict(tensors)
+
+
+def _budgets(name: str, trials: int | Sequence[int], count: int, growth: float) -> list[int]:
+    """Per-phase trial budgets from one number (grown geometrically) or an explicit list."""
+    if isinstance(count, bool) or not isinstance(count, int) or count < 1:
+        raise ValueError(f"the number of phases={count!r} is invalid: must be an integer >= 1")
+    if isinstance(trials, int) and not isinstance(trials, bool):
+        if trials < 1:
+            raise ValueError(f"{name}={trials!r} is invalid: must be an integer >= 1 or a list of them")
+        if isinstance(growth, bool) or not isinstance(growth, int | float) or not growth > 0:
+            raise ValueError(f"{name}_growth={growth!r} is invalid: must be a number > 0")
+        return [max(1, round(trials * growth**i)) for i in range(count)]
+    if isinstance(trials, str) or not isinstance(trials, Sequence) or len(trials) != count:
+        raise ValueError(f"{name}={trials!r} is invalid: must be an integer >= 1 or a list of {count} of them")
+    if any(isinstance(t, bool) or not isinstance(t, int) or t < 1 for t in trials):
+        raise ValueError(f"{name}={list(trials)!r} is invalid: every budget must be an integer >= 1")
+    return list(trials)

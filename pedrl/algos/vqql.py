@@ -1,0 +1,61 @@
+"""VQQL: one quantizer fitted on a random walk, then Q-learning from scratch (paper section 3, the baseline)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+
+from pedrl.algos.base import Phase, Trainer, _check_int
+from pedrl.vq import Quantizer
+
+
+class VQQL(Trainer):
+    """Vector Quantization for Q-Learning with a fixed number of agents.
+
+    The quantizer is fitted once, on states recorded while every agent walks at random; Q tables are then
+    learned from scratch for ``trials`` trials. To give long runs a checkpoint per iteration, the learning run is
+    split into ``iterations`` equal blocks of trials that share one quantizer and carry their tables over
+    (unlike IT-VQQL, where every iteration starts again). The paper uses alpha = 0.25 for this baseline.
+
+    Args:
+        num_agents: learning agents in the room (paper: 20).
+        trials: total learning trials.
+        iterations: blocks the trials are split into, each ending with a checkpoint.
+        gather_trials: random-walk trials recorded for the quantizer.
+        **common: the keyword arguments of :class:`pedrl.algos.base.Trainer`.
+    """
+
+    name = "vqql"
+
+    def __init__(self, *, num_agents: int = 20, trials: int = 1000, iterations: int = 1, gather_trials: int = 5,
+                 **common: Any) -> None:
+        self.num_agents = num_agents
+        self.trials = trials
+        self.iterations = iterations
+        self.gather_trials = gather_trials
+        _check_int("iterations", iterations, 1)
+        _check_int("trials", trials, iterations)
+        super().__init__(**common)
+
+    def phases(self) -> list[Phase]:
+        block, extra = divmod(self.trials, self.iterations)
+        return [
+            Phase(index=i + 1, num_agents=self.num_agents, trials=block + (1 if i < extra else 0),
+                  gather_trials=self.gather_trials, gather_epsilon=1.0)
+            for i in range(self.iterations)
+        ]
+
+    def continues_previous(self, phase: Phase) -> bool:
+        return phase.index > 1
+
+    def fit_quantizer(
+        self, phase: Phase, states: torch.Tensor, num_sensed: torch.Tensor, previous: Any | None
+    ) -> tuple[Any, float]:
+        return self.fit_plain_quantizer(states)
+
+    def encode(self, quantizer: Quantizer, obs: torch.Tensor, num_sensed: torch.Tensor) -> torch.Tensor:
+        return quantizer.encode(obs)
+
+    def quantizer_from_state_dict(self, tensors: dict[str, torch.Tensor]) -> Quantizer:
+        return Quantizer.from_state_dict(tensors)

@@ -1,0 +1,143 @@
+"""Export trajectories in the text format that PedPy reads (``pedpy.load_trajectory_from_txt``).
+
+The format (PedPy's ``pedpy/io/ped_data_archive_loader.py``): ``#`` comment lines first, then one row per
+agent and frame with whitespace-separated columns ``id frame x y``. PedPy takes the frame rate from the first
+number on a comment line containing ``framerate``, and the unit from a comment line containing ``x/m`` (metres)
+or ``x/cm``. We write::
+
+    # pedrl trajectories, one trial (PedPy text format)
+    # framerate: 1.0
+    # room: width 60.0, length 100.0, door_width 2.0
+    # id frame x/m y/m
+    0 0 12.5 3.25
+    ...
+
+Rows are sorted by frame, then id, and only active agent-frames are written. One file holds one trial: PedPy
+treats a file as one experiment with one clock, and trials of ``pedrl`` all start at frame 0; use
+:func:`write_pedpy_trajectories` to write a list of trials, one file each. Coordinates are written with enough
+significant digits to read back bit-exactly in the dtype of the positions (9 for float32, 17 for float64).
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Final
+
+import numpy as np
+from numpy.typing import NDArray
+
+from pedrl.analysis.trajectories import DEFAULT_EXIT_DEPTH, X, Y, RoomGeometry, Trajectories
+
+ID_COL: Final = "id"
+FRAME_COL: Final = "frame"
+X_COL: Final = "x"
+Y_COL: Final = "y"
+FRAMERATE_KEY: Final = "framerate"
+
+_SIGNIFICANT_DIGITS: Final = {np.dtype(np.float32): 9, np.dtype(np.float64): 17}
+
+
+def write_pedpy_trajectory(path: str | Path, trajectories: Trajectories, *, first_id: int = 0) -> Path:
+    """Write one trial as a PedPy text trajectory file.
+
+    Args:
+        path: output file (its parent must exist).
+        trajectories: the trial; agent ``n`` gets id ``first_id + n``, frame ``t`` is written as frame ``t``.
+        first_id: id of agent 0.
+
+    Returns:
+        The path written.
+    """
+    path = Path(path)
+    frames, agents = np.nonzero(trajectories.active)  # row-major: sorted by frame, then agent
+    xy = trajectories.positions[frames, agents]
+    digits = _SIGNIFICANT_DIGITS.get(xy.dtype, 17)
+    geometry = trajectories.geometry
+    header = "\n".join(
+        [
+            "pedrl trajectories, one trial (PedPy text format)",
+            f"{FRAMERATE_KEY}: {trajectories.framerate!r}",
+            f"room: width {geometry.width!r}, length {geometry.length!r}, door_width {geometry.door_width!r}",
+            f"{ID_COL} {FRAME_COL} {X_COL}/m {Y_COL}/m",
+        ]
+    )
+    rows = np.empty(len(frames), dtype=[("id", np.int64), ("frame", np.int64), ("x", xy.dtype), ("y", xy.dtype)])
+    rows["id"] = agents + first_id
+    rows["frame"] = frames
+    rows["x"] = xy[:, X]
+    rows["y"] = xy[:, Y]
+    np.savetxt(path, rows, fmt=["%d", "%d", f"%.{digits}g", f"%.{digits}g"], header=header, comments="# ")
+    return path
+
+
+def write_pedpy_trajectories(
+    directory: str | Path, trajectories_list: Sequence[Trajectories], *, stem: str = "trial"
+) -> list[Path]:
+    """Write each trial to its own PedPy file ``{directory}/{stem}_{i:04d}.txt`` (one file per trial).
+
+    Returns:
+        The paths written, in the order of ``trajectories_list``.
+    """
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    return [
+        write_pedpy_trajectory(directory / f"{stem}_{i:04d}.txt", trajectories)
+        for i, trajectories in enumerate(trajectories_list)
+    ]
+
+
+def read_pedpy_trajectory(
+    path: str | Path,
+) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64], float]:
+    """Read a PedPy text trajectory file (as written by :func:`write_pedpy_trajectory`).
+
+    The frame rate is parsed as PedPy does: the first number on a comment line containing ``framerate``.
+    Coordinates are returned in metres (a ``x/cm`` header divides them by 100).
+
+    Returns:
+        ``(ids (M,), frames (M,), xy (M, 2) in m, framerate in 1/s)``.
+    """
+    path = Path(path)
+    framerate: float | None = None
+    centimetres = False
+    with path.open(encoding="utf-8-sig") as lines:
+        for line in lines:
+            if not line.startswith("#"):
+                break
+            if FRAMERATE_KEY in line and framerate is None:
+                framerate = _first_number(line)
+            centimetres |= "x/cm" in line.lower()
+    if framerate is None:
+        raise ValueError(f"no '# {FRAMERATE_KEY}: F' comment line in {path}")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # a trial with no active agent-frame has no rows
+        table = np.loadtxt(path, comments="#", dtype=np.float64, ndmin=2)
+    if table.size == 0:
+        table = np.empty((0, 4))
+    if table.shape[1] < 4:
+        raise ValueError(f"expected at least 4 columns 'id frame x y' in {path}, got {table.shape[1]}")
+    ids = table[:, 0].astype(np.int64)
+    frames = table[:, 1].astype(np.int64)
+    xy = table[:, 2:4] / (100.0 if centimetres else 1.0)
+    return ids, frames, xy, framerate
+
+
+def write_geometry_wkt(path: str | Path, geometry: RoomGeometry, *, exit_depth: float = DEFAULT_EXIT_DEPTH) -> Path:
+    """Write the walkable area as WKT text (``pedpy.WalkableArea(path.read_text())`` loads it).
+
+    See :meth:`RoomGeometry.walkable_polygon` for the polygon (room plus an apron of ``exit_depth`` m).
+    """
+    path = Path(path)
+    path.write_text(geometry.to_wkt(exit_depth=exit_depth) + "\n", encoding="utf-8")
+    return path
+
+
+def _first_number(line: str) -> float | None:
+    for token in line.split():
+        try:
+            return float(token)
+        except ValueError:
+            continue
+    return None

@@ -1,0 +1,195 @@
+"""Room geometry and recorded trajectories: the only input of :mod:`pedrl.analysis`.
+
+The analysis never imports :mod:`pedrl.sim`. A caller that runs the simulator copies the room parameters into a
+:class:`RoomGeometry` and the recorded states into a :class:`Trajectories` (numpy arrays; float32 or float64).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Final
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+X: Final = 0
+Y: Final = 1
+
+DEFAULT_EXIT_DEPTH: Final = 2.5
+"""Depth (m) of the apron outside the door that :meth:`RoomGeometry.to_wkt` adds to the walkable area.
+
+An agent is terminated on the decision its centre reaches ``y >= length``; with the default speed limit
+(2.5 m/s) and decision length (1 s) its last position lies at most 2.5 m beyond the door line.
+"""
+
+
+@dataclass(frozen=True)
+class RoomGeometry:
+    """The rectangular room ``[0, width] x [0, length]`` with one door (docs/design.md, "The room").
+
+    The door is a gap of ``door_width`` centred on the short side ``y = length``.
+
+    Attributes:
+        width: extent along x (m).
+        length: extent along y (m).
+        door_width: width of the gap in the wall ``y = length`` (m).
+    """
+
+    width: float = 60.0
+    length: float = 100.0
+    door_width: float = 2.0
+
+    def __post_init__(self) -> None:
+        if not (self.width > 0 and self.length > 0):
+            raise ValueError(f"room width and length must be positive, got {self.width} x {self.length}")
+        if not 0 < self.door_width < self.width:
+            raise ValueError(f"door_width must be in (0, width={self.width}), got {self.door_width}")
+
+    @property
+    def door_left(self) -> float:
+        """x of the left door post (m)."""
+        return self.width / 2 - self.door_width / 2
+
+    @property
+    def door_right(self) -> float:
+        """x of the right door post (m)."""
+        return self.width / 2 + self.door_width / 2
+
+    @property
+    def door_center(self) -> NDArray[np.float64]:
+        """The goal point ``(width / 2, length)`` (m), shape ``(2,)``."""
+        return np.array([self.width / 2, self.length])
+
+    @property
+    def door(self) -> NDArray[np.float64]:
+        """The door gap as a segment ``[[door_left, length], [door_right, length]]`` (m), shape ``(2, 2)``."""
+        return np.array([[self.door_left, self.length], [self.door_right, self.length]])
+
+    @property
+    def walls(self) -> NDArray[np.float64]:
+        """The five wall segments in the contract's order, shape ``(5, 2, 2)`` (segment, end, xy), metres.
+
+        Bottom, right, top-right (right of the door), top-left (left of the door), left.
+        """
+        w, l = self.width, self.length
+        return np.array(
+            [
+                [[0.0, 0.0], [w, 0.0]],
+                [[w, 0.0], [w, l]],
+                [[w, l], [self.door_right, l]],
+                [[self.door_left, l], [0.0, l]],
+                [[0.0, l], [0.0, 0.0]],
+            ]
+        )
+
+    def contains(self, points: ArrayLike) -> NDArray[np.bool_]:
+        """Which points lie in the room: ``0 <= x <= width`` and ``0 <= y < length``.
+
+        A centre at ``y >= length`` has passed the door (docs/design.md) and is outside.
+
+        Args:
+            points: ``(..., 2)`` positions (m).
+
+        Returns:
+            ``(...)`` bool.
+        """
+        p = np.asarray(points)
+        x, y = p[..., X], p[..., Y]
+        return (x >= 0) & (x <= self.width) & (y >= 0) & (y < self.length)
+
+    def walkable_polygon(self, *, exit_depth: float = DEFAULT_EXIT_DEPTH) -> NDArray[np.float64]:
+        """Outline of the walkable area, counter-clockwise, closed (first vertex repeated), shape ``(V, 2)``, m.
+
+        The room rectangle is opened at the door onto an apron outside it: a trapezoid of depth ``exit_depth``
+        whose sides flare at 45 degrees from the door posts, so that the last position of an agent that has just
+        walked through the door is still inside the walkable area. ``exit_depth = 0`` gives the bare rectangle.
+        """
+        if exit_depth < 0:
+            raise ValueError(f"exit_depth must be >= 0, got {exit_depth}")
+        w, l, e = self.width, self.length, exit_depth
+        outline = [(0.0, 0.0), (w, 0.0), (w, l)]
+        if e > 0:
+            outline += [(self.door_right, l), (self.door_right + e, l + e)]
+            outline += [(self.door_left - e, l + e), (self.door_left, l)]
+        outline += [(0.0, l), (0.0, 0.0)]
+        return np.array(outline)
+
+    def to_wkt(self, *, exit_depth: float = DEFAULT_EXIT_DEPTH) -> str:
+        """The walkable area as a WKT ``POLYGON`` that ``pedpy.WalkableArea`` accepts (coordinates in m).
+
+        See :meth:`walkable_polygon` for the shape (room plus an apron of ``exit_depth`` outside the door).
+        """
+        coords = ", ".join(f"{x!r} {y!r}" for x, y in self.walkable_polygon(exit_depth=exit_depth).tolist())
+        return f"POLYGON (({coords}))"
+
+
+@dataclass(frozen=True)
+class Trajectories:
+    """The recorded states of one trial.
+
+    Frame ``t`` is the state after decision ``t`` (frame 0 is the initial state), so frames are ``1 / framerate``
+    seconds apart. ``active[t, n]`` says whether agent ``n`` is in the scene at frame ``t``; positions and
+    velocities of inactive agent-frames are ignored by every analysis. A recorder should keep an agent active in
+    the frame where it passes the door (its last position, ``y >= length``) so that door crossings appear in the
+    exported data; :meth:`RoomGeometry.to_wkt` includes an apron outside the door for these positions.
+
+    Attributes:
+        positions: ``(T, N, 2)`` agent centres (m).
+        velocities: ``(T, N, 2)`` agent velocities (m/s).
+        active: ``(T, N)`` bool.
+        framerate: frames per second (1/s); ``decisions_per_second`` of the simulation.
+        geometry: the room the trial ran in.
+    """
+
+    positions: NDArray[np.floating]
+    velocities: NDArray[np.floating]
+    active: NDArray[np.bool_]
+    framerate: float
+    geometry: RoomGeometry
+
+    def __post_init__(self) -> None:
+        positions = np.asarray(self.positions)
+        velocities = np.asarray(self.velocities)
+        active = np.asarray(self.active)
+        if positions.ndim != 3 or positions.shape[-1] != 2:
+            raise ValueError(f"positions must have shape (T, N, 2), got {positions.shape}")
+        if not np.issubdtype(positions.dtype, np.floating):
+            raise ValueError(f"positions must be floating point, got {positions.dtype}")
+        if velocities.shape != positions.shape:
+            raise ValueError(f"velocities must have the shape of positions {positions.shape}, got {velocities.shape}")
+        if not np.issubdtype(velocities.dtype, np.floating):
+            raise ValueError(f"velocities must be floating point, got {velocities.dtype}")
+        if active.shape != positions.shape[:2]:
+            raise ValueError(f"active must have shape (T, N) = {positions.shape[:2]}, got {active.shape}")
+        if active.dtype != np.bool_:
+            raise ValueError(f"active must be bool, got {active.dtype}")
+        if not self.framerate > 0:
+            raise ValueError(f"framerate must be positive, got {self.framerate}")
+        if not isinstance(self.geometry, RoomGeometry):
+            raise TypeError(f"geometry must be a RoomGeometry, got {type(self.geometry).__name__}")
+        if not (np.isfinite(positions[active]).all() and np.isfinite(velocities[active]).all()):
+            raise ValueError("positions and velocities of active agents must be finite")
+        object.__setattr__(self, "positions", positions)
+        object.__setattr__(self, "velocities", velocities)
+        object.__setattr__(self, "active", active)
+        object.__setattr__(self, "framerate", float(self.framerate))
+
+    @property
+    def num_frames(self) -> int:
+        """T, the number of frames (decisions + 1 for the initial state)."""
+        return self.positions.shape[0]
+
+    @property
+    def num_agents(self) -> int:
+        """N, the number of agents."""
+        return self.positions.shape[1]
+
+    @property
+    def speeds(self) -> NDArray[np.floating]:
+        """``(T, N)`` speed ``|v|`` (m/s); also defined for inactive agent-frames."""
+        return np.linalg.norm(self.velocities, axis=-1)
+
+    @property
+    def times(self) -> NDArray[np.float64]:
+        """``(T,)`` time of each frame, ``t / framerate`` (s)."""
+        return np.arange(self.num_frames) / self.framerate
