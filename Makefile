@@ -15,10 +15,10 @@ $(STAMP): pyproject.toml
 	@test -x $(PY) || python3 -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q $(TORCH_PIN)
-	$(PY) -m pip install -q -e '.[dev]'
+	$(PY) -m pip install -q -e '.[dev,analysis]'
 	@touch $(STAMP)
 
-setup: $(STAMP) ## create .venv with torch==2.13.0 (CPU) and pedrl[dev]; does nothing when done
+setup: $(STAMP) ## create .venv with torch==2.13.0 (CPU) and pedrl[dev,analysis]; does nothing when done
 
 run: setup ## the main job: train the default experiment (minutes on a 2-core CPU)
 	$(VENV)/bin/pedrl-train $(ARGS)

@@ -1,5 +1,6 @@
-"""Pedestrian-dynamics analysis of recorded trajectories (paper section 6): PedPy export, Gaussian local density,
-speed and flow, fundamental diagrams, density maps, and figures.
+"""Pedestrian-dynamics analysis of recorded trajectories (paper section 6).
+
+PedPy export, Gaussian local density, speed and flow, fundamental diagrams, density maps, and figures.
 
 Depends only on numpy and matplotlib; it never imports :mod:`pedrl.sim` or torch. PedPy (the optional extra
 ``pedrl[analysis]``) reads the exported files but is not needed here.

@@ -1,9 +1,10 @@
 """Density maps (paper section 6, Figures 9-10): how many agent centres fell in each tile of the room.
 
-The room ``[0, width] x [0, length]`` is tiled with squares of side ``tile_size``; the last column and row are
-narrower when the room is not a whole number of tiles. Every active agent-frame whose centre is inside the room
-(``RoomGeometry.contains``: agents that have passed the door are outside) adds 1 to its tile, over all frames of
-all trials. A tile's count is thus in agent-frames: divide by the total number of frames for the mean occupancy.
+The room ``[0, width] x [0, length]`` is tiled with squares of side ``tile_size``; the last column and row
+are narrower when the room is not a whole number of tiles. Every active agent-frame whose centre is inside the
+room (``RoomGeometry.contains``: agents that have passed the door are outside) adds 1 to its tile, over all
+frames of all trials. A tile's count is thus in agent-frames: divide by the total number of frames for the
+mean occupancy.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from pedrl.analysis.trajectories import X, Y, RoomGeometry, Trajectories
+from pedrl.analysis.trajectories import RoomGeometry, Trajectories, X, Y
 
 
 @dataclass(frozen=True, eq=False)
@@ -24,8 +25,8 @@ class DensityMap:
 
     Attributes:
         counts: ``(nx, ny)`` int64 agent-frames per tile; ``counts[i, j]`` covers
-            ``x_edges[i] <= x < x_edges[i + 1]`` and ``y_edges[j] <= y < y_edges[j + 1]`` (the last column also
-            holds ``x = width``).
+            ``x_edges[i] <= x < x_edges[i + 1]`` and ``y_edges[j] <= y < y_edges[j + 1]`` (the last column
+            also holds ``x = width``).
         x_edges: ``(nx + 1,)`` tile boundaries along x (m), from 0 to width.
         y_edges: ``(ny + 1,)`` tile boundaries along y (m), from 0 to length.
         tile_size: nominal tile side (m).
@@ -76,7 +77,8 @@ def load_density_map(path: str | Path) -> DensityMap:
 
 
 def compute_tile_edges(extent: float, tile_size: float) -> NDArray[np.float64]:
-    """Tile boundaries ``0, s, 2s, ..., extent`` (m); the last tile is narrower if ``extent / s`` is not whole."""
+    """Tile boundaries ``0, s, 2s, ..., extent`` (m); the last tile is narrower if ``s`` does not divide."""
+    # The tolerance keeps 1.0 / 0.1 = 10.000000000000002 at 10 tiles.
     num_tiles = max(1, int(np.ceil(extent / tile_size - 1e-9)))
     return np.minimum(np.arange(num_tiles + 1) * tile_size, extent)
 

@@ -2,8 +2,8 @@
 
 The format (PedPy's ``pedpy/io/ped_data_archive_loader.py``): ``#`` comment lines first, then one row per
 agent and frame with whitespace-separated columns ``id frame x y``. PedPy takes the frame rate from the first
-number on a comment line containing ``framerate``, and the unit from a comment line containing ``x/m`` (metres)
-or ``x/cm``. We write::
+number on a comment line containing ``framerate``, and the unit from a comment line containing ``x/m``
+(metres) or ``x/cm``. We write::
 
     # pedrl trajectories, one trial (PedPy text format)
     # framerate: 1.0
@@ -28,7 +28,7 @@ from typing import Final
 import numpy as np
 from numpy.typing import NDArray
 
-from pedrl.analysis.trajectories import DEFAULT_EXIT_DEPTH, X, Y, RoomGeometry, Trajectories
+from pedrl.analysis.trajectories import DEFAULT_EXIT_DEPTH, RoomGeometry, Trajectories, X, Y
 
 ID_COL: Final = "id"
 FRAME_COL: Final = "frame"
@@ -63,7 +63,9 @@ def write_pedpy_trajectory(path: str | Path, trajectories: Trajectories, *, firs
             f"{ID_COL} {FRAME_COL} {X_COL}/m {Y_COL}/m",
         ]
     )
-    rows = np.empty(len(frames), dtype=[("id", np.int64), ("frame", np.int64), ("x", xy.dtype), ("y", xy.dtype)])
+    rows = np.empty(
+        len(frames), dtype=[("id", np.int64), ("frame", np.int64), ("x", xy.dtype), ("y", xy.dtype)]
+    )
     rows["id"] = agents + first_id
     rows["frame"] = frames
     rows["x"] = xy[:, X]
@@ -124,7 +126,9 @@ def read_pedpy_trajectory(
     return ids, frames, xy, framerate
 
 
-def write_geometry_wkt(path: str | Path, geometry: RoomGeometry, *, exit_depth: float = DEFAULT_EXIT_DEPTH) -> Path:
+def write_geometry_wkt(
+    path: str | Path, geometry: RoomGeometry, *, exit_depth: float = DEFAULT_EXIT_DEPTH
+) -> Path:
     """Write the walkable area as WKT text (``pedpy.WalkableArea(path.read_text())`` loads it).
 
     See :meth:`RoomGeometry.walkable_polygon` for the polygon (room plus an apron of ``exit_depth`` m).

@@ -1,7 +1,7 @@
 r"""Local density, speed and flow (paper section 6, equations 2-5) and the fundamental diagram.
 
-The local density at a point :math:`\vec r` and frame :math:`t` is a Gaussian-weighted count of the active agents
-(Helbing et al., the paper's reference [8]):
+The local density at a point :math:`\vec r` and frame :math:`t` is a Gaussian-weighted count of the active
+agents (Helbing et al., the paper's reference [8]):
 
 .. math::
 
@@ -40,8 +40,8 @@ DEFAULT_MIN_DENSITY: Final = 0.05
 """Frames with a local density below this (1/m^2) are left out of the fundamental diagram.
 
 One agent at distance d from the point contributes ``exp(-d^2/R^2) / (pi R^2)``; 0.05 1/m^2 keeps the frames
-where at least one agent is within about 1.3 R. Below that the local speed is the velocity of agents that are far
-from the measurement point.
+where at least one agent is within about 1.3 R. Below that the local speed is the velocity of agents that are
+far from the measurement point.
 """
 
 
@@ -104,8 +104,8 @@ def compute_local_velocity(
     r"""Local velocity :math:`\vec S = \sum_j \vec v_j f_j / \sum_j f_j` (eq. 4), m/s.
 
     Where the weight sum is 0 (no active agent, or all so far away that every weight underflows) the local
-    velocity is undefined and NaN is returned; :func:`compute_fundamental_diagram` drops such frames together with
-    all frames below ``min_density``.
+    velocity is undefined and NaN is returned; :func:`compute_fundamental_diagram` drops such frames together
+    with all frames below ``min_density``.
 
     Args:
         positions: ``(T, N, 2)`` agent centres (m).
@@ -152,7 +152,7 @@ def compute_local_speed(
 
 
 def compute_flow(*, density: ArrayLike, speed: ArrayLike) -> NDArray[np.float64]:
-    r"""Flow :math:`|\vec Q| = \rho\, |\vec S|` (eq. 5), 1/(m s): persons per second per metre of cross-section.
+    r"""Flow :math:`|\vec Q| = \rho\, |\vec S|` (eq. 5), 1/(m s): persons per second and metre of width.
 
     Args:
         density: local density (1/m^2).
@@ -186,7 +186,9 @@ class FundamentalDiagram:
     def __post_init__(self) -> None:
         lengths = {len(np.asarray(c)) for c in (self.density, self.speed, self.flow, self.trial, self.frame)}
         if len(lengths) != 1:
-            raise ValueError(f"density, speed, flow, trial and frame must have one length, got {sorted(lengths)}")
+            raise ValueError(
+                f"density, speed, flow, trial and frame must have one length, got {sorted(lengths)}"
+            )
 
     @property
     def num_samples(self) -> int:
@@ -194,7 +196,7 @@ class FundamentalDiagram:
         return len(self.density)
 
     def columns(self) -> dict[str, NDArray]:
-        """The samples as columns keyed by ``TRIAL_COL``, ``FRAME_COL``, ``DENSITY_COL``, ``SPEED_COL``, ``FLOW_COL``."""
+        """The samples as columns, keyed by the ``*_COL`` constants (trial, frame, density, speed, flow)."""
         return {
             TRIAL_COL: self.trial,
             FRAME_COL: self.frame,
@@ -217,8 +219,10 @@ class FundamentalDiagram:
         ]
 
 
-def default_measurement_point(trajectories: Trajectories, *, radius: float = DEFAULT_RADIUS) -> NDArray[np.float64]:
-    """The paper's point "near the exit": ``radius`` metres inside the room in front of the door centre (m)."""
+def default_measurement_point(
+    trajectories: Trajectories, *, radius: float = DEFAULT_RADIUS
+) -> NDArray[np.float64]:
+    """The paper's point "near the exit": ``radius`` metres inside the room from the door centre (m)."""
     return trajectories.geometry.door_center - np.array([0.0, radius])
 
 
@@ -248,20 +252,28 @@ def compute_fundamental_diagram(
     parts: list[tuple[NDArray, ...]] = []
     points = []
     for index, trajectories in enumerate(trajectories_list):
-        here = default_measurement_point(trajectories, radius=radius) if point is None else np.asarray(point, float)
+        here = (
+            default_measurement_point(trajectories, radius=radius)
+            if point is None
+            else np.asarray(point, float)
+        )
         points.append(here)
         frames = slice(first_frame, None)
         positions = trajectories.positions[frames]
         active = trajectories.active[frames]
         density = compute_gaussian_density(positions, active, point=here, radius=radius)
-        speed = compute_local_speed(positions, trajectories.velocities[frames], active, point=here, radius=radius)
+        speed = compute_local_speed(
+            positions, trajectories.velocities[frames], active, point=here, radius=radius
+        )
         keep = (density >= min_density) & np.isfinite(speed) & (density > 0)
         frame = np.arange(first_frame, first_frame + len(density))[keep]
         parts.append((density[keep], speed[keep], np.full(len(frame), index, dtype=np.int64), frame))
     if not parts:
         raise ValueError("trajectories_list is empty")
     if any(not np.allclose(p, points[0]) for p in points):
-        raise ValueError("the default measurement point differs between trials (different rooms); pass point=")
+        raise ValueError(
+            "the default measurement point differs between trials (different rooms); pass point="
+        )
     density, speed, trial, frame = (np.concatenate(column) for column in zip(*parts, strict=True))
     return FundamentalDiagram(
         density=density,
@@ -331,7 +343,9 @@ def fit_speed_density(
     density = np.asarray(fundamental_diagram.density, dtype=np.float64)
     speed = np.asarray(fundamental_diagram.speed, dtype=np.float64)
     if len(np.unique(density)) <= degree:
-        raise ValueError(f"{model.name} fit needs more than {degree} distinct densities, got {len(np.unique(density))}")
+        raise ValueError(
+            f"{model.name} fit needs more than {degree} distinct densities, got {len(np.unique(density))}"
+        )
     coefficients = np.polynomial.polynomial.polyfit(density, speed, degree)
     return SpeedDensityFit(
         model=model, coefficients=tuple(float(c) for c in coefficients), num_samples=len(density)

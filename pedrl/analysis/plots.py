@@ -1,9 +1,9 @@
 """Figures of the paper's analysis: the room, fundamental diagrams, density maps, learning curves, animations.
 
 Every ``plot_*`` function draws into the given ``axes`` and returns them. With ``axes=None`` it makes a new
-:class:`matplotlib.figure.Figure` (not a pyplot figure): no backend is selected, nothing is shown, nothing is kept
-alive by pyplot, so the functions run headless and in loops without ``matplotlib.use("Agg")``. Save the result
-with ``axes.figure.savefig(path)``. In a notebook, pass axes from ``plt.subplots()`` to see them inline.
+:class:`matplotlib.figure.Figure` (not a pyplot figure): no backend is selected, nothing is shown, nothing is
+kept alive by pyplot, so the functions run headless and in loops without ``matplotlib.use("Agg")``. Save the
+result with ``axes.figure.savefig(path)``. In a notebook, pass axes from ``plt.subplots()`` to show them.
 """
 
 from __future__ import annotations
@@ -81,8 +81,8 @@ def plot_fundamental_diagram(
         fundamental_diagram: the samples.
         axes: two axes ``(speed_axes, flow_axes)``; None makes a new 1 x 2 figure.
         label: legend entry for this data set (e.g. "IN-VQQL"); call again on the same axes to compare.
-        fit: draw the least-squares curves ``S(rho)`` and ``rho S(rho)`` (True: a linear model; or the model to
-            fit; False: none). Skipped when there are too few samples to fit.
+        fit: draw the least-squares curves ``S(rho)`` and ``rho S(rho)`` (True: a linear model; or the model
+            to fit; False: none). Skipped when there are too few samples to fit.
         color: colour of the points and curves (default: the next in the axes' cycle).
 
     Returns:
@@ -91,10 +91,10 @@ def plot_fundamental_diagram(
     speed_axes, flow_axes = _new_axes(ncols=2, figsize=(10.0, 4.5)) if axes is None else axes
     density = fundamental_diagram.density
     points = speed_axes.scatter(density, fundamental_diagram.speed, s=8, alpha=0.5, color=color, label=label)
-    color = points.get_facecolor()[0] if color is None else color
+    color = tuple(points.get_facecolor()[0][:3]) if color is None else color  # opaque, for the fit
     flow_axes.scatter(density, fundamental_diagram.flow, s=8, alpha=0.5, color=color, label=label)
-    model = SpeedDensityModel.LINEAR if fit is True else fit
-    if model and len(np.unique(density)) > model.value:
+    model = SpeedDensityModel.LINEAR if fit is True else (fit or None)
+    if model is not None and len(np.unique(density)) > model.value:
         curve = fit_speed_density(fundamental_diagram, model=model)
         grid = np.linspace(0.0, float(density.max()), 100)
         fit_label = None if label is None else f"{label} fit"
@@ -163,7 +163,9 @@ def plot_learning_curves(
     for label, (trials, mean, std) in curves.items():
         trials, mean, std = (np.asarray(a, dtype=np.float64) for a in (trials, mean, std))
         if not trials.shape == mean.shape == std.shape:
-            raise ValueError(f"curve {label!r}: trials, mean, std shapes differ: {trials.shape}, {mean.shape}, {std.shape}")
+            raise ValueError(
+                f"curve {label!r}: trials, mean, std shapes differ: {trials.shape}, {mean.shape}, {std.shape}"
+            )
         (line,) = axes.plot(trials, mean, label=label, **dict(styles.get(label, {})))
         axes.fill_between(trials, mean - std, mean + std, color=line.get_color(), alpha=0.2, linewidth=0)
     for boundary in boundaries or ():

@@ -1,7 +1,7 @@
 """Room geometry and recorded trajectories: the only input of :mod:`pedrl.analysis`.
 
-The analysis never imports :mod:`pedrl.sim`. A caller that runs the simulator copies the room parameters into a
-:class:`RoomGeometry` and the recorded states into a :class:`Trajectories` (numpy arrays; float32 or float64).
+The analysis never imports :mod:`pedrl.sim`. A caller that runs the simulator copies the room parameters into
+a :class:`RoomGeometry` and the recorded states into a :class:`Trajectories` (numpy arrays, float32 or 64).
 """
 
 from __future__ import annotations
@@ -98,11 +98,12 @@ class RoomGeometry:
         return (x >= 0) & (x <= self.width) & (y >= 0) & (y < self.length)
 
     def walkable_polygon(self, *, exit_depth: float = DEFAULT_EXIT_DEPTH) -> NDArray[np.float64]:
-        """Outline of the walkable area, counter-clockwise, closed (first vertex repeated), shape ``(V, 2)``, m.
+        """Outline of the walkable area, counter-clockwise and closed (first vertex repeated), ``(V, 2)``, m.
 
-        The room rectangle is opened at the door onto an apron outside it: a trapezoid of depth ``exit_depth``
-        whose sides flare at 45 degrees from the door posts, so that the last position of an agent that has just
-        walked through the door is still inside the walkable area. ``exit_depth = 0`` gives the bare rectangle.
+        The room rectangle is opened at the door onto an apron outside it: a trapezoid of depth
+        ``exit_depth`` whose sides flare at 45 degrees from the door posts, so that the last position of an
+        agent that has just walked through the door is still inside the walkable area. ``exit_depth = 0``
+        gives the bare rectangle.
         """
         if exit_depth < 0:
             raise ValueError(f"exit_depth must be >= 0, got {exit_depth}")
@@ -127,11 +128,12 @@ class RoomGeometry:
 class Trajectories:
     """The recorded states of one trial.
 
-    Frame ``t`` is the state after decision ``t`` (frame 0 is the initial state), so frames are ``1 / framerate``
-    seconds apart. ``active[t, n]`` says whether agent ``n`` is in the scene at frame ``t``; positions and
-    velocities of inactive agent-frames are ignored by every analysis. A recorder should keep an agent active in
-    the frame where it passes the door (its last position, ``y >= length``) so that door crossings appear in the
-    exported data; :meth:`RoomGeometry.to_wkt` includes an apron outside the door for these positions.
+    Frame ``t`` is the state after decision ``t`` (frame 0 is the initial state), so frames are
+    ``1 / framerate`` seconds apart. ``active[t, n]`` says whether agent ``n`` is in the scene at frame ``t``;
+    positions and velocities of inactive agent-frames are ignored by every analysis. A recorder should keep an
+    agent active in the frame where it passes the door (its last position, ``y >= length``) so that door
+    crossings appear in the exported data; :meth:`RoomGeometry.to_wkt` includes an apron outside the door for
+    these positions.
 
     Attributes:
         positions: ``(T, N, 2)`` agent centres (m).
@@ -156,7 +158,9 @@ class Trajectories:
         if not np.issubdtype(positions.dtype, np.floating):
             raise ValueError(f"positions must be floating point, got {positions.dtype}")
         if velocities.shape != positions.shape:
-            raise ValueError(f"velocities must have the shape of positions {positions.shape}, got {velocities.shape}")
+            raise ValueError(
+                f"velocities must have the shape of positions {positions.shape}, got {velocities.shape}"
+            )
         if not np.issubdtype(velocities.dtype, np.floating):
             raise ValueError(f"velocities must be floating point, got {velocities.dtype}")
         if active.shape != positions.shape[:2]:

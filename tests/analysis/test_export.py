@@ -1,0 +1,159 @@
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pedrl.analysis import (
+    RoomGeometry,
+    Trajectories,
+    read_pedpy_trajectory,
+    write_geometry_wkt,
+    write_pedpy_trajectories,
+    write_pedpy_trajectory,
+)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_round_trip_is_exact(tmp_path, make_trial, dtype):
+    trial = make_trial(num_agents=9, num_frames=20, dtype=dtype)
+    path = write_pedpy_trajectory(tmp_path / "trial.txt", trial, first_id=100)
+    ids, frames, xy, framerate = read_pedpy_trajectory(path)
+
+    expected_frames, expected_agents = np.nonzero(trial.active)
+    np.testing.assert_array_equal(ids, expected_agents + 100)
+    np.testing.assert_array_equal(frames, expected_frames)
+    np.testing.assert_array_equal(xy.astype(dtype), trial.positions[trial.active])
+    assert framerate == trial.framerate
+    assert len(ids) == trial.active.sum() < trial.active.size  # only active agent-frames
+
+
+def test_header_format(tmp_path, make_trial):
+    trial = make_trial()
+    trial = Trajectories(
+        positions=trial.positions,
+        velocities=trial.velocities,
+        active=trial.active,
+        framerate=2.5,
+        geometry=trial.geometry,
+    )
+    lines = write_pedpy_trajectory(tmp_path / "trial.txt", trial).read_text().splitlines()
+    header = [line for line in lines if line.startswith("#")]
+    assert lines[: len(header)] == header  # comments first
+    assert "# framerate: 2.5" in header
+    assert "# id frame x/m y/m" in header
+    # PedPy takes the frame rate from the first number on a line containing "framerate": no other number.
+    framerate_lines = [line for line in header if "framerate" in line]
+    assert framerate_lines == ["# framerate: 2.5"]
+    first_row = lines[len(header)].split()
+    assert len(first_row) == 4 and first_row[0] == "0" and first_row[1] == "0"
+
+
+def test_trial_without_active_agents(tmp_path):
+    positions = np.zeros((3, 2, 2))
+    trial = Trajectories(
+        positions=positions,
+        velocities=positions,
+        active=np.zeros((3, 2), bool),
+        framerate=1.0,
+        geometry=RoomGeometry(),
+    )
+    ids, frames, xy, framerate = read_pedpy_trajectory(write_pedpy_trajectory(tmp_path / "empty.txt", trial))
+    assert ids.shape == frames.shape == (0,) and xy.shape == (0, 2) and framerate == 1.0
+
+
+def test_one_file_per_trial(tmp_path, make_trial):
+    trials = [make_trial(seed=seed) for seed in range(3)]
+    paths = write_pedpy_trajectories(tmp_path / "pedpy", trials)
+    assert [p.name for p in paths] == ["trial_0000.txt", "trial_0001.txt", "trial_0002.txt"]
+    for path, trial in zip(paths, trials, strict=True):
+        _, _, xy, _ = read_pedpy_trajectory(path)
+        np.testing.assert_array_equal(xy.astype(np.float32), trial.positions[trial.active])
+
+
+def test_missing_framerate_is_an_error(tmp_path):
+    path = tmp_path / "bad.txt"
+    path.write_text("# id frame x/m y/m\n0 0 1.0 2.0\n")
+    with pytest.raises(ValueError, match="framerate"):
+        read_pedpy_trajectory(path)
+
+
+def test_geometry_wkt_file(tmp_path):
+    geometry = RoomGeometry(width=20.0, length=30.0, door_width=2.0)
+    path = write_geometry_wkt(tmp_path / "room.wkt", geometry, exit_depth=1.5)
+    assert path.read_text().strip() == geometry.to_wkt(exit_depth=1.5)
+
+
+# PedPy, the reference tool (optional extra `pedrl[analysis]`).
+
+
+def exit_trial() -> Trajectories:
+    """Agents walking straight up through the door; each is kept active in the frame it passes the door."""
+    geometry = RoomGeometry(width=20.0, length=30.0, door_width=2.0)
+    num_frames, num_agents = 20, 6
+    start = np.stack([np.linspace(9.3, 10.7, num_agents), np.linspace(12.0, 27.0, num_agents)], axis=-1)
+    velocity = np.array([0.0, 2.5])
+    t = np.arange(num_frames)[:, None, None]
+    positions = start[None] + t * velocity
+    passed = positions[..., 1] >= geometry.length
+    first_passed = np.cumsum(passed, axis=0) == 1
+    active = ~passed | (first_passed & passed)
+    return Trajectories(
+        positions=positions,
+        velocities=np.broadcast_to(velocity, positions.shape).copy(),
+        active=active,
+        framerate=1.0,
+        geometry=geometry,
+    )
+
+
+def test_pedpy_loads_the_file_unchanged(tmp_path: Path, make_trial):
+    pedpy = pytest.importorskip("pedpy")
+    trial = make_trial(num_agents=10, num_frames=20)
+    path = write_pedpy_trajectory(tmp_path / "trial.txt", trial)
+    traj_data = pedpy.load_trajectory_from_txt(trajectory_file=path)
+    assert traj_data.frame_rate == trial.framerate
+    data = traj_data.data
+    frames, agents = np.nonzero(trial.active)
+    np.testing.assert_array_equal(data["id"].to_numpy(), agents)
+    np.testing.assert_array_equal(data["frame"].to_numpy(), frames)
+    np.testing.assert_array_equal(
+        data["x"].to_numpy().astype(np.float32), trial.positions[trial.active][:, 0]
+    )
+    np.testing.assert_array_equal(
+        data["y"].to_numpy().astype(np.float32), trial.positions[trial.active][:, 1]
+    )
+
+
+def test_pedpy_accepts_the_walkable_area_with_the_exit_frames(tmp_path: Path):
+    pedpy = pytest.importorskip("pedpy")
+    trial = exit_trial()
+    assert (trial.positions[trial.active][:, 1] >= trial.geometry.length).sum() == trial.num_agents
+    walkable_area = pedpy.WalkableArea(write_geometry_wkt(tmp_path / "room.wkt", trial.geometry).read_text())
+    expected_area = 20.0 * 30.0 + (2.0 + 2.0 + 2 * 2.5) / 2 * 2.5
+    assert walkable_area.area == pytest.approx(expected_area)
+    traj_data = pedpy.load_trajectory_from_txt(
+        trajectory_file=write_pedpy_trajectory(tmp_path / "t.txt", trial)
+    )
+    assert pedpy.is_trajectory_valid(traj_data=traj_data, walkable_area=walkable_area)
+    # Without the apron the exit frames fall outside the room.
+    bare = pedpy.WalkableArea(trial.geometry.to_wkt(exit_depth=0.0))
+    assert not pedpy.is_trajectory_valid(traj_data=traj_data, walkable_area=bare)
+
+
+def test_pedpy_classic_density_equals_our_count(tmp_path: Path, make_trial):
+    pedpy = pytest.importorskip("pedpy")
+    trial = make_trial(num_agents=40, num_frames=25)
+    traj_data = pedpy.load_trajectory_from_txt(
+        trajectory_file=write_pedpy_trajectory(tmp_path / "t.txt", trial)
+    )
+    x_min, y_min, x_max, y_max = 6.0, 18.0, 14.0, 28.0
+    area = pedpy.MeasurementArea([(x_min, y_min), (x_max, y_min), (x_max, y_max), (x_min, y_max)])
+    classic = pedpy.compute_classic_density(traj_data=traj_data, measurement_area=area)
+
+    x, y = trial.positions[..., 0], trial.positions[..., 1]
+    inside = trial.active & (x > x_min) & (x < x_max) & (y > y_min) & (y < y_max)
+    ours = inside.sum(axis=1) / ((x_max - x_min) * (y_max - y_min))
+    frames = classic["frame"].to_numpy()
+    np.testing.assert_array_equal(frames, np.arange(frames.min(), frames.max() + 1))
+    assert ours[frames].max() > 0
+    np.testing.assert_allclose(classic["density"].to_numpy(), ours[frames], rtol=1e-12)
