@@ -1,0 +1,1 @@
+"""Benchmarks: ``python -m pedrl.bench`` (``make bench``)."""

@@ -1,0 +1,55 @@
+"""Batched room simulation: geometry, dynamics, sensing, rewards and ``RoomEnv`` (pure torch, no I/O)."""
+
+from pedrl.sim.dynamics import (
+    DEFAULT_SPEED_RATIOS,
+    DEFAULT_TURN_RATIOS,
+    NOOP_ACTION,
+    NUM_ACTIONS,
+    Movement,
+    apply_actions,
+    decode_actions,
+    encode_actions,
+    move_agents,
+    velocities_from,
+)
+from pedrl.sim.env import PlacementError, RoomEnv
+from pedrl.sim.geometry import NUM_WALLS, WALL_NAMES, RoomGeometry, X, Y, build_walls, wrap_angle
+from pedrl.sim.rewards import RewardTable, compute_rewards
+from pedrl.sim.sensing import (
+    Observation,
+    feature_indices,
+    feature_names,
+    fill_void_neighbours,
+    num_features,
+    observe,
+)
+
+__all__ = [
+    "DEFAULT_SPEED_RATIOS",
+    "DEFAULT_TURN_RATIOS",
+    "NOOP_ACTION",
+    "NUM_ACTIONS",
+    "NUM_WALLS",
+    "WALL_NAMES",
+    "X",
+    "Y",
+    "Movement",
+    "Observation",
+    "PlacementError",
+    "RewardTable",
+    "RoomEnv",
+    "RoomGeometry",
+    "apply_actions",
+    "build_walls",
+    "compute_rewards",
+    "decode_actions",
+    "encode_actions",
+    "feature_indices",
+    "feature_names",
+    "fill_void_neighbours",
+    "move_agents",
+    "num_features",
+    "observe",
+    "velocities_from",
+    "wrap_angle",
+]

@@ -1,0 +1,529 @@
+"""``RoomEnv``: R independent replicas of the room with N agents each, stepped together (pure torch).
+
+The API follows PettingZoo's ``ParallelEnv`` in batched tensor form, over ``[replicas, agents, ...]``:
+``reset(seed, options) -> (obs, info)`` and ``step(actions) -> (obs, reward, terminated, truncated, info)``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from numbers import Integral, Real
+from typing import Any, Final
+
+import torch
+
+from pedrl.sim.dynamics import (
+    DEFAULT_SPEED_RATIOS,
+    DEFAULT_TURN_RATIOS,
+    NOOP_INDEX,
+    NUM_ACTIONS,
+    NUM_SPEED_CHANGES,
+    apply_actions,
+    count_substeps,
+    move_agents,
+    velocities_from,
+)
+from pedrl.sim.geometry import NUM_WALLS, RoomGeometry, X, Y, wrap_angle
+from pedrl.sim.rewards import RewardTable, compute_rewards
+from pedrl.sim.sensing import Observation, feature_names, num_features, observe
+
+MAX_DENSITY: Final = 0.35
+"""Largest share of the free room area (where centres may lie) that the bodies may cover at placement."""
+MAX_PLACEMENT_ROUNDS: Final = 1000
+"""Rounds of rejection sampling before placement gives up."""
+PLACEMENT_TOLERANCE: Final = 1e-4
+"""Slack (m) when checking hand-placed positions against walls and other bodies."""
+OPTION_KEYS: Final = ("positions", "headings", "speeds", "replicas")
+
+
+class PlacementError(ValueError):
+    """The agents could not be placed in the room without overlaps."""
+
+
+def _integer(name: str, value: Any, *, minimum: int, maximum: int | None = None) -> int:
+    """``value`` as an int in ``[minimum, maximum]``, else a one-line ``ValueError``."""
+    allowed = f"an integer >= {minimum}" if maximum is None else f"an integer in [{minimum}, {maximum}]"
+    if isinstance(value, bool) or not isinstance(value, Integral):
+        raise ValueError(f"{name}={value!r} is invalid: must be {allowed}")
+    if value < minimum or (maximum is not None and value > maximum):
+        raise ValueError(f"{name}={value!r} is invalid: must be {allowed}")
+    return int(value)
+
+
+def _real(name: str, value: Any, *, unit: str, positive: bool = False) -> float:
+    """``value`` as a finite float (``> 0`` if ``positive``), else a one-line ``ValueError``."""
+    allowed = f"a finite number > 0 ({unit})" if positive else f"a finite number ({unit})"
+    if isinstance(value, bool) or not isinstance(value, Real) or not math.isfinite(float(value)):
+        raise ValueError(f"{name}={value!r} is invalid: must be {allowed}")
+    if positive and value <= 0:
+        raise ValueError(f"{name}={value!r} is invalid: must be {allowed}")
+    return float(value)
+
+
+def _ratios(name: str, value: Any, *, unit: str) -> tuple[float, ...]:
+    """Nine finite ratios with the no-op (index 4) equal to 0, else a one-line ``ValueError``."""
+    if isinstance(value, str | bytes) or not isinstance(value, Sequence | torch.Tensor):
+        try:
+            value = list(value)  # e.g. an OmegaConf ListConfig
+        except TypeError:
+            raise ValueError(f"{name}={value!r} is invalid: must be a sequence of 9 finite numbers") from None
+    items = [float(item) if isinstance(item, torch.Tensor) else item for item in value]
+    if len(items) != NUM_SPEED_CHANGES:
+        raise ValueError(f"{name} has {len(items)} values: must be a sequence of 9 finite numbers ({unit})")
+    ratios = tuple(_real(f"{name}[{index}]", item, unit=unit) for index, item in enumerate(items))
+    if ratios[NOOP_INDEX] != 0.0:
+        raise ValueError(f"{name}[{NOOP_INDEX}]={ratios[NOOP_INDEX]!r} is invalid: the no-op (index 4) must be 0.0")
+    return ratios
+
+
+def _device(value: Any) -> torch.device:
+    """``value`` as a usable torch device, else a one-line ``ValueError``."""
+    try:
+        device = torch.device(value)
+        torch.empty(1, device=device)
+    except (RuntimeError, AssertionError, TypeError, ValueError) as error:
+        reason = (str(error).strip().splitlines() or [type(error).__name__])[0].split(". ")[0][:100]
+        raise ValueError(
+            f"device={value!r} is invalid: must be a torch device available here, e.g. 'cpu' ({reason})"
+        ) from None
+    return device
+
+
+class RoomEnv:
+    """R replicas of a closed room with a door, each holding N agents that must leave through the door.
+
+    Every replica and agent shares one trial clock (paper section 5): an agent's trial ends when it reaches
+    the door (``terminated``) or when its replica's clock reaches ``max_decisions`` (``truncated``); it is
+    then inactive: it no longer moves, collides, is sensed or acts, and gets obs 0 and reward 0. A partial
+    reset (``options["replicas"]``) restarts the clock of the reset replicas only.
+
+    Attributes:
+        positions: Agent centres ``(R, N, 2)`` (m).
+        velocities: Velocities ``(R, N, 2)`` (m/s), ``speeds * (cos headings, sin headings)``.
+        headings: Headings ``(R, N)`` (rad, world frame, in ``(-pi, pi]``).
+        speeds: Speeds ``(R, N)`` (m/s, in ``[0, max_speed]``); frozen once an agent is inactive.
+        active: Agents still in their trial ``(R, N)`` bool.
+        geometry: The room (:class:`~pedrl.sim.geometry.RoomGeometry`).
+        generator: The environment's random generator, on ``device``; ``reset(seed=...)`` reseeds it.
+        num_actions: 81.
+        num_features: ``3 + 3 * num_neighbours + 2 * num_walls``.
+        feature_names: Names of the features in layout order.
+        num_substeps: Sub-steps per decision.
+    """
+
+    num_actions: Final = NUM_ACTIONS
+
+    def __init__(
+        self,
+        *,
+        num_replicas: int = 1,
+        num_agents: int = 20,
+        device: str | torch.device = "cpu",
+        width: float = 60.0,
+        length: float = 100.0,
+        door_width: float = 2.0,
+        agent_radius: float = 0.4,
+        max_speed: float = 2.5,
+        decisions_per_second: float = 1.0,
+        max_decisions: int = 200,
+        num_neighbours: int = 7,
+        num_walls: int = 2,
+        speed_ratios: Sequence[float] = DEFAULT_SPEED_RATIOS,
+        turn_ratios: Sequence[float] = DEFAULT_TURN_RATIOS,
+        reward_goal: float = 100.0,
+        reward_crash_wall: float = -15.0,
+        reward_crash_agent: float = -4.0,
+        reward_default: float = 0.0,
+        substep_length: float | None = None,
+    ) -> None:
+        """Validate the configuration and allocate the state (call :meth:`reset` before :meth:`step`).
+
+        Args:
+            num_replicas: Number R of independent rooms stepped together.
+            num_agents: Number N of agents per room.
+            device: Torch device of every tensor.
+            width: Room width along x (m).
+            length: Room length along y (m); the door is in the side ``y = length``.
+            door_width: Width of the door gap (m), at least one body diameter and at most ``width``.
+            agent_radius: Body radius (m).
+            max_speed: Maximum speed (m/s).
+            decisions_per_second: Decisions per simulated second (1/s).
+            max_decisions: Decisions per trial before the remaining agents are truncated.
+            num_neighbours: Number k of sensed neighbours.
+            num_walls: Number w of sensed walls, at most 5.
+            speed_ratios: Speed change of each of the 9 speed indices, as a fraction of ``max_speed``.
+            turn_ratios: Heading change of each of the 9 turn indices, as a fraction of pi (rad).
+            reward_goal: Reward for reaching the door.
+            reward_crash_wall: Reward for a decision in which the agent hit a wall.
+            reward_crash_agent: Reward for a decision in which the agent hit another (and no wall).
+            reward_default: Reward otherwise.
+            substep_length: Longest move per sub-step (m), in ``(0, agent_radius]``; ``None`` means
+                ``agent_radius``.
+
+        Raises:
+            ValueError: With a one-line message naming the bad value, for any invalid argument, including more
+                agents than fit in the room.
+        """
+        # ---- validation: every check before any compute
+        self.num_replicas = _integer("num_replicas", num_replicas, minimum=1)
+        self.num_agents = _integer("num_agents", num_agents, minimum=1)
+        self.device = _device(device)
+        self.width = _real("width", width, unit="m", positive=True)
+        self.length = _real("length", length, unit="m", positive=True)
+        self.door_width = _real("door_width", door_width, unit="m", positive=True)
+        if self.door_width > self.width:
+            raise ValueError(
+                f"door_width={door_width!r} is invalid: the door must fit in its wall, at most width={width!r} m"
+            )
+        self.agent_radius = _real("agent_radius", agent_radius, unit="m", positive=True)
+        if 2.0 * self.agent_radius > self.door_width:
+            raise ValueError(
+                f"agent_radius={agent_radius!r} is invalid: a body must fit through the door, at most"
+                f" door_width / 2 = {self.door_width / 2.0!r} m"
+            )
+        if 2.0 * self.agent_radius >= min(self.width, self.length):
+            raise ValueError(
+                f"agent_radius={agent_radius!r} is invalid: a body must fit in the room, less than"
+                f" min(width, length) / 2 = {min(self.width, self.length) / 2.0!r} m"
+            )
+        self.max_speed = _real("max_speed", max_speed, unit="m/s", positive=True)
+        self.decisions_per_second = _real("decisions_per_second", decisions_per_second, unit="1/s", positive=True)
+        self.max_decisions = _integer("max_decisions", max_decisions, minimum=1)
+        self.num_neighbours = _integer("num_neighbours", num_neighbours, minimum=0)
+        self.num_walls = _integer("num_walls", num_walls, minimum=0, maximum=NUM_WALLS)
+        self.speed_ratios = _ratios("speed_ratios", speed_ratios, unit="fraction of max_speed")
+        self.turn_ratios = _ratios("turn_ratios", turn_ratios, unit="fraction of pi")
+        self.rewards = RewardTable(
+            goal=_real("reward_goal", reward_goal, unit="reward"),
+            crash_wall=_real("reward_crash_wall", reward_crash_wall, unit="reward"),
+            crash_agent=_real("reward_crash_agent", reward_crash_agent, unit="reward"),
+            default=_real("reward_default", reward_default, unit="reward"),
+        )
+        if substep_length is None:
+            self.substep_length = self.agent_radius
+        else:
+            self.substep_length = _real("substep_length", substep_length, unit="m", positive=True)
+            if self.substep_length > self.agent_radius:
+                raise ValueError(
+                    f"substep_length={substep_length!r} is invalid: must be in"
+                    f" (0, agent_radius={agent_radius!r}] m so that nothing tunnels"
+                )
+        free_area = (self.width - 2.0 * self.agent_radius) * (self.length - 2.0 * self.agent_radius)
+        body_area = self.num_agents * math.pi * self.agent_radius**2
+        if body_area > MAX_DENSITY * free_area:
+            raise ValueError(
+                f"num_agents={num_agents!r} is invalid: {self.num_agents} bodies of radius"
+                f" {self.agent_radius} m cannot be placed in a {self.width} m x {self.length} m room"
+                f" (they would cover {body_area / free_area:.0%} of the free area; at most {MAX_DENSITY:.0%})"
+            )
+
+        # ---- constants
+        self.geometry = RoomGeometry.build(
+            width=self.width, length=self.length, door_width=self.door_width, device=self.device
+        )
+        self.decision_length = 1.0 / self.decisions_per_second
+        self.num_substeps = count_substeps(
+            max_speed=self.max_speed, decision_length=self.decision_length, substep_length=self.substep_length
+        )
+        self.speed_changes = torch.tensor(self.speed_ratios, device=self.device) * self.max_speed
+        self.turn_changes = torch.tensor(self.turn_ratios, device=self.device) * math.pi
+        self.num_features = num_features(self.num_neighbours, self.num_walls)
+        self.feature_names = feature_names(self.num_neighbours, self.num_walls)
+        self.generator = torch.Generator(device=self.device)
+        self.generator.seed()
+        self._earlier_agents = torch.ones(self.num_agents, self.num_agents, dtype=torch.bool, device=self.device).tril_(
+            -1
+        )
+
+        # ---- state (filled by reset)
+        shape = (self.num_replicas, self.num_agents)
+        self.positions = torch.zeros(*shape, 2, device=self.device)
+        self.velocities = torch.zeros(*shape, 2, device=self.device)
+        self.headings = torch.zeros(shape, device=self.device)
+        self.speeds = torch.zeros(shape, device=self.device)
+        self.active = torch.zeros(shape, dtype=torch.bool, device=self.device)
+        self.decisions = torch.zeros(self.num_replicas, dtype=torch.int64, device=self.device)
+        self._steps_taken = 0
+        self._reset_at = torch.zeros(self.num_replicas, dtype=torch.int64)  # host: _steps_taken at each reset
+        self._oldest_reset = 0
+        self._was_reset = False
+
+    # ------------------------------------------------------------------ public API
+
+    @property
+    def decision(self) -> int:
+        """The trial clock: decisions since the reset of the replica reset longest ago (all, usually)."""
+        return self._steps_taken - self._oldest_reset
+
+    @property
+    def max_distance(self) -> float:
+        """The room diagonal (m): no two points of the room are further apart (for ``fill_void_neighbours``)."""
+        return self.geometry.diagonal
+
+    def reset(
+        self, *, seed: int | None = None, options: Mapping[str, Any] | None = None
+    ) -> tuple[torch.Tensor, dict[str, Any]]:
+        """Start a new trial in every replica, or in those selected by ``options["replicas"]``.
+
+        Args:
+            seed: Reseeds the generator first; the same seed (and actions) gives the same trajectories.
+            options: Optional hand placement, each for all ``(R, N)`` agents (rows of replicas not reset are
+                ignored): ``positions (R, N, 2)`` (m; inside the room, clear of walls and of each other),
+                ``headings (R, N)`` (rad; default uniform), ``speeds (R, N)`` (m/s; default 0), and
+                ``replicas (R,)`` bool, the replicas to reset (default all).
+
+        Returns:
+            ``obs (R, N, F)`` float32 and ``info`` (the keys of :meth:`step`, with no crash or arrival).
+
+        Raises:
+            ValueError: For an unknown option or a badly shaped or invalid value.
+            PlacementError: If random placement fails (too many agents for the room).
+        """
+        if seed is not None:
+            self.generator.manual_seed(int(seed))
+        options = dict(options or {})
+        unknown = sorted(set(options) - set(OPTION_KEYS))
+        if unknown:
+            allowed = ", ".join(OPTION_KEYS)
+            raise ValueError(f"options key {unknown[0]!r} is invalid: must be one of {allowed}")
+        shape = (self.num_replicas, self.num_agents)
+        replicas = self._option(options, "replicas", (self.num_replicas,), dtype=torch.bool)
+        if replicas is None:
+            replicas = torch.ones(self.num_replicas, dtype=torch.bool, device=self.device)
+        chosen = replicas.unsqueeze(-1)  # (R, 1)
+
+        positions = self._option(options, "positions", (*shape, 2))
+        if positions is None:
+            positions = self._place(replicas)
+        else:
+            self._check_positions(positions, replicas)
+        headings = self._option(options, "headings", shape)
+        if headings is None:
+            uniform = torch.rand(shape, generator=self.generator, device=self.device)
+            headings = math.pi - 2.0 * math.pi * uniform
+        headings = wrap_angle(headings)
+        speeds = self._option(options, "speeds", shape)
+        if speeds is None:
+            speeds = torch.zeros(shape, device=self.device)
+        elif bool((((speeds < 0) | (speeds > self.max_speed)) & chosen).any()):
+            raise ValueError(
+                f"options['speeds'] is invalid: every speed must be in [0, max_speed={self.max_speed}] m/s"
+            )
+
+        self.positions = torch.where(chosen.unsqueeze(-1), positions, self.positions)
+        self.headings = torch.where(chosen, headings, self.headings)
+        self.speeds = torch.where(chosen, speeds, self.speeds)
+        self.velocities = velocities_from(speeds=self.speeds, headings=self.headings)
+        self.active = self.active | chosen
+        self.decisions = torch.where(replicas, 0, self.decisions)
+        self._reset_at[replicas.cpu()] = self._steps_taken
+        self._oldest_reset = int(self._reset_at.min())
+        self._was_reset = True
+
+        observation = self._observe(observers=self.active, sensed=self.active)
+        info = self._info(
+            observation,
+            crashed_agent=torch.zeros(shape, dtype=torch.bool, device=self.device),
+            crashed_wall=torch.zeros(shape, dtype=torch.bool, device=self.device),
+            reached=torch.zeros(shape, dtype=torch.bool, device=self.device),
+        )
+        return observation.features, info
+
+    def step(
+        self, actions: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, dict[str, Any]]:
+        """Advance every replica by one decision.
+
+        Args:
+            actions: Actions ``(R, N)`` int64 in ``[0, 81)``; ignored for inactive agents.
+
+        Returns:
+            ``obs (R, N, F)`` float32, ``reward (R, N)`` float32, ``terminated (R, N)`` bool (reached the door
+            this decision), ``truncated (R, N)`` bool (still in the room when the clock reached
+            ``max_decisions``), and ``info`` with ``crashed_agent``, ``crashed_wall``, ``reached`` bool
+            ``(R, N)``, ``num_sensed`` int64 ``(R, N)``, ``neighbour_mask`` bool ``(R, N, k)``, ``speed``
+            float32 ``(R, N)`` (m/s after the step) and ``decision`` (int, the trial clock). Agents inactive
+            before the step get obs 0 and reward 0; an agent truncated by this step still gets its final
+            observation (it is still in the room), one that reached the door gets 0.
+
+        Raises:
+            RuntimeError: If :meth:`reset` was never called.
+            ValueError: If ``actions`` is not an integer tensor of shape ``(R, N)``.
+        """
+        if not self._was_reset:
+            raise RuntimeError("RoomEnv.step() called before reset()")
+        actions = self._check_actions(actions)
+        acting = self.active
+
+        # ---- decide: new speeds and headings
+        speeds, headings = apply_actions(
+            speeds=self.speeds,
+            headings=self.headings,
+            actions=actions,
+            speed_changes=self.speed_changes,
+            turn_changes=self.turn_changes,
+            max_speed=self.max_speed,
+            active=acting,
+        )
+        velocities = velocities_from(speeds=speeds, headings=headings)
+
+        # ---- move, sub-stepped, with collisions
+        movement = move_agents(
+            positions=self.positions,
+            velocities=velocities,
+            active=acting,
+            geometry=self.geometry,
+            agent_radius=self.agent_radius,
+            decision_length=self.decision_length,
+            num_substeps=self.num_substeps,
+        )
+        speeds = torch.where(movement.blocked, 0.0, speeds)
+        velocities = torch.where(movement.blocked.unsqueeze(-1), 0.0, velocities)
+
+        # ---- end of trial: door, then the clock
+        self._steps_taken += 1
+        self.decisions = self.decisions + 1
+        in_room = acting & ~movement.reached
+        truncated = in_room & (self.decisions >= self.max_decisions).unsqueeze(-1)
+        self.positions = movement.positions
+        self.speeds = speeds
+        self.headings = headings
+        self.velocities = velocities
+        self.active = in_room & ~truncated
+
+        # ---- rewards and observations
+        reward = compute_rewards(
+            table=self.rewards,
+            reached=movement.reached,
+            crashed_wall=movement.crashed_wall,
+            crashed_agent=movement.crashed_agent,
+            acting=acting,
+        )
+        observation = self._observe(observers=in_room, sensed=in_room)
+        info = self._info(
+            observation,
+            crashed_agent=movement.crashed_agent,
+            crashed_wall=movement.crashed_wall,
+            reached=movement.reached,
+        )
+        return observation.features, reward, movement.reached, truncated, info
+
+    # ------------------------------------------------------------------ internals
+
+    def _observe(self, *, observers: torch.Tensor, sensed: torch.Tensor) -> Observation:
+        return observe(
+            positions=self.positions,
+            velocities=self.velocities,
+            headings=self.headings,
+            speeds=self.speeds,
+            observers=observers,
+            sensed=sensed,
+            geometry=self.geometry,
+            num_neighbours=self.num_neighbours,
+            num_walls=self.num_walls,
+        )
+
+    def _info(
+        self,
+        observation: Observation,
+        *,
+        crashed_agent: torch.Tensor,
+        crashed_wall: torch.Tensor,
+        reached: torch.Tensor,
+    ) -> dict[str, Any]:
+        return {
+            "crashed_agent": crashed_agent,
+            "crashed_wall": crashed_wall,
+            "reached": reached,
+            "num_sensed": observation.num_sensed,
+            "neighbour_mask": observation.neighbour_mask,
+            "speed": self.speeds,
+            "decision": self.decision,
+        }
+
+    def _check_actions(self, actions: Any) -> torch.Tensor:
+        expected = (self.num_replicas, self.num_agents)
+        if not isinstance(actions, torch.Tensor):
+            raise ValueError(f"actions of type {type(actions).__name__} is invalid: must be a torch.Tensor")
+        if tuple(actions.shape) != expected:
+            raise ValueError(f"actions.shape={tuple(actions.shape)} is invalid: must be {expected}")
+        if actions.is_floating_point() or actions.is_complex() or actions.dtype == torch.bool:
+            raise ValueError(f"actions.dtype={actions.dtype} is invalid: must be an integer dtype (int64)")
+        return actions.to(device=self.device, dtype=torch.int64)
+
+    def _option(
+        self,
+        options: Mapping[str, Any],
+        key: str,
+        shape: tuple[int, ...],
+        *,
+        dtype: torch.dtype = torch.float32,
+    ) -> torch.Tensor | None:
+        if options.get(key) is None:
+            return None
+        value = torch.as_tensor(options[key], dtype=dtype, device=self.device)
+        if tuple(value.shape) != shape:
+            raise ValueError(f"options[{key!r}] has shape {tuple(value.shape)}: must be {shape}")
+        if dtype.is_floating_point and not bool(torch.isfinite(value).all()):
+            raise ValueError(f"options[{key!r}] is invalid: every value must be finite")
+        return value
+
+    def _uniform_positions(self, shape: tuple[int, ...]) -> torch.Tensor:
+        """Centres uniform in the part of the room clear of walls ``(*shape, 2)`` (m)."""
+        uniform = torch.rand((*shape, 2), generator=self.generator, device=self.device)
+        span = torch.tensor(
+            [self.width - 2.0 * self.agent_radius, self.length - 2.0 * self.agent_radius], device=self.device
+        )
+        return self.agent_radius + uniform * span
+
+    def _place(self, replicas: torch.Tensor) -> torch.Tensor:
+        """Non-overlapping uniform positions ``(R, N, 2)`` for the chosen replicas ``(R,)``, by rejection.
+
+        Each round redraws only the agents that overlap an earlier-indexed agent of their replica.
+        """
+        shape = (self.num_replicas, self.num_agents)
+        positions = self._uniform_positions(shape)
+        contact_sq = (2.0 * self.agent_radius) ** 2
+        for _ in range(MAX_PLACEMENT_ROUNDS):
+            offsets = positions.unsqueeze(2) - positions.unsqueeze(1)
+            overlapping = ((offsets * offsets).sum(-1) < contact_sq) & self._earlier_agents
+            redraw = overlapping.any(-1) & replicas.unsqueeze(-1)
+            if not bool(redraw.any()):
+                return positions
+            positions = torch.where(redraw.unsqueeze(-1), self._uniform_positions(shape), positions)
+        raise PlacementError(
+            f"could not place num_agents={self.num_agents} agents of radius {self.agent_radius} m in the"
+            f" {self.width} m x {self.length} m room after {MAX_PLACEMENT_ROUNDS} rounds of rejection"
+            " sampling: use fewer agents or a larger room"
+        )
+
+    def _check_positions(self, positions: torch.Tensor, replicas: torch.Tensor) -> None:
+        """Raise ``ValueError`` if a hand-placed body of a reset replica is outside, on a wall or overlaps."""
+        chosen = replicas.unsqueeze(-1)
+        clearance = self.agent_radius - PLACEMENT_TOLERANCE
+        wall_sq = self.geometry.squared_wall_distances(positions).amin(-1)
+        inside = (
+            (positions[..., X] > 0)
+            & (positions[..., X] < self.width)
+            & (positions[..., Y] > 0)
+            & (positions[..., Y] < self.length)
+        )
+        bad = chosen & ~(inside & (wall_sq >= clearance * clearance))
+        if bool(bad.any()):
+            replica, agent = (int(index) for index in bad.nonzero()[0])
+            x, y = (float(value) for value in positions[replica, agent])
+            raise ValueError(
+                f"options['positions'] is invalid: agent {agent} of replica {replica} at ({x:.4g}, {y:.4g})"
+                f" m is outside the room or closer than agent_radius={self.agent_radius} m to a wall"
+            )
+        offsets = positions.unsqueeze(2) - positions.unsqueeze(1)
+        contact = 2.0 * self.agent_radius - PLACEMENT_TOLERANCE
+        overlapping = ((offsets * offsets).sum(-1) < contact * contact) & self._earlier_agents
+        overlapping &= chosen.unsqueeze(-1)
+        if bool(overlapping.any()):
+            replica, agent, other = (int(index) for index in overlapping.nonzero()[0])
+            raise ValueError(
+                f"options['positions'] is invalid: agents {other} and {agent} of replica {replica} overlap"
+                f" (centres closer than 2 * agent_radius = {2.0 * self.agent_radius} m)"
+            )

@@ -1,0 +1,53 @@
+"""Immediate rewards per decision (paper Table 2)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+
+@dataclass(frozen=True)
+class RewardTable:
+    """Reward values of one decision (paper Table 2 defaults).
+
+    Attributes:
+        goal: Reaching the door.
+        crash_wall: Being blocked by a wall during the decision.
+        crash_agent: Being blocked by another body (and not by a wall) during the decision.
+        default: Anything else.
+    """
+
+    goal: float = 100.0
+    crash_wall: float = -15.0
+    crash_agent: float = -4.0
+    default: float = 0.0
+
+
+def compute_rewards(
+    *,
+    table: RewardTable,
+    reached: torch.Tensor,
+    crashed_wall: torch.Tensor,
+    crashed_agent: torch.Tensor,
+    acting: torch.Tensor,
+) -> torch.Tensor:
+    """Reward of each agent for one decision.
+
+    ``goal`` if it reached the door, else ``crash_wall`` if it hit a wall, else ``crash_agent`` if it hit an
+    agent, else ``default``; 0 for agents that did not act (inactive at the start of the decision).
+
+    Args:
+        table: The reward values.
+        reached: Agents that reached the door ``(R, N)`` bool.
+        crashed_wall: Agents blocked by a wall ``(R, N)`` bool.
+        crashed_agent: Agents blocked by an agent ``(R, N)`` bool.
+        acting: Agents active during the decision ``(R, N)`` bool.
+
+    Returns:
+        Rewards ``(R, N)`` float32.
+    """
+    reward = torch.where(crashed_agent, table.crash_agent, table.default)
+    reward = torch.where(crashed_wall, table.crash_wall, reward)
+    reward = torch.where(reached, table.goal, reward)
+    return torch.where(acting, reward, 0.0).to(torch.float32)

@@ -1,0 +1,42 @@
+"""conf/env/room.yaml builds a RoomEnv and mirrors the constructor's defaults."""
+
+import inspect
+from pathlib import Path
+
+import hydra
+from omegaconf import OmegaConf
+
+from pedrl.sim import RoomEnv
+
+CONFIG = Path(__file__).resolve().parents[2] / "conf" / "env" / "room.yaml"
+RUN_TIME = {"num_replicas", "num_agents", "device"}
+
+
+def test_room_config_instantiates_with_run_time_arguments():
+    cfg = OmegaConf.load(CONFIG)
+    env = hydra.utils.instantiate(cfg, num_replicas=2, num_agents=5, device="cpu")
+    assert isinstance(env, RoomEnv)
+    assert (env.num_replicas, env.num_agents, env.device.type) == (2, 5, "cpu")
+    assert isinstance(env.speed_ratios, tuple) and all(isinstance(v, float) for v in env.speed_ratios)
+    obs, _ = env.reset(seed=0)
+    assert obs.shape == (2, 5, 28)
+
+
+def test_room_config_lists_every_parameter_with_the_constructor_default():
+    cfg = OmegaConf.to_container(OmegaConf.load(CONFIG))
+    assert cfg.pop("_target_") == "pedrl.sim.RoomEnv"
+    parameters = inspect.signature(RoomEnv.__init__).parameters
+    expected = {name: p.default for name, p in parameters.items() if name != "self" and name not in RUN_TIME}
+    assert set(cfg) == set(expected)
+    for name, default in expected.items():
+        value = tuple(cfg[name]) if isinstance(cfg[name], list) else cfg[name]
+        assert value == default, name
+
+
+def test_every_config_value_has_a_comment_giving_its_unit():
+    raw = CONFIG.read_text().splitlines()
+    for index, line in enumerate(raw):
+        if not line or line.startswith(("#", "_target_")):
+            continue
+        previous = raw[index - 1] if index else ""
+        assert "#" in line or previous.startswith("#"), line

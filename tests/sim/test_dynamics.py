@@ -1,0 +1,276 @@
+"""Actions, speed and heading updates, and the collision rule (against a literal sub-step reference)."""
+
+import math
+
+import pytest
+import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from pedrl.sim import RoomEnv
+from pedrl.sim.dynamics import (
+    DEFAULT_SPEED_RATIOS,
+    DEFAULT_TURN_RATIOS,
+    NOOP_ACTION,
+    NUM_ACTIONS,
+    Movement,
+    apply_actions,
+    count_substeps,
+    decode_actions,
+    encode_actions,
+    move_agents,
+    velocities_from,
+)
+from pedrl.sim.geometry import RoomGeometry, build_walls, distances_to_segments
+
+
+def reference_move(
+    *,
+    positions: torch.Tensor,
+    velocities: torch.Tensor,
+    active: torch.Tensor,
+    geometry: RoomGeometry,
+    agent_radius: float,
+    decision_length: float,
+    num_substeps: int,
+) -> Movement:
+    """The collision rule of docs/design.md written literally: a loop over sub-steps, rounds inside each."""
+    num_replicas, num_agents, _ = positions.shape
+    step = velocities * (decision_length / num_substeps)
+    moving = active & (step != 0).any(-1)
+    step = step * moving.unsqueeze(-1)
+    in_room = active.clone()
+    going = moving.clone()
+    moved = torch.zeros(num_replicas, num_agents, dtype=torch.int64)
+    crashed_wall = torch.zeros_like(active)
+    crashed_agent = torch.zeros_like(active)
+    reached = torch.zeros_like(active)
+    contact_sq = 4.0 * agent_radius**2
+    not_self = ~torch.eye(num_agents, dtype=torch.bool)
+    for substep in range(1, num_substeps + 1):
+        current = positions + moved.to(torch.float32).unsqueeze(-1) * step
+        proposal = positions + float(substep) * step
+        wall_hit = going & geometry.touches_walls(proposal, radius=agent_radius)
+        blocked = wall_hit.clone()
+        for _ in range(num_agents + 1):
+            go = going & ~blocked
+            target = torch.where(go.unsqueeze(-1), proposal, current)
+            gaps = proposal.unsqueeze(2) - target.unsqueeze(1)  # [r, i, j] = proposal_i - target_j
+            close = ((gaps * gaps).sum(-1) < contact_sq) & not_self & in_room.unsqueeze(1)
+            new = go & close.any(-1)
+            if not new.any():
+                break
+            blocked |= new
+            crashed_agent |= new
+        crashed_wall |= wall_hit
+        moved = moved + go.long()
+        arrived = go & (proposal[..., 1] >= geometry.length)
+        reached |= arrived
+        in_room &= ~arrived
+        going = go & ~arrived
+    return Movement(
+        positions=positions + moved.to(torch.float32).unsqueeze(-1) * step,
+        blocked=crashed_wall | crashed_agent,
+        crashed_wall=crashed_wall,
+        crashed_agent=crashed_agent,
+        reached=reached,
+    )
+
+
+# ---------------------------------------------------------------- actions
+
+
+def test_action_encoding_round_trips_and_noop_is_40():
+    actions = torch.arange(NUM_ACTIONS).view(9, 9)
+    speed_index, turn_index = decode_actions(actions)
+    assert torch.equal(speed_index, torch.arange(9).view(9, 1).expand(9, 9))
+    assert torch.equal(turn_index, torch.arange(9).view(1, 9).expand(9, 9))
+    assert torch.equal(encode_actions(speed_index=speed_index, turn_index=turn_index), actions)
+    assert NOOP_ACTION == 40 and decode_actions(torch.tensor(40)) == (4, 4)
+
+
+def test_apply_actions_changes_speed_and_heading_as_documented():
+    max_speed = 2.5
+    speed_changes = torch.tensor(DEFAULT_SPEED_RATIOS) * max_speed
+    turn_changes = torch.tensor(DEFAULT_TURN_RATIOS) * math.pi
+    speeds = torch.tensor([[0.0, 0.0, 2.0, 1.0, 2.5]])
+    headings = torch.tensor([[0.0, 3.0, 0.0, -3.0, 1.0]])
+    actions = torch.tensor([[8 * 9 + 4, 7 * 9 + 8, 8 * 9 + 4, 0 * 9 + 0, NOOP_ACTION]])
+    active = torch.tensor([[True, True, True, True, False]])
+    new_speeds, new_headings = apply_actions(
+        speeds=speeds,
+        headings=headings,
+        actions=actions,
+        speed_changes=speed_changes,
+        turn_changes=turn_changes,
+        max_speed=max_speed,
+        active=active,
+    )
+    # standing to full speed in one decision (+1.0), +0.5 is half of it, clipped to [0, max_speed];
+    # the inactive agent (last) ignores its action
+    torch.testing.assert_close(new_speeds, torch.tensor([[2.5, 1.25, 2.5, 0.0, 2.5]]))
+    expected_headings = [0.0, 3.0 + 0.75 * math.pi - 2 * math.pi, 0.0, -3.0 - 0.75 * math.pi + 2 * math.pi, 1.0]
+    torch.testing.assert_close(new_headings, torch.tensor([expected_headings]), atol=1e-5, rtol=0)
+    assert (new_headings > -math.pi).all() and (new_headings <= math.pi).all()
+
+
+def test_half_turn_takes_two_decisions():
+    turn_changes = torch.tensor(DEFAULT_TURN_RATIOS) * math.pi
+    heading = torch.zeros(1, 1)
+    for _ in range(2):
+        _, heading = apply_actions(
+            speeds=torch.zeros(1, 1),
+            headings=heading,
+            actions=torch.tensor([[4 * 9 + 7]]),  # +0.5 pi
+            speed_changes=torch.zeros(9),
+            turn_changes=turn_changes,
+            max_speed=2.5,
+            active=torch.ones(1, 1, dtype=torch.bool),
+        )
+    assert heading.item() == pytest.approx(math.pi, abs=1e-6)
+
+
+def test_velocities_point_along_the_heading():
+    velocities = velocities_from(speeds=torch.tensor([[2.0, 1.0]]), headings=torch.tensor([[0.0, math.pi / 2]]))
+    torch.testing.assert_close(velocities, torch.tensor([[[2.0, 0.0], [0.0, 1.0]]]), atol=1e-6, rtol=0)
+
+
+@pytest.mark.parametrize(
+    ("max_speed", "decision_length", "substep_length", "expected"),
+    [(2.5, 1.0, 0.4, 7), (2.5, 1.0, 0.5, 5), (2.5, 0.5, 0.4, 4), (1.0, 1.0, 2.0, 1)],
+)
+def test_count_substeps(max_speed, decision_length, substep_length, expected):
+    substeps = count_substeps(max_speed=max_speed, decision_length=decision_length, substep_length=substep_length)
+    assert substeps == expected
+    assert max_speed * decision_length / substeps <= substep_length + 1e-12
+
+
+# ---------------------------------------------------------------- geometry used by the mover
+
+
+def test_touches_walls_equals_segment_distance_test():
+    geometry = RoomGeometry.build(width=6.0, length=8.0, door_width=1.2)
+    generator = torch.Generator().manual_seed(0)
+    radius = 0.4
+    points = torch.rand(20000, 2, generator=generator) * torch.tensor([6.0 + 4 * radius, 8.0 + 4 * radius])
+    points -= 2 * radius
+    distance = distances_to_segments(points.double(), build_walls(width=6.0, length=8.0, door_width=1.2).double())
+    nearest = distance.amin(-1)
+    decided = (nearest - radius).abs() > 1e-4  # away from float ties
+    touches = geometry.touches_walls(points, radius=radius)
+    assert decided.sum() > 19000
+    assert torch.equal(touches[decided], (nearest < radius)[decided])
+
+
+# ---------------------------------------------------------------- the collision rule
+
+
+def _cap(width: float, length: float, radius: float = 0.4) -> int:
+    """Most agents RoomEnv accepts in a room (35 % of the free area)."""
+    return int(0.35 * (width - 2 * radius) * (length - 2 * radius) / (math.pi * radius**2))
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    seed=st.integers(0, 2**31 - 1),
+    num_replicas=st.integers(1, 4),
+    num_agents=st.integers(1, 40),
+    room=st.sampled_from([(4.0, 5.0, 0.9), (8.0, 10.0, 1.5), (60.0, 100.0, 2.0)]),
+    decisions_per_second=st.sampled_from([1.0, 2.0]),
+)
+def test_move_agents_equals_the_literal_substep_rule(seed, num_replicas, num_agents, room, decisions_per_second):
+    width, length, door_width = room
+    num_agents = min(num_agents, _cap(width, length))
+    env = RoomEnv(
+        num_replicas=num_replicas,
+        num_agents=num_agents,
+        width=width,
+        length=length,
+        door_width=door_width,
+        decisions_per_second=decisions_per_second,
+    )
+    env.reset(seed=seed)
+    generator = torch.Generator().manual_seed(seed)
+    shape = (num_replicas, num_agents)
+    for _ in range(12):
+        speeds = torch.rand(shape, generator=generator) * env.max_speed
+        speeds = torch.where(torch.rand(shape, generator=generator) < 0.3, env.max_speed, speeds)
+        speeds = torch.where(torch.rand(shape, generator=generator) < 0.2, 0.0, speeds)
+        headings = math.pi - 2 * math.pi * torch.rand(shape, generator=generator)
+        # aim a third of the agents at the door, so the door and its posts are exercised
+        goal_x, goal_y = env.geometry.goal
+        to_door = torch.atan2(goal_y - env.positions[..., 1], goal_x - env.positions[..., 0])
+        headings = torch.where(torch.rand(shape, generator=generator) < 0.3, to_door, headings)
+        kwargs = dict(
+            positions=env.positions,
+            velocities=velocities_from(speeds=speeds, headings=headings),
+            active=env.active,
+            geometry=env.geometry,
+            agent_radius=env.agent_radius,
+            decision_length=env.decision_length,
+            num_substeps=env.num_substeps,
+        )
+        fast = move_agents(**kwargs)
+        slow = reference_move(**kwargs)
+        assert torch.equal(fast.positions, slow.positions)
+        assert torch.equal(fast.crashed_wall, slow.crashed_wall)
+        assert torch.equal(fast.crashed_agent, slow.crashed_agent & ~slow.crashed_wall)
+        assert torch.equal(fast.reached, slow.reached)
+        assert torch.equal(fast.blocked, slow.blocked)
+        env.step(torch.randint(0, NUM_ACTIONS, shape, generator=generator))
+
+
+def test_standing_agent_that_is_walked_into_is_not_penalised():
+    geometry = RoomGeometry.build(width=60.0, length=100.0, door_width=2.0)
+    # the mover's first sub-step (2.5 / 7 = 0.357 m) would bring the centres to 0.843 m apart, the second to
+    # 0.486 m: it is blocked in sub-step 2 and stays after sub-step 1
+    positions = torch.tensor([[[10.0, 50.0], [11.2, 50.0]]])
+    velocities = torch.tensor([[[2.5, 0.0], [0.0, 0.0]]])
+    movement = move_agents(
+        positions=positions,
+        velocities=velocities,
+        active=torch.ones(1, 2, dtype=torch.bool),
+        geometry=geometry,
+        agent_radius=0.4,
+        decision_length=1.0,
+        num_substeps=7,
+    )
+    assert movement.crashed_agent.tolist() == [[True, False]]
+    assert movement.blocked.tolist() == [[True, False]]
+    assert movement.crashed_wall.tolist() == [[False, False]]
+    torch.testing.assert_close(movement.positions, torch.tensor([[[10.0 + 2.5 / 7, 50.0], [11.2, 50.0]]]))
+
+
+def test_dense_rooms_match_the_reference_and_exercise_every_event():
+    """A crowded small room, many decisions: agent crashes, wall crashes and arrivals all happen."""
+    env = RoomEnv(num_replicas=3, num_agents=12, width=5.0, length=6.0, door_width=1.0)
+    env.reset(seed=3)
+    generator = torch.Generator().manual_seed(3)
+    counts = {"crashed_agent": 0, "crashed_wall": 0, "reached": 0}
+    for _ in range(60):
+        if not env.active.any():
+            env.reset()
+        speeds = torch.full((3, 12), env.max_speed)
+        goal_x, goal_y = env.geometry.goal
+        headings = torch.atan2(goal_y - env.positions[..., 1], goal_x - env.positions[..., 0])
+        headings = headings + 0.6 * torch.randn(3, 12, generator=generator)
+        kwargs = dict(
+            positions=env.positions,
+            velocities=velocities_from(speeds=speeds, headings=headings),
+            active=env.active,
+            geometry=env.geometry,
+            agent_radius=env.agent_radius,
+            decision_length=env.decision_length,
+            num_substeps=env.num_substeps,
+        )
+        fast = move_agents(**kwargs)
+        slow = reference_move(**kwargs)
+        assert torch.equal(fast.positions, slow.positions)
+        assert torch.equal(fast.crashed_wall, slow.crashed_wall)
+        assert torch.equal(fast.reached, slow.reached)
+        assert torch.equal(fast.blocked, slow.blocked)
+        counts["crashed_agent"] += int(fast.crashed_agent.sum())
+        counts["crashed_wall"] += int(fast.crashed_wall.sum())
+        counts["reached"] += int(fast.reached.sum())
+        env.positions, env.active = fast.positions, env.active & ~fast.reached
+    assert counts["crashed_agent"] > 20 and counts["crashed_wall"] > 20 and counts["reached"] > 5
