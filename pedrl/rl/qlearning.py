@@ -1,0 +1,63 @@
+"""The Q-learning update (paper equation 1), batched over flat table rows."""
+
+from __future__ import annotations
+
+import torch
+
+__all__ = ["td_update"]
+
+
+def td_update(
+    q_values: torch.Tensor,
+    rows: torch.Tensor,
+    actions: torch.Tensor,
+    rewards: torch.Tensor,
+    next_rows: torch.Tensor,
+    terminal: torch.Tensor,
+    valid: torch.Tensor,
+    *,
+    alpha: float,
+    gamma: float,
+) -> torch.Tensor:
+    """One synchronous Q-learning step, in place on `q_values` (paper equation 1):
+
+    `Q(s, a) <- Q(s, a) + alpha [r + gamma max_a' Q(s', a') - Q(s, a)]`.
+
+    - Terminal transitions (the agent reached the door) do not bootstrap: the target is `r`. A trial cut by the
+      time limit (truncation) is not terminal, so it bootstraps from `s'` as usual.
+    - Invalid entries (inactive agents) are skipped: no update, TD error 0; their rows and actions may hold
+      anything.
+    - All TD errors are computed from the tables before the step. When several entries hit the same
+      `(row, action)` in one call, their increments are averaged: `Q += alpha * mean(td)`. With `E` rooms of one
+      process sharing a table this is one mean TD step per decision, not `E` steps.
+
+    Args:
+        q_values: `(R, A, K, U)` float32 Q tables, updated in place.
+        rows: `(B,)` int64 flat rows of `s` (`pedrl.rl.table_rows`).
+        actions: `(B,)` int64 actions `a` in `[0, U)`.
+        rewards: `(B,)` float32 rewards `r` received after the action.
+        next_rows: `(B,)` int64 flat rows of `s'` (ignored where `terminal` or not `valid`).
+        terminal: `(B,)` bool, True where the transition ends the agent's trial at the door.
+        valid: `(B,)` bool, False for entries to skip.
+        alpha: learning rate `alpha` in `(0, 1]`.
+        gamma: discount `gamma` in `[0, 1]`.
+
+    Returns:
+        `(B,)` float32 TD errors `r + gamma max_a' Q(s', a') - Q(s, a)` (0 where not `valid`).
+    """
+    num_actions = q_values.shape[-1]
+    flat = q_values.view(-1, num_actions)
+    zero = torch.zeros((), dtype=rows.dtype, device=rows.device)
+    rows = torch.where(valid, rows, zero)
+    actions = torch.where(valid, actions, zero)
+    bootstrap = valid & ~terminal
+    next_value = flat[torch.where(bootstrap, next_rows, zero)].amax(1)
+    target = rewards + gamma * torch.where(bootstrap, next_value, torch.zeros_like(next_value))
+    entries = rows * num_actions + actions
+    td_error = torch.where(valid, target - q_values.view(-1)[entries], torch.zeros_like(target))
+
+    entries, steps = entries[valid], td_error[valid]
+    if entries.numel() > 0:
+        _, inverse, counts = torch.unique(entries, return_inverse=True, return_counts=True)
+        q_values.view(-1).index_add_(0, entries, steps * (alpha / counts[inverse].to(steps.dtype)))
+    return td_error

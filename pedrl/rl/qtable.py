@@ -1,0 +1,124 @@
+"""Q tables and action selection.
+
+All learning processes and agents share one tensor `q_values (R, A, K, U)`: `R` learning processes, `A` learning
+agents (one table each), `K` prototypes (states), `U = 81` actions; float32, zero-initialised. Functions work on
+*flat rows* of `q_values.view(R * A * K, U)`: row `(r * A + a) * K + s` holds the action values of state `s` in
+table `a` of process `r` (`table_rows`). Any batch layout (replicas, rooms, agents) flattens to a `(B,)` vector of
+rows, and nothing loops over agents.
+"""
+
+from __future__ import annotations
+
+import torch
+
+__all__ = ["NUM_ACTIONS", "epsilon_greedy", "greedy", "table_rows", "zeros_q_values"]
+
+#: Actions per decision: 9 speed changes x 9 turns (see docs/design.md).
+NUM_ACTIONS = 81
+
+
+def zeros_q_values(
+    num_processes: int,
+    num_tables: int,
+    num_states: int,
+    num_actions: int = NUM_ACTIONS,
+    *,
+    device: torch.device | str,
+) -> torch.Tensor:
+    """Zero-initialised Q tables.
+
+    Args:
+        num_processes: `R`, independent learning processes.
+        num_tables: `A`, tables (learning agents) per process.
+        num_states: `K`, prototypes of the quantiser.
+        num_actions: `U`.
+        device: where the tables live.
+
+    Returns:
+        `(R, A, K, U)` float32 zeros.
+    """
+    return torch.zeros((num_processes, num_tables, num_states, num_actions), dtype=torch.float32, device=device)
+
+
+def table_rows(
+    process: torch.Tensor,
+    table: torch.Tensor,
+    state: torch.Tensor,
+    *,
+    num_tables: int,
+    num_states: int,
+) -> torch.Tensor:
+    """Flat row indices `(process * num_tables + table) * num_states + state`.
+
+    Args:
+        process: `(B,)` int64 learning process `r in [0, R)`.
+        table: `(B,)` int64 table `a in [0, A)` (agent `n` of a room uses table `n mod A`).
+        state: `(B,)` int64 prototype id `s in [0, K)`.
+        num_tables: `A`.
+        num_states: `K`.
+
+    Returns:
+        `(B,)` int64 rows of `q_values.view(-1, U)`.
+    """
+    return (process * num_tables + table) * num_states + state
+
+
+def _greedy_from_rows(values: torch.Tensor, generator: torch.Generator | None) -> torch.Tensor:
+    """Argmax of each row of `values (B, U)`, ties broken uniformly at random.
+
+    The `j`-th of a row's `c` tied maxima is picked with `j` uniform in `[0, c)`: a running count of the maxima
+    exceeds `j` first at that action. One random number per row, not one per action. Counts are int16 (`U` is
+    small), the fastest of the variants measured on CPU.
+    """
+    num_rows, num_actions = values.shape
+    best = values.amax(1, keepdim=True)
+    running = (values == best).to(torch.int16).cumsum(1, dtype=torch.int16)
+    count = running[:, -1].long()
+    uniform = torch.rand(num_rows, generator=generator, device=values.device)
+    pick = (uniform * count).long().clamp_(max=count - 1).to(torch.int16)
+    # A materialised right-hand side: broadcast int16 comparisons are slow in torch on CPU.
+    return (running > pick[:, None].expand(-1, num_actions).contiguous()).byte().argmax(1)
+
+
+def greedy(q_values: torch.Tensor, rows: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
+    """Greedy actions `argmax_a Q(row, a)`, ties broken uniformly at random.
+
+    Random tie-breaking matters while tables are still zero: a fixed choice (the lowest action) would send every
+    agent in an unvisited state the same way.
+
+    Args:
+        q_values: `(R, A, K, U)` Q tables.
+        rows: `(B,)` int64 flat rows (`table_rows`).
+        generator: random source for ties (on `q_values.device`; None: torch's default).
+
+    Returns:
+        `(B,)` int64 actions in `[0, U)`.
+    """
+    return _greedy_from_rows(q_values.view(-1, q_values.shape[-1])[rows], generator)
+
+
+def epsilon_greedy(
+    q_values: torch.Tensor,
+    rows: torch.Tensor,
+    epsilon: float | torch.Tensor,
+    generator: torch.Generator | None = None,
+) -> torch.Tensor:
+    """Epsilon-greedy actions: uniformly random with probability `epsilon`, else greedy (random tie-breaking).
+
+    The random action is drawn from all `U` actions, so it is the greedy one with probability `1 / U`.
+
+    Args:
+        q_values: `(R, A, K, U)` Q tables.
+        rows: `(B,)` int64 flat rows (`table_rows`).
+        epsilon: exploration probability in `[0, 1]`, a float or a tensor broadcastable to `(B,)`.
+        generator: random source (on `q_values.device`; None: torch's default).
+
+    Returns:
+        `(B,)` int64 actions in `[0, U)`.
+    """
+    num_actions = q_values.shape[-1]
+    device = q_values.device
+    actions = greedy(q_values, rows, generator)
+    explore = torch.rand(rows.shape[0], generator=generator, device=device) < epsilon
+    random_actions = torch.randint(num_actions, (rows.shape[0],), generator=generator, device=device)
+    return torch.where(explore, random_actions, actions)

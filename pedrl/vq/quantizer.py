@@ -1,0 +1,364 @@
+"""State quantisers: `Quantizer` (VQQL, IT-VQQL) and `UnionQuantizer` (IN-VQQL).
+
+A quantiser maps a continuous state to the id of its nearest prototype (paper section 3:
+`V_Q(x) = argmin_{y in C} dist(x, y)`). The data are standardised first (section 5.1: "each feature has zero mean
+and standard deviation equal to 1"), so prototypes live in standardised space and distances weigh every feature
+equally.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import torch
+
+from pedrl.vq.kmeans import KMeansResult, Precision, PrototypeIndex, kmeans
+
+__all__ = ["Quantizer", "UnionQuantizer"]
+
+#: Features whose standard deviation is below this are only centred (their std is stored as 1).
+MIN_STD = 1e-6
+
+
+class Quantizer:
+    """Standardise, then map to the nearest of `K` prototypes.
+
+    `encode(x) = argmin_k || (x - mean) / std - prototypes[k] ||^2` (lowest id on ties).
+
+    Attributes:
+        mean: `(d,)` float32 feature means of the fitting data (units of the features).
+        std: `(d,)` float32 feature standard deviations (population, `ddof = 0`); a feature whose std is below
+            `MIN_STD` (constant in the data) gets std 1 so that it is centred but not blown up.
+        prototypes: `(K, d)` float32 prototypes in standardised space.
+    """
+
+    def __init__(
+        self,
+        *,
+        mean: torch.Tensor,
+        std: torch.Tensor,
+        prototypes: torch.Tensor,
+        precision: Precision = "auto",
+    ) -> None:
+        """Builds a quantiser from its tensors (all on one device).
+
+        Args:
+            mean: `(d,)` feature means.
+            std: `(d,)` feature standard deviations, all > 0.
+            prototypes: `(K, d)` prototypes in standardised space.
+            precision: nearest-prototype search method (exact either way; see `pedrl.vq.kmeans.PrototypeIndex`).
+        """
+        if prototypes.ndim != 2 or mean.shape != (prototypes.shape[1],) or std.shape != mean.shape:
+            raise ValueError(
+                f"expected mean (d,), std (d,), prototypes (K, d); got {tuple(mean.shape)}, {tuple(std.shape)}, "
+                f"{tuple(prototypes.shape)}"
+            )
+        if not bool((std > 0).all()):
+            raise ValueError("std must be positive")
+        self.mean = mean.to(torch.float32)
+        self.std = std.to(torch.float32)
+        self.prototypes = prototypes.to(torch.float32)
+        self.precision = precision
+        self._index = PrototypeIndex(self.prototypes, precision=precision)
+
+    @property
+    def num_prototypes(self) -> int:
+        """Number of prototypes `K` (ids are `0 .. K - 1`)."""
+        return self.prototypes.shape[0]
+
+    @property
+    def dim(self) -> int:
+        """Number of features `d`."""
+        return self.prototypes.shape[1]
+
+    @property
+    def device(self) -> torch.device:
+        """Device of the tensors."""
+        return self.prototypes.device
+
+    @classmethod
+    def fit(
+        cls,
+        states: torch.Tensor,
+        num_prototypes: int,
+        *,
+        generator: torch.Generator | None = None,
+        max_iterations: int = 100,
+        tolerance: float = 1e-4,
+        init: Literal["kmeans++", "random"] | torch.Tensor = "kmeans++",
+        chunk_size: int | None = None,
+        init_sample_size: int | None = None,
+        precision: Precision = "auto",
+    ) -> tuple[Quantizer, KMeansResult]:
+        """Standardises `states` and runs k-means on them (see `pedrl.vq.kmeans.kmeans`).
+
+        Args:
+            states: `(M, d)` float32 states (raw feature units).
+            num_prototypes: `K`; reduced, with a warning, if the data has fewer distinct states.
+            generator: random source on `states.device` (None: seeded with 0).
+            max_iterations: cap on Lloyd iterations.
+            tolerance: relative distortion decrease that stops the iterations.
+            init: `"kmeans++"`, `"random"` or `(K, d)` initial prototypes in standardised space.
+            chunk_size: rows per block of the nearest-prototype search.
+            init_sample_size: points used by k-means++ seeding.
+            precision: nearest-prototype search method, for fitting and for the returned quantizer.
+
+        Returns:
+            `(quantizer, result)`; `result.distortion` is in standardised units.
+        """
+        if states.ndim != 2 or states.shape[0] == 0:
+            raise ValueError(f"states must be (M, d) with M > 0, got {tuple(states.shape)}")
+        states64 = states.to(torch.float64)
+        mean = states64.mean(0)
+        std = states64.std(0, correction=0)
+        std = torch.where(std < MIN_STD, torch.ones_like(std), std)
+        standardised = ((states64 - mean) / std).to(torch.float32)
+        del states64
+        result = kmeans(
+            standardised,
+            num_prototypes,
+            max_iterations=max_iterations,
+            tolerance=tolerance,
+            generator=generator,
+            init=init,
+            chunk_size=chunk_size,
+            init_sample_size=init_sample_size,
+            precision=precision,
+        )
+        return cls(mean=mean, std=std, prototypes=result.prototypes, precision=precision), result
+
+    def standardise(self, states: torch.Tensor) -> torch.Tensor:
+        """`(states - mean) / std`, `(..., d) -> (..., d)`."""
+        return (states - self.mean) / self.std
+
+    def encode(self, states: torch.Tensor, *, chunk_size: int | None = None) -> torch.Tensor:
+        """Ids of the nearest prototypes.
+
+        Args:
+            states: `(..., d)` raw states, any leading shape.
+            chunk_size: rows per block of the search (None: per-device default).
+
+        Returns:
+            `(...)` int64 ids in `[0, K)`.
+        """
+        if states.shape[-1] != self.dim:
+            raise ValueError(f"expected states (..., {self.dim}), got {tuple(states.shape)}")
+        flat = self.standardise(states.reshape(-1, self.dim).to(torch.float32))
+        index = self._index
+        if chunk_size is not None:
+            index = PrototypeIndex(self.prototypes, precision=self.precision, chunk_size=chunk_size)
+        ids, _ = index.search(flat)
+        return ids.view(states.shape[:-1])
+
+    def decode(self, ids: torch.Tensor) -> torch.Tensor:
+        """Prototypes in raw feature units, `(...) -> (..., d)`."""
+        return self.prototypes[ids] * self.std + self.mean
+
+    def to(self, device: torch.device | str) -> Quantizer:
+        """A copy on `device`."""
+        return Quantizer(mean=self.mean.to(device), std=self.std.to(device), prototypes=self.prototypes.to(device))
+
+    def state_dict(self) -> dict[str, torch.Tensor]:
+        """`{"mean": (d,), "std": (d,), "prototypes": (K, d)}` (contiguous, safe for safetensors)."""
+        return {
+            "mean": self.mean.contiguous(),
+            "std": self.std.contiguous(),
+            "prototypes": self.prototypes.contiguous(),
+        }
+
+    @classmethod
+    def from_state_dict(cls, state: dict[str, torch.Tensor]) -> Quantizer:
+        """Inverse of `state_dict`."""
+        return cls(mean=state["mean"], std=state["std"], prototypes=state["prototypes"])
+
+    def __repr__(self) -> str:
+        return f"Quantizer(num_prototypes={self.num_prototypes}, dim={self.dim}, device={self.device})"
+
+
+@dataclass(frozen=True)
+class _Part:
+    num_sensed: int
+    feature_index: torch.Tensor
+    quantizer: Quantizer
+
+
+class UnionQuantizer:
+    """The union quantiser of IN-VQQL (paper Fig. 3, `V_Q^i = V_Q^i U V_Q^(i-1)`).
+
+    One part per number of sensed neighbours `n`. Part `n` holds the projection `feature_index (d_n,)` (the
+    features of a state with `n` neighbours, the paper's Gamma, from `pedrl.sim.sensing.feature_indices`) and a
+    `Quantizer` over those `d_n` features.
+
+    Ids are global: parts are ordered by increasing `n`, part `n` owns the id range
+    `[offset_n, offset_n + K_n)` with `offset_n` the total size of the parts before it, and a state's id is
+    `offset_n + local id`. Adding a part or growing one shifts the ids of the parts after it, so a Q table indexed
+    by an older union is not valid for a newer one (IN-VQQL learns from scratch after each union anyway).
+
+    Routing: a state with `n` sensed neighbours is encoded by part `n`. If there is no part `n`, it goes to the
+    part of the largest `n' < n` (projecting away the extra neighbours, like the paper's projection Gamma), and if
+    there is none, to the part with the smallest `n`.
+    """
+
+    def __init__(self, parts: list[_Part] | None = None) -> None:
+        """Builds a union from parts (use `UnionQuantizer()` and `unite` instead).
+
+        Args:
+            parts: parts with distinct `num_sensed`, on one device.
+        """
+        self._parts = sorted(parts or [], key=lambda part: part.num_sensed)
+        if len({part.num_sensed for part in self._parts}) != len(self._parts):
+            raise ValueError("parts must have distinct num_sensed")
+        sizes = [part.quantizer.num_prototypes for part in self._parts]
+        self._offsets = [sum(sizes[:i]) for i in range(len(sizes))]
+        self._route = self._routing_table()
+
+    # ------------------------------------------------------------------ structure
+
+    @property
+    def num_sensed(self) -> list[int]:
+        """The `n` of every part, increasing."""
+        return [part.num_sensed for part in self._parts]
+
+    @property
+    def part_sizes(self) -> dict[int, int]:
+        """`{n: K_n}` in increasing `n`."""
+        return {part.num_sensed: part.quantizer.num_prototypes for part in self._parts}
+
+    @property
+    def offsets(self) -> dict[int, int]:
+        """`{n: offset_n}`, the first global id of every part."""
+        return {part.num_sensed: offset for part, offset in zip(self._parts, self._offsets, strict=True)}
+
+    @property
+    def num_prototypes(self) -> int:
+        """Total number of prototypes (global ids are `0 .. num_prototypes - 1`)."""
+        return sum(part.quantizer.num_prototypes for part in self._parts)
+
+    @property
+    def device(self) -> torch.device:
+        """Device of the tensors (CPU when empty)."""
+        return self._parts[0].quantizer.device if self._parts else torch.device("cpu")
+
+    def part(self, num_sensed: int) -> tuple[torch.Tensor, Quantizer]:
+        """`(feature_index (d_n,), quantizer)` of part `num_sensed` (KeyError if absent)."""
+        for part in self._parts:
+            if part.num_sensed == num_sensed:
+                return part.feature_index, part.quantizer
+        raise KeyError(num_sensed)
+
+    def _routing_table(self) -> torch.Tensor:
+        """`(n_max + 1,)` int64: part position used for each `n in [0, n_max]`."""
+        if not self._parts:
+            return torch.zeros(0, dtype=torch.int64, device=self.device)
+        ns = self.num_sensed
+        route = []
+        for n in range(ns[-1] + 1):
+            below = [i for i, m in enumerate(ns) if m <= n]
+            route.append(below[-1] if below else 0)
+        return torch.tensor(route, dtype=torch.int64, device=self.device)
+
+    # ------------------------------------------------------------------ building
+
+    def unite(self, num_sensed: int, feature_index: torch.Tensor, quantizer: Quantizer) -> UnionQuantizer:
+        """A new union with `quantizer` added as (or merged into) part `num_sensed`.
+
+        A new `n` adds a part. For an existing `n`, the part's quantizer becomes: the new `mean`/`std`, and the old
+        prototypes re-expressed in that standardisation (`(old * old_std + old_mean - new_mean) / new_std`, so they
+        are unchanged in raw units) followed by the new prototypes. Local ids of the old prototypes are kept; global
+        ids of later parts shift.
+
+        Args:
+            num_sensed: `n >= 0`, the number of sensed neighbours this quantizer is for.
+            feature_index: `(d_n,)` int64 indices of the features of the full state that `quantizer` reads.
+            quantizer: a `Quantizer` over `d_n` features, on the union's device.
+
+        Returns:
+            The new `UnionQuantizer` (this one is unchanged).
+        """
+        feature_index = feature_index.to(device=quantizer.device, dtype=torch.int64)
+        if feature_index.ndim != 1 or feature_index.shape[0] != quantizer.dim:
+            raise ValueError(
+                f"feature_index must be ({quantizer.dim},) to match the quantizer, got {tuple(feature_index.shape)}"
+            )
+        if self._parts and quantizer.device != self.device:
+            raise ValueError(f"quantizer is on {quantizer.device}, the union on {self.device}")
+        parts = [part for part in self._parts if part.num_sensed != num_sensed]
+        if len(parts) < len(self._parts):
+            old_index, old = self.part(num_sensed)
+            if not torch.equal(old_index, feature_index):
+                raise ValueError(f"part {num_sensed} already exists with different feature indices")
+            raw = old.prototypes * old.std + old.mean
+            old_prototypes = (raw - quantizer.mean) / quantizer.std
+            quantizer = Quantizer(
+                mean=quantizer.mean,
+                std=quantizer.std,
+                prototypes=torch.cat([old_prototypes, quantizer.prototypes]),
+                precision=quantizer.precision,
+            )
+        parts.append(_Part(num_sensed=num_sensed, feature_index=feature_index, quantizer=quantizer))
+        return UnionQuantizer(parts)
+
+    # ------------------------------------------------------------------ encoding
+
+    def part_of(self, num_sensed: torch.Tensor) -> torch.Tensor:
+        """Position (in `self.num_sensed`) of the part that encodes states with `num_sensed` neighbours, `(...)`."""
+        clamped = num_sensed.clamp(0, self._route.shape[0] - 1)
+        return self._route[clamped]
+
+    def encode(self, states: torch.Tensor, num_sensed: torch.Tensor, *, chunk_size: int | None = None) -> torch.Tensor:
+        """Global ids of the states, each encoded by the part of its number of sensed neighbours.
+
+        Args:
+            states: `(..., F)` full states (`F` covers every `feature_index`).
+            num_sensed: `(...)` int64 number of sensed neighbours of each state.
+            chunk_size: rows per block of the search.
+
+        Returns:
+            `(...)` int64 global ids in `[0, num_prototypes)`.
+        """
+        if not self._parts:
+            raise RuntimeError("UnionQuantizer has no parts")
+        if num_sensed.shape != states.shape[:-1]:
+            raise ValueError(f"num_sensed {tuple(num_sensed.shape)} must match states {tuple(states.shape[:-1])}")
+        flat_states = states.reshape(-1, states.shape[-1])
+        which = self.part_of(num_sensed.reshape(-1).to(torch.int64))
+        ids = torch.empty(flat_states.shape[0], dtype=torch.int64, device=states.device)
+        for position, (part, offset) in enumerate(zip(self._parts, self._offsets, strict=True)):
+            rows = (which == position).nonzero().squeeze(1)
+            if rows.numel() == 0:
+                continue
+            projected = flat_states[rows[:, None], part.feature_index[None, :]]
+            ids[rows] = part.quantizer.encode(projected, chunk_size=chunk_size) + offset
+        return ids.view(states.shape[:-1])
+
+    # ------------------------------------------------------------------ devices and persistence
+
+    def to(self, device: torch.device | str) -> UnionQuantizer:
+        """A copy on `device`."""
+        return UnionQuantizer(
+            [_Part(part.num_sensed, part.feature_index.to(device), part.quantizer.to(device)) for part in self._parts]
+        )
+
+    def state_dict(self) -> dict[str, torch.Tensor]:
+        """Flat `dict[str, Tensor]`: `"num_sensed" (P,)` and, per part `n`, `"part{n}.feature_index"`,
+        `"part{n}.mean"`, `"part{n}.std"`, `"part{n}.prototypes"`."""
+        state = {"num_sensed": torch.tensor(self.num_sensed, dtype=torch.int64, device=self.device)}
+        for part in self._parts:
+            state[f"part{part.num_sensed}.feature_index"] = part.feature_index.contiguous()
+            for key, value in part.quantizer.state_dict().items():
+                state[f"part{part.num_sensed}.{key}"] = value
+        return state
+
+    @classmethod
+    def from_state_dict(cls, state: dict[str, torch.Tensor]) -> UnionQuantizer:
+        """Inverse of `state_dict`."""
+        parts = []
+        for n in state["num_sensed"].tolist():
+            prefix = f"part{n}."
+            quantizer = Quantizer.from_state_dict({key: state[prefix + key] for key in ("mean", "std", "prototypes")})
+            parts.append(_Part(n, state[prefix + "feature_index"].to(torch.int64), quantizer))
+        return cls(parts)
+
+    def __repr__(self) -> str:
+        return f"UnionQuantizer(part_sizes={self.part_sizes}, device={self.device})"
