@@ -30,6 +30,7 @@ def build_trainer(cfg: DictConfig, run_dir: str | Path) -> Trainer:
     return instantiate(
         cfg.algo,
         _convert_="all",
+        _recursive_=False,
         env=env,
         vq=OmegaConf.to_container(cfg.vq, resolve=True),
         processes=cfg.processes,
@@ -40,7 +41,7 @@ def build_trainer(cfg: DictConfig, run_dir: str | Path) -> Trainer:
         run_dir=str(run_dir),
         tensorboard=cfg.logger.tensorboard,
         progress=cfg.progress,
-        config=config,
+        run_config=config,
     )
 
 
@@ -62,7 +63,7 @@ def train(cfg: DictConfig, *, run_dir: str | Path | None = None) -> TrainResult:
 
 
 def _write_outputs(result: TrainResult, trainer: Trainer) -> None:
-    from pedrl.analysis.plots import plot_learning_curve_file
+    from pedrl.plot import plot_learning_curve_file
 
     figure_path = result.run_dir / "learning_curve.png"
     plot_learning_curve_file(result.run_dir / "learning_curve.csv", figure_path, label=trainer.name)
@@ -81,7 +82,10 @@ def print_summary(result: TrainResult, name: str) -> None:
     f = result.final
     rows = [
         ("algorithm", name),
-        ("final success rate", f"{f.get('success_rate_mean', float('nan')):.3f} ± {f.get('success_rate_std', 0):.3f}"),
+        (
+            "final success rate",
+            f"{f.get('success_rate_mean', float('nan')):.3f} ± {f.get('success_rate_std', 0):.3f}",
+        ),
         ("crashes with agents / agent", f"{f.get('crashes_agent_mean', float('nan')):.2f}"),
         ("crashes with walls / agent", f"{f.get('crashes_wall_mean', float('nan')):.2f}"),
         ("mean speed (m/s)", f"{f.get('mean_speed_mean', float('nan')):.2f}"),

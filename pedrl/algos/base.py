@@ -75,7 +75,11 @@ class VQSettings:
         tolerance: stop when the relative decrease of distortion falls below it.
         max_states: cap on gathered states kept for k-means (a uniform random subset is kept).
         init: k-means initialisation (see :func:`pedrl.vq.kmeans`).
-        chunk_size: rows per block in distance computations (bounds memory).
+        chunk_size: rows per block in distance computations (bounds memory; None: the measured best).
+        weight_own: weight of the agent's own features (speed, velocity angle, door distance) after
+            standardisation; 1 is the paper's plain standardisation.
+        weight_neighbours: weight of every neighbour feature after standardisation.
+        weight_walls: weight of every wall feature after standardisation.
     """
 
     num_prototypes: int = 4096
@@ -83,7 +87,10 @@ class VQSettings:
     tolerance: float = 1e-4
     max_states: int = 200_000
     init: str = "kmeans++"
-    chunk_size: int = 8192
+    chunk_size: int | None = None
+    weight_own: float = 1.0
+    weight_neighbours: float = 1.0
+    weight_walls: float = 1.0
 
 
 @dataclass
@@ -97,6 +104,7 @@ class TrialStats:
     mean_speed: torch.Tensor
     td_error: torch.Tensor
     decisions: int = 0
+    agent_decisions: int = 0
 
 
 @dataclass
@@ -133,7 +141,7 @@ class Trainer:
         run_dir: where outputs go.
         tensorboard: write TensorBoard events.
         progress: show a progress bar.
-        config: the resolved config, stored in checkpoints and compared on resume.
+        run_config: the resolved run config, stored in checkpoints and compared on resume.
     """
 
     name = "base"
@@ -157,7 +165,7 @@ class Trainer:
         run_dir: str | Path = ".",
         tensorboard: bool = True,
         progress: bool = True,
-        config: Mapping[str, Any] | None = None,
+        run_config: Mapping[str, Any] | None = None,
     ) -> None:
         self.vq = vq if isinstance(vq, VQSettings) else VQSettings(**dict(vq))
         _check_int("processes", processes, 1)
@@ -186,11 +194,13 @@ class Trainer:
         self.run_dir = Path(run_dir)
         self.tensorboard = tensorboard
         self.progress = progress
-        self.config = dict(config or {})
+        self.config = dict(run_config or {})
         self.generator = torch.Generator(device=self.device)
         self._envs: dict[int, RoomEnv] = {}
         for phase in self.phases():
             self._check_phase(phase)
+        for num_agents in sorted({phase.num_agents for phase in self.phases()}):
+            self._env(num_agents)  # validates the room parameters before any compute
 
     # ------------------------------------------------------------------ what subclasses define
     def phases(self) -> list[Phase]:
@@ -216,6 +226,15 @@ class Trainer:
 
     def quantizer_from_state_dict(self, tensors: dict[str, torch.Tensor]) -> Any:
         raise NotImplementedError
+
+    def epsilon_schedule(self, phase: Phase) -> Callable[[int], float]:
+        """Exploration rate at each trial of ``phase``: linear from ``epsilon_start`` to ``epsilon_end`` over
+        ``epsilon_decay_fraction`` of the phase's trials, then constant (every phase learns from scratch)."""
+        return LinearSchedule(
+            start=self.epsilon_start,
+            end=self.epsilon_end,
+            decay_trials=max(1, round(self.epsilon_decay_fraction * phase.trials)),
+        )
 
     def continues_previous(self, phase: Phase) -> bool:
         """True when ``phase`` keeps the previous phase's quantizer and tables instead of starting afresh."""
@@ -293,11 +312,7 @@ class Trainer:
                         },
                     )
                 first_trial = start_trial if (resumed and position == start_phase) else 0
-                schedule = LinearSchedule(
-                    start=self.epsilon_start,
-                    end=self.epsilon_end,
-                    decay_trials=max(1, round(self.epsilon_decay_fraction * phase.trials)),
-                )
+                schedule = self.epsilon_schedule(phase)
                 bar = tqdm(
                     range(first_trial, phase.trials),
                     desc=f"{self.name} phase {phase.index}/{len(phases)} ({phase.num_agents} agents)",
@@ -309,7 +324,7 @@ class Trainer:
                     tic = time.perf_counter()
                     stats = self.run_trial(env, quantizer, q_values, epsilon=epsilon, learn=True)
                     elapsed = time.perf_counter() - tic
-                    rate = stats.decisions * self.processes * self.rooms_per_process * phase.num_agents / elapsed
+                    rate = stats.agent_decisions / elapsed
                     self._log_trial(logger, curve, phase, trial, global_trial, epsilon, stats, rate)
                     global_trial += 1
                     last_stats = stats
@@ -355,7 +370,10 @@ class Trainer:
                 counts.append(info["num_sensed"].reshape(-1)[active])
                 if policy is None:
                     actions = torch.randint(
-                        env.num_actions, (rooms * phase.num_agents,), generator=self.generator, device=self.device
+                        env.num_actions,
+                        (rooms * phase.num_agents,),
+                        generator=self.generator,
+                        device=self.device,
                     )
                 else:
                     quantizer, q_values = policy
@@ -386,10 +404,7 @@ class Trainer:
         rooms, num_agents = env.num_replicas, env.num_agents
         obs, info = env.reset()
         base_rows = self._rows(q_values, num_agents)
-        rows = base_rows + self.encode(
-            quantizer, self._prepare(obs.reshape(-1, env.num_features), info["num_sensed"].reshape(-1)),
-            info["num_sensed"].reshape(-1),
-        )
+        rows = base_rows + self.encode_observations(quantizer, obs, info)
         returns = torch.zeros(rooms * num_agents, device=self.device)
         crashes_agent = torch.zeros_like(returns)
         crashes_wall = torch.zeros_like(returns)
@@ -403,10 +418,7 @@ class Trainer:
             valid = env.active.reshape(-1)
             actions = epsilon_greedy(q_values, rows, epsilon, self.generator)
             obs, reward, terminated, truncated, info = env.step(actions.view(rooms, num_agents))
-            next_rows = base_rows + self.encode(
-                quantizer, self._prepare(obs.reshape(-1, env.num_features), info["num_sensed"].reshape(-1)),
-                info["num_sensed"].reshape(-1),
-            )
+            next_rows = base_rows + self.encode_observations(quantizer, obs, info)
             if learn:
                 td = td_update(
                     q_values,
@@ -447,11 +459,31 @@ class Trainer:
             mean_speed=speed.cpu(),
             td_error=td_error.cpu(),
             decisions=decisions,
+            agent_decisions=int(moves.sum()),
         )
 
+    def encode_observations(self, quantizer: Any, obs: torch.Tensor, info: Mapping[str, Any]) -> torch.Tensor:
+        """Prototype ids ``(R * N,)`` of a room's observations ``(R, N, F)``, void slots treated as configured."""
+        num_sensed = info["num_sensed"].reshape(-1)
+        return self.encode(quantizer, self._prepare(obs.reshape(-1, obs.shape[-1]), num_sensed), num_sensed)
+
     # ------------------------------------------------------------------ helpers
-    def fit_plain_quantizer(self, states: torch.Tensor) -> tuple[Quantizer, float]:
-        """Fit one :class:`pedrl.vq.Quantizer` on ``states (M, F)`` with the ``vq`` settings."""
+    def feature_weights(self, feature_index: torch.Tensor | None = None) -> torch.Tensor:
+        """Per-feature weights ``(F,)`` (or of the features ``feature_index`` selects) from the ``vq`` settings."""
+        env = next(iter(self._envs.values()))
+        own, neighbours = 3, 3 * env.num_neighbours
+        weights = torch.full((env.num_features,), self.vq.weight_walls, dtype=torch.float64, device=self.device)
+        weights[:own] = self.vq.weight_own
+        weights[own : own + neighbours] = self.vq.weight_neighbours
+        return weights if feature_index is None else weights[feature_index]
+
+    def fit_plain_quantizer(
+        self, states: torch.Tensor, feature_index: torch.Tensor | None = None
+    ) -> tuple[Quantizer, float]:
+        """Fit one :class:`pedrl.vq.Quantizer` on ``states (M, F)`` with the ``vq`` settings.
+
+        ``feature_index`` names the features of ``states`` when they are a projection of the full state.
+        """
         quantizer, result = Quantizer.fit(
             states,
             self.vq.num_prototypes,
@@ -460,6 +492,7 @@ class Trainer:
             tolerance=self.vq.tolerance,
             init=self.vq.init,
             chunk_size=self.vq.chunk_size,
+            feature_weights=self.feature_weights(feature_index),
         )
         return quantizer, float(result.distortion[-1])
 
@@ -488,15 +521,19 @@ class Trainer:
         process = torch.arange(self.processes, device=self.device).repeat_interleave(
             self.rooms_per_process * num_agents
         )
-        table = torch.arange(num_agents, device=self.device).remainder(tables).repeat(
-            self.processes * self.rooms_per_process
+        table = (
+            torch.arange(num_agents, device=self.device)
+            .remainder(tables)
+            .repeat(self.processes * self.rooms_per_process)
         )
         return (process * tables + table) * num_states
 
     def _env(self, num_agents: int) -> RoomEnv:
         if num_agents not in self._envs:
             self._envs[num_agents] = self.env_factory(
-                num_replicas=self.processes * self.rooms_per_process, num_agents=num_agents, device=self.device
+                num_replicas=self.processes * self.rooms_per_process,
+                num_agents=num_agents,
+                device=self.device,
             )
         return self._envs[num_agents]
 
@@ -527,7 +564,8 @@ class Trainer:
             tag = "losses/td_error" if metric == "td_error" else f"charts/{metric}"
             logger.log_spread(global_trial, tag, values)
         logger.log_scalars(
-            global_trial, {"charts/decisions_per_s": rate, "charts/epsilon": epsilon, "charts/phase": phase.index}
+            global_trial,
+            {"charts/decisions_per_s": rate, "charts/epsilon": epsilon, "charts/phase": phase.index},
         )
         curve.write(row)
 
@@ -557,7 +595,9 @@ class Trainer:
         checkpoint = load_checkpoint(path, device=self.device)
         meta = checkpoint.metadata
         if meta.get("algo") != self.name:
-            raise CheckpointError(f"checkpoint {str(path)!r} was written by algo={meta.get('algo')!r}, not {self.name!r}")
+            raise CheckpointError(
+                f"checkpoint {str(path)!r} was written by algo={meta.get('algo')!r}, not {self.name!r}"
+            )
         mismatch = _config_mismatch(meta.get("config", {}), self.config)
         if mismatch:
             raise CheckpointError(f"checkpoint {str(path)!r} comes from an incompatible configuration: {mismatch}")

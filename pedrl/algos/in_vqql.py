@@ -71,8 +71,13 @@ class INVQQL(Trainer):
 
     def phases(self) -> list[Phase]:
         return [
-            Phase(index=i + 1, num_agents=m, trials=budget, gather_trials=self.gather_trials,
-                  gather_epsilon=1.0 if i == 0 else self.gather_epsilon)
+            Phase(
+                index=i + 1,
+                num_agents=m,
+                trials=budget,
+                gather_trials=self.gather_trials,
+                gather_epsilon=1.0 if i == 0 else self.gather_epsilon,
+            )
             for i, (m, budget) in enumerate(zip(self.stages, self.trial_budgets, strict=True))
         ]
 
@@ -98,7 +103,7 @@ class INVQQL(Trainer):
                 f"stage {phase.index} ({phase.num_agents} agents) gathered {full.shape[0]} states with {n} "
                 f"neighbours, fewer than vq.num_prototypes={self.vq.num_prototypes}: raise gather_trials"
             )
-        quantizer, distortion = self.fit_plain_quantizer(full)
+        quantizer, distortion = self.fit_plain_quantizer(full, index)
         union = previous if previous is not None else UnionQuantizer()
         return union.unite(n, index, quantizer), distortion
 

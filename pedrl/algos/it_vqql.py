@@ -54,8 +54,13 @@ class ITVQQL(Trainer):
 
     def phases(self) -> list[Phase]:
         return [
-            Phase(index=i + 1, num_agents=self.num_agents, trials=budget, gather_trials=self.gather_trials,
-                  gather_epsilon=1.0 if i == 0 else self.gather_epsilon)
+            Phase(
+                index=i + 1,
+                num_agents=self.num_agents,
+                trials=budget,
+                gather_trials=self.gather_trials,
+                gather_epsilon=1.0 if i == 0 else self.gather_epsilon,
+            )
             for i, budget in enumerate(self.trial_budgets)
         ]
 

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import torch
 
 from pedrl.algos.base import Phase, Trainer, _check_int
+from pedrl.rl import LinearSchedule
 from pedrl.vq import Quantizer
 
 
@@ -28,8 +30,15 @@ class VQQL(Trainer):
 
     name = "vqql"
 
-    def __init__(self, *, num_agents: int = 20, trials: int = 1000, iterations: int = 1, gather_trials: int = 5,
-                 **common: Any) -> None:
+    def __init__(
+        self,
+        *,
+        num_agents: int = 20,
+        trials: int = 1000,
+        iterations: int = 1,
+        gather_trials: int = 5,
+        **common: Any,
+    ) -> None:
         self.num_agents = num_agents
         self.trials = trials
         self.iterations = iterations
@@ -41,13 +50,28 @@ class VQQL(Trainer):
     def phases(self) -> list[Phase]:
         block, extra = divmod(self.trials, self.iterations)
         return [
-            Phase(index=i + 1, num_agents=self.num_agents, trials=block + (1 if i < extra else 0),
-                  gather_trials=self.gather_trials, gather_epsilon=1.0)
+            Phase(
+                index=i + 1,
+                num_agents=self.num_agents,
+                trials=block + (1 if i < extra else 0),
+                gather_trials=self.gather_trials,
+                gather_epsilon=1.0,
+            )
             for i in range(self.iterations)
         ]
 
     def continues_previous(self, phase: Phase) -> bool:
         return phase.index > 1
+
+    def epsilon_schedule(self, phase: Phase) -> Callable[[int], float]:
+        """One linear decay over the whole run: the blocks are one learning process."""
+        offset = sum(p.trials for p in self.phases()[: phase.index - 1])
+        schedule = LinearSchedule(
+            start=self.epsilon_start,
+            end=self.epsilon_end,
+            decay_trials=max(1, round(self.epsilon_decay_fraction * self.trials)),
+        )
+        return lambda trial: schedule(offset + trial)
 
     def fit_quantizer(
         self, phase: Phase, states: torch.Tensor, num_sensed: torch.Tensor, previous: Any | None

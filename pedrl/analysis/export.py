@@ -63,9 +63,7 @@ def write_pedpy_trajectory(path: str | Path, trajectories: Trajectories, *, firs
             f"{ID_COL} {FRAME_COL} {X_COL}/m {Y_COL}/m",
         ]
     )
-    rows = np.empty(
-        len(frames), dtype=[("id", np.int64), ("frame", np.int64), ("x", xy.dtype), ("y", xy.dtype)]
-    )
+    rows = np.empty(len(frames), dtype=[("id", np.int64), ("frame", np.int64), ("x", xy.dtype), ("y", xy.dtype)])
     rows["id"] = agents + first_id
     rows["frame"] = frames
     rows["x"] = xy[:, X]
@@ -126,9 +124,7 @@ def read_pedpy_trajectory(
     return ids, frames, xy, framerate
 
 
-def write_geometry_wkt(
-    path: str | Path, geometry: RoomGeometry, *, exit_depth: float = DEFAULT_EXIT_DEPTH
-) -> Path:
+def write_geometry_wkt(path: str | Path, geometry: RoomGeometry, *, exit_depth: float = DEFAULT_EXIT_DEPTH) -> Path:
     """Write the walkable area as WKT text (``pedpy.WalkableArea(path.read_text())`` loads it).
 
     See :meth:`RoomGeometry.walkable_polygon` for the polygon (room plus an apron of ``exit_depth`` m).

@@ -186,9 +186,7 @@ class FundamentalDiagram:
     def __post_init__(self) -> None:
         lengths = {len(np.asarray(c)) for c in (self.density, self.speed, self.flow, self.trial, self.frame)}
         if len(lengths) != 1:
-            raise ValueError(
-                f"density, speed, flow, trial and frame must have one length, got {sorted(lengths)}"
-            )
+            raise ValueError(f"density, speed, flow, trial and frame must have one length, got {sorted(lengths)}")
 
     @property
     def num_samples(self) -> int:
@@ -219,9 +217,7 @@ class FundamentalDiagram:
         ]
 
 
-def default_measurement_point(
-    trajectories: Trajectories, *, radius: float = DEFAULT_RADIUS
-) -> NDArray[np.float64]:
+def default_measurement_point(trajectories: Trajectories, *, radius: float = DEFAULT_RADIUS) -> NDArray[np.float64]:
     """The paper's point "near the exit": ``radius`` metres inside the room from the door centre (m)."""
     return trajectories.geometry.door_center - np.array([0.0, radius])
 
@@ -252,28 +248,20 @@ def compute_fundamental_diagram(
     parts: list[tuple[NDArray, ...]] = []
     points = []
     for index, trajectories in enumerate(trajectories_list):
-        here = (
-            default_measurement_point(trajectories, radius=radius)
-            if point is None
-            else np.asarray(point, float)
-        )
+        here = default_measurement_point(trajectories, radius=radius) if point is None else np.asarray(point, float)
         points.append(here)
         frames = slice(first_frame, None)
         positions = trajectories.positions[frames]
         active = trajectories.active[frames]
         density = compute_gaussian_density(positions, active, point=here, radius=radius)
-        speed = compute_local_speed(
-            positions, trajectories.velocities[frames], active, point=here, radius=radius
-        )
+        speed = compute_local_speed(positions, trajectories.velocities[frames], active, point=here, radius=radius)
         keep = (density >= min_density) & np.isfinite(speed) & (density > 0)
         frame = np.arange(first_frame, first_frame + len(density))[keep]
         parts.append((density[keep], speed[keep], np.full(len(frame), index, dtype=np.int64), frame))
     if not parts:
         raise ValueError("trajectories_list is empty")
     if any(not np.allclose(p, points[0]) for p in points):
-        raise ValueError(
-            "the default measurement point differs between trials (different rooms); pass point="
-        )
+        raise ValueError("the default measurement point differs between trials (different rooms); pass point=")
     density, speed, trial, frame = (np.concatenate(column) for column in zip(*parts, strict=True))
     return FundamentalDiagram(
         density=density,
@@ -343,10 +331,6 @@ def fit_speed_density(
     density = np.asarray(fundamental_diagram.density, dtype=np.float64)
     speed = np.asarray(fundamental_diagram.speed, dtype=np.float64)
     if len(np.unique(density)) <= degree:
-        raise ValueError(
-            f"{model.name} fit needs more than {degree} distinct densities, got {len(np.unique(density))}"
-        )
+        raise ValueError(f"{model.name} fit needs more than {degree} distinct densities, got {len(np.unique(density))}")
     coefficients = np.polynomial.polynomial.polyfit(density, speed, degree)
-    return SpeedDensityFit(
-        model=model, coefficients=tuple(float(c) for c in coefficients), num_samples=len(density)
-    )
+    return SpeedDensityFit(model=model, coefficients=tuple(float(c) for c in coefficients), num_samples=len(density))

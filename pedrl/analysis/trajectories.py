@@ -158,9 +158,7 @@ class Trajectories:
         if not np.issubdtype(positions.dtype, np.floating):
             raise ValueError(f"positions must be floating point, got {positions.dtype}")
         if velocities.shape != positions.shape:
-            raise ValueError(
-                f"velocities must have the shape of positions {positions.shape}, got {velocities.shape}"
-            )
+            raise ValueError(f"velocities must have the shape of positions {positions.shape}, got {velocities.shape}")
         if not np.issubdtype(velocities.dtype, np.floating):
             raise ValueError(f"velocities must be floating point, got {velocities.dtype}")
         if active.shape != positions.shape[:2]:

@@ -48,9 +48,7 @@ class RunLogger:
         if tensorboard:
             from torch.utils.tensorboard import SummaryWriter
 
-            self._writer = SummaryWriter(
-                log_dir=str(self.run_dir / "tb"), purge_step=purge_step, flush_secs=flush_secs
-            )
+            self._writer = SummaryWriter(log_dir=str(self.run_dir / "tb"), purge_step=purge_step, flush_secs=flush_secs)
 
     @property
     def tensorboard_dir(self) -> Path | None:

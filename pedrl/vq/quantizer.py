@@ -90,6 +90,7 @@ class Quantizer:
         chunk_size: int | None = None,
         init_sample_size: int | None = None,
         precision: Precision = "auto",
+        feature_weights: torch.Tensor | None = None,
     ) -> tuple[Quantizer, KMeansResult]:
         """Standardises `states` and runs k-means on them (see `pedrl.vq.kmeans.kmeans`).
 
@@ -103,6 +104,9 @@ class Quantizer:
             chunk_size: rows per block of the nearest-prototype search.
             init_sample_size: points used by k-means++ seeding.
             precision: nearest-prototype search method, for fitting and for the returned quantizer.
+            feature_weights: `(d,)` positive weights multiplying the standardised features (None: all 1, the
+                paper's plain standardisation). They are folded into the stored scale, `std / weight`, so
+                `encode` applies them too.
 
         Returns:
             `(quantizer, result)`; `result.distortion` is in standardised units.
@@ -113,6 +117,11 @@ class Quantizer:
         mean = states64.mean(0)
         std = states64.std(0, correction=0)
         std = torch.where(std < MIN_STD, torch.ones_like(std), std)
+        if feature_weights is not None:
+            weights = torch.as_tensor(feature_weights, dtype=torch.float64, device=states.device)
+            if weights.shape != std.shape or not bool((weights > 0).all()):
+                raise ValueError(f"feature_weights must be ({states.shape[1]},) positive numbers")
+            std = std / weights
         standardised = ((states64 - mean) / std).to(torch.float32)
         del states64
         result = kmeans(

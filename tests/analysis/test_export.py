@@ -116,12 +116,8 @@ def test_pedpy_loads_the_file_unchanged(tmp_path: Path, make_trial):
     frames, agents = np.nonzero(trial.active)
     np.testing.assert_array_equal(data["id"].to_numpy(), agents)
     np.testing.assert_array_equal(data["frame"].to_numpy(), frames)
-    np.testing.assert_array_equal(
-        data["x"].to_numpy().astype(np.float32), trial.positions[trial.active][:, 0]
-    )
-    np.testing.assert_array_equal(
-        data["y"].to_numpy().astype(np.float32), trial.positions[trial.active][:, 1]
-    )
+    np.testing.assert_array_equal(data["x"].to_numpy().astype(np.float32), trial.positions[trial.active][:, 0])
+    np.testing.assert_array_equal(data["y"].to_numpy().astype(np.float32), trial.positions[trial.active][:, 1])
 
 
 def test_pedpy_accepts_the_walkable_area_with_the_exit_frames(tmp_path: Path):
@@ -131,9 +127,7 @@ def test_pedpy_accepts_the_walkable_area_with_the_exit_frames(tmp_path: Path):
     walkable_area = pedpy.WalkableArea(write_geometry_wkt(tmp_path / "room.wkt", trial.geometry).read_text())
     expected_area = 20.0 * 30.0 + (2.0 + 2.0 + 2 * 2.5) / 2 * 2.5
     assert walkable_area.area == pytest.approx(expected_area)
-    traj_data = pedpy.load_trajectory_from_txt(
-        trajectory_file=write_pedpy_trajectory(tmp_path / "t.txt", trial)
-    )
+    traj_data = pedpy.load_trajectory_from_txt(trajectory_file=write_pedpy_trajectory(tmp_path / "t.txt", trial))
     assert pedpy.is_trajectory_valid(traj_data=traj_data, walkable_area=walkable_area)
     # Without the apron the exit frames fall outside the room.
     bare = pedpy.WalkableArea(trial.geometry.to_wkt(exit_depth=0.0))
@@ -143,9 +137,7 @@ def test_pedpy_accepts_the_walkable_area_with_the_exit_frames(tmp_path: Path):
 def test_pedpy_classic_density_equals_our_count(tmp_path: Path, make_trial):
     pedpy = pytest.importorskip("pedpy")
     trial = make_trial(num_agents=40, num_frames=25)
-    traj_data = pedpy.load_trajectory_from_txt(
-        trajectory_file=write_pedpy_trajectory(tmp_path / "t.txt", trial)
-    )
+    traj_data = pedpy.load_trajectory_from_txt(trajectory_file=write_pedpy_trajectory(tmp_path / "t.txt", trial))
     x_min, y_min, x_max, y_max = 6.0, 18.0, 14.0, 28.0
     area = pedpy.MeasurementArea([(x_min, y_min), (x_max, y_min), (x_max, y_max), (x_min, y_max)])
     classic = pedpy.compute_classic_density(traj_data=traj_data, measurement_area=area)

@@ -26,9 +26,7 @@ from pedrl.analysis.fundamental import FundamentalDiagram
 @pytest.mark.parametrize("radius", [0.5, 1.0, 2.0])
 def test_single_agent_on_the_point(radius):
     point = np.array([3.0, 4.0])
-    density = compute_gaussian_density(
-        point[None, None, :], np.ones((1, 1), bool), point=point, radius=radius
-    )
+    density = compute_gaussian_density(point[None, None, :], np.ones((1, 1), bool), point=point, radius=radius)
     np.testing.assert_allclose(density, [1.0 / (np.pi * radius**2)], rtol=1e-15)
 
 
@@ -92,9 +90,7 @@ def test_inactive_agents_are_ignored():
     for p, v in ((positions, velocities), (moved, junk)):
         density = compute_gaussian_density(p, active, point=[0.0, 0.0])
         speed = compute_local_speed(p, v, active, point=[0.0, 0.0])
-        kept_density = [
-            compute_gaussian_density(p[t, active[t]], active[t, active[t]], point=[0, 0]) for t in range(6)
-        ]
+        kept_density = [compute_gaussian_density(p[t, active[t]], active[t, active[t]], point=[0, 0]) for t in range(6)]
         np.testing.assert_allclose(density, kept_density, rtol=1e-14)
         assert np.isfinite(speed[active.any(axis=1)]).all()
         if p is positions:
@@ -124,9 +120,7 @@ def test_local_speed_is_nan_without_weight():
     assert np.isnan(speed[0])
     np.testing.assert_allclose(speed[1], np.sqrt(2.0))
     # So far away that every weight underflows to 0.
-    far = compute_local_speed(
-        np.full((1, 1, 2), 1e3), np.ones((1, 1, 2)), np.ones((1, 1), bool), point=[0, 0]
-    )
+    far = compute_local_speed(np.full((1, 1, 2), 1e3), np.ones((1, 1, 2)), np.ones((1, 1), bool), point=[0, 0])
     assert np.isnan(far[0])
 
 

@@ -1,0 +1,168 @@
+"""End-to-end training through the real entry point, with tiny budgets."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+import torch
+
+from pedrl.io import CheckpointError, load_checkpoint, read_csv
+from pedrl.train import build_trainer, train
+
+ALGOS = ("vqql", "it_vqql", "in_vqql")
+
+
+@pytest.mark.parametrize("algo", ALGOS)
+@pytest.mark.parametrize("logger", ["tensorboard", "none"])
+def test_every_group_composes_and_builds(algo, logger, tmp_path, compose):
+    cfg = compose("train", [f"algo={algo}", f"logger={logger}", "debug=default"])
+    trainer = build_trainer(cfg, tmp_path)
+    assert trainer.name == algo
+    assert trainer.phases(), "an algorithm has at least one phase"
+
+
+def test_paper_defaults_compose(compose):
+    cfg = compose("train", ["algo=in_vqql"])
+    assert list(cfg.algo.stages) == [1, 2, 3, 4, 5, 6, 7, 8, 10, 20]
+    assert cfg.algo.gamma == 0.91 and cfg.algo.alpha == 0.35 and cfg.algo.epsilon_start == 0.4
+    assert compose("train", ["algo=vqql"]).algo.alpha == 0.25
+
+
+def test_vqql_debug_run_writes_every_output(train_config, tmp_path):
+    result = train(train_config("algo=vqql"), run_dir=tmp_path)
+    for name in ("learning_curve.csv", "learning_curve.png", "summary.json"):
+        assert (tmp_path / name).is_file(), name
+    assert sorted(p.name for p in (tmp_path / "checkpoints").iterdir()) == [
+        "iter_0001.safetensors",
+        "iter_0002.safetensors",
+        "last.safetensors",
+    ]
+    rows = read_csv(tmp_path / "learning_curve.csv")
+    assert len(rows) == 20 and [int(r["global_trial"]) for r in rows] == list(range(20))
+    assert result.final["success_rate_mean"] == pytest.approx(float(rows[-1]["success_rate_mean"]), abs=1e-5)
+    checkpoint = load_checkpoint(tmp_path / "checkpoints" / "iter_0001.safetensors")
+    assert checkpoint.tensors["q_values"].shape == (2, 20, 32, 81)
+    assert checkpoint.metadata["config"]["algo"]["_target_"] == "pedrl.algos.VQQL"
+
+
+def test_vqql_learns_measurably_better_than_a_random_walk(compose, tmp_path):
+    """The main job's experiment, shrunk: success late in training beats the random walk the data came from."""
+    cfg = compose(
+        "train", ["experiment=quick_vqql", "processes=2", "algo.trials=40", "algo.iterations=1", "logger=none"]
+    )
+    cfg.progress = False
+    train(cfg, run_dir=tmp_path)
+    rows = read_csv(tmp_path / "learning_curve.csv")
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    random_walk = summary["phases"][0]["gather_success_rate"]
+    late = sum(float(r["success_rate_mean"]) for r in rows[-8:]) / 8
+    assert late > 2 * random_walk + 0.1, (late, random_walk)
+
+
+def test_tensorboard_events_hold_the_documented_tags(train_config, tmp_path):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    train(train_config("algo=vqql", "algo.iterations=1", "algo.trials=3"), run_dir=tmp_path)
+    events = EventAccumulator(str(tmp_path / "tb"))
+    events.Reload()
+    tags = set(events.Tags()["scalars"])
+    for tag in (
+        "charts/success_rate",
+        "charts/episodic_return",
+        "charts/crashes_agent",
+        "charts/crashes_wall",
+        "charts/mean_speed",
+        "charts/decisions_per_s",
+        "vq/distortion",
+        "losses/td_error",
+        "spread/success_rate_std",
+    ):
+        assert tag in tags, tag
+    assert len(events.Scalars("charts/success_rate")) == 3
+
+
+def test_seeded_runs_are_reproducible(train_config, tmp_path):
+    cfg = train_config("algo=vqql", "algo.iterations=1", "algo.trials=4", "logger=none")
+    train(cfg, run_dir=tmp_path / "a")
+    train(cfg, run_dir=tmp_path / "b")
+    a = load_checkpoint(tmp_path / "a" / "checkpoints" / "last.safetensors")
+    b = load_checkpoint(tmp_path / "b" / "checkpoints" / "last.safetensors")
+    assert torch.equal(a.tensors["q_values"], b.tensors["q_values"])
+    assert torch.equal(a.tensors["quantizer/prototypes"], b.tensors["quantizer/prototypes"])
+
+
+@pytest.mark.parametrize("algo", ALGOS)
+def test_resumed_run_equals_uninterrupted_run(train_config, tmp_path, monkeypatch, algo):
+    overrides = (f"algo={algo}", "checkpoint_every=3", "logger=none")
+    train(train_config(*overrides), run_dir=tmp_path / "full")
+
+    from pedrl.algos.base import Trainer
+
+    original = Trainer._log_trial
+    calls = {"n": 0}
+
+    def interrupt_after_some_trials(self, *args, **kwargs):
+        original(self, *args, **kwargs)
+        calls["n"] += 1
+        if calls["n"] == 14:  # inside the second phase, after a mid-phase checkpoint
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(Trainer, "_log_trial", interrupt_after_some_trials)
+    with pytest.raises(KeyboardInterrupt):
+        train(train_config(*overrides), run_dir=tmp_path / "cut")
+    monkeypatch.setattr(Trainer, "_log_trial", original)
+    train(train_config(*overrides, "resume=true"), run_dir=tmp_path / "cut")
+
+    full = load_checkpoint(tmp_path / "full" / "checkpoints" / "last.safetensors")
+    resumed = load_checkpoint(tmp_path / "cut" / "checkpoints" / "last.safetensors")
+    assert torch.equal(full.tensors["q_values"], resumed.tensors["q_values"])
+    full_rows = read_csv(tmp_path / "full" / "learning_curve.csv")
+    resumed_rows = read_csv(tmp_path / "cut" / "learning_curve.csv")
+    strip = lambda rows: [{k: v for k, v in r.items() if k != "decisions_per_s"} for r in rows]  # noqa: E731
+    assert strip(full_rows) == strip(resumed_rows)
+
+
+def test_resume_from_foreign_config_is_refused(train_config, tmp_path):
+    train(train_config("algo=vqql", "algo.iterations=1", "algo.trials=2", "logger=none"), run_dir=tmp_path)
+    cfg = train_config(
+        "algo=vqql", "algo.iterations=1", "algo.trials=2", "logger=none", "algo.gamma=0.5", "resume=true"
+    )
+    with pytest.raises(CheckpointError, match="algo.gamma"):
+        train(cfg, run_dir=tmp_path)
+    bad = tmp_path / "checkpoints" / "last.safetensors"
+    bad.write_bytes(bad.read_bytes()[:100])
+    cfg = train_config("algo=vqql", "algo.iterations=1", "algo.trials=2", "logger=none", "resume=true")
+    with pytest.raises(CheckpointError, match="corrupt or truncated"):
+        train(cfg, run_dir=tmp_path)
+
+
+@pytest.mark.parametrize(
+    ("override", "message"),
+    [
+        ("processes=0", "processes=0 is invalid"),
+        ("algo.alpha=2.0", "alpha=2.0 is invalid"),
+        ("algo.trials=abc", "trials='abc' is invalid"),
+        ("env.door_width=100", "door_width"),
+        ("vq.num_prototypes=1", "num_prototypes=1 is invalid"),
+    ],
+)
+def test_bad_values_fail_before_compute(train_config, tmp_path, override, message):
+    with pytest.raises(Exception, match=message):
+        build_trainer(train_config(override), tmp_path)
+    assert not (tmp_path / "learning_curve.csv").exists()
+
+
+def test_cli_reports_user_errors_in_one_line(tmp_path):
+    command = [sys.executable, "-m", "pedrl.train", "debug=default", "processes=-2", f"hydra.run.dir={tmp_path}"]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2
+    lines = [line for line in done.stderr.splitlines() if line.strip()]
+    assert lines == ["pedrl-train: error: processes=-2 is invalid: must be an integer >= 1"]
+
+
+def test_cli_rejects_unknown_keys(tmp_path):
+    command = [sys.executable, "-m", "pedrl.train", "debug=default", "algo.no_such_key=1", f"hydra.run.dir={tmp_path}"]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=120)
+    assert done.returncode != 0
+    assert "no_such_key" in done.stderr

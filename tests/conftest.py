@@ -1,0 +1,35 @@
+"""Shared fixtures: Hydra configs composed the way the entry points compose them."""
+
+from pathlib import Path
+
+import pytest
+from hydra import compose as hydra_compose
+from hydra import initialize_config_dir
+from omegaconf import DictConfig, open_dict
+
+CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
+
+
+def compose_config(name: str, overrides: list[str] | tuple[str, ...] = ()) -> DictConfig:
+    """Compose ``conf/<name>.yaml`` with overrides, as ``pedrl-train`` would."""
+    with initialize_config_dir(version_base="1.3", config_dir=CONFIG_DIR):
+        return hydra_compose(config_name=name, overrides=list(overrides))
+
+
+@pytest.fixture
+def compose():
+    """``compose(name, overrides)``: :func:`compose_config` as a fixture."""
+    return compose_config
+
+
+@pytest.fixture
+def train_config():
+    """``train_config(*overrides)``: a debug-sized training config with progress bars off."""
+
+    def make(*overrides: str) -> DictConfig:
+        cfg = compose_config("train", ["debug=default", *overrides])
+        with open_dict(cfg):
+            cfg.progress = False
+        return cfg
+
+    return make
