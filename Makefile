@@ -20,8 +20,8 @@ $(STAMP): pyproject.toml
 
 setup: $(STAMP) ## create .venv with torch==2.13.0 (CPU) and pedrl[dev,analysis]; does nothing when done
 
-run: setup ## the main job: train the default experiment (minutes on a 2-core CPU)
-	$(VENV)/bin/pedrl-train $(ARGS)
+run: setup ## the main job: 20 agents learn to leave a room (experiment=quick_vqql, about a minute)
+	$(VENV)/bin/pedrl-train experiment=quick_vqql $(ARGS)
 
 test: setup ## the fast test suite (not slow)
 	$(PY) -m pytest -q -m "not slow" $(ARGS)

@@ -56,6 +56,7 @@ def train(cfg: DictConfig, *, run_dir: str | Path | None = None) -> TrainResult:
     if resume_from is not None and cfg.get("resume") is not True:
         run_dir = resume_from.parent.parent  # continue writing into the run that holds the checkpoint
     trainer = build_trainer(cfg, run_dir)
+    set_threads(cfg.get("threads"))
     torch.manual_seed(int(cfg.seed))
     result = trainer.fit(resume_from=resume_from)
     _write_outputs(result, trainer)
@@ -98,7 +99,16 @@ def print_summary(result: TrainResult, name: str) -> None:
     print("\n" + "\n".join(f"  {k:<{width}}  {v}" for k, v in rows))
 
 
+def set_threads(threads: int | None) -> None:
+    """Set torch's CPU thread count (None: leave torch's default); validated by :func:`build_trainer`."""
+    if threads is not None and torch.get_num_threads() != threads:
+        torch.set_num_threads(threads)
+
+
 def _check_top_level(cfg: DictConfig) -> None:
+    threads = cfg.get("threads")
+    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int) or threads < 1):
+        raise ValueError(f"threads={threads!r} is invalid: must be null or an integer >= 1")
     for key, minimum in (("processes", 1), ("rooms_per_process", 1), ("checkpoint_every", 0), ("seed", 0)):
         value = cfg.get(key)
         if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
