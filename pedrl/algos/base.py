@@ -212,20 +212,22 @@ class Trainer:
     ) -> tuple[Any, float]:
         """Fit this phase's quantizer on gathered ``states (M, F)`` with ``num_sensed (M,)`` neighbours.
 
-        ``previous`` is the previous phase's quantizer (None in the first phase).
+        ``previous`` is the previous phase's quantizer (None in the first phase). The default fits one
+        :class:`pedrl.vq.Quantizer` over the full states (VQQL, IT-VQQL).
 
         Returns:
             The quantizer (anything with ``encode``, ``num_prototypes`` and ``state_dict``) and the final
             distortion (mean squared distance to the nearest prototype, standardised units).
         """
-        raise NotImplementedError
+        return self.fit_plain_quantizer(states)
 
     def encode(self, quantizer: Any, obs: torch.Tensor, num_sensed: torch.Tensor) -> torch.Tensor:
-        """Prototype ids ``(B,)`` of observations ``(B, F)``."""
-        raise NotImplementedError
+        """Prototype ids ``(B,)`` of observations ``(B, F)`` with ``num_sensed (B,)`` neighbours."""
+        return quantizer.encode(obs)
 
     def quantizer_from_state_dict(self, tensors: dict[str, torch.Tensor]) -> Any:
-        raise NotImplementedError
+        """Rebuild the quantizer saved in a checkpoint."""
+        return Quantizer.from_state_dict(tensors)
 
     def epsilon_schedule(self, phase: Phase) -> Callable[[int], float]:
         """Exploration rate at each trial of ``phase``: linear from ``epsilon_start`` to ``epsilon_end`` over

@@ -1,8 +1,13 @@
-"""Controllers that act in a room: learned tables (for evaluation) and a non-learned greedy reference."""
+"""Controllers that act in a room: learned tables (for evaluation) and a non-learned greedy reference.
+
+A controller maps a room's observation ``obs (R, N, F)`` and ``info`` (as :meth:`pedrl.sim.RoomEnv.step` returns
+them) to actions ``(R, N)`` int64 in ``[0, 81)``. Actions of inactive agents are ignored by the room.
+"""
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Mapping
 from typing import Any, Protocol
 
 import torch
@@ -10,60 +15,98 @@ import torch
 from pedrl.rl import epsilon_greedy
 from pedrl.sim import RoomEnv
 
+Encoder = Callable[[torch.Tensor, Mapping[str, Any]], torch.Tensor]
+"""``encode(obs (R, N, F), info) -> prototype ids (R * N,)`` int64, e.g. a trainer's ``encode_observations``."""
+
 
 class Controller(Protocol):
     """Chooses actions ``(R, N)`` for a room from its observation ``(R, N, F)`` and info."""
 
-    def act(self, env: RoomEnv, obs: torch.Tensor, info: dict[str, Any]) -> torch.Tensor: ...
+    def act(self, env: RoomEnv, obs: torch.Tensor, info: Mapping[str, Any]) -> torch.Tensor: ...
 
 
 class LearnedController:
-    """Acts with learned tables ``q_values (P, A, K, U)`` over a quantizer, as the trainer that learned them.
+    """Acts epsilon-greedily on learned tables ``q_values (P, A, K, U)``.
 
-    Replica ``i`` of the room is driven by process ``i mod P``; agent ``n`` uses table ``n mod A``, so a room with
-    more agents than were learned replicates the learned tables (agent 20 reuses table 0, and so on).
+    Replication rule (docs/design.md): replica ``i`` of the room is driven by learning process ``p = i mod P``,
+    and agent ``n`` of every replica uses table ``n mod A`` of that process. A room with more agents than were
+    learned therefore reuses the learned tables: with ``A = 20``, agents 20, 40, 60 and 80 all act with table 0,
+    agent 21 with table 1, and so on. A room with fewer agents uses the first tables only.
 
     Args:
-        trainer: the trainer that learned the tables (it knows how observations are quantized).
-        quantizer: its :class:`pedrl.vq.Quantizer` or :class:`pedrl.vq.UnionQuantizer`.
-        q_values: the tables.
-        epsilon: exploration rate (0: greedy, ties broken at random).
+        q_values: ``(P, A, K, U)`` tables: P learning processes, A learning agents, K prototypes, U actions.
+        encode: ``encode(obs (R, N, F), info) -> ids (R * N,)``, the prototype of every agent's state, as the
+            trainer that learned the tables quantized it (``functools.partial(trainer.encode_observations,
+            quantizer)``).
+        epsilon: exploration rate in ``[0, 1]``; 0 is greedy (ties between equal action values broken at random).
+        generator: random source for exploration and ties, on the device of ``q_values``; reseed it for
+            reproducible runs.
     """
 
-    def __init__(self, *, trainer: Any, quantizer: Any, q_values: torch.Tensor, epsilon: float) -> None:
-        self.trainer = trainer
-        self.quantizer = quantizer
+    def __init__(
+        self,
+        *,
+        q_values: torch.Tensor,
+        encode: Encoder,
+        epsilon: float = 0.0,
+        generator: torch.Generator | None = None,
+    ) -> None:
+        if q_values.ndim != 4:
+            raise ValueError(f"q_values must have shape (P, A, K, U), got {tuple(q_values.shape)}")
+        if isinstance(epsilon, bool) or not isinstance(epsilon, int | float) or not 0.0 <= epsilon <= 1.0:
+            raise ValueError(f"epsilon={epsilon!r} is invalid: must be a number in [0, 1]")
         self.q_values = q_values
-        self.epsilon = epsilon
+        self.encode = encode
+        self.epsilon = float(epsilon)
+        self.generator = generator if generator is not None else torch.Generator(device=q_values.device)
         self._base: dict[tuple[int, int], torch.Tensor] = {}
 
+    @property
+    def num_processes(self) -> int:
+        """P, the learning processes stored in the tables."""
+        return self.q_values.shape[0]
+
+    @property
+    def num_tables(self) -> int:
+        """A, the learned tables per process."""
+        return self.q_values.shape[1]
+
+    def table_of(self, replicas: int, agents: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(process (R, N), table (R, N))``: the table ``q_values[process, table]`` every agent acts with."""
+        device = self.q_values.device
+        process = torch.arange(replicas, device=device).remainder(self.num_processes)
+        table = torch.arange(agents, device=device).remainder(self.num_tables)
+        return process[:, None].expand(replicas, agents), table[None, :].expand(replicas, agents)
+
     def _base_rows(self, replicas: int, agents: int) -> torch.Tensor:
+        """Flat row ``(p * A + a) * K`` of every agent's table in ``q_values.view(-1, U)``, ``(R * N,)``."""
         key = (replicas, agents)
         if key not in self._base:
-            processes, tables, states, _ = self.q_values.shape
-            device = self.q_values.device
-            process = torch.arange(replicas, device=device).remainder(processes).repeat_interleave(agents)
-            table = torch.arange(agents, device=device).remainder(tables).repeat(replicas)
-            self._base[key] = (process * tables + table) * states
+            process, table = self.table_of(replicas, agents)
+            self._base[key] = ((process * self.num_tables + table) * self.q_values.shape[2]).reshape(-1)
         return self._base[key]
 
-    def act(self, env: RoomEnv, obs: torch.Tensor, info: dict[str, Any]) -> torch.Tensor:
+    def act(self, env: RoomEnv | None, obs: torch.Tensor, info: Mapping[str, Any]) -> torch.Tensor:
+        """Actions ``(R, N)`` int64 for observations ``obs (R, N, F)``."""
         replicas, agents, _ = obs.shape
-        rows = self._base_rows(replicas, agents) + self.trainer.encode_observations(self.quantizer, obs, info)
-        return epsilon_greedy(self.q_values, rows, self.epsilon, self.trainer.generator).view(replicas, agents)
+        rows = self._base_rows(replicas, agents) + self.encode(obs, info)
+        return epsilon_greedy(self.q_values, rows, self.epsilon, self.generator).view(replicas, agents)
 
 
 class GreedyDoorController:
     """The non-learned reference: turn towards the door as far as one decision allows, at full speed.
 
-    It has no collision avoidance: the room's collision rule stops it on contact, as it stops learned agents.
+    Every decision it takes the largest speed increase (full speed from standstill in one decision with the
+    default ratios) and the turn that leaves the smallest angle between heading and the line to the door centre.
+    It has no collision avoidance: the room's collision rule stops it on contact (speed 0 for the rest of the
+    decision), as it stops learned agents, and it accelerates again at the next decision.
     """
 
-    def act(self, env: RoomEnv, obs: torch.Tensor, info: dict[str, Any]) -> torch.Tensor:
-        velocity_angle = obs[..., 1]  # heading relative to the line to the door, rad
+    def act(self, env: RoomEnv, obs: torch.Tensor, info: Mapping[str, Any]) -> torch.Tensor:
+        """Actions ``(R, N)`` int64 for observations ``obs (R, N, F)`` of ``env``."""
+        velocity_angle = obs[..., 1]  # heading relative to the line to the door, rad, in (-pi, pi]
         turns = torch.as_tensor(env.turn_ratios, dtype=obs.dtype, device=obs.device) * math.pi
-        # the turn that leaves the smallest angle to the door
         residual = torch.remainder(velocity_angle.unsqueeze(-1) + turns + math.pi, 2 * math.pi) - math.pi
         turn_index = residual.abs().argmin(dim=-1)
-        speed_index = torch.as_tensor(env.speed_ratios, device=obs.device).argmax()
+        speed_index = int(torch.as_tensor(env.speed_ratios).argmax())
         return speed_index * len(env.turn_ratios) + turn_index

@@ -5,10 +5,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-import torch
-
 from pedrl.algos.base import Phase, Trainer
-from pedrl.vq import Quantizer
 
 
 class ITVQQL(Trainer):
@@ -63,17 +60,6 @@ class ITVQQL(Trainer):
             )
             for i, budget in enumerate(self.trial_budgets)
         ]
-
-    def fit_quantizer(
-        self, phase: Phase, states: torch.Tensor, num_sensed: torch.Tensor, previous: Any | None
-    ) -> tuple[Any, float]:
-        return self.fit_plain_quantizer(states)
-
-    def encode(self, quantizer: Quantizer, obs: torch.Tensor, num_sensed: torch.Tensor) -> torch.Tensor:
-        return quantizer.encode(obs)
-
-    def quantizer_from_state_dict(self, tensors: dict[str, torch.Tensor]) -> Quantizer:
-        return Quantizer.from_state_dict(tensors)
 
 
 def _budgets(name: str, trials: int | Sequence[int], count: int, growth: float) -> list[int]:

@@ -5,11 +5,8 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-import torch
-
 from pedrl.algos.base import Phase, Trainer, _check_int
 from pedrl.rl import LinearSchedule
-from pedrl.vq import Quantizer
 
 
 class VQQL(Trainer):
@@ -72,14 +69,3 @@ class VQQL(Trainer):
             decay_trials=max(1, round(self.epsilon_decay_fraction * self.trials)),
         )
         return lambda trial: schedule(offset + trial)
-
-    def fit_quantizer(
-        self, phase: Phase, states: torch.Tensor, num_sensed: torch.Tensor, previous: Any | None
-    ) -> tuple[Any, float]:
-        return self.fit_plain_quantizer(states)
-
-    def encode(self, quantizer: Quantizer, obs: torch.Tensor, num_sensed: torch.Tensor) -> torch.Tensor:
-        return quantizer.encode(obs)
-
-    def quantizer_from_state_dict(self, tensors: dict[str, torch.Tensor]) -> Quantizer:
-        return Quantizer.from_state_dict(tensors)
