@@ -7,7 +7,6 @@ boundaries of every run dashed. ``main`` is a thin Hydra wrapper around :func:`p
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -16,6 +15,7 @@ import numpy as np
 from omegaconf import DictConfig
 
 from pedrl.analysis import plot_learning_curves
+from pedrl.cli import run_reporting_errors
 from pedrl.io import read_csv
 
 CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
@@ -99,14 +99,14 @@ def plot_learning_curve_file(csv_path: str | Path, output: str | Path, *, label:
 @hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="plot")
 def main(cfg: DictConfig) -> None:
     """Plot the runs of ``cfg.runs`` together."""
-    try:
+
+    def plot() -> Path:
         runs = list(cfg.runs)
         if not runs:
             raise ValueError("runs=[] is invalid: give one or more run directories, e.g. runs=[outputs/a,outputs/b]")
-        path = plot_runs(runs, cfg.output, labels=cfg.labels, metric=cfg.metric, smooth=int(cfg.smooth))
-    except ValueError as err:
-        print(f"pedrl-plot: error: {err}", file=sys.stderr)
-        sys.exit(2)
+        return plot_runs(runs, cfg.output, labels=cfg.labels, metric=cfg.metric, smooth=int(cfg.smooth))
+
+    path = run_reporting_errors("pedrl-plot", plot)
     print(f"wrote {path}")
 
 

@@ -6,7 +6,6 @@
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -15,6 +14,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 from pedrl.algos import Trainer, TrainResult
+from pedrl.cli import run_reporting_errors
 from pedrl.io import CheckpointError
 
 CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
@@ -140,17 +140,7 @@ def _hydra_output_dir() -> Path:
 @hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="train")
 def main(cfg: DictConfig) -> float:
     """Train; print a closing summary; return the final success rate (for sweepers)."""
-    from hydra.errors import InstantiationException
-
-    try:
-        result = train(cfg)
-    except (ValueError, CheckpointError) as err:
-        print(f"pedrl-train: error: {err}", file=sys.stderr)
-        sys.exit(2)
-    except InstantiationException as err:
-        cause = err.__cause__ or err
-        print(f"pedrl-train: error: {str(cause).splitlines()[0]}", file=sys.stderr)
-        sys.exit(2)
+    result = run_reporting_errors("pedrl-train", lambda: train(cfg))
     print_summary(result, cfg.algo._target_.rsplit(".", 1)[-1])
     return result.final.get("success_rate_mean", 0.0)
 
