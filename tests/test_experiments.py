@@ -1,0 +1,161 @@
+"""The experiment configs: every one composes and builds; the paper ones hold Table 3; IT and IN behave as described.
+
+The fast tests here take well under a minute together; the full quick_it / quick_in runs are marked slow.
+"""
+
+import json
+from pathlib import Path
+
+import pytest
+import torch
+from hydra import compose as hydra_compose
+from hydra import initialize_config_dir
+
+from pedrl.algos.base import Trainer
+from pedrl.io import load_checkpoint, read_csv
+from pedrl.train import CONFIG_DIR, build_trainer, train
+
+EXPERIMENTS = sorted(p.stem for p in (Path(CONFIG_DIR) / "experiment").glob("*.yaml"))
+PAPER = {"paper_vqql": ("VQQL", 0.25), "paper_it": ("ITVQQL", 0.35), "paper_in": ("INVQQL", 0.35)}
+NAMES = {"pedrl.algos.VQQL": "vqql", "pedrl.algos.ITVQQL": "it_vqql", "pedrl.algos.INVQQL": "in_vqql"}
+K_VALUES = [512, 1024, 2048, 4096, 8192, 16384]
+
+
+def quiet(cfg):
+    cfg.progress = False
+    cfg.logger.tensorboard = False
+    return cfg
+
+
+def test_the_expected_experiments_exist():
+    assert {"quick_vqql", "quick_it", "quick_in", "paper_vqql", "paper_it", "paper_in", "k_sweep"} <= set(EXPERIMENTS)
+
+
+@pytest.mark.parametrize("name", EXPERIMENTS)
+def test_every_experiment_composes_and_builds_a_trainer(name, compose, tmp_path):
+    text = (Path(CONFIG_DIR) / "experiment" / f"{name}.yaml").read_text()
+    assert text.startswith("# @package _global_\n"), "experiment files are global packages"
+    assert "  - override /algo: " in text, "experiment files pick their algorithm with `override /algo: ...`"
+    cfg = compose("train", [f"experiment={name}"])
+    trainer = build_trainer(cfg, tmp_path)
+    assert trainer.phases()
+    assert trainer.name == NAMES[cfg.algo._target_]
+
+
+# ---------------------------------------------------------------------- the paper's scale and Table 3
+@pytest.mark.parametrize("name", sorted(PAPER))
+def test_paper_experiments_have_the_papers_setting(name, compose, tmp_path):
+    cfg = compose("train", [f"experiment={name}"])
+    target, alpha = PAPER[name]
+    assert cfg.algo._target_ == f"pedrl.algos.{target}"
+    # Table 3 (VQQL: alpha = 0.25, section 5.1)
+    assert (cfg.algo.gamma, cfg.algo.epsilon_start, cfg.algo.alpha) == (0.91, 0.4, alpha)
+    assert cfg.env.decisions_per_second == 1.0
+    # Table 2 and sections 2 and 5: the room, the senses, the trial length, R = 20 processes, K = 4096
+    assert (cfg.env.width, cfg.env.length, cfg.env.door_width, cfg.env.max_decisions) == (60.0, 100.0, 2.0, 200)
+    assert (cfg.env.num_neighbours, cfg.env.num_walls) == (7, 2)
+    rewards = (cfg.env.reward_goal, cfg.env.reward_crash_wall, cfg.env.reward_crash_agent, cfg.env.reward_default)
+    assert rewards == (100.0, -15.0, -4.0, 0.0)
+    assert (cfg.processes, cfg.rooms_per_process) == (20, 1)
+    assert cfg.vq.num_prototypes == 4096
+    assert (cfg.vq.weight_own, cfg.vq.weight_neighbours, cfg.vq.weight_walls) == (1.0, 1.0, 1.0)  # plain standardising
+    phases = build_trainer(cfg, tmp_path).phases()
+    assert phases[0].gather_epsilon == 1.0  # the first phase gathers from a random walk
+    if name == "paper_vqql":
+        assert [p.num_agents for p in phases] == [20] * len(phases)
+        assert sum(p.trials for p in phases) == cfg.algo.trials
+    if name == "paper_it":
+        assert [p.num_agents for p in phases] == [20] * 15
+        assert [p.gather_epsilon for p in phases[1:]] == [0.07] * 14
+        assert cfg.algo.void_features == "random"
+        budgets = [p.trials for p in phases]
+        assert budgets == sorted(budgets) and budgets[0] < budgets[-1]  # few trials first: a better dataset
+    if name == "paper_in":
+        assert [p.num_agents for p in phases] == [1, 2, 3, 4, 5, 6, 7, 8, 10, 20]
+        assert [p.gather_epsilon for p in phases[1:]] == [0.07] * 9
+        budgets = [p.trials for p in phases]
+        assert budgets == sorted(budgets)  # trials grow with the number of agents
+
+
+def test_paper_vqql_reference_learns_as_many_trials_as_the_whole_it_run(compose, tmp_path):
+    vqql = build_trainer(compose("train", ["experiment=paper_vqql"]), tmp_path / "a")
+    it = build_trainer(compose("train", ["experiment=paper_it"]), tmp_path / "b")
+    assert sum(p.trials for p in vqql.phases()) == sum(p.trials for p in it.phases())
+
+
+def test_paper_experiments_document_their_wall_time():
+    for name in PAPER:
+        text = (Path(CONFIG_DIR) / "experiment" / f"{name}.yaml").read_text()
+        assert "extrapolated from a measured partial run" in text, name
+
+
+def test_k_sweep_is_a_multirun_over_the_papers_k_values():
+    with initialize_config_dir(version_base="1.3", config_dir=CONFIG_DIR):
+        cfg = hydra_compose("train", ["experiment=k_sweep"], return_hydra_config=True)
+    assert str(cfg.hydra.mode) in ("MULTIRUN", "RunMode.MULTIRUN")
+    swept = cfg.hydra.sweeper.params["vq.num_prototypes"]
+    assert [int(k) for k in str(swept).split(",")] == K_VALUES
+    assert cfg.algo._target_ == "pedrl.algos.VQQL"
+
+
+# ---------------------------------------------------------------------- IT-VQQL: data from the previous policy
+def test_it_vqql_gathers_iteration_2_from_iteration_1s_greedy_policy(compose, tmp_path, monkeypatch):
+    """Iteration 2's dataset comes from iteration 1's tables, epsilon-greedy with 0.07, not from a random walk:
+    the agents reach the door far more often while it is gathered than in iteration 1's random walk."""
+    gathered = []
+    original = Trainer.gather
+
+    def spy(self, phase, env, previous):
+        tables = None if previous is None else previous[1].clone()
+        gathered.append((phase.index, phase.gather_epsilon, tables))
+        return original(self, phase, env, previous)
+
+    monkeypatch.setattr(Trainer, "gather", spy)
+    overrides = ["experiment=quick_it", "processes=2", "algo.iterations=2", "algo.trials=[40,1]"]
+    cfg = quiet(compose("train", overrides))
+    train(cfg, run_dir=tmp_path)
+
+    (first, first_epsilon, first_tables), (second, second_epsilon, second_tables) = gathered
+    assert (first, first_epsilon, first_tables) == (1, 1.0, None)  # a random walk
+    assert (second, second_epsilon) == (2, 0.07)
+    iteration_1 = load_checkpoint(tmp_path / "checkpoints" / "iter_0001.safetensors").tensors["q_values"]
+    assert torch.equal(second_tables, iteration_1)  # followed the tables iteration 1 learned
+    phases = json.loads((tmp_path / "summary.json").read_text())["phases"]
+    random_walk, greedy = phases[0]["gather_success_rate"], phases[1]["gather_success_rate"]
+    assert greedy > 2 * random_walk and greedy > random_walk + 0.1, (random_walk, greedy)
+
+
+# ---------------------------------------------------------------------- IN-VQQL: stages, checkpoints, learning
+def test_in_vqql_tiny_run_checkpoints_every_stage_and_learns(compose, tmp_path):
+    overrides = [
+        "experiment=quick_in",
+        "processes=2",
+        "algo.stages=[1,2,4]",
+        "algo.trials=[30,10,30]",
+        "vq.num_prototypes=128",
+    ]
+    train(quiet(compose("train", overrides)), run_dir=tmp_path)
+    names = sorted(p.name for p in (tmp_path / "checkpoints").iterdir())
+    assert names == ["iter_0001.safetensors", "iter_0002.safetensors", "iter_0003.safetensors", "last.safetensors"]
+    for stage, agents in enumerate((1, 2, 4), start=1):
+        checkpoint = load_checkpoint(tmp_path / "checkpoints" / f"iter_{stage:04d}.safetensors")
+        assert checkpoint.metadata["agents"] == agents
+        # the union quantizer grows by K prototypes per stage; one table per agent and process
+        assert checkpoint.tensors["q_values"].shape == (2, agents, 128 * stage, 81)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    random_walk = summary["phases"][0]["gather_success_rate"]
+    last_stage = [float(r["success_rate_mean"]) for r in read_csv(tmp_path / "learning_curve.csv") if r["phase"] == "3"]
+    late = sum(last_stage[-10:]) / 10
+    assert late > 2 * random_walk and late > random_walk + 0.2, (late, random_walk)
+
+
+# ---------------------------------------------------------------------- the quick experiments in full
+@pytest.mark.slow
+@pytest.mark.parametrize(("name", "minimum"), [("quick_it", 0.45), ("quick_in", 0.3)])
+def test_quick_experiments_learn(name, minimum, compose, tmp_path):
+    """The full quick_it / quick_in runs (about a minute each here): 20 agents learn to leave the room."""
+    result = train(quiet(compose("train", [f"experiment={name}"])), run_dir=tmp_path)
+    phases = result.phases
+    assert result.final["success_rate_mean"] > minimum
+    assert result.final["success_rate_mean"] > 3 * phases[0]["gather_success_rate"]
+    assert phases[-1]["gather_success_rate"] > phases[0]["gather_success_rate"]

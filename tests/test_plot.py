@@ -1,0 +1,189 @@
+"""pedrl-plot: learning curves of several runs together, read from hand-made and real learning_curve.csv files."""
+
+import csv
+import subprocess
+import sys
+import warnings
+
+import numpy as np
+import pytest
+from hydra import compose, initialize_config_dir
+from omegaconf import open_dict
+
+from pedrl.algos.base import CURVE_COLUMNS
+from pedrl.plot import draw_runs, plot_runs, read_learning_curve
+from pedrl.train import CONFIG_DIR, train
+
+DEBUG_RUNS = {"VQQL": "vqql", "IT-VQQL": "it_vqql", "IN-VQQL": "in_vqql"}
+
+
+def write_curve(path, phases, success, *, std=None):
+    """A learning_curve.csv as pedrl-train writes it, with the given phase and success_rate_mean per trial."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    std = std if std is not None else [0.1] * len(success)
+    with open(path, "w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=CURVE_COLUMNS)
+        writer.writeheader()
+        trial = 0
+        for i, (phase, value) in enumerate(zip(phases, success, strict=True)):
+            trial = 0 if i == 0 or phases[i - 1] != phase else trial + 1
+            row = {column: 0.0 for column in CURVE_COLUMNS}
+            row.update(phase=phase, agents=20, trial=trial, global_trial=i, success_rate_mean=value)
+            row.update(success_rate_std=std[i])
+            writer.writerow(row)
+    return path
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """Debug-sized runs of VQQL (2 blocks of 10 trials), IT-VQQL (2 x 10) and IN-VQQL (stages 1, 2, 4 x 10)."""
+    root = tmp_path_factory.mktemp("runs")
+    made = {}
+    for label, algo in DEBUG_RUNS.items():
+        with initialize_config_dir(version_base="1.3", config_dir=CONFIG_DIR):
+            cfg = compose("train", ["debug=default", f"algo={algo}", "logger=none"])
+        with open_dict(cfg):
+            cfg.progress = False
+        train(cfg, run_dir=root / algo)
+        made[label] = root / algo
+    return made
+
+
+# ---------------------------------------------------------------------- read_learning_curve on hand-made files
+def test_boundaries_are_the_first_trials_of_every_new_phase(tmp_path):
+    path = write_curve(tmp_path / "learning_curve.csv", [1, 1, 1, 2, 2, 3, 3, 3], [0.0] * 8)
+    trials, mean, std, boundaries = read_learning_curve(path)
+    assert trials.tolist() == list(range(8))
+    assert boundaries == [3.0, 5.0]
+    # the run directory is accepted as well as the CSV itself
+    assert read_learning_curve(tmp_path)[3] == [3.0, 5.0]
+
+
+def test_moving_average_is_trailing_and_restarts_at_every_phase(tmp_path):
+    phases = [1, 1, 1, 1, 2, 2, 2]
+    success = [0.0, 0.3, 0.6, 0.9, 0.2, 0.4, 1.0]
+    std = [0.2, 0.4, 0.0, 0.2, 0.1, 0.3, 0.5]
+    path = write_curve(tmp_path / "learning_curve.csv", phases, success, std=std)
+    _, mean, smoothed_std, _ = read_learning_curve(path, smooth=3)
+    # phase 1: 0 | (0 + .3)/2 | (0 + .3 + .6)/3 | (.3 + .6 + .9)/3; phase 2 starts again from its own first trial
+    expected = [0.0, 0.15, 0.3, 0.6, 0.2, 0.3, (0.2 + 0.4 + 1.0) / 3]
+    np.testing.assert_allclose(mean, expected, atol=1e-12)
+    np.testing.assert_allclose(smoothed_std, [0.2, 0.3, 0.2, 0.2, 0.1, 0.2, 0.3], atol=1e-12)
+    # smooth=1 leaves the values as written; a window longer than a phase averages the whole phase so far
+    np.testing.assert_allclose(read_learning_curve(path, smooth=1)[1], success)
+    np.testing.assert_allclose(read_learning_curve(path, smooth=100)[1][3], 0.45)
+
+
+def test_other_metrics_are_read(tmp_path):
+    path = write_curve(tmp_path / "learning_curve.csv", [1, 1], [0.5, 0.5])
+    trials, mean, std, _ = read_learning_curve(path, metric="crashes_wall")
+    assert mean.tolist() == [0.0, 0.0] and trials.tolist() == [0.0, 1.0]
+
+
+@pytest.mark.parametrize(
+    ("make", "kwargs", "message"),
+    [
+        (lambda d: d / "missing", {}, "no learning curve at"),
+        (lambda d: write_curve(d / "learning_curve.csv", [], []), {}, "has no rows yet"),
+        (lambda d: write_curve(d / "learning_curve.csv", [1], [0.5]), {"metric": "happiness"}, "metric='happiness'"),
+        (lambda d: write_curve(d / "learning_curve.csv", [1], [0.5]), {"smooth": 0}, "smooth=0 is invalid"),
+        (lambda d: _malformed(d / "learning_curve.csv"), {}, "is malformed"),
+    ],
+)
+def test_bad_input_is_a_value_error(tmp_path, make, kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        read_learning_curve(make(tmp_path), **kwargs)
+
+
+def _malformed(path):
+    write_curve(path, [1, 1], [0.5, 0.5])
+    text = path.read_text().splitlines()
+    text[2] = text[2].replace("0.5", "not-a-number", 1)
+    path.write_text("\n".join(text) + "\n")
+    return path
+
+
+# ---------------------------------------------------------------------- real runs of the three algorithms together
+def test_three_algorithms_are_drawn_together_with_their_phase_boundaries(runs):
+    axes = draw_runs(list(runs.values()), labels=list(runs))
+    curves = {line.get_label(): line for line in axes.get_lines() if not line.get_label().startswith("_")}
+    assert sorted(curves) == sorted(runs)
+    # debug runs: VQQL 2 blocks of 10 trials, IT-VQQL 2 iterations of 10, IN-VQQL 3 stages of 10
+    assert {label: len(line.get_xdata()) for label, line in curves.items()} == {
+        "VQQL": 20,
+        "IT-VQQL": 20,
+        "IN-VQQL": 30,
+    }
+    dashed = [line for line in axes.get_lines() if line.get_linestyle() == "--"]
+    boundaries = {}
+    for line in dashed:
+        boundaries.setdefault(line.get_color(), []).append(line.get_xdata()[0])
+    # each run's boundaries are drawn in its own curve's colour: VQQL blocks and IT iterations at 10, IN at 10, 20
+    assert sorted(boundaries[curves["VQQL"].get_color()]) == [10]
+    assert sorted(boundaries[curves["IT-VQQL"].get_color()]) == [10]
+    assert sorted(boundaries[curves["IN-VQQL"].get_color()]) == [10, 20]
+    assert [t.get_text() for t in axes.get_legend().get_texts()] == list(runs)
+
+
+def test_plot_runs_writes_a_figure_without_layout_warnings(runs, tmp_path):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        path = plot_runs(list(runs.values()), tmp_path / "out" / "curves.png", smooth=5)
+    assert path.is_file() and path.stat().st_size > 10_000
+
+
+def test_default_labels_tell_runs_with_the_same_name_apart(tmp_path):
+    a = write_curve(tmp_path / "sweep_a" / "0" / "learning_curve.csv", [1, 1], [0.1, 0.2]).parent
+    b = write_curve(tmp_path / "sweep_b" / "0" / "learning_curve.csv", [1, 1], [0.3, 0.4]).parent
+    labels = [line.get_label() for line in draw_runs([a, b]).get_lines()]
+    assert labels == ["sweep_a/0", "sweep_b/0"]
+
+
+@pytest.mark.parametrize(
+    ("labels", "message"),
+    [(["one"], "one label per run"), (["same", "same"], "its own label")],
+)
+def test_bad_labels_are_refused(runs, labels, message):
+    with pytest.raises(ValueError, match=message):
+        draw_runs([runs["VQQL"], runs["IT-VQQL"]], labels=labels)
+
+
+def test_cli_draws_the_runs(runs, tmp_path):
+    run_list = ",".join(str(p) for p in runs.values())
+    command = [
+        sys.executable,
+        "-m",
+        "pedrl.plot",
+        f"runs=[{run_list}]",
+        "labels=[VQQL,IT-VQQL,IN-VQQL]",
+        "smooth=3",
+        f"hydra.run.dir={tmp_path}",
+    ]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert (tmp_path / "learning_curves.png").is_file()
+    assert f"wrote {tmp_path / 'learning_curves.png'}" in done.stdout
+
+
+def test_cli_takes_one_run_without_brackets(runs, tmp_path):
+    command = [sys.executable, "-m", "pedrl.plot", f"runs={runs['VQQL']}", f"hydra.run.dir={tmp_path}"]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert (tmp_path / "learning_curves.png").is_file()
+
+
+@pytest.mark.parametrize(
+    ("override", "message"),
+    [
+        ("runs=[]", "pedrl-plot: error: runs=[] is invalid"),
+        ("runs=[/no/such/run]", "pedrl-plot: error: no learning curve at '/no/such/run'"),
+        ("smooth=0", "pedrl-plot: error: smooth=0 is invalid"),
+        ("labels=[a,b]", "pedrl-plot: error: labels=['a', 'b'] is invalid"),
+    ],
+)
+def test_cli_reports_bad_input_in_one_line(runs, tmp_path, override, message):
+    command = [sys.executable, "-m", "pedrl.plot", f"runs=[{runs['VQQL']}]", override, f"hydra.run.dir={tmp_path}"]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2
+    lines = [line for line in done.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith(message), done.stderr

@@ -1,0 +1,219 @@
+"""pedrl.sweep (table and figure of a sweep) and the Hydra launcher configs (joblib, submitit local and slurm)."""
+
+import csv
+import json
+import math
+import subprocess
+import sys
+
+import pytest
+from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
+
+from pedrl.sweep import FIGURE, SUMMARY_CSV, main, plot_sweep, pool_rows, summarise_sweep
+from pedrl.train import CONFIG_DIR
+
+
+def make_job(sweep_dir, name, *, overrides, success, std=0.05, num_prototypes=None, curve=None):
+    """A job directory as pedrl-train --multirun leaves it: summary.json and .hydra/{overrides,config}.yaml."""
+    job = sweep_dir / name
+    (job / ".hydra").mkdir(parents=True)
+    OmegaConf.save(OmegaConf.create(list(overrides)), job / ".hydra" / "overrides.yaml")
+    if num_prototypes is not None:
+        OmegaConf.save(
+            OmegaConf.create({"vq": {"num_prototypes": num_prototypes}, "seed": 0}), job / ".hydra" / "config.yaml"
+        )
+    final = {
+        f"{m}_{s}": 0.0
+        for m in ("success_rate", "episodic_return", "crashes_agent", "crashes_wall", "mean_speed")
+        for s in ("mean", "std")
+    }
+    final.update(success_rate_mean=success, success_rate_std=std, td_error_mean=1.0, td_error_std=0.0)
+    phases = [{"phase": 1, "gather_success_rate": 0.07, "prototypes": num_prototypes or 0, "distortion": 3.0}]
+    summary = {"algo": "vqql", "final": final, "wall_time_s": 12.5, "phases": phases, "checkpoint": "x"}
+    (job / "summary.json").write_text(json.dumps(summary))
+    if curve is not None:
+        with open(job / "learning_curve.csv", "w", newline="") as handle:
+            writer = csv.writer(handle)
+            writer.writerow(["phase", "success_rate_mean"])
+            writer.writerows([1, value] for value in curve)
+    return job
+
+
+@pytest.fixture
+def k_sweep_dir(tmp_path):
+    """Six jobs over K, numbered as Hydra numbers them (0..5; 10 sorts after 9, not after 1)."""
+    for number, k in enumerate((512, 1024, 2048, 4096, 8192, 16384)):
+        make_job(
+            tmp_path,
+            str(number),
+            overrides=[f"vq.num_prototypes={k}", "experiment=k_sweep"],
+            success=0.1 * (number + 1),
+            num_prototypes=k,
+            curve=[0.0] * 5 + [0.1 * number] * 10,
+        )
+    return tmp_path
+
+
+def test_summary_rows_csv_and_figure(k_sweep_dir):
+    rows = summarise_sweep(k_sweep_dir)
+    assert [r["value"] for r in rows] == [512, 1024, 2048, 4096, 8192, 16384]
+    assert [r["success_rate_mean"] for r in rows] == pytest.approx([0.1, 0.2, 0.3, 0.4, 0.5, 0.6])
+    assert rows[2]["success_rate_last_trials"] == pytest.approx(0.2)  # the mean of the last 10 trials
+    assert {r["series"] for r in rows} == {""}  # only K varies
+    assert rows[0]["overrides"] == "vq.num_prototypes=512 experiment=k_sweep"
+    with open(k_sweep_dir / SUMMARY_CSV, newline="") as handle:
+        written = list(csv.DictReader(handle))
+    assert [int(r["value"]) for r in written] == [512, 1024, 2048, 4096, 8192, 16384]
+    assert float(written[-1]["success_rate_mean"]) == pytest.approx(0.6)
+    assert (k_sweep_dir / FIGURE).stat().st_size > 10_000
+
+
+def test_figure_has_a_log2_axis_and_error_bars(k_sweep_dir):
+    rows = summarise_sweep(k_sweep_dir, write=False)
+    axes = plot_sweep(rows)
+    assert axes.get_xscale() == "log"
+    assert [t.get_text() for t in axes.get_xticklabels()] == ["512", "1024", "2048", "4096", "8192", "16384"]
+    (errorbar,) = axes.containers
+    line, _, (bars,) = errorbar.lines
+    assert list(line.get_xdata()) == [512, 1024, 2048, 4096, 8192, 16384]
+    low, high = bars.get_segments()[0][:, 1]
+    assert (low, high) == pytest.approx((0.05, 0.15))  # ±1 std over the processes
+
+
+def test_jobs_of_other_settings_are_series_and_seeds_are_pooled(tmp_path):
+    for number, (algo, k, seed, success) in enumerate(
+        [("vqql", 512, 0, 0.2), ("vqql", 512, 1, 0.4), ("it_vqql", 512, 0, 0.5), ("it_vqql", 1024, 0, 0.7)]
+    ):
+        overrides = [f"algo={algo}", f"vq.num_prototypes={k}", f"seed={seed}"]
+        make_job(tmp_path, str(number), overrides=overrides, success=success, std=0.1)
+    rows = summarise_sweep(tmp_path)  # K from the overrides: these jobs have no .hydra/config.yaml
+    assert [(r["series"], r["value"]) for r in rows] == [
+        ("algo=it_vqql", 512),
+        ("algo=it_vqql", 1024),
+        ("algo=vqql", 512),
+        ("algo=vqql", 512),
+    ]
+    points = pool_rows(rows)
+    vqql = [p for p in points if p["series"] == "algo=vqql"]
+    assert len(vqql) == 1 and vqql[0]["success_rate_mean"] == pytest.approx(0.3)
+    assert vqql[0]["success_rate_std"] == pytest.approx(math.sqrt(0.1**2 + 0.1**2))
+    legend = plot_sweep(rows).get_legend()
+    assert sorted(t.get_text() for t in legend.get_texts()) == ["algo=it_vqql", "algo=vqql"]
+
+
+def test_unfinished_jobs_are_left_out(k_sweep_dir):
+    (k_sweep_dir / "6" / ".hydra").mkdir(parents=True)  # a job that crashed before writing summary.json
+    assert len(summarise_sweep(k_sweep_dir, write=False)) == 6
+
+
+@pytest.mark.parametrize(
+    ("make", "message"),
+    [
+        (lambda d: d / "absent", "does not exist"),
+        (lambda d: d, "no finished job"),
+        (lambda d: _broken_summary(d), "is not a summary written by pedrl-train"),
+    ],
+)
+def test_bad_sweep_directories(tmp_path, make, message):
+    with pytest.raises(ValueError, match=message):
+        summarise_sweep(make(tmp_path))
+
+
+def _broken_summary(sweep_dir):
+    job = make_job(sweep_dir, "0", overrides=["vq.num_prototypes=512"], success=0.5, num_prototypes=512)
+    (job / "summary.json").write_text("{not json")
+    return sweep_dir
+
+
+def test_main_prints_the_table(k_sweep_dir, capsys):
+    main([str(k_sweep_dir)])
+    out = capsys.readouterr().out
+    assert "16384" in out and "0.600 ± 0.050" in out and f"wrote {k_sweep_dir / SUMMARY_CSV}" in out
+
+
+def test_main_reports_a_missing_directory_in_one_line(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main([str(tmp_path / "nothing")])
+    assert exit_info.value.code == 2
+    assert capsys.readouterr().err.strip().splitlines() == [
+        f"pedrl-sweep: error: sweep directory {str(tmp_path / 'nothing')!r} does not exist"
+    ]
+
+
+def test_real_multirun_is_summarised(tmp_path):
+    """pedrl-train --multirun with the basic launcher, then python -m pedrl.sweep on its directory."""
+    sweep = tmp_path / "sweep"
+    command = [
+        sys.executable,
+        "-m",
+        "pedrl.train",
+        "--multirun",
+        "debug=default",
+        "algo.iterations=1",
+        "algo.trials=4",
+        "logger=none",
+        "vq.num_prototypes=16,32",
+        f"hydra.sweep.dir={sweep}",
+    ]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    done = subprocess.run(
+        [sys.executable, "-m", "pedrl.sweep", str(sweep)], capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 0, done.stderr
+    with open(sweep / SUMMARY_CSV, newline="") as handle:
+        rows = list(csv.DictReader(handle))
+    assert [int(r["value"]) for r in rows] == [16, 32]
+    assert [int(r["prototypes_last"]) for r in rows] == [16, 32]
+    assert (sweep / FIGURE).is_file()
+
+
+# ---------------------------------------------------------------------- launchers
+def compose_launcher(name):
+    with initialize_config_dir(version_base="1.3", config_dir=CONFIG_DIR):
+        return compose("train", [f"hydra/launcher={name}"], return_hydra_config=True).hydra.launcher
+
+
+def test_joblib_launcher_composes_and_builds():
+    pytest.importorskip("hydra_plugins.hydra_joblib_launcher")
+    from hydra.utils import instantiate
+
+    launcher = compose_launcher("parallel")
+    assert launcher._target_.endswith("JoblibLauncher")
+    assert launcher.n_jobs == 2
+    assert type(instantiate(launcher)).__name__ == "JoblibLauncher"
+
+
+@pytest.mark.parametrize(("name", "target"), [("local", "LocalLauncher"), ("slurm", "SlurmLauncher")])
+def test_submitit_launchers_compose(name, target):
+    pytest.importorskip("hydra_plugins.hydra_submitit_launcher")
+    launcher = compose_launcher(name)
+    assert launcher._target_.endswith(target)
+    assert launcher.timeout_min > 0 and launcher.cpus_per_task >= 1
+    if name == "slurm":
+        assert "partition" in launcher and launcher.mem_gb > 0
+
+
+@pytest.mark.slow
+def test_submitit_local_launcher_runs_a_sweep(tmp_path):
+    """Two debug jobs through submitit's local executor: each runs in its own process and writes its summary."""
+    pytest.importorskip("hydra_plugins.hydra_submitit_launcher")
+    sweep = tmp_path / "sweep"
+    command = [
+        sys.executable,
+        "-m",
+        "pedrl.train",
+        "--multirun",
+        "debug=default",
+        "hydra/launcher=local",
+        "vq.num_prototypes=16,32",
+        f"hydra.sweep.dir={sweep}",
+    ]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    for job, k in (("0", 16), ("1", 32)):
+        summary = json.loads((sweep / job / "summary.json").read_text())
+        assert summary["algo"] == "vqql" and summary["phases"][0]["prototypes"] == k
+    assert (sweep / ".submitit").is_dir()  # the jobs went through submitit
+    assert [r["value"] for r in summarise_sweep(sweep, write=False)] == [16, 32]
