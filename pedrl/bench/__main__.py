@@ -29,7 +29,7 @@ def bench_end_to_end(*, quick: bool = False, device: str = "cpu") -> dict:
 
     processes, agents, prototypes = 20, 20, (512 if quick else 4096)
     results = []
-    for rooms in (1, 4, 16) if not quick else (1, 2):
+    for rooms in (1, 4, 16, 32) if not quick else (1, 2):
         trainer = VQQL(
             env=functools.partial(RoomEnv),
             vq={"num_prototypes": prototypes, "max_iterations": 3, "max_states": 100_000},
