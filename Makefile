@@ -15,10 +15,10 @@ $(STAMP): pyproject.toml
 	@test -x $(PY) || python3 -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q $(TORCH_PIN)
-	$(PY) -m pip install -q -e '.[dev,analysis]'
+	$(PY) -m pip install -q -e '.[dev,analysis,launchers]'
 	@touch $(STAMP)
 
-setup: $(STAMP) ## create .venv with torch==2.13.0 (CPU) and pedrl[dev,analysis]; does nothing when done
+setup: $(STAMP) ## create .venv with torch==2.13.0 (CPU) and pedrl[dev,analysis,launchers]; does nothing when done
 
 run: setup ## the main job: 20 agents learn to leave a room (experiment=quick_vqql, about a minute)
 	$(VENV)/bin/pedrl-train experiment=quick_vqql $(ARGS)
