@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Callable
+from pathlib import Path
 from typing import TypeVar
 
 from pedrl.io import CheckpointError
@@ -23,3 +24,10 @@ def run_reporting_errors(program: str, action: Callable[[], T]) -> T:
         message = str(err.__cause__ or err)
     print(f"{program}: error: {message.splitlines()[0] if message else 'invalid input'}", file=sys.stderr)
     sys.exit(2)
+
+
+def hydra_output_dir() -> Path:
+    """The run directory Hydra made for this run (every output goes under it)."""
+    from hydra.core.hydra_config import HydraConfig
+
+    return Path(HydraConfig.get().runtime.output_dir)

@@ -70,7 +70,7 @@ from pedrl.analysis import (
     write_geometry_wkt,
     write_pedpy_trajectory,
 )
-from pedrl.cli import run_reporting_errors
+from pedrl.cli import hydra_output_dir, run_reporting_errors
 from pedrl.io import CheckpointError, CsvWriter, RunLogger, load_checkpoint
 from pedrl.sim import RoomEnv
 
@@ -308,7 +308,7 @@ def evaluate(cfg: DictConfig, *, run_dir: str | Path | None = None) -> list[dict
     from pedrl.train import set_threads
 
     set_threads(cfg.get("threads"))
-    run_dir = Path(run_dir) if run_dir is not None else _hydra_output_dir()
+    run_dir = Path(run_dir) if run_dir is not None else hydra_output_dir()
     device = torch.device(cfg.device)
     policy = load_policy(
         cfg.checkpoint,
@@ -627,12 +627,6 @@ def _check_number(name: str, value: Any, *, low: float, high: float = math.inf, 
 
 def _first_line(err: BaseException) -> str:
     return (str(err).strip().splitlines() or [type(err).__name__])[0]
-
-
-def _hydra_output_dir() -> Path:
-    from hydra.core.hydra_config import HydraConfig
-
-    return Path(HydraConfig.get().runtime.output_dir)
 
 
 # ---------------------------------------------------------------------- console

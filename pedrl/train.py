@@ -14,7 +14,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 from pedrl.algos import Trainer, TrainResult
-from pedrl.cli import run_reporting_errors
+from pedrl.cli import hydra_output_dir, run_reporting_errors
 from pedrl.io import CheckpointError
 
 CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
@@ -51,7 +51,7 @@ def train(cfg: DictConfig, *, run_dir: str | Path | None = None) -> TrainResult:
     Outputs: ``learning_curve.csv``, ``learning_curve.png``, ``summary.json``, ``tb/`` (TensorBoard events) and
     ``checkpoints/iter_XXXX.safetensors`` + ``checkpoints/last.safetensors``.
     """
-    run_dir = Path(run_dir) if run_dir is not None else _hydra_output_dir()
+    run_dir = Path(run_dir) if run_dir is not None else hydra_output_dir()
     resume_from = _resume_path(cfg.get("resume"), run_dir)
     if resume_from is not None and cfg.get("resume") is not True:
         run_dir = resume_from.parent.parent  # continue writing into the run that holds the checkpoint
@@ -129,12 +129,6 @@ def _resume_path(resume: Any, run_dir: Path) -> Path | None:
     if isinstance(resume, str):
         return Path(resume)
     raise ValueError(f"resume={resume!r} is invalid: must be null, true, or the path of a checkpoint")
-
-
-def _hydra_output_dir() -> Path:
-    from hydra.core.hydra_config import HydraConfig
-
-    return Path(HydraConfig.get().runtime.output_dir)
 
 
 @hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="train")
