@@ -73,6 +73,7 @@ from pedrl.analysis import (
 from pedrl.cli import hydra_output_dir, run_reporting_errors
 from pedrl.io import CheckpointError, CsvWriter, RunLogger, load_checkpoint
 from pedrl.sim import RoomEnv
+from pedrl.sim.validation import check_integer, check_number
 
 CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
 SCALING_COLUMNS: Final = (
@@ -580,49 +581,35 @@ def _validate_values(cfg: DictConfig) -> None:
         raise ValueError(f"agents={agents!r} is invalid: must be a non-empty list of integers >= 1, e.g. [20,40]")
     if len(set(agents)) != len(agents):
         raise ValueError(f"agents={agents!r} is invalid: every agent count must appear once")
-    _check_int("trials", cfg.get("trials"), 1)
-    _check_int("trials_per_batch", cfg.get("trials_per_batch"), 1)
+    check_integer("trials", cfg.get("trials"), minimum=1)
+    check_integer("trials_per_batch", cfg.get("trials_per_batch"), minimum=1)
     if cfg.get("controller") not in CONTROLLERS:
         raise ValueError(f"controller={cfg.get('controller')!r} is invalid: must be one of {', '.join(CONTROLLERS)}")
-    _check_number("epsilon", cfg.get("epsilon"), low=0.0, high=1.0)
+    check_number("epsilon", cfg.get("epsilon"), low=0.0, high=1.0)
     if cfg.get("max_decisions") is not None:
-        _check_int("max_decisions", cfg.max_decisions, 1)
-    _check_int("seed", cfg.get("seed"), 0)
+        check_integer("max_decisions", cfg.max_decisions, minimum=1)
+    check_integer("seed", cfg.get("seed"), minimum=0)
     threads = cfg.get("threads")
     if threads is not None:
-        _check_int("threads", threads, 1)
+        check_integer("threads", threads, minimum=1)
     device = str(cfg.get("device"))
     if device != "cpu" and not (device == "cuda" or device.startswith("cuda:")):
         raise ValueError(f"device={device!r} is invalid: must be 'cpu' or 'cuda[:index]'")
     if device.startswith("cuda") and not torch.cuda.is_available():
         raise ValueError(f"device={device!r} is invalid here: no CUDA GPU is available (use device=cpu)")
-    _check_number("measurement.radius", cfg.measurement.radius, low=0.0, low_open=True)
-    _check_number("measurement.distance", cfg.measurement.distance, low=0.0)
-    _check_number("measurement.min_density", cfg.measurement.min_density, low=0.0)
-    _check_int("measurement.plot_points", cfg.measurement.plot_points, 1)
-    _check_number("density_map.tile_size", cfg.density_map.tile_size, low=0.0, low_open=True)
-    _check_int("export.trials", cfg.export.trials, 0)
+    check_number("measurement.radius", cfg.measurement.radius, low=0.0, low_open=True)
+    check_number("measurement.distance", cfg.measurement.distance, low=0.0)
+    check_number("measurement.min_density", cfg.measurement.min_density, low=0.0)
+    check_integer("measurement.plot_points", cfg.measurement.plot_points, minimum=1)
+    check_number("density_map.tile_size", cfg.density_map.tile_size, low=0.0, low_open=True)
+    check_integer("export.trials", cfg.export.trials, minimum=0)
     if not isinstance(cfg.animation.enabled, bool):
         raise ValueError(f"animation.enabled={cfg.animation.enabled!r} is invalid: must be true or false")
-    _check_number("animation.fps", cfg.animation.fps, low=0.0, low_open=True)
+    check_number("animation.fps", cfg.animation.fps, low=0.0, low_open=True)
     if cfg.animation.max_frames is not None:
-        _check_int("animation.max_frames", cfg.animation.max_frames, 1)
+        check_integer("animation.max_frames", cfg.animation.max_frames, minimum=1)
     if not isinstance(cfg.get("tensorboard"), bool):
         raise ValueError(f"tensorboard={cfg.get('tensorboard')!r} is invalid: must be true or false")
-
-
-def _check_int(name: str, value: Any, minimum: int) -> None:
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        raise ValueError(f"{name}={value!r} is invalid: must be an integer >= {minimum}")
-
-
-def _check_number(name: str, value: Any, *, low: float, high: float = math.inf, low_open: bool = False) -> None:
-    ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
-    ok = ok and (low < value if low_open else low <= value) and value <= high
-    if not ok:
-        interval = f"{'(' if low_open else '['}{low:g}, {high:g}]" if math.isfinite(high) else None
-        allowed = f"a number in {interval}" if interval else f"a finite number {'>' if low_open else '>='} {low:g}"
-        raise ValueError(f"{name}={value!r} is invalid: must be {allowed}")
 
 
 def _first_line(err: BaseException) -> str:

@@ -16,6 +16,7 @@ from omegaconf import DictConfig, OmegaConf
 from pedrl.algos import Trainer, TrainResult
 from pedrl.cli import hydra_output_dir, run_reporting_errors
 from pedrl.io import CheckpointError
+from pedrl.sim.validation import check_integer
 
 CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
 
@@ -106,13 +107,10 @@ def set_threads(threads: int | None) -> None:
 
 
 def _check_top_level(cfg: DictConfig) -> None:
-    threads = cfg.get("threads")
-    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int) or threads < 1):
-        raise ValueError(f"threads={threads!r} is invalid: must be null or an integer >= 1")
+    if cfg.get("threads") is not None:
+        check_integer("threads", cfg.get("threads"), minimum=1)
     for key, minimum in (("processes", 1), ("rooms_per_process", 1), ("checkpoint_every", 0), ("seed", 0)):
-        value = cfg.get(key)
-        if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-            raise ValueError(f"{key}={value!r} is invalid: must be an integer >= {minimum}")
+        check_integer(key, cfg.get(key), minimum=minimum)
 
 
 def _resume_path(resume: Any, run_dir: Path) -> Path | None:

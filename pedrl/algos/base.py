@@ -32,6 +32,7 @@ from tqdm.auto import tqdm
 from pedrl.io import CheckpointError, CsvWriter, RunLogger, load_checkpoint, save_checkpoint
 from pedrl.rl import LinearSchedule, epsilon_greedy, td_update
 from pedrl.sim import RoomEnv
+from pedrl.sim.validation import check_device, check_integer, check_number
 from pedrl.vq import Quantizer
 
 CURVE_METRICS = ("success_rate", "episodic_return", "crashes_agent", "crashes_wall", "mean_speed", "td_error")
@@ -168,18 +169,18 @@ class Trainer:
         run_config: Mapping[str, Any] | None = None,
     ) -> None:
         self.vq = vq if isinstance(vq, VQSettings) else VQSettings(**dict(vq))
-        _check_int("processes", processes, 1)
-        _check_int("rooms_per_process", rooms_per_process, 1)
-        _check_int("checkpoint_every", checkpoint_every, 0)
-        _check_int("vq.num_prototypes", self.vq.num_prototypes, 2)
-        _check_range("alpha", alpha, 0.0, 1.0, low_open=True)
-        _check_range("gamma", gamma, 0.0, 1.0)
-        _check_range("epsilon_start", epsilon_start, 0.0, 1.0)
-        _check_range("epsilon_end", epsilon_end, 0.0, 1.0)
-        _check_range("epsilon_decay_fraction", epsilon_decay_fraction, 0.0, 1.0, low_open=True)
+        check_integer("processes", processes, minimum=1)
+        check_integer("rooms_per_process", rooms_per_process, minimum=1)
+        check_integer("checkpoint_every", checkpoint_every, minimum=0)
+        check_integer("vq.num_prototypes", self.vq.num_prototypes, minimum=2)
+        check_number("alpha", alpha, low=0.0, high=1.0, low_open=True)
+        check_number("gamma", gamma, low=0.0, high=1.0)
+        check_number("epsilon_start", epsilon_start, low=0.0, high=1.0)
+        check_number("epsilon_end", epsilon_end, low=0.0, high=1.0)
+        check_number("epsilon_decay_fraction", epsilon_decay_fraction, low=0.0, high=1.0, low_open=True)
         if void_features not in ("zero", "random"):
             raise ValueError(f"void_features={void_features!r} is invalid: must be 'zero' or 'random'")
-        self.device = _check_device(device)
+        self.device = check_device(device)
         self.env_factory = env
         self.processes = processes
         self.rooms_per_process = rooms_per_process
@@ -540,10 +541,10 @@ class Trainer:
         return self._envs[num_agents]
 
     def _check_phase(self, phase: Phase) -> None:
-        _check_int("num_agents", phase.num_agents, 1)
-        _check_int("trials", phase.trials, 1)
-        _check_int("gather_trials", phase.gather_trials, 1)
-        _check_range("gather_epsilon", phase.gather_epsilon, 0.0, 1.0)
+        check_integer("num_agents", phase.num_agents, minimum=1)
+        check_integer("trials", phase.trials, minimum=1)
+        check_integer("gather_trials", phase.gather_trials, minimum=1)
+        check_number("gather_epsilon", phase.gather_epsilon, low=0.0, high=1.0)
 
     def _seed_phase(self, phase: Phase, env: RoomEnv) -> None:
         phase_seed = self.seed * 10_007 + phase.index
@@ -664,28 +665,3 @@ def _markdown_table(config: Mapping[str, Any]) -> str:
 
     walk(config, "")
     return "\n".join(rows)
-
-
-def _check_int(name: str, value: Any, minimum: int) -> None:
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        raise ValueError(f"{name}={value!r} is invalid: must be an integer >= {minimum}")
-
-
-def _check_range(name: str, value: Any, low: float, high: float, *, low_open: bool = False) -> None:
-    ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
-    ok = ok and (low < value if low_open else low <= value) and value <= high
-    if not ok:
-        bracket = "(" if low_open else "["
-        raise ValueError(f"{name}={value!r} is invalid: must be a number in {bracket}{low}, {high}]")
-
-
-def _check_device(device: str | torch.device) -> torch.device:
-    try:
-        parsed = torch.device(device)
-    except (RuntimeError, TypeError):
-        raise ValueError(f"device={device!r} is invalid: must be 'cpu' or 'cuda[:index]'") from None
-    if parsed.type not in ("cpu", "cuda"):
-        raise ValueError(f"device={device!r} is invalid: must be 'cpu' or 'cuda[:index]'")
-    if parsed.type == "cuda" and not torch.cuda.is_available():
-        raise ValueError(f"device={device!r} is invalid here: no CUDA GPU is available (use device=cpu)")
-    return parsed

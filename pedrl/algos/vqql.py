@@ -5,8 +5,9 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from pedrl.algos.base import Phase, Trainer, _check_int
+from pedrl.algos.base import Phase, Trainer
 from pedrl.rl import LinearSchedule
+from pedrl.sim.validation import check_integer
 
 
 class VQQL(Trainer):
@@ -40,8 +41,8 @@ class VQQL(Trainer):
         self.trials = trials
         self.iterations = iterations
         self.gather_trials = gather_trials
-        _check_int("iterations", iterations, 1)
-        _check_int("trials", trials, iterations)
+        check_integer("iterations", iterations, minimum=1)
+        check_integer("trials", trials, minimum=iterations)
         super().__init__(**common)
 
     def phases(self) -> list[Phase]:

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from numbers import Integral, Real
 from typing import Any, Final
 
 import torch
@@ -27,6 +26,7 @@ from pedrl.sim.dynamics import (
 from pedrl.sim.geometry import NUM_WALLS, RoomGeometry, X, Y, wrap_angle
 from pedrl.sim.rewards import RewardTable, compute_rewards
 from pedrl.sim.sensing import Observation, feature_names, num_features, observe
+from pedrl.sim.validation import check_device, check_integer, check_real
 
 MAX_DENSITY: Final = 0.35
 """Largest share of the free room area (where centres may lie) that the bodies may cover at placement."""
@@ -41,26 +41,6 @@ class PlacementError(ValueError):
     """The agents could not be placed in the room without overlaps."""
 
 
-def _integer(name: str, value: Any, *, minimum: int, maximum: int | None = None) -> int:
-    """``value`` as an int in ``[minimum, maximum]``, else a one-line ``ValueError``."""
-    allowed = f"an integer >= {minimum}" if maximum is None else f"an integer in [{minimum}, {maximum}]"
-    if isinstance(value, bool) or not isinstance(value, Integral):
-        raise ValueError(f"{name}={value!r} is invalid: must be {allowed}")
-    if value < minimum or (maximum is not None and value > maximum):
-        raise ValueError(f"{name}={value!r} is invalid: must be {allowed}")
-    return int(value)
-
-
-def _real(name: str, value: Any, *, unit: str, positive: bool = False) -> float:
-    """``value`` as a finite float (``> 0`` if ``positive``), else a one-line ``ValueError``."""
-    allowed = f"a finite number > 0 ({unit})" if positive else f"a finite number ({unit})"
-    if isinstance(value, bool) or not isinstance(value, Real) or not math.isfinite(float(value)):
-        raise ValueError(f"{name}={value!r} is invalid: must be {allowed}")
-    if positive and value <= 0:
-        raise ValueError(f"{name}={value!r} is invalid: must be {allowed}")
-    return float(value)
-
-
 def _ratios(name: str, value: Any, *, unit: str) -> tuple[float, ...]:
     """Nine finite ratios with the no-op (index 4) equal to 0, else a one-line ``ValueError``."""
     if isinstance(value, str | bytes) or not isinstance(value, Sequence | torch.Tensor):
@@ -71,23 +51,10 @@ def _ratios(name: str, value: Any, *, unit: str) -> tuple[float, ...]:
     items = [float(item) if isinstance(item, torch.Tensor) else item for item in value]
     if len(items) != NUM_SPEED_CHANGES:
         raise ValueError(f"{name} has {len(items)} values: must be a sequence of 9 finite numbers ({unit})")
-    ratios = tuple(_real(f"{name}[{index}]", item, unit=unit) for index, item in enumerate(items))
+    ratios = tuple(check_real(f"{name}[{index}]", item, unit=unit) for index, item in enumerate(items))
     if ratios[NOOP_INDEX] != 0.0:
         raise ValueError(f"{name}[{NOOP_INDEX}]={ratios[NOOP_INDEX]!r} is invalid: the no-op (index 4) must be 0.0")
     return ratios
-
-
-def _device(value: Any) -> torch.device:
-    """``value`` as a usable torch device, else a one-line ``ValueError``."""
-    try:
-        device = torch.device(value)
-        torch.empty(1, device=device)
-    except (RuntimeError, AssertionError, TypeError, ValueError) as error:
-        reason = (str(error).strip().splitlines() or [type(error).__name__])[0].split(". ")[0][:100]
-        raise ValueError(
-            f"device={value!r} is invalid: must be a torch device available here, e.g. 'cpu' ({reason})"
-        ) from None
-    return device
 
 
 class RoomEnv:
@@ -166,17 +133,17 @@ class RoomEnv:
                 agents than fit in the room.
         """
         # ---- validation: every check before any compute
-        self.num_replicas = _integer("num_replicas", num_replicas, minimum=1)
-        self.num_agents = _integer("num_agents", num_agents, minimum=1)
-        self.device = _device(device)
-        self.width = _real("width", width, unit="m", positive=True)
-        self.length = _real("length", length, unit="m", positive=True)
-        self.door_width = _real("door_width", door_width, unit="m", positive=True)
+        self.num_replicas = check_integer("num_replicas", num_replicas, minimum=1)
+        self.num_agents = check_integer("num_agents", num_agents, minimum=1)
+        self.device = check_device(device)
+        self.width = check_real("width", width, unit="m", positive=True)
+        self.length = check_real("length", length, unit="m", positive=True)
+        self.door_width = check_real("door_width", door_width, unit="m", positive=True)
         if self.door_width > self.width:
             raise ValueError(
                 f"door_width={door_width!r} is invalid: the door must fit in its wall, at most width={width!r} m"
             )
-        self.agent_radius = _real("agent_radius", agent_radius, unit="m", positive=True)
+        self.agent_radius = check_real("agent_radius", agent_radius, unit="m", positive=True)
         if 2.0 * self.agent_radius > self.door_width:
             raise ValueError(
                 f"agent_radius={agent_radius!r} is invalid: a body must fit through the door, at most"
@@ -187,23 +154,23 @@ class RoomEnv:
                 f"agent_radius={agent_radius!r} is invalid: a body must fit in the room, less than"
                 f" min(width, length) / 2 = {min(self.width, self.length) / 2.0!r} m"
             )
-        self.max_speed = _real("max_speed", max_speed, unit="m/s", positive=True)
-        self.decisions_per_second = _real("decisions_per_second", decisions_per_second, unit="1/s", positive=True)
-        self.max_decisions = _integer("max_decisions", max_decisions, minimum=1)
-        self.num_neighbours = _integer("num_neighbours", num_neighbours, minimum=0)
-        self.num_walls = _integer("num_walls", num_walls, minimum=0, maximum=NUM_WALLS)
+        self.max_speed = check_real("max_speed", max_speed, unit="m/s", positive=True)
+        self.decisions_per_second = check_real("decisions_per_second", decisions_per_second, unit="1/s", positive=True)
+        self.max_decisions = check_integer("max_decisions", max_decisions, minimum=1)
+        self.num_neighbours = check_integer("num_neighbours", num_neighbours, minimum=0)
+        self.num_walls = check_integer("num_walls", num_walls, minimum=0, maximum=NUM_WALLS)
         self.speed_ratios = _ratios("speed_ratios", speed_ratios, unit="fraction of max_speed")
         self.turn_ratios = _ratios("turn_ratios", turn_ratios, unit="fraction of pi")
         self.rewards = RewardTable(
-            goal=_real("reward_goal", reward_goal, unit="reward"),
-            crash_wall=_real("reward_crash_wall", reward_crash_wall, unit="reward"),
-            crash_agent=_real("reward_crash_agent", reward_crash_agent, unit="reward"),
-            default=_real("reward_default", reward_default, unit="reward"),
+            goal=check_real("reward_goal", reward_goal, unit="reward"),
+            crash_wall=check_real("reward_crash_wall", reward_crash_wall, unit="reward"),
+            crash_agent=check_real("reward_crash_agent", reward_crash_agent, unit="reward"),
+            default=check_real("reward_default", reward_default, unit="reward"),
         )
         if substep_length is None:
             self.substep_length = self.agent_radius
         else:
-            self.substep_length = _real("substep_length", substep_length, unit="m", positive=True)
+            self.substep_length = check_real("substep_length", substep_length, unit="m", positive=True)
             if self.substep_length > self.agent_radius:
                 raise ValueError(
                     f"substep_length={substep_length!r} is invalid: must be in"
