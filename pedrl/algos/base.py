@@ -30,7 +30,7 @@ import torch
 from tqdm.auto import tqdm
 
 from pedrl.io import CheckpointError, CsvWriter, RunLogger, load_checkpoint, save_checkpoint
-from pedrl.rl import LinearSchedule, epsilon_greedy, td_update
+from pedrl.rl import LinearSchedule, epsilon_greedy, table_rows, td_update
 from pedrl.sim import RoomEnv
 from pedrl.sim.validation import check_device, check_integer, check_number
 from pedrl.vq import Quantizer
@@ -361,6 +361,9 @@ class Trainer:
             rate while gathering.
         """
         policy = self.gather_tables(phase, previous)
+        if policy is not None:
+            quantizer, q_values = policy
+            base_rows = self._rows(q_values, phase.num_agents)
         rooms = self.processes * self.rooms_per_process
         chunks, counts, successes = [], [], []
         for _ in range(phase.gather_trials):
@@ -379,10 +382,7 @@ class Trainer:
                         device=self.device,
                     )
                 else:
-                    quantizer, q_values = policy
-                    rows = self._rows(q_values, phase.num_agents) + self.encode(
-                        quantizer, flat_obs, info["num_sensed"].reshape(-1)
-                    )
+                    rows = base_rows + self.encode(quantizer, flat_obs, info["num_sensed"].reshape(-1))
                     actions = epsilon_greedy(q_values, rows, phase.gather_epsilon, self.generator)
                 obs, _, terminated, truncated, info = env.step(actions.view(rooms, phase.num_agents))
                 reached |= info["reached"]
@@ -529,7 +529,7 @@ class Trainer:
             .remainder(tables)
             .repeat(self.processes * self.rooms_per_process)
         )
-        return (process * tables + table) * num_states
+        return table_rows(process, table, 0, num_tables=tables, num_states=num_states)
 
     def _env(self, num_agents: int) -> RoomEnv:
         if num_agents not in self._envs:

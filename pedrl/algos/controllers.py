@@ -12,8 +12,9 @@ from typing import Any, Protocol
 
 import torch
 
-from pedrl.rl import epsilon_greedy
+from pedrl.rl import epsilon_greedy, table_rows
 from pedrl.sim import RoomEnv
+from pedrl.sim.validation import check_number
 
 Encoder = Callable[[torch.Tensor, Mapping[str, Any]], torch.Tensor]
 """``encode(obs (R, N, F), info) -> prototype ids (R * N,)`` int64, e.g. a trainer's ``encode_observations``."""
@@ -53,8 +54,7 @@ class LearnedController:
     ) -> None:
         if q_values.ndim != 4:
             raise ValueError(f"q_values must have shape (P, A, K, U), got {tuple(q_values.shape)}")
-        if isinstance(epsilon, bool) or not isinstance(epsilon, int | float) or not 0.0 <= epsilon <= 1.0:
-            raise ValueError(f"epsilon={epsilon!r} is invalid: must be a number in [0, 1]")
+        check_number("epsilon", epsilon, low=0.0, high=1.0)
         self.q_values = q_values
         self.encode = encode
         self.epsilon = float(epsilon)
@@ -83,7 +83,8 @@ class LearnedController:
         key = (replicas, agents)
         if key not in self._base:
             process, table = self.table_of(replicas, agents)
-            self._base[key] = ((process * self.num_tables + table) * self.q_values.shape[2]).reshape(-1)
+            rows = table_rows(process, table, 0, num_tables=self.num_tables, num_states=self.q_values.shape[2])
+            self._base[key] = rows.reshape(-1)
         return self._base[key]
 
     def act(self, env: RoomEnv | None, obs: torch.Tensor, info: Mapping[str, Any]) -> torch.Tensor:
