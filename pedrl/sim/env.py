@@ -14,6 +14,7 @@ import torch
 
 from pedrl.sim.dynamics import (
     DEFAULT_SPEED_RATIOS,
+    COLLISION_RULES,
     DEFAULT_TURN_RATIOS,
     NOOP_INDEX,
     NUM_ACTIONS,
@@ -21,6 +22,7 @@ from pedrl.sim.dynamics import (
     apply_actions,
     count_substeps,
     move_agents,
+    move_agents_sequential,
     velocities_from,
 )
 from pedrl.sim.geometry import NUM_WALLS, RoomGeometry, X, Y, wrap_angle
@@ -103,6 +105,9 @@ class RoomEnv:
         reward_crash_agent: float = -4.0,
         reward_default: float = 0.0,
         substep_length: float | None = None,
+        collision_rule: str = "sequential",
+        goal_depth: float = 0.0,
+        reward_progress: float = 0.0,
     ) -> None:
         """Validate the configuration and allocate the state (call :meth:`reset` before :meth:`step`).
 
@@ -127,6 +132,16 @@ class RoomEnv:
             reward_default: Reward otherwise.
             substep_length: Longest move per sub-step (m), in ``(0, agent_radius]``; ``None`` means
                 ``agent_radius``.
+            collision_rule: ``"sequential"`` (the paper's reading: only the agent whose own move would enter
+                another body stops; movers act in a random order per decision, see
+                :func:`~pedrl.sim.dynamics.move_agents_sequential`) or ``"simultaneous"`` (every mover checked
+                against every other's proposal at once, both parties of a conflict stop:
+                :func:`~pedrl.sim.dynamics.move_agents`).
+            goal_depth: How far behind the door plane the goal point lies (m, ``>= 0``): the reference line of
+                the state (paper Table 1) runs to ``(width / 2, length + goal_depth)``. 0 is the door centre.
+            reward_progress: Reward per metre by which a decision brings the agent closer to the goal point
+                (``>= 0``; 0 is the paper's Table 2). A dense signal for the sparse door reward: walking to the
+                door at 2 m/s earns ``2 * reward_progress`` per decision, standing still 0.
 
         Raises:
             ValueError: With a one-line message naming the bad value, for any invalid argument, including more
@@ -176,6 +191,17 @@ class RoomEnv:
                     f"substep_length={substep_length!r} is invalid: must be in"
                     f" (0, agent_radius={agent_radius!r}] m so that nothing tunnels"
                 )
+        if collision_rule not in COLLISION_RULES:
+            raise ValueError(
+                f"collision_rule={collision_rule!r} is invalid: must be one of {', '.join(COLLISION_RULES)}"
+            )
+        self.collision_rule = collision_rule
+        self.goal_depth = check_real("goal_depth", goal_depth, unit="m")
+        if self.goal_depth < 0:
+            raise ValueError(f"goal_depth={goal_depth!r} is invalid: must be a finite number >= 0 (m)")
+        self.reward_progress = check_real("reward_progress", reward_progress, unit="reward per m")
+        if self.reward_progress < 0:
+            raise ValueError(f"reward_progress={reward_progress!r} is invalid: must be a finite number >= 0")
         free_area = (self.width - 2.0 * self.agent_radius) * (self.length - 2.0 * self.agent_radius)
         body_area = self.num_agents * math.pi * self.agent_radius**2
         if body_area > MAX_DENSITY * free_area:
@@ -187,7 +213,11 @@ class RoomEnv:
 
         # ---- constants
         self.geometry = RoomGeometry.build(
-            width=self.width, length=self.length, door_width=self.door_width, device=self.device
+            width=self.width,
+            length=self.length,
+            door_width=self.door_width,
+            goal_depth=self.goal_depth,
+            device=self.device,
         )
         self.decision_length = 1.0 / self.decisions_per_second
         self.num_substeps = count_substeps(
@@ -336,7 +366,7 @@ class RoomEnv:
         velocities = velocities_from(speeds=speeds, headings=headings)
 
         # ---- move, sub-stepped, with collisions
-        movement = move_agents(
+        motion = dict(
             positions=self.positions,
             velocities=velocities,
             active=acting,
@@ -345,8 +375,15 @@ class RoomEnv:
             decision_length=self.decision_length,
             num_substeps=self.num_substeps,
         )
+        if self.collision_rule == "sequential":
+            priority = torch.rand(self.active.shape, generator=self.generator, device=self.device)
+            movement = move_agents_sequential(**motion, priority=priority)
+        else:
+            movement = move_agents(**motion)
         speeds = torch.where(movement.blocked, 0.0, speeds)
         velocities = torch.where(movement.blocked.unsqueeze(-1), 0.0, velocities)
+
+        progress = self._goal_distance(self.positions) - self._goal_distance(movement.positions)  # (R, N) m
 
         # ---- end of trial: door, then the clock
         self._steps_taken += 1
@@ -367,6 +404,8 @@ class RoomEnv:
             crashed_agent=movement.crashed_agent,
             acting=acting,
         )
+        if self.reward_progress:
+            reward = reward + torch.where(acting, self.reward_progress * progress, 0.0)
         observation = self._observe(observers=in_room, sensed=in_room)
         info = self._info(
             observation,
@@ -390,6 +429,11 @@ class RoomEnv:
             num_neighbours=self.num_neighbours,
             num_walls=self.num_walls,
         )
+
+    def _goal_distance(self, positions: torch.Tensor) -> torch.Tensor:
+        """Distance from each centre ``(R, N, 2)`` to the goal point ``(R, N)`` (m)."""
+        goal_x, goal_y = self.geometry.goal
+        return torch.hypot(positions[..., X] - goal_x, positions[..., Y] - goal_y)
 
     def _info(
         self,

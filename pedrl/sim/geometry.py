@@ -1,7 +1,8 @@
 """The room: a rectangle with a door in one short side, bounded by five wall segments (pure torch).
 
 The room is ``[0, width] x [0, length]`` (metres). The door is a gap of ``door_width`` centred on the side
-``y = length``; the goal point is the door centre ``(width / 2, length)``. The five walls, in this order:
+``y = length``; the goal point is ``(width / 2, length + goal_depth)``, the door centre by default. The five
+walls, in this order:
 
 ====  ===========  =====================================
  0    bottom       ``(0, 0) - (width, 0)``
@@ -119,6 +120,7 @@ class RoomGeometry:
     length: float
     door_width: float
     walls: torch.Tensor
+    goal_depth: float = 0.0
     _box_low: torch.Tensor = field(init=False, repr=False)
     _box_high: torch.Tensor = field(init=False, repr=False)
 
@@ -129,11 +131,23 @@ class RoomGeometry:
 
     @classmethod
     def build(
-        cls, *, width: float, length: float, door_width: float, device: str | torch.device = "cpu"
+        cls,
+        *,
+        width: float,
+        length: float,
+        door_width: float,
+        goal_depth: float = 0.0,
+        device: str | torch.device = "cpu",
     ) -> RoomGeometry:
         """Build the room of the given size (m) with its walls on ``device``."""
         walls = build_walls(width=width, length=length, door_width=door_width, device=device)
-        return cls(width=float(width), length=float(length), door_width=float(door_width), walls=walls)
+        return cls(
+            width=float(width),
+            length=float(length),
+            door_width=float(door_width),
+            walls=walls,
+            goal_depth=float(goal_depth),
+        )
 
     @property
     def door_left(self) -> float:
@@ -147,8 +161,8 @@ class RoomGeometry:
 
     @property
     def goal(self) -> tuple[float, float]:
-        """The door centre ``(width / 2, length)`` (m)."""
-        return (self.width / 2.0, self.length)
+        """The goal point ``(width / 2, length + goal_depth)`` (m): the door centre when ``goal_depth = 0``."""
+        return (self.width / 2.0, self.length + self.goal_depth)
 
     @property
     def device(self) -> torch.device:

@@ -19,6 +19,7 @@ from pedrl.sim.dynamics import (
     decode_actions,
     encode_actions,
     move_agents,
+    move_agents_sequential,
     velocities_from,
 )
 from pedrl.sim.geometry import RoomGeometry, build_walls, distances_to_segments
@@ -73,6 +74,57 @@ def reference_move(
         blocked=crashed_wall | crashed_agent,
         crashed_wall=crashed_wall,
         crashed_agent=crashed_agent,
+        reached=reached,
+    )
+
+
+def reference_sequential_move(
+    *,
+    positions: torch.Tensor,
+    velocities: torch.Tensor,
+    active: torch.Tensor,
+    geometry: RoomGeometry,
+    agent_radius: float,
+    decision_length: float,
+    num_substeps: int,
+    priority: torch.Tensor,
+) -> Movement:
+    """The paper's rule written literally: sub-step after sub-step, agent after agent in priority order."""
+    num_replicas, num_agents, _ = positions.shape
+    step = velocities * (decision_length / num_substeps)
+    going = active & (step != 0).any(-1)
+    present = active.clone()
+    moved = torch.zeros(num_replicas, num_agents)
+    crashed_wall = torch.zeros_like(active)
+    blocked = torch.zeros_like(active)
+    reached = torch.zeros_like(active)
+    for substep in range(1, num_substeps + 1):
+        for r in range(num_replicas):
+            for i in priority[r].argsort().tolist():
+                if not going[r, i]:
+                    continue
+                proposal = positions[r, i] + float(substep) * step[r, i]
+                wall = bool(geometry.touches_walls(proposal, radius=agent_radius))
+                current = positions[r] + moved[r].unsqueeze(-1) * step[r]  # where everyone stands now
+                gaps = proposal - current
+                others = present[r].clone()
+                others[i] = False
+                body = bool((((gaps * gaps).sum(-1) < 4.0 * agent_radius**2) & others).any())
+                if wall or body:
+                    blocked[r, i] = True
+                    crashed_wall[r, i] |= wall
+                    going[r, i] = False
+                    continue
+                moved[r, i] += 1
+                if proposal[1] >= geometry.length:
+                    reached[r, i] = True
+                    present[r, i] = False
+                    going[r, i] = False
+    return Movement(
+        positions=positions + moved.unsqueeze(-1) * step,
+        blocked=blocked,
+        crashed_wall=crashed_wall,
+        crashed_agent=blocked & ~crashed_wall,
         reached=reached,
     )
 
@@ -274,3 +326,101 @@ def test_dense_rooms_match_the_reference_and_exercise_every_event():
         counts["reached"] += int(fast.reached.sum())
         env.positions, env.active = fast.positions, env.active & ~fast.reached
     assert counts["crashed_agent"] > 20 and counts["crashed_wall"] > 20 and counts["reached"] > 5
+
+
+# ---------------------------------------------------------------- the sequential rule (the paper's reading)
+
+
+def _sequential(positions, velocities, priority=None, geometry=None):
+    positions, velocities = torch.tensor([positions]), torch.tensor([velocities])
+    num_agents = positions.shape[1]
+    return move_agents_sequential(
+        positions=positions,
+        velocities=velocities,
+        active=torch.ones(1, num_agents, dtype=torch.bool),
+        geometry=geometry or RoomGeometry.build(width=60.0, length=100.0, door_width=2.0),
+        agent_radius=0.4,
+        decision_length=1.0,
+        num_substeps=7,
+        priority=torch.tensor([priority if priority is not None else list(range(num_agents))], dtype=torch.float32),
+    )
+
+
+@pytest.mark.parametrize("priority", [[0, 1], [1, 0]])
+def test_a_leader_caught_by_a_faster_follower_keeps_walking(priority):
+    """The follower's move would enter the leader's body: only the follower stops, whatever the order."""
+    movement = _sequential([[10.0, 50.0], [10.0, 49.0]], [[0.0, 1.0], [0.0, 2.5]], priority)
+    assert movement.blocked.tolist() == [[False, True]]
+    assert movement.crashed_agent.tolist() == [[False, True]]
+    torch.testing.assert_close(movement.positions[0, 0], torch.tensor([10.0, 51.0]))
+    assert (movement.positions[0, 0] - movement.positions[0, 1]).norm() >= 0.8
+
+
+@pytest.mark.parametrize("rule", ["sequential", "simultaneous"])
+def test_two_agents_below_the_door_heading_for_its_centre(rule):
+    """Simultaneously both stop at every decision and stay frozen for ever; sequentially both leave."""
+    geometry = RoomGeometry.build(width=60.0, length=100.0, door_width=2.0)
+    positions = torch.tensor([[[29.5, 97.0], [30.5, 97.0]]])
+    active = torch.ones(1, 2, dtype=torch.bool)
+    reached = torch.zeros_like(active)
+    generator = torch.Generator().manual_seed(0)
+    for _ in range(10):
+        to_door = torch.tensor(geometry.goal) - positions
+        velocities = 2.5 * to_door / to_door.norm(dim=-1, keepdim=True)
+        kwargs = dict(
+            positions=positions,
+            velocities=velocities,
+            active=active,
+            geometry=geometry,
+            agent_radius=0.4,
+            decision_length=1.0,
+            num_substeps=7,
+        )
+        if rule == "sequential":
+            movement = move_agents_sequential(**kwargs, priority=torch.rand(1, 2, generator=generator))
+        else:
+            movement = move_agents(**kwargs)
+        positions, reached, active = movement.positions, reached | movement.reached, active & ~movement.reached
+    assert reached.tolist() == ([[True, True]] if rule == "sequential" else [[False, False]])
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    seed=st.integers(0, 2**31 - 1),
+    num_replicas=st.integers(1, 3),
+    num_agents=st.integers(1, 30),
+    room=st.sampled_from([(4.0, 5.0, 0.9), (8.0, 10.0, 1.5), (60.0, 100.0, 2.0)]),
+)
+def test_move_agents_sequential_equals_the_literal_agent_by_agent_loop(seed, num_replicas, num_agents, room):
+    width, length, door_width = room
+    num_agents = min(num_agents, _cap(width, length))
+    env = RoomEnv(num_replicas=num_replicas, num_agents=num_agents, width=width, length=length, door_width=door_width)
+    env.reset(seed=seed)
+    generator = torch.Generator().manual_seed(seed)
+    shape = (num_replicas, num_agents)
+    for _ in range(8):
+        speeds = torch.where(torch.rand(shape, generator=generator) < 0.2, 0.0, env.max_speed)
+        goal_x, goal_y = env.geometry.goal
+        to_door = torch.atan2(goal_y - env.positions[..., 1], goal_x - env.positions[..., 0])
+        headings = to_door + 0.8 * torch.randn(shape, generator=generator)
+        kwargs = dict(
+            positions=env.positions,
+            velocities=velocities_from(speeds=speeds, headings=headings),
+            active=env.active,
+            geometry=env.geometry,
+            agent_radius=env.agent_radius,
+            decision_length=env.decision_length,
+            num_substeps=env.num_substeps,
+            priority=torch.rand(shape, generator=generator),
+        )
+        fast = move_agents_sequential(**kwargs)
+        slow = reference_sequential_move(**kwargs)
+        for field in ("positions", "blocked", "crashed_wall", "crashed_agent", "reached"):
+            assert torch.equal(getattr(fast, field), getattr(slow, field)), field
+        # no two bodies in the room overlap afterwards
+        inside = env.active & ~fast.reached
+        gaps = fast.positions.unsqueeze(2) - fast.positions.unsqueeze(1)
+        close = (gaps * gaps).sum(-1) < (2 * env.agent_radius) ** 2 - 1e-4
+        close &= inside.unsqueeze(1) & inside.unsqueeze(2) & ~torch.eye(num_agents, dtype=torch.bool)
+        assert not close.any()
+        env.positions, env.active = fast.positions, env.active & ~fast.reached

@@ -47,7 +47,8 @@ def test_agent_heading_at_the_door_reaches_it_in_the_expected_decisions(distance
 
 
 def test_head_on_agents_both_stop_and_both_get_the_agent_penalty():
-    env = RoomEnv(num_agents=2)
+    """Under the simultaneous rule both stop at the same sub-step (the sequential rule: test_dynamics)."""
+    env = RoomEnv(num_agents=2, collision_rule="simultaneous")
     gap = 5.0
     _place(env, [(20.0, 50.0), (20.0 + gap, 50.0)], [RIGHT, LEFT], [env.max_speed] * 2)
     _, reward, terminated, _, info = env.step(_noop(env))
