@@ -17,6 +17,9 @@ Outputs, under the run directory:
   percentage of agents that did not reach the door (Tables 4/5); ``mean_speed`` and ``speed_std`` (m/s): mean and
   standard deviation of the speed of every agent after every decision it took; ``evacuation_time_s``: mean time
   until the last agent passed the door, over the ``evacuated_trials`` trials in which every agent did;
+  ``evacuated_pct``: the share of trials (%) in which every agent passed the door; ``stuck_pct``: the share of
+  agents (%) still in the room at the end of their trial whose path over its last ``STUCK_WINDOW = 20`` decisions
+  was shorter than ``STUCK_PATH = 0.4`` m (one body radius): frozen, not merely slow;
   ``door_flow`` (persons/s): mean over trials with at least two distinct passing times of
   ``(n - 1) / (t_last - t_first)``, n agents passing the door between the first and the last passing time;
   ``crashes_per_agent``: decisions in which an agent hit a wall or another agent, per agent and trial;
@@ -84,10 +87,16 @@ SCALING_COLUMNS: Final = (
     "speed_std",
     "evacuation_time_s",
     "evacuated_trials",
+    "evacuated_pct",
+    "stuck_pct",
     "door_flow",
     "crashes_per_agent",
     "trials",
 )
+STUCK_WINDOW: Final = 20
+"""Decisions at the end of a trial over which an agent still in the room counts as stuck if it did not move."""
+STUCK_PATH: Final = 0.4
+"""Path length (m) over those decisions below which it did not move: less than one body radius."""
 FUNDAMENTAL_COLUMNS: Final = ("agents", "trial", "frame", "density", "speed", "flow")
 CONTROLLERS: Final = ("learned", "greedy")
 ENV_SEED_STRIDE: Final = 1009
@@ -152,6 +161,11 @@ def load_policy(
         raise CheckpointError(
             f"checkpoint {str(path)!r} cannot be rebuilt by this pedrl ({_first_line(err)})"
         ) from None
+    processes = getattr(quantizer, "num_processes", q_values.shape[0])
+    if processes != q_values.shape[0]:
+        raise CheckpointError(
+            f"checkpoint {str(path)!r} is inconsistent: {processes} quantizers, tables of {q_values.shape[0]} processes"
+        )
     if quantizer.num_prototypes != q_values.shape[2]:
         raise CheckpointError(
             f"checkpoint {str(path)!r} is inconsistent: {quantizer.num_prototypes} prototypes, "
@@ -254,6 +268,7 @@ class ScalingStats:
     evacuation_times: list[float] = field(default_factory=list)
     door_flows: list[float] = field(default_factory=list)
     crashes_per_agent: list[float] = field(default_factory=list)
+    stuck_pct: list[float] = field(default_factory=list)
     speed_sum: float = 0.0
     speed_sq_sum: float = 0.0
     speed_count: int = 0
@@ -264,6 +279,7 @@ class ScalingStats:
         num_agents = reached.shape[1]
         self.fails_pct.extend((100.0 * (1.0 - reached.mean(axis=1))).tolist())
         self.crashes_per_agent.extend((record.crashes[:keep].sum(axis=1) / num_agents).tolist())
+        self.stuck_pct.extend((100.0 * stuck_agents(record.positions[:keep], reached).mean(axis=1)).tolist())
         self.speed_sum += float(record.speed_sum[:keep].sum())
         self.speed_sq_sum += float(record.speed_sq_sum[:keep].sum())
         self.speed_count += int(record.speed_count[:keep].sum())
@@ -288,10 +304,28 @@ class ScalingStats:
             "speed_std": math.sqrt(variance),
             "evacuation_time_s": float(np.mean(self.evacuation_times)) if self.evacuation_times else math.nan,
             "evacuated_trials": len(self.evacuation_times),
+            "evacuated_pct": 100.0 * len(self.evacuation_times) / max(len(self.fails_pct), 1),
+            "stuck_pct": float(np.mean(self.stuck_pct)),
             "door_flow": float(np.mean(self.door_flows)) if self.door_flows else math.nan,
             "crashes_per_agent": float(np.mean(self.crashes_per_agent)),
             "trials": len(self.fails_pct),
         }
+
+
+def stuck_agents(positions: np.ndarray, reached: np.ndarray) -> np.ndarray:
+    """Agents still in the room at the end whose last ``STUCK_WINDOW`` decisions moved them less than ``STUCK_PATH``.
+
+    Args:
+        positions: ``(R, T, N, 2)`` centres (m), frame 0 the initial state; an agent that did not reach the door
+            was in the room until the last frame (its trial was cut by the clock).
+        reached: ``(R, N)`` bool, the agent passed the door.
+
+    Returns:
+        ``(R, N)`` bool.
+    """
+    window = positions[:, -(STUCK_WINDOW + 1) :]  # the last 20 decisions (all of them in shorter trials)
+    path = np.linalg.norm(np.diff(window, axis=1), axis=-1).sum(axis=1)  # (R, N) m
+    return ~reached & (path < STUCK_PATH)
 
 
 # ---------------------------------------------------------------------- the evaluation
@@ -359,7 +393,8 @@ def evaluate(cfg: DictConfig, *, run_dir: str | Path | None = None) -> list[dict
             logger.log_scalars(agents, {f"eval/{k}": v for k, v in row.items() if k != "agents"})
             print(
                 f"  {agents:>4} agents: fails {row['fails_pct']:5.1f} ± {row['fails_std']:4.1f} %, "
-                f"speed {row['mean_speed']:.2f} ± {row['speed_std']:.2f} m/s "
+                f"speed {row['mean_speed']:.2f} ± {row['speed_std']:.2f} m/s, stuck {row['stuck_pct']:.1f} %, "
+                f"evacuated {row['evacuated_pct']:.0f} % of trials "
                 f"({time.perf_counter() - tic:.1f} s)",
                 flush=True,
             )
@@ -621,14 +656,15 @@ def print_table(rows: list[dict[str, Any]], label: str) -> None:
     """Tables 4/5 (and the extra columns) on the console."""
     header = (
         f"{'agents':>6} | {'fails % (std)':>14} | {'speed m/s (std)':>15} | {'evacuation s (trials)':>21} | "
-        f"{'door flow 1/s':>13} | {'crashes/agent':>13}"
+        f"{'stuck %':>7} | {'door flow 1/s':>13} | {'crashes/agent':>13}"
     )
     print(f"\n  {label}\n  {header}\n  {'-' * len(header)}")
     for r in rows:
         evacuation = f"{r['evacuation_time_s']:.1f} ({r['evacuated_trials']}/{r['trials']})"
         print(
             f"  {r['agents']:>6} | {r['fails_pct']:6.2f} ({r['fails_std']:5.2f}) | "
-            f"{r['mean_speed']:7.2f} ({r['speed_std']:4.2f}) | {evacuation:>21} | {r['door_flow']:13.3f} | "
+            f"{r['mean_speed']:7.2f} ({r['speed_std']:4.2f}) | {evacuation:>21} | {r['stuck_pct']:7.1f} | "
+            f"{r['door_flow']:13.3f} | "
             f"{r['crashes_per_agent']:13.2f}"
         )
 

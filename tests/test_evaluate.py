@@ -212,7 +212,7 @@ def test_learned_controller_replicates_tables_over_extra_agents():
                 q_values[p, a, s, 27 * p + 9 * a + s] = 1.0  # each (process, table, state) has its own best action
     replicas, agents = 4, 7
 
-    def encode(obs, info):
+    def encode(obs, info, process):
         return obs[..., 0].reshape(-1).long()  # feature 0 holds the prototype id in this hand-made room
 
     controller = LearnedController(q_values=q_values, encode=encode, epsilon=0.0)
@@ -296,3 +296,24 @@ def test_missing_checkpoint_argument_and_foreign_files(tmp_path):
     save_file({"weights": torch.zeros(2)}, str(foreign))
     with pytest.raises(CheckpointError, match="not a pedrl checkpoint"):
         evaluate(eval_config(foreign), run_dir=tmp_path)
+
+
+def test_stuck_agents_are_those_left_in_the_room_that_did_not_move_in_the_last_20_decisions():
+    from pedrl.evaluate import stuck_agents
+
+    frames = 41
+    positions = np.zeros((1, frames, 4, 2))
+    positions[0, :, 0, 0] = np.arange(frames) * 1.0  # walked all along: not stuck
+    positions[0, :20, 1, 0] = np.arange(20) * 1.0  # walked, then stood still for the last 21 frames: stuck
+    positions[0, 20:, 1, 0] = 19.0
+    positions[0, :, 2, 0] = np.arange(frames) * 0.01  # crept 0.2 m in the last 20 decisions: stuck
+    positions[0, :, 3, 0] = 5.0  # stood still, but it passed the door (its row is padding): not stuck
+    reached = np.array([[False, False, False, True]])
+    assert stuck_agents(positions, reached).tolist() == [[False, True, True, False]]
+
+
+def test_evaluation_reports_stuck_agents_and_evacuated_trials(checkpoints, tmp_path):
+    rows = evaluate(eval_config(checkpoints["vqql"], "animation.enabled=false"), run_dir=tmp_path)
+    for row in rows:
+        assert 0.0 <= row["stuck_pct"] <= row["fails_pct"] + 1e-9  # a stuck agent is one that failed
+        assert row["evacuated_pct"] == pytest.approx(100.0 * row["evacuated_trials"] / row["trials"])

@@ -32,8 +32,9 @@ from tqdm.auto import tqdm
 from pedrl.io import CheckpointError, CsvWriter, RunLogger, load_checkpoint, save_checkpoint
 from pedrl.rl import LinearSchedule, epsilon_greedy, table_rows, td_update
 from pedrl.sim import RoomEnv
+from pedrl.sim.sensing import fill_void_neighbours, void_draws
 from pedrl.sim.validation import check_device, check_integer, check_number
-from pedrl.vq import Quantizer
+from pedrl.vq import ProcessQuantizers, Quantizer
 
 CURVE_METRICS = ("success_rate", "episodic_return", "crashes_agent", "crashes_wall", "mean_speed", "td_error")
 CURVE_COLUMNS = (
@@ -81,6 +82,8 @@ class VQSettings:
             standardisation; 1 is the paper's plain standardisation.
         weight_neighbours: weight of every neighbour feature after standardisation.
         weight_walls: weight of every wall feature after standardisation.
+        per_process: one quantizer per learning process, fitted on that process's own states (the paper's
+            processes are independent); False: one quantizer fitted on all processes' states and shared.
     """
 
     num_prototypes: int = 4096
@@ -92,6 +95,7 @@ class VQSettings:
     weight_own: float = 1.0
     weight_neighbours: float = 1.0
     weight_walls: float = 1.0
+    per_process: bool = True
 
 
 @dataclass
@@ -135,6 +139,8 @@ class Trainer:
         epsilon_decay_fraction: fraction of a phase's trials over which epsilon decays linearly to ``epsilon_end``.
         void_features: how empty neighbour slots are quantized: ``"zero"`` (left at 0) or ``"random"``
             (filled with random valid values, paper section 5.1).
+        void_draws: when the random filling is drawn: ``"trial"`` (once per agent and trial) or ``"decision"``
+            (at every encode).
         checkpoint_every: also write ``last.safetensors`` every this many trials inside a phase (0: only at the
             end of each phase).
         device: ``"cpu"`` or ``"cuda"``.
@@ -160,6 +166,7 @@ class Trainer:
         epsilon_end: float = 0.0,
         epsilon_decay_fraction: float = 0.8,
         void_features: str = "zero",
+        void_draws: str = "trial",
         checkpoint_every: int = 0,
         device: str | torch.device = "cpu",
         seed: int = 0,
@@ -173,6 +180,8 @@ class Trainer:
         check_integer("rooms_per_process", rooms_per_process, minimum=1)
         check_integer("checkpoint_every", checkpoint_every, minimum=0)
         check_integer("vq.num_prototypes", self.vq.num_prototypes, minimum=2)
+        if not isinstance(self.vq.per_process, bool):
+            raise ValueError(f"vq.per_process={self.vq.per_process!r} is invalid: must be true or false")
         check_number("alpha", alpha, low=0.0, high=1.0, low_open=True)
         check_number("gamma", gamma, low=0.0, high=1.0)
         check_number("epsilon_start", epsilon_start, low=0.0, high=1.0)
@@ -180,6 +189,8 @@ class Trainer:
         check_number("epsilon_decay_fraction", epsilon_decay_fraction, low=0.0, high=1.0, low_open=True)
         if void_features not in ("zero", "random"):
             raise ValueError(f"void_features={void_features!r} is invalid: must be 'zero' or 'random'")
+        if void_draws not in ("trial", "decision"):
+            raise ValueError(f"void_draws={void_draws!r} is invalid: must be 'trial' or 'decision'")
         self.device = check_device(device)
         self.env_factory = env
         self.processes = processes
@@ -190,6 +201,8 @@ class Trainer:
         self.epsilon_end = epsilon_end
         self.epsilon_decay_fraction = epsilon_decay_fraction
         self.void_features = void_features
+        self.void_draws = void_draws
+        self._void_uniform: torch.Tensor | None = None
         self.checkpoint_every = checkpoint_every
         self.seed = seed
         self.run_dir = Path(run_dir)
@@ -222,12 +235,26 @@ class Trainer:
         """
         return self.fit_plain_quantizer(states)
 
-    def encode(self, quantizer: Any, obs: torch.Tensor, num_sensed: torch.Tensor) -> torch.Tensor:
-        """Prototype ids ``(B,)`` of observations ``(B, F)`` with ``num_sensed (B,)`` neighbours."""
+    def encode(
+        self, quantizer: Any, obs: torch.Tensor, num_sensed: torch.Tensor, process: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """Prototype ids ``(B,)`` of observations ``(B, F)`` with ``num_sensed (B,)`` neighbours.
+
+        ``process (B,)`` names the learning process of every row, whose quantizer encodes it when there is one per
+        process; None means the trainers' layout (``B / R`` consecutive rows per process).
+        """
+        if isinstance(quantizer, ProcessQuantizers):
+            return quantizer.encode(obs, num_sensed, process=process)
         return quantizer.encode(obs)
 
     def quantizer_from_state_dict(self, tensors: dict[str, torch.Tensor]) -> Any:
-        """Rebuild the quantizer saved in a checkpoint."""
+        """Rebuild the quantizer saved in a checkpoint (one per process, or one shared)."""
+        if ProcessQuantizers.holds(tensors):
+            return ProcessQuantizers.from_state_dict(tensors, self.part_from_state_dict)
+        return self.part_from_state_dict(tensors)
+
+    def part_from_state_dict(self, tensors: dict[str, torch.Tensor]) -> Any:
+        """Rebuild one (per-process or shared) quantizer from its state dict."""
         return Quantizer.from_state_dict(tensors)
 
     def epsilon_schedule(self, phase: Phase) -> Callable[[int], float]:
@@ -284,10 +311,10 @@ class Trainer:
                 else:
                     self._seed_phase(phase, env)
                     # --- 1. gather states following the previous policy (or a random walk)
-                    states, num_sensed, gather_success = self.gather(phase, env, previous)
-                    # --- 2. fit the quantizer
-                    quantizer, distortion = self.fit_quantizer(
-                        phase, states, num_sensed, previous[0] if previous else None
+                    states, num_sensed, process, gather_success = self.gather(phase, env, previous)
+                    # --- 2. fit the quantizer (one per learning process unless vq.per_process is false)
+                    quantizer, distortion = self.fit_quantizers(
+                        phase, states, num_sensed, process, previous[0] if previous else None
                     )
                     # --- 3. new tables, learned from scratch (paper: no transfer between phases)
                     q_values = torch.zeros(
@@ -353,27 +380,31 @@ class Trainer:
 
     def gather(
         self, phase: Phase, env: RoomEnv, previous: tuple[Any, torch.Tensor] | None
-    ) -> tuple[torch.Tensor, torch.Tensor, float]:
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, float]:
         """Record the states visited in ``phase.gather_trials`` trials.
 
         Returns:
-            states ``(M, F)`` (void slots filled as configured), their neighbour counts ``(M,)``, and the success
-            rate while gathering.
+            states ``(M, F)`` (void slots filled as configured), their neighbour counts ``(M,)``, the learning
+            process whose rooms visited them ``(M,)`` int64, and the success rate while gathering.
         """
         policy = self.gather_tables(phase, previous)
         if policy is not None:
             quantizer, q_values = policy
             base_rows = self._rows(q_values, phase.num_agents)
         rooms = self.processes * self.rooms_per_process
-        chunks, counts, successes = [], [], []
+        process_of_row = self._process_of_rows(phase.num_agents)
+        chunks, counts, owners, successes = [], [], [], []
         for _ in range(phase.gather_trials):
             obs, info = env.reset()
             reached = torch.zeros(rooms, phase.num_agents, dtype=torch.bool, device=self.device)
             while True:
                 active = env.active.reshape(-1)
-                flat_obs = self._prepare(obs.reshape(-1, env.num_features), info["num_sensed"].reshape(-1))
+                flat_obs = self._prepare(
+                    obs.reshape(-1, env.num_features), info["num_sensed"].reshape(-1), info["decision"]
+                )
                 chunks.append(flat_obs[active])
                 counts.append(info["num_sensed"].reshape(-1)[active])
+                owners.append(process_of_row[active])
                 if policy is None:
                     actions = torch.randint(
                         env.num_actions,
@@ -389,12 +420,42 @@ class Trainer:
                 if not bool(env.active.any()):
                     break
             successes.append(reached.float().mean())
-        states = torch.cat(chunks)
-        num_sensed = torch.cat(counts)
-        if states.shape[0] > self.vq.max_states:
-            keep = torch.randperm(states.shape[0], generator=self.generator, device=self.device)[: self.vq.max_states]
-            states, num_sensed = states[keep], num_sensed[keep]
-        return states, num_sensed, float(torch.stack(successes).mean())
+        states, num_sensed, process = torch.cat(chunks), torch.cat(counts), torch.cat(owners)
+        return states, num_sensed, process, float(torch.stack(successes).mean())
+
+    def fit_quantizers(
+        self,
+        phase: Phase,
+        states: torch.Tensor,
+        num_sensed: torch.Tensor,
+        process: torch.Tensor,
+        previous: Any | None,
+    ) -> tuple[Any, float]:
+        """This phase's quantizer: one :class:`pedrl.vq.ProcessQuantizers` part per learning process, each fitted
+        on the states its own rooms visited (``vq.per_process``, default), or one shared by all processes.
+
+        Each fit sees at most ``vq.max_states`` states (a uniform random subset). Returns the quantizer and the
+        mean distortion of its parts.
+        """
+        if not self.vq.per_process:
+            return self.fit_quantizer(phase, *self._subsample(states, num_sensed), previous)
+        parts, distortions = [], []
+        for index in range(self.processes):
+            mine = process == index
+            part, distortion = self.fit_quantizer(
+                phase,
+                *self._subsample(states[mine], num_sensed[mine]),
+                previous.parts[index] if previous is not None else None,
+            )
+            parts.append(part)
+            distortions.append(distortion)
+        return ProcessQuantizers(parts), sum(distortions) / len(distortions)
+
+    def _subsample(self, states: torch.Tensor, num_sensed: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        if states.shape[0] <= self.vq.max_states:
+            return states, num_sensed
+        keep = torch.randperm(states.shape[0], generator=self.generator, device=self.device)[: self.vq.max_states]
+        return states[keep], num_sensed[keep]
 
     def run_trial(
         self, env: RoomEnv, quantizer: Any, q_values: torch.Tensor, *, epsilon: float, learn: bool
@@ -465,10 +526,16 @@ class Trainer:
             agent_decisions=int(moves.sum()),
         )
 
-    def encode_observations(self, quantizer: Any, obs: torch.Tensor, info: Mapping[str, Any]) -> torch.Tensor:
-        """Prototype ids ``(R * N,)`` of a room's observations ``(R, N, F)``, void slots treated as configured."""
+    def encode_observations(
+        self, quantizer: Any, obs: torch.Tensor, info: Mapping[str, Any], process: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """Prototype ids ``(R * N,)`` of a room's observations ``(R, N, F)``, void slots treated as configured.
+
+        ``process (R * N,)``: the learning process of every agent (see :meth:`encode`).
+        """
         num_sensed = info["num_sensed"].reshape(-1)
-        return self.encode(quantizer, self._prepare(obs.reshape(-1, obs.shape[-1]), num_sensed), num_sensed)
+        prepared = self._prepare(obs.reshape(-1, obs.shape[-1]), num_sensed, info["decision"])
+        return self.encode(quantizer, prepared, num_sensed, process)
 
     # ------------------------------------------------------------------ helpers
     def feature_weights(self, feature_index: torch.Tensor | None = None) -> torch.Tensor:
@@ -499,15 +566,22 @@ class Trainer:
         )
         return quantizer, float(result.distortion[-1])
 
-    def _prepare(self, obs: torch.Tensor, num_sensed: torch.Tensor) -> torch.Tensor:
-        if self.void_features == "random":
-            return self._fill_void(obs, num_sensed)
-        return obs
+    def _prepare(self, obs: torch.Tensor, num_sensed: torch.Tensor, decision: int) -> torch.Tensor:
+        """Observations ``(B, F)`` as the quantizer sees them: void neighbour slots treated as configured.
 
-    def _fill_void(self, obs: torch.Tensor, num_sensed: torch.Tensor) -> torch.Tensor:
-        from pedrl.sim.sensing import fill_void_neighbours
-
+        ``void_features="random"`` fills them with random valid values (paper section 5.1). ``void_draws`` sets
+        when the randomness is drawn: ``"trial"`` (default) once per agent at the first decision of a trial,
+        so that within a trial the same state always gets the same filling and the same prototype;
+        ``"decision"`` anew at every encode (noise that the last agents in the room act on).
+        """
+        if self.void_features != "random":
+            return obs
         env = next(iter(self._envs.values()))
+        stale = self._void_uniform is None or self._void_uniform.shape[0] != obs.shape[0]
+        if self.void_draws == "decision" or decision == 0 or stale:
+            self._void_uniform = void_draws(
+                (obs.shape[0],), num_neighbours=env.num_neighbours, generator=self.generator, device=self.device
+            )
         return fill_void_neighbours(
             obs,
             num_sensed,
@@ -515,15 +589,19 @@ class Trainer:
             num_walls=env.num_walls,
             max_distance=math.hypot(env.width, env.length),
             max_speed=env.max_speed,
-            generator=self.generator,
+            uniform=self._void_uniform,
         )
+
+    def _process_of_rows(self, num_agents: int) -> torch.Tensor:
+        """Learning process of every agent of every room, flat ``(R * E * N,)``: rooms ``p E .. p E + E - 1``
+        belong to process ``p``."""
+        rows_per_process = self.rooms_per_process * num_agents
+        return torch.arange(self.processes, device=self.device).repeat_interleave(rows_per_process)
 
     def _rows(self, q_values: torch.Tensor, num_agents: int) -> torch.Tensor:
         """Flat row offsets ``(R * E * N,)`` of every agent's table in ``q_values.view(-1, U)``."""
         processes, tables, num_states, _ = q_values.shape
-        process = torch.arange(self.processes, device=self.device).repeat_interleave(
-            self.rooms_per_process * num_agents
-        )
+        process = self._process_of_rows(num_agents)
         table = (
             torch.arange(num_agents, device=self.device)
             .remainder(tables)

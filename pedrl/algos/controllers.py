@@ -16,8 +16,9 @@ from pedrl.rl import epsilon_greedy, table_rows
 from pedrl.sim import RoomEnv
 from pedrl.sim.validation import check_number
 
-Encoder = Callable[[torch.Tensor, Mapping[str, Any]], torch.Tensor]
-"""``encode(obs (R, N, F), info) -> prototype ids (R * N,)`` int64, e.g. a trainer's ``encode_observations``."""
+Encoder = Callable[[torch.Tensor, Mapping[str, Any], torch.Tensor], torch.Tensor]
+"""``encode(obs (R, N, F), info, process (R * N,)) -> prototype ids (R * N,)`` int64, e.g. a trainer's
+``encode_observations``; ``process`` is the learning process whose quantizer and tables drive each agent."""
 
 
 class Controller(Protocol):
@@ -36,8 +37,8 @@ class LearnedController:
 
     Args:
         q_values: ``(P, A, K, U)`` tables: P learning processes, A learning agents, K prototypes, U actions.
-        encode: ``encode(obs (R, N, F), info) -> ids (R * N,)``, the prototype of every agent's state, as the
-            trainer that learned the tables quantized it (``functools.partial(trainer.encode_observations,
+        encode: ``encode(obs (R, N, F), info, process (R * N,)) -> ids (R * N,)``, the prototype of every agent's
+            state, as the trainer that learned the tables quantized it (``functools.partial(trainer.encode_observations,
             quantizer)``).
         epsilon: exploration rate in ``[0, 1]``; 0 is greedy (ties between equal action values broken at random).
         generator: random source for exploration and ties, on the device of ``q_values``; reseed it for
@@ -87,10 +88,18 @@ class LearnedController:
             self._base[key] = rows.reshape(-1)
         return self._base[key]
 
+    def _process(self, replicas: int, agents: int) -> torch.Tensor:
+        """Learning process of every agent, flat ``(R * N,)``."""
+        key = (-replicas, agents)
+        if key not in self._base:
+            self._base[key] = self.table_of(replicas, agents)[0].reshape(-1)
+        return self._base[key]
+
     def act(self, env: RoomEnv | None, obs: torch.Tensor, info: Mapping[str, Any]) -> torch.Tensor:
         """Actions ``(R, N)`` int64 for observations ``obs (R, N, F)``."""
         replicas, agents, _ = obs.shape
-        rows = self._base_rows(replicas, agents) + self.encode(obs, info)
+        process = self._process(replicas, agents)
+        rows = self._base_rows(replicas, agents) + self.encode(obs, info, process)
         return epsilon_greedy(self.q_values, rows, self.epsilon, self.generator).view(replicas, agents)
 
 

@@ -107,8 +107,12 @@ class INVQQL(Trainer):
         union = previous if previous is not None else UnionQuantizer()
         return union.unite(n, index, quantizer), distortion
 
-    def encode(self, quantizer: UnionQuantizer, obs: torch.Tensor, num_sensed: torch.Tensor) -> torch.Tensor:
-        return quantizer.encode(obs, num_sensed)
+    def encode(
+        self, quantizer: Any, obs: torch.Tensor, num_sensed: torch.Tensor, process: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        if isinstance(quantizer, UnionQuantizer):
+            return quantizer.encode(obs, num_sensed)
+        return super().encode(quantizer, obs, num_sensed, process)
 
-    def quantizer_from_state_dict(self, tensors: dict[str, torch.Tensor]) -> UnionQuantizer:
+    def part_from_state_dict(self, tensors: dict[str, torch.Tensor]) -> UnionQuantizer:
         return UnionQuantizer.from_state_dict(tensors)

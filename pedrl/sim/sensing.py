@@ -207,6 +207,7 @@ def fill_void_neighbours(
     max_speed: float,
     generator: torch.Generator | None = None,
     min_distance: float = 0.8,
+    uniform: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Fill the empty neighbour slots with random valid values (IT-VQQL, paper section 5.1).
 
@@ -231,6 +232,9 @@ def fill_void_neighbours(
         max_speed: Maximum agent speed (m/s).
         generator: Source of randomness, on the device of ``obs``.
         min_distance: Lower end of the distances when nothing is sensed (m); default two body radii of 0.4 m.
+        uniform: The random draws to use ``(..., 3k + 1)`` in ``[0, 1)`` (see :func:`void_draws`), instead of
+            drawing new ones from ``generator``: the same draws give an agent the same filling for the same
+            sensed state, so a trainer draws them once per agent and trial.
 
     Returns:
         A new tensor of the shape of ``obs`` with the empty slots filled.
@@ -254,7 +258,8 @@ def fill_void_neighbours(
     low = torch.where(num_sensed.unsqueeze(-1) > 0, last, min_distance)  # (..., 1)
     span = (max_distance - low).clamp_min_(0.0)  # high - low, high = max(max_distance, low)
 
-    uniform = torch.rand((*batch, 3 * k + 1), generator=generator, device=obs.device, dtype=obs.dtype)
+    if uniform is None:
+        uniform = void_draws(batch, num_neighbours=k, generator=generator, device=obs.device)
     # Sorted uniforms without sorting: with E_1 .. E_{m+1} iid exponential, the partial sums of the first m
     # over the total are the order statistics of m uniforms. Sensed slots (a prefix) contribute 0.
     spacing = uniform[..., : k + 1].neg().log1p_().neg_()  # Exp(1), finite since uniform < 1
@@ -266,3 +271,14 @@ def fill_void_neighbours(
     filled = torch.stack((rel_speed, distance, angle), dim=-1)
     neighbours = torch.where(void.unsqueeze(-1), filled, neighbours).flatten(-2)
     return torch.cat((obs[..., :start], neighbours, obs[..., stop:]), dim=-1)
+
+
+def void_draws(
+    batch: tuple[int, ...],
+    *,
+    num_neighbours: int,
+    generator: torch.Generator | None = None,
+    device: str | torch.device = "cpu",
+) -> torch.Tensor:
+    """Uniform draws ``(*batch, 3k + 1)`` in ``[0, 1)`` for :func:`fill_void_neighbours` (``uniform=``)."""
+    return torch.rand((*batch, 3 * num_neighbours + 1), generator=generator, device=device)

@@ -5,6 +5,6 @@ the module.
 """
 
 from pedrl.vq.kmeans import KMeansResult, PrototypeIndex, nearest_prototype
-from pedrl.vq.quantizer import Quantizer, UnionQuantizer
+from pedrl.vq.quantizer import ProcessQuantizers, Quantizer, UnionQuantizer
 
-__all__ = ["KMeansResult", "PrototypeIndex", "Quantizer", "UnionQuantizer", "nearest_prototype"]
+__all__ = ["KMeansResult", "ProcessQuantizers", "PrototypeIndex", "Quantizer", "UnionQuantizer", "nearest_prototype"]

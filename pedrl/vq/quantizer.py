@@ -9,13 +9,13 @@ equally.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import torch
 
 from pedrl.vq.kmeans import KMeansResult, Precision, PrototypeIndex, kmeans
 
-__all__ = ["Quantizer", "UnionQuantizer"]
+__all__ = ["ProcessQuantizers", "Quantizer", "UnionQuantizer"]
 
 #: Features whose standard deviation is below this are only centred (their std is stored as 1).
 MIN_STD = 1e-6
@@ -371,3 +371,132 @@ class UnionQuantizer:
 
     def __repr__(self) -> str:
         return f"UnionQuantizer(part_sizes={self.part_sizes}, device={self.device})"
+
+
+PROCESS_PREFIX = "process"
+"""Key prefix of a part in `ProcessQuantizers.state_dict`: `process{p:03d}/<the part's key>`."""
+
+
+class ProcessQuantizers:
+    """One quantiser per learning process: the paper's 20 learning processes are independent, quantiser included.
+
+    Part `p` (a `Quantizer` or a `UnionQuantizer`) is fitted on the states that process `p` visited and encodes
+    that process's states only. Every part has the same number of prototypes, so the processes' Q tables stack
+    into one `(P, A, K, U)` tensor.
+
+    Args:
+        parts: one quantiser per process, all with the same `num_prototypes`.
+    """
+
+    def __init__(self, parts: list[Quantizer | UnionQuantizer]) -> None:
+        if not parts:
+            raise ValueError("ProcessQuantizers needs at least one part")
+        sizes = {part.num_prototypes for part in parts}
+        if len(sizes) != 1:
+            raise ValueError(f"every process's quantizer must have the same number of prototypes, got {sorted(sizes)}")
+        self.parts = list(parts)
+        self._stacked: tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor] | None = None
+        if all(isinstance(part, Quantizer) for part in parts) and len({part.dim for part in parts}) == 1:
+            mean = torch.stack([part.mean for part in parts])  # (P, d)
+            std = torch.stack([part.std for part in parts])
+            prototypes = torch.stack([part.prototypes for part in parts])  # (P, K, d)
+            self._stacked = (mean, std, prototypes, (prototypes * prototypes).sum(-1).unsqueeze(1))  # (P, 1, K)
+
+    @property
+    def num_processes(self) -> int:
+        """P, the number of parts."""
+        return len(self.parts)
+
+    @property
+    def num_prototypes(self) -> int:
+        """K of every part (ids are `0 .. K - 1` within each process)."""
+        return self.parts[0].num_prototypes
+
+    @property
+    def device(self) -> torch.device:
+        """Device of the tensors."""
+        return self.parts[0].device
+
+    def encode(
+        self,
+        states: torch.Tensor,
+        num_sensed: torch.Tensor | None = None,
+        *,
+        process: torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        """Ids of the states, each encoded by the quantiser of its process.
+
+        Args:
+            states: `(B, F)` raw states.
+            num_sensed: `(B,)` sensed neighbours (needed by `UnionQuantizer` parts; ignored otherwise).
+            process: `(B,)` int64 process of every row; None means `B / P` consecutive rows per process, in order
+                (the trainers' layout).
+
+        Returns:
+            `(B,)` int64 ids in `[0, K)`.
+        """
+        rows = states.shape[0]
+        if process is None:
+            if rows % self.num_processes:
+                raise ValueError(f"{rows} rows cannot be split into {self.num_processes} processes")
+            if self._stacked is not None:
+                return self._encode_stacked(states.view(self.num_processes, -1, states.shape[-1])).reshape(-1)
+            process = torch.arange(self.num_processes, device=states.device).repeat_interleave(
+                rows // self.num_processes
+            )
+        ids = torch.empty(rows, dtype=torch.int64, device=states.device)
+        for index, part in enumerate(self.parts):
+            selected = (process == index).nonzero().squeeze(1)
+            if selected.numel() == 0:
+                continue
+            own = states.index_select(0, selected)
+            if isinstance(part, UnionQuantizer):
+                if num_sensed is None:
+                    raise ValueError("num_sensed is required to encode with UnionQuantizer parts")
+                ids[selected] = part.encode(own, num_sensed.index_select(0, selected))
+            else:
+                ids[selected] = part.encode(own)
+        return ids
+
+    def _encode_stacked(self, states: torch.Tensor) -> torch.Tensor:
+        """Nearest prototypes of `(P, B, d)` states, one batched matrix product for all processes: `(P, B)`."""
+        assert self._stacked is not None
+        mean, std, prototypes, squared_norms = self._stacked
+        standardised = (states.to(torch.float32) - mean.unsqueeze(1)) / std.unsqueeze(1)
+        # ||x - c||^2 = ||x||^2 - 2 x.c + ||c||^2; ||x||^2 is the same for every c of a row
+        scores = torch.baddbmm(squared_norms, standardised, prototypes.transpose(1, 2), alpha=-2.0)
+        return scores.argmin(-1)
+
+    def to(self, device: torch.device | str) -> ProcessQuantizers:
+        """A copy on `device`."""
+        return ProcessQuantizers([part.to(device) for part in self.parts])
+
+    def state_dict(self) -> dict[str, torch.Tensor]:
+        """Flat `dict[str, Tensor]`: the keys of part `p`'s own state dict under `process{p:03d}/`."""
+        return {
+            f"{PROCESS_PREFIX}{index:03d}/{key}": value
+            for index, part in enumerate(self.parts)
+            for key, value in part.state_dict().items()
+        }
+
+    @staticmethod
+    def holds(state: dict[str, torch.Tensor]) -> bool:
+        """Whether a state dict was written by `ProcessQuantizers.state_dict` (else by a single quantiser)."""
+        return bool(state) and all(key.startswith(PROCESS_PREFIX) for key in state)
+
+    @classmethod
+    def from_state_dict(cls, state: dict[str, torch.Tensor], load_part: Any) -> ProcessQuantizers:
+        """Inverse of `state_dict`; `load_part(part_state)` rebuilds one part (`Quantizer.from_state_dict`, ...)."""
+        grouped: dict[int, dict[str, torch.Tensor]] = {}
+        for key, value in state.items():
+            head, _, rest = key.partition("/")
+            index = head[len(PROCESS_PREFIX) :]
+            if not index.isdigit() or not rest:
+                raise ValueError(f"state key {key!r} is not of the form {PROCESS_PREFIX}NNN/<key>")
+            grouped.setdefault(int(index), {})[rest] = value
+        if sorted(grouped) != list(range(len(grouped))):
+            raise ValueError(f"the processes of the state dict are not numbered 0..P-1: {sorted(grouped)}")
+        return cls([load_part(grouped[index]) for index in range(len(grouped))])
+
+    def __repr__(self) -> str:
+        return f"ProcessQuantizers(processes={self.num_processes}, num_prototypes={self.num_prototypes})"

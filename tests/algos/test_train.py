@@ -89,7 +89,9 @@ def test_seeded_runs_are_reproducible(train_config, tmp_path):
     a = load_checkpoint(tmp_path / "a" / "checkpoints" / "last.safetensors")
     b = load_checkpoint(tmp_path / "b" / "checkpoints" / "last.safetensors")
     assert torch.equal(a.tensors["q_values"], b.tensors["q_values"])
-    assert torch.equal(a.tensors["quantizer/prototypes"], b.tensors["quantizer/prototypes"])
+    quantizer_a, quantizer_b = a.tensors_with_prefix("quantizer"), b.tensors_with_prefix("quantizer")
+    assert quantizer_a.keys() == quantizer_b.keys()
+    assert all(torch.equal(quantizer_a[key], quantizer_b[key]) for key in quantizer_a)
 
 
 @pytest.mark.parametrize("algo", ALGOS)
@@ -166,3 +168,41 @@ def test_cli_rejects_unknown_keys(tmp_path):
     done = subprocess.run(command, capture_output=True, text=True, timeout=120)
     assert done.returncode != 0
     assert "no_such_key" in done.stderr
+
+
+@pytest.mark.parametrize("void_draws", ["trial", "decision"])
+def test_void_filling_is_drawn_once_per_agent_and_trial(void_draws, train_config, tmp_path):
+    """IT-VQQL fills empty neighbour slots at random: by default once per trial, so a state keeps its filling."""
+    trainer = build_trainer(
+        train_config("algo=it_vqql", "algo.num_agents=3", f"algo.void_draws={void_draws}"), tmp_path
+    )
+    env = trainer._env(3)
+    obs, info = env.reset(seed=0)
+    flat, sensed = obs.reshape(-1, env.num_features), info["num_sensed"].reshape(-1)
+    assert (sensed < env.num_neighbours).all()  # 3 agents: 2 neighbours sensed, 5 void slots
+    first = trainer._prepare(flat, sensed, 0)
+    later = trainer._prepare(flat, sensed, 5)  # the same state later in the trial
+    next_trial = trainer._prepare(flat, sensed, 0)  # a new trial draws again
+    assert torch.equal(first[:, :9], flat[:, :9])  # own features and both sensed neighbours kept
+    assert torch.equal(first, later) == (void_draws == "trial")
+    assert not torch.equal(first, next_trial)
+
+
+@pytest.mark.parametrize("algo", ALGOS)
+def test_each_learning_process_fits_its_own_quantizer(algo, train_config, tmp_path):
+    cfg = train_config(f"algo={algo}", "logger=none")
+    trainer = build_trainer(cfg, tmp_path)
+    train(cfg, run_dir=tmp_path)
+    checkpoint = load_checkpoint(tmp_path / "checkpoints" / "last.safetensors")
+    quantizer = trainer.quantizer_from_state_dict(checkpoint.tensors_with_prefix("quantizer"))
+    assert quantizer.num_processes == cfg.processes == checkpoint.tensors["q_values"].shape[0]
+    first, second = (part.state_dict() for part in quantizer.parts[:2])
+    assert first.keys() == second.keys()
+    assert any(not torch.equal(first[key], second[key]) for key in first if key.endswith("prototypes"))
+
+
+def test_a_shared_quantizer_stays_selectable(train_config, tmp_path):
+    cfg = train_config("algo=vqql", "logger=none", "vq.per_process=false")
+    train(cfg, run_dir=tmp_path)
+    tensors = load_checkpoint(tmp_path / "checkpoints" / "last.safetensors").tensors_with_prefix("quantizer")
+    assert sorted(tensors) == ["mean", "prototypes", "std"]

@@ -116,10 +116,10 @@ def reference_sequential_move(
                     going[r, i] = False
                     continue
                 moved[r, i] += 1
-                if proposal[1] >= geometry.length:
+                if proposal[1] >= geometry.length:  # out: it collides until the end of this sub-step
                     reached[r, i] = True
-                    present[r, i] = False
                     going[r, i] = False
+        present &= ~reached
     return Movement(
         positions=positions + moved.unsqueeze(-1) * step,
         blocked=blocked,
