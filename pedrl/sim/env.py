@@ -13,8 +13,8 @@ from typing import Any, Final
 import torch
 
 from pedrl.sim.dynamics import (
-    DEFAULT_SPEED_RATIOS,
     COLLISION_RULES,
+    DEFAULT_SPEED_RATIOS,
     DEFAULT_TURN_RATIOS,
     NOOP_INDEX,
     NUM_ACTIONS,
