@@ -20,8 +20,12 @@ $(STAMP): pyproject.toml
 
 setup: $(STAMP) ## create .venv with torch==2.13.0 (CPU) and pedrl[dev,analysis,launchers]; does nothing when done
 
-run: setup ## the main job: 20 agents learn to leave a room (experiment=quick_vqql, about a minute)
-	$(VENV)/bin/pedrl-train experiment=quick_vqql $(ARGS)
+RUN_DIR ?= outputs/main/$(shell date +%Y-%m-%d_%H-%M-%S)
+
+run: setup ## the main job: IT-VQQL in the paper's room (experiment=main, ~5 min), then its scaled evaluation
+	$(VENV)/bin/pedrl-train experiment=main hydra.run.dir=$(RUN_DIR) $(ARGS)
+	$(VENV)/bin/pedrl-eval checkpoint=$(RUN_DIR)/checkpoints/last.safetensors "agents=[20,100]" trials=10 \
+		hydra.run.dir=$(RUN_DIR)/eval
 
 test: setup ## the fast test suite (not slow)
 	$(PY) -m pytest -q -m "not slow" $(ARGS)

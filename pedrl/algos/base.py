@@ -21,7 +21,7 @@ from __future__ import annotations
 import json
 import math
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -32,10 +32,12 @@ from tqdm.auto import tqdm
 from pedrl.io import CheckpointError, CsvWriter, RunLogger, load_checkpoint, save_checkpoint
 from pedrl.rl import LinearSchedule, epsilon_greedy, table_rows, td_update
 from pedrl.sim import RoomEnv
-from pedrl.sim.sensing import fill_void_neighbours, void_draws
+from pedrl.sim.sensing import DISTANCE, DOOR_DISTANCE, fill_void_neighbours, void_draws
 from pedrl.sim.validation import check_device, check_integer, check_number
 from pedrl.vq import ProcessQuantizers, Quantizer
 
+TABLES = ("agent", "process")
+"""Values of ``algo.tables``: one Q table per learning agent (the paper), or one per process shared by its agents."""
 CURVE_METRICS = ("success_rate", "episodic_return", "crashes_agent", "crashes_wall", "mean_speed", "td_error")
 CURVE_COLUMNS = (
     "phase",
@@ -80,8 +82,12 @@ class VQSettings:
         chunk_size: rows per block in distance computations (bounds memory; None: the measured best).
         weight_own: weight of the agent's own features (speed, velocity angle, door distance) after
             standardisation; 1 is the paper's plain standardisation.
-        weight_neighbours: weight of every neighbour feature after standardisation.
+        weight_neighbours: weight of the neighbour features after standardisation: one number for every
+            neighbour, or one per neighbour rank (nearest first, ``k`` numbers), so that the nearest neighbours
+            are resolved more finely than the far ones.
         weight_walls: weight of every wall feature after standardisation.
+        distance_transform: ``"none"`` (the paper's raw distances) or ``"log"`` (``log(1 + d)`` for every distance
+            feature before standardisation: fine near the door and the neighbours, coarse far away).
         per_process: one quantizer per learning process, fitted on that process's own states (the paper's
             processes are independent); False: one quantizer fitted on all processes' states and shared.
     """
@@ -92,10 +98,11 @@ class VQSettings:
     max_states: int = 200_000
     init: str = "kmeans++"
     chunk_size: int | None = None
-    weight_own: float = 1.0
-    weight_neighbours: float = 1.0
-    weight_walls: float = 1.0
+    weight_own: float = 4.0
+    weight_neighbours: float | Sequence[float] = 0.2
+    weight_walls: float = 0.5
     per_process: bool = True
+    distance_transform: str = "log"
 
 
 @dataclass
@@ -141,6 +148,9 @@ class Trainer:
             (filled with random valid values, paper section 5.1).
         void_draws: when the random filling is drawn: ``"trial"`` (once per agent and trial) or ``"decision"``
             (at every encode).
+        tables: ``"agent"`` (the paper's independent learners: one table per learning agent, ``A = N``) or
+            ``"process"`` (one table per learning process, shared by all its agents, ``A = 1``: N times more
+            experience per table and entry; evaluation then drives every agent with it).
         checkpoint_every: also write ``last.safetensors`` every this many trials inside a phase (0: only at the
             end of each phase).
         device: ``"cpu"`` or ``"cuda"``.
@@ -163,10 +173,11 @@ class Trainer:
         alpha: float = 0.35,
         gamma: float = 0.91,
         epsilon_start: float = 0.4,
-        epsilon_end: float = 0.0,
-        epsilon_decay_fraction: float = 0.8,
+        epsilon_end: float = 0.1,
+        epsilon_decay_fraction: float = 0.5,
         void_features: str = "zero",
         void_draws: str = "trial",
+        tables: str = "process",
         checkpoint_every: int = 0,
         device: str | torch.device = "cpu",
         seed: int = 0,
@@ -180,6 +191,10 @@ class Trainer:
         check_integer("rooms_per_process", rooms_per_process, minimum=1)
         check_integer("checkpoint_every", checkpoint_every, minimum=0)
         check_integer("vq.num_prototypes", self.vq.num_prototypes, minimum=2)
+        if self.vq.distance_transform not in ("none", "log"):
+            raise ValueError(
+                f"vq.distance_transform={self.vq.distance_transform!r} is invalid: must be 'none' or 'log'"
+            )
         if not isinstance(self.vq.per_process, bool):
             raise ValueError(f"vq.per_process={self.vq.per_process!r} is invalid: must be true or false")
         check_number("alpha", alpha, low=0.0, high=1.0, low_open=True)
@@ -189,6 +204,8 @@ class Trainer:
         check_number("epsilon_decay_fraction", epsilon_decay_fraction, low=0.0, high=1.0, low_open=True)
         if void_features not in ("zero", "random"):
             raise ValueError(f"void_features={void_features!r} is invalid: must be 'zero' or 'random'")
+        if tables not in TABLES:
+            raise ValueError(f"tables={tables!r} is invalid: must be one of {', '.join(TABLES)}")
         if void_draws not in ("trial", "decision"):
             raise ValueError(f"void_draws={void_draws!r} is invalid: must be 'trial' or 'decision'")
         self.device = check_device(device)
@@ -202,6 +219,7 @@ class Trainer:
         self.epsilon_decay_fraction = epsilon_decay_fraction
         self.void_features = void_features
         self.void_draws = void_draws
+        self.tables = tables
         self._void_uniform: torch.Tensor | None = None
         self.checkpoint_every = checkpoint_every
         self.seed = seed
@@ -215,6 +233,9 @@ class Trainer:
             self._check_phase(phase)
         for num_agents in sorted({phase.num_agents for phase in self.phases()}):
             self._env(num_agents)  # validates the room parameters before any compute
+        check_number("vq.weight_own", self.vq.weight_own, low=0.0, low_open=True)
+        check_number("vq.weight_walls", self.vq.weight_walls, low=0.0, low_open=True)
+        self.feature_weights()  # validates the neighbour weights before any compute
 
     # ------------------------------------------------------------------ what subclasses define
     def phases(self) -> list[Phase]:
@@ -265,6 +286,10 @@ class Trainer:
             end=self.epsilon_end,
             decay_trials=max(1, round(self.epsilon_decay_fraction * phase.trials)),
         )
+
+    def num_tables(self, phase: Phase) -> int:
+        """A, the Q tables per process in ``phase``: one per agent, or one shared (``tables``)."""
+        return phase.num_agents if self.tables == "agent" else 1
 
     def continues_previous(self, phase: Phase) -> bool:
         """True when ``phase`` keeps the previous phase's quantizer and tables instead of starting afresh."""
@@ -318,7 +343,7 @@ class Trainer:
                     )
                     # --- 3. new tables, learned from scratch (paper: no transfer between phases)
                     q_values = torch.zeros(
-                        (self.processes, phase.num_agents, quantizer.num_prototypes, env.num_actions),
+                        (self.processes, self.num_tables(phase), quantizer.num_prototypes, env.num_actions),
                         device=self.device,
                     )
                     summaries.append(
@@ -544,8 +569,20 @@ class Trainer:
         own, neighbours = 3, 3 * env.num_neighbours
         weights = torch.full((env.num_features,), self.vq.weight_walls, dtype=torch.float64, device=self.device)
         weights[:own] = self.vq.weight_own
-        weights[own : own + neighbours] = self.vq.weight_neighbours
+        per_rank = torch.as_tensor(self._neighbour_weights(env.num_neighbours), dtype=torch.float64)
+        weights[own : own + neighbours] = per_rank.repeat_interleave(3).to(self.device)
         return weights if feature_index is None else weights[feature_index]
+
+    def _neighbour_weights(self, num_neighbours: int) -> list[float]:
+        """``vq.weight_neighbours`` as one weight per neighbour rank, validated (one line naming the value)."""
+        value = self.vq.weight_neighbours
+        weights = [value] * num_neighbours if isinstance(value, int | float) else list(value)
+        allowed = f"a number > 0 or a list of {num_neighbours} numbers > 0 (one per neighbour, nearest first)"
+        if len(weights) != num_neighbours or not all(
+            isinstance(w, int | float) and not isinstance(w, bool) and math.isfinite(w) and w > 0 for w in weights
+        ):
+            raise ValueError(f"vq.weight_neighbours={value!r} is invalid: must be {allowed}")
+        return [float(w) for w in weights]
 
     def fit_plain_quantizer(
         self, states: torch.Tensor, feature_index: torch.Tensor | None = None
@@ -567,15 +604,25 @@ class Trainer:
         return quantizer, float(result.distortion[-1])
 
     def _prepare(self, obs: torch.Tensor, num_sensed: torch.Tensor, decision: int) -> torch.Tensor:
-        """Observations ``(B, F)`` as the quantizer sees them: void neighbour slots treated as configured.
+        """Observations ``(B, F)`` as the quantizer sees them: void slots filled, distances transformed.
 
-        ``void_features="random"`` fills them with random valid values (paper section 5.1). ``void_draws`` sets
+        ``vq.distance_transform="log"`` replaces every distance feature ``d`` (door, neighbours, walls) by
+        ``log(1 + d)`` (m -> log m), so that the quantizer resolves near things finely and far ones coarsely.
+
+        ``void_features="random"`` fills void neighbour slots with random valid values (section 5.1); ``void_draws`` sets
         when the randomness is drawn: ``"trial"`` (default) once per agent at the first decision of a trial,
         so that within a trial the same state always gets the same filling and the same prototype;
         ``"decision"`` anew at every encode (noise that the last agents in the room act on).
         """
-        if self.void_features != "random":
-            return obs
+        if self.void_features == "random":
+            obs = self._fill_void(obs, num_sensed, decision)
+        if self.vq.distance_transform == "log":
+            columns = self._distance_columns(obs.shape[1])
+            obs = obs.clone()
+            obs[:, columns] = obs[:, columns].log1p()
+        return obs
+
+    def _fill_void(self, obs: torch.Tensor, num_sensed: torch.Tensor, decision: int) -> torch.Tensor:
         env = next(iter(self._envs.values()))
         stale = self._void_uniform is None or self._void_uniform.shape[0] != obs.shape[0]
         if self.void_draws == "decision" or decision == 0 or stale:
@@ -591,6 +638,13 @@ class Trainer:
             max_speed=env.max_speed,
             uniform=self._void_uniform,
         )
+
+    def _distance_columns(self, num_features: int) -> torch.Tensor:
+        """Columns of the distance features (door, neighbours, walls) in the state layout of pedrl.sim.sensing."""
+        env = next(iter(self._envs.values()))
+        walls_start = 3 + 3 * env.num_neighbours
+        columns = [DOOR_DISTANCE, *range(3 + DISTANCE, walls_start, 3), *range(walls_start, num_features, 2)]
+        return torch.tensor(columns, device=self.device)
 
     def _process_of_rows(self, num_agents: int) -> torch.Tensor:
         """Learning process of every agent of every room, flat ``(R * E * N,)``: rooms ``p E .. p E + E - 1``

@@ -36,6 +36,8 @@ MAX_PLACEMENT_ROUNDS: Final = 1000
 """Rounds of rejection sampling before placement gives up."""
 PLACEMENT_TOLERANCE: Final = 1e-4
 """Slack (m) when checking hand-placed positions against walls and other bodies."""
+COLLISION_ORDERS: Final = ("random", "door_first")
+"""Orders of action of the sequential collision rule (see ``RoomEnv``)."""
 OPTION_KEYS: Final = ("positions", "headings", "speeds", "replicas")
 
 
@@ -103,11 +105,12 @@ class RoomEnv:
         reward_goal: float = 100.0,
         reward_crash_wall: float = -15.0,
         reward_crash_agent: float = -4.0,
-        reward_default: float = 0.0,
+        reward_default: float = -1.0,
         substep_length: float | None = None,
         collision_rule: str = "sequential",
+        collision_order: str = "random",
         goal_depth: float = 0.0,
-        reward_progress: float = 0.0,
+        reward_progress: float = 1.0,
     ) -> None:
         """Validate the configuration and allocate the state (call :meth:`reset` before :meth:`step`).
 
@@ -129,7 +132,7 @@ class RoomEnv:
             reward_goal: Reward for reaching the door.
             reward_crash_wall: Reward for a decision in which the agent hit a wall.
             reward_crash_agent: Reward for a decision in which the agent hit another (and no wall).
-            reward_default: Reward otherwise.
+            reward_default: Reward otherwise: -1 is a time cost per decision (the paper's Table 2 has 0).
             substep_length: Longest move per sub-step (m), in ``(0, agent_radius]``; ``None`` means
                 ``agent_radius``.
             collision_rule: ``"sequential"`` (the paper's reading: only the agent whose own move would enter
@@ -137,10 +140,14 @@ class RoomEnv:
                 :func:`~pedrl.sim.dynamics.move_agents_sequential`) or ``"simultaneous"`` (every mover checked
                 against every other's proposal at once, both parties of a conflict stop:
                 :func:`~pedrl.sim.dynamics.move_agents`).
+            collision_order: The order in which the sequential rule lets agents act in each decision:
+                ``"random"`` (a random permutation per decision, random sequential update) or ``"door_first"``
+                (nearest to the goal point first, ties at random: a queue moves up together instead of each
+                follower stalling for a decision whenever it happens to act before its leader).
             goal_depth: How far behind the door plane the goal point lies (m, ``>= 0``): the reference line of
                 the state (paper Table 1) runs to ``(width / 2, length + goal_depth)``. 0 is the door centre.
             reward_progress: Reward per metre by which a decision brings the agent closer to the goal point
-                (``>= 0``; 0 is the paper's Table 2). A dense signal for the sparse door reward: walking to the
+                (``>= 0``; 0 is the paper's Table 2, 1 the default). A dense signal for the sparse door reward: walking to the
                 door at 2 m/s earns ``2 * reward_progress`` per decision, standing still 0.
 
         Raises:
@@ -196,6 +203,11 @@ class RoomEnv:
                 f"collision_rule={collision_rule!r} is invalid: must be one of {', '.join(COLLISION_RULES)}"
             )
         self.collision_rule = collision_rule
+        if collision_order not in COLLISION_ORDERS:
+            raise ValueError(
+                f"collision_order={collision_order!r} is invalid: must be one of {', '.join(COLLISION_ORDERS)}"
+            )
+        self.collision_order = collision_order
         self.goal_depth = check_real("goal_depth", goal_depth, unit="m")
         if self.goal_depth < 0:
             raise ValueError(f"goal_depth={goal_depth!r} is invalid: must be a finite number >= 0 (m)")
@@ -377,6 +389,8 @@ class RoomEnv:
         )
         if self.collision_rule == "sequential":
             priority = torch.rand(self.active.shape, generator=self.generator, device=self.device)
+            if self.collision_order == "door_first":  # metres dominate, the uniform draw breaks ties
+                priority = self._goal_distance(self.positions) + priority * 1e-3
             movement = move_agents_sequential(**motion, priority=priority)
         else:
             movement = move_agents(**motion)

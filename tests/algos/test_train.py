@@ -42,7 +42,7 @@ def test_vqql_debug_run_writes_every_output(train_config, tmp_path):
     assert len(rows) == 20 and [int(r["global_trial"]) for r in rows] == list(range(20))
     assert result.final["success_rate_mean"] == pytest.approx(float(rows[-1]["success_rate_mean"]), abs=1e-5)
     checkpoint = load_checkpoint(tmp_path / "checkpoints" / "iter_0001.safetensors")
-    assert checkpoint.tensors["q_values"].shape == (2, 20, 32, 81)
+    assert checkpoint.tensors["q_values"].shape == (2, 1, 32, 81)  # algo.tables=process: one table per process
     assert checkpoint.metadata["config"]["algo"]["_target_"] == "pedrl.algos.VQQL"
 
 
@@ -147,6 +147,16 @@ def test_resume_from_foreign_config_is_refused(train_config, tmp_path):
         ("algo.trials=abc", "trials='abc' is invalid"),
         ("env.door_width=100", "door_width"),
         ("vq.num_prototypes=1", "num_prototypes=1 is invalid"),
+        ("vq.weight_neighbours=[1,2]", "weight_neighbours=\\[1, 2\\] is invalid: must be a number > 0 or a list of 7"),
+        ("vq.weight_neighbours=-1", "weight_neighbours=-1 is invalid"),
+        ("vq.weight_own=0", "weight_own=0 is invalid"),
+        ("vq.distance_transform=sqrt", "distance_transform='sqrt' is invalid"),
+        ("vq.per_process=maybe", "per_process='maybe' is invalid"),
+        ("algo.tables=room", "tables='room' is invalid"),
+        ("algo.void_draws=never", "void_draws='never' is invalid"),
+        ("env.collision_rule=both", "collision_rule='both' is invalid"),
+        ("env.reward_progress=-1", "reward_progress=-1 is invalid"),
+        ("env.goal_depth=-1", "goal_depth=-1 is invalid"),
     ],
 )
 def test_bad_values_fail_before_compute(train_config, tmp_path, override, message):
@@ -174,7 +184,10 @@ def test_cli_rejects_unknown_keys(tmp_path):
 def test_void_filling_is_drawn_once_per_agent_and_trial(void_draws, train_config, tmp_path):
     """IT-VQQL fills empty neighbour slots at random: by default once per trial, so a state keeps its filling."""
     trainer = build_trainer(
-        train_config("algo=it_vqql", "algo.num_agents=3", f"algo.void_draws={void_draws}"), tmp_path
+        train_config(
+            "algo=it_vqql", "algo.num_agents=3", f"algo.void_draws={void_draws}", "vq.distance_transform=none"
+        ),
+        tmp_path,
     )
     env = trainer._env(3)
     obs, info = env.reset(seed=0)
@@ -206,3 +219,25 @@ def test_a_shared_quantizer_stays_selectable(train_config, tmp_path):
     train(cfg, run_dir=tmp_path)
     tensors = load_checkpoint(tmp_path / "checkpoints" / "last.safetensors").tensors_with_prefix("quantizer")
     assert sorted(tensors) == ["mean", "prototypes", "std"]
+
+
+def test_one_table_per_process_is_shared_by_its_agents(train_config, tmp_path):
+    cfg = train_config("algo=vqql", "algo.num_agents=3", "logger=none", "algo.tables=process")
+    train(cfg, run_dir=tmp_path)
+    q_values = load_checkpoint(tmp_path / "checkpoints" / "last.safetensors").tensors["q_values"]
+    assert q_values.shape[:2] == (cfg.processes, 1)  # A = 1: every agent of a process learns into one table
+    assert q_values.abs().sum() > 0
+
+
+def test_log_distance_transform_changes_only_distances(train_config, tmp_path):
+    plain = build_trainer(train_config("algo=vqql", "vq.distance_transform=none"), tmp_path)
+    logged = build_trainer(train_config("algo=vqql", "vq.distance_transform=log"), tmp_path)
+    env = plain._env(plain.phases()[0].num_agents)
+    obs, info = env.reset(seed=0)
+    flat, sensed = obs.reshape(-1, env.num_features), info["num_sensed"].reshape(-1)
+    before, after = plain._prepare(flat, sensed, 0), logged._prepare(flat, sensed, 0)
+    names = env.feature_names
+    distance = torch.tensor(["distance" in name for name in names])
+    assert torch.equal(before[:, ~distance], after[:, ~distance])
+    torch.testing.assert_close(after[:, distance], before[:, distance].log1p())
+    assert distance.sum() == 1 + env.num_neighbours + env.num_walls

@@ -360,3 +360,18 @@ def test_step_checks_its_input():
     with pytest.raises(ValueError, match="actions.dtype"):
         env.step(torch.zeros(2, 3))
     env.step(torch.zeros(2, 3, dtype=torch.int32))  # any integer dtype is accepted
+
+
+@pytest.mark.parametrize("order", ["random", "door_first"])
+def test_a_queue_to_the_door_moves_up_together_when_the_front_acts_first(order):
+    """Leader and follower 0.85 m apart walk to the door at the same speed: the follower only stalls (and is
+    penalised) when it acts before its leader, which door_first never lets happen."""
+    env = RoomEnv(num_replicas=8, num_agents=2, collision_order=order)
+    positions = [[(30.0, 60.0), (30.0, 59.15)]] * 8
+    env.reset(seed=0, options={"positions": positions, "headings": [[UP, UP]] * 8, "speeds": [[2.0, 2.0]] * 8})
+    crashes = 0
+    for _ in range(10):
+        _, reward, _, _, info = env.step(_noop(env))
+        crashes += int(info["crashed_agent"].sum())
+        assert not info["crashed_agent"][:, 0].any()  # the leader is never stopped by its follower
+    assert (crashes == 0) == (order == "door_first")
