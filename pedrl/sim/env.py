@@ -147,8 +147,8 @@ class RoomEnv:
             goal_depth: How far behind the door plane the goal point lies (m, ``>= 0``): the reference line of
                 the state (paper Table 1) runs to ``(width / 2, length + goal_depth)``. 0 is the door centre.
             reward_progress: Reward per metre by which a decision brings the agent closer to the goal point
-                (``>= 0``; 0 is the paper's Table 2, 1 the default). A dense signal for the sparse door reward: walking to the
-                door at 2 m/s earns ``2 * reward_progress`` per decision, standing still 0.
+                (``>= 0``; 0 is the paper's Table 2, 1 the default). A dense signal for the sparse door
+                reward: walking to the door at 2 m/s earns ``2 * reward_progress`` per decision, standing still 0.
 
         Raises:
             ValueError: With a one-line message naming the bad value, for any invalid argument, including more
