@@ -610,8 +610,8 @@ class Trainer:
         ``log(1 + d)`` (m -> log m), so that the quantizer resolves near things finely and far ones coarsely.
 
         ``void_features="random"`` fills void neighbour slots with random valid values (section 5.1);
-        ``void_draws`` sets when the randomness is drawn: ``"trial"`` (default) once per agent at the first decision of a trial,
-        so that within a trial the same state always gets the same filling and the same prototype;
+        ``void_draws`` sets when the randomness is drawn: ``"trial"`` (default) once per agent at the first decision
+        of a trial, so that within a trial the same state always gets the same filling and the same prototype;
         ``"decision"`` anew at every encode (noise that the last agents in the room act on).
         """
         if self.void_features == "random":
