@@ -61,6 +61,7 @@ class LearnedController:
         self.epsilon = float(epsilon)
         self.generator = generator if generator is not None else torch.Generator(device=q_values.device)
         self._base: dict[tuple[int, int], torch.Tensor] = {}
+        self._processes: dict[tuple[int, int], torch.Tensor] = {}
 
     @property
     def num_processes(self) -> int:
@@ -90,10 +91,10 @@ class LearnedController:
 
     def _process(self, replicas: int, agents: int) -> torch.Tensor:
         """Learning process of every agent, flat ``(R * N,)``."""
-        key = (-replicas, agents)
-        if key not in self._base:
-            self._base[key] = self.table_of(replicas, agents)[0].reshape(-1)
-        return self._base[key]
+        key = (replicas, agents)
+        if key not in self._processes:
+            self._processes[key] = self.table_of(replicas, agents)[0].reshape(-1)
+        return self._processes[key]
 
     def act(self, env: RoomEnv | None, obs: torch.Tensor, info: Mapping[str, Any]) -> torch.Tensor:
         """Actions ``(R, N)`` int64 for observations ``obs (R, N, F)``."""

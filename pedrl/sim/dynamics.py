@@ -151,6 +151,31 @@ def _upper_triangle(num_agents: int, device: torch.device) -> torch.Tensor:
     return torch.ones(num_agents, num_agents, dtype=torch.bool, device=device).triu_(1)
 
 
+def _swept_discs(
+    positions: torch.Tensor, step: torch.Tensor, active: torch.Tensor, num_substeps: int
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Discs covering each agent's straight move of a decision: centres x, y and half the move, each ``(R, N)`` (m).
+
+    ``step (R, N, 2)`` is the move per sub-step (0 for agents that stand); inactive agents get a NaN centre, which
+    never overlaps anything.
+    """
+    half = 0.5 * num_substeps
+    half_move = half * torch.linalg.vector_norm(step, dim=-1)
+    centre_x = torch.where(active, positions[..., X] + half * step[..., X], torch.nan)
+    centre_y = positions[..., Y] + half * step[..., Y]
+    return centre_x, centre_y, half_move
+
+
+def _discs_overlap(
+    centre_x: torch.Tensor, centre_y: torch.Tensor, half_move: torch.Tensor, agent_radius: float
+) -> torch.Tensor:
+    """``(R, N, N)`` bool: the swept discs of two agents, widened by their bodies, overlap (they may touch)."""
+    gap_x = centre_x.unsqueeze(2) - centre_x.unsqueeze(1)
+    gap_y = centre_y.unsqueeze(2) - centre_y.unsqueeze(1)
+    limit = half_move.unsqueeze(2) + half_move.unsqueeze(1) + (2.0 * agent_radius + PAIR_MARGIN)
+    return gap_x * gap_x + gap_y * gap_y < limit * limit
+
+
 def move_agents(
     *,
     positions: torch.Tensor,
@@ -214,10 +239,7 @@ def move_agents(
     flat_step = step.reshape(-1, 2)
 
     # swept discs: centre of the straight move and half its length
-    half = 0.5 * num_substeps
-    half_move = half * torch.linalg.vector_norm(step, dim=-1)  # (R, N)
-    centre_x = torch.where(active, positions[..., X] + half * step[..., X], torch.nan)  # NaN: never pairs
-    centre_y = positions[..., Y] + half * step[..., Y]
+    centre_x, centre_y, half_move = _swept_discs(positions, step, active, num_substeps)
 
     # 1. walls and door, agent by agent; a disc that stays in [r, W - r] x [r, L - r] touches no wall and
     # stays below the door, so only the other movers are traced sub-step by sub-step
@@ -237,10 +259,7 @@ def move_agents(
     blocked_at = torch.where(first_wall <= first_door, first_wall, never)  # (R * N,)
 
     # 2. pairs whose swept discs overlap, each unordered pair once
-    gap_x = centre_x.unsqueeze(2) - centre_x.unsqueeze(1)  # (R, N, N)
-    gap_y = centre_y.unsqueeze(2) - centre_y.unsqueeze(1)
-    limit = half_move.unsqueeze(2) + half_move.unsqueeze(1) + (2.0 * agent_radius + PAIR_MARGIN)
-    candidate = (gap_x * gap_x + gap_y * gap_y < limit * limit) & _upper_triangle(num_agents, device)
+    candidate = _discs_overlap(centre_x, centre_y, half_move, agent_radius) & _upper_triangle(num_agents, device)
     pairs = candidate.nonzero()  # (M, 3): replica, i, j
 
     # 3. collision rounds over the kept pairs, in both orders: src proposes, dst is the obstacle
@@ -342,16 +361,9 @@ def move_agents_sequential(
     current = positions
 
     # pairs that can touch during the decision: swept discs (straight move widened by the radius) overlap
-    half = 0.5 * num_substeps
-    half_move = half * torch.linalg.vector_norm(step * going.unsqueeze(-1), dim=-1)  # (R, N)
-    centre_x = torch.where(active, positions[..., X] + half * step[..., X], torch.nan)  # NaN: never pairs
-    centre_y = positions[..., Y] + half * step[..., Y]
-    gap_x = centre_x.unsqueeze(2) - centre_x.unsqueeze(1)  # (R, N, N)
-    gap_y = centre_y.unsqueeze(2) - centre_y.unsqueeze(1)
-    limit = half_move.unsqueeze(2) + half_move.unsqueeze(1) + (2.0 * agent_radius + PAIR_MARGIN)
-    candidate = (gap_x * gap_x + gap_y * gap_y < limit * limit) & ~torch.eye(
-        num_agents, dtype=torch.bool, device=positions.device
-    )
+    centre_x, centre_y, half_move = _swept_discs(positions, step * going.unsqueeze(-1), active, num_substeps)
+    candidate = _discs_overlap(centre_x, centre_y, half_move, agent_radius)
+    candidate &= ~torch.eye(num_agents, dtype=torch.bool, device=positions.device)
     pairs = candidate.nonzero()  # (M, 3): replica, src (the mover), dst (the obstacle); both orders
     replica, src_agent, dst_agent = pairs.unbind(1)
     src = replica * num_agents + src_agent

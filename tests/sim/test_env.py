@@ -10,6 +10,8 @@ from pedrl.sim import NOOP_ACTION, PlacementError, RoomEnv
 from pedrl.sim.dynamics import NUM_ACTIONS
 
 UP, DOWN, RIGHT, LEFT = math.pi / 2, -math.pi / 2, 0.0, math.pi
+TABLE_2 = {"reward_progress": 0.0, "reward_default": 0.0}
+"""The paper's rewards alone (no progress reward, no time cost), for the analytic scenes."""
 
 
 def _noop(env: RoomEnv) -> torch.Tensor:
@@ -25,7 +27,7 @@ def _place(env: RoomEnv, positions, headings, speeds):
 
 @pytest.mark.parametrize(("distance", "decisions_per_second"), [(10.3, 1.0), (3.0, 2.0), (0.9, 1.0), (26.1, 0.5)])
 def test_agent_heading_at_the_door_reaches_it_in_the_expected_decisions(distance, decisions_per_second):
-    env = RoomEnv(num_agents=1, decisions_per_second=decisions_per_second)
+    env = RoomEnv(**TABLE_2, num_agents=1, decisions_per_second=decisions_per_second)
     _place(env, [(30.0, 100.0 - distance)], [UP], [env.max_speed])
     per_decision = env.max_speed / decisions_per_second  # m, straight up at full speed
     expected = math.ceil(distance / per_decision)
@@ -48,7 +50,7 @@ def test_agent_heading_at_the_door_reaches_it_in_the_expected_decisions(distance
 
 def test_head_on_agents_both_stop_and_both_get_the_agent_penalty():
     """Under the simultaneous rule both stop at the same sub-step (the sequential rule: test_dynamics)."""
-    env = RoomEnv(num_agents=2, collision_rule="simultaneous")
+    env = RoomEnv(**TABLE_2, num_agents=2, collision_rule="simultaneous")
     gap = 5.0
     _place(env, [(20.0, 50.0), (20.0 + gap, 50.0)], [RIGHT, LEFT], [env.max_speed] * 2)
     _, reward, terminated, _, info = env.step(_noop(env))
@@ -67,7 +69,7 @@ def test_head_on_agents_both_stop_and_both_get_the_agent_penalty():
 
 
 def test_agent_driven_into_a_wall_stops_inside_the_room():
-    env = RoomEnv(num_agents=1)
+    env = RoomEnv(**TABLE_2, num_agents=1)
     start = 2.0
     _place(env, [(30.0, start)], [DOWN], [env.max_speed])
     _, reward, _, _, info = env.step(_noop(env))
@@ -82,7 +84,7 @@ def test_agent_driven_into_a_wall_stops_inside_the_room():
 
 
 def test_agent_driven_into_a_door_post_stops_below_it():
-    env = RoomEnv(num_agents=1)
+    env = RoomEnv(**TABLE_2, num_agents=1)
     _place(env, [(29.0, 98.0)], [UP], [env.max_speed])  # straight at the left door post (29, 100)
     _, reward, terminated, _, info = env.step(_noop(env))
     assert reward.tolist() == [[-15.0]] and not terminated.any() and info["crashed_wall"].all()
@@ -91,7 +93,7 @@ def test_agent_driven_into_a_door_post_stops_below_it():
 
 
 def test_walking_into_a_standing_agent_penalises_only_the_mover():
-    env = RoomEnv(num_agents=2)
+    env = RoomEnv(**TABLE_2, num_agents=2)
     _place(env, [(10.0, 50.0), (12.0, 50.0)], [RIGHT, LEFT], [env.max_speed, 0.0])
     _, reward, _, _, info = env.step(_noop(env))
     assert reward.tolist() == [[-4.0, 0.0]]
@@ -100,7 +102,7 @@ def test_walking_into_a_standing_agent_penalises_only_the_mover():
 
 
 def test_actions_change_speed_and_heading_before_moving():
-    env = RoomEnv(num_agents=1)
+    env = RoomEnv(**TABLE_2, num_agents=1)
     _place(env, [(30.0, 50.0)], [RIGHT], [0.0])
     full_speed_left_turn = 8 * 9 + 7  # +1.0 max_speed, +0.5 pi
     env.step(torch.tensor([[full_speed_left_turn]]))
@@ -113,7 +115,7 @@ def test_actions_change_speed_and_heading_before_moving():
 
 
 def test_truncation_at_max_decisions():
-    env = RoomEnv(num_replicas=2, num_agents=3, max_decisions=4)
+    env = RoomEnv(**TABLE_2, num_replicas=2, num_agents=3, max_decisions=4)
     env.reset(seed=0)
     for decision in range(1, 5):
         obs, reward, terminated, truncated, info = env.step(_noop(env))
@@ -127,7 +129,7 @@ def test_truncation_at_max_decisions():
 
 
 def test_arrival_on_the_last_decision_is_terminated_not_truncated():
-    env = RoomEnv(num_agents=2, max_decisions=2)
+    env = RoomEnv(**TABLE_2, num_agents=2, max_decisions=2)
     _place(env, [(30.0, 96.0), (10.0, 10.0)], [UP, UP], [env.max_speed, 0.0])
     env.step(_noop(env))
     _, reward, terminated, truncated, _ = env.step(_noop(env))
@@ -375,3 +377,14 @@ def test_a_queue_to_the_door_moves_up_together_when_the_front_acts_first(order):
         crashes += int(info["crashed_agent"].sum())
         assert not info["crashed_agent"][:, 0].any()  # the leader is never stopped by its follower
     assert (crashes == 0) == (order == "door_first")
+
+
+def test_progress_reward_and_time_cost_by_default():
+    """One decision straight at the door at full speed: -1 (time cost) + 2.5 (metres of approach)."""
+    env = RoomEnv(num_agents=1)
+    _place(env, [(30.0, 50.0)], [UP], [env.max_speed])
+    _, reward, _, _, _ = env.step(_noop(env))
+    assert reward.item() == pytest.approx(-1.0 + env.max_speed)
+    _place(env, [(30.0, 50.0)], [DOWN], [0.0])  # standing still: the time cost alone
+    _, reward, _, _, _ = env.step(_noop(env))
+    assert reward.item() == pytest.approx(-1.0)

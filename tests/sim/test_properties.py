@@ -67,6 +67,7 @@ def test_invariants_hold_after_every_step(seed, num_replicas, num_agents, room, 
         if env.decision >= env.max_decisions or not env.active.any():
             env.reset()
         before = env.active.clone()
+        start = env.positions.clone()
         actions = torch.randint(0, NUM_ACTIONS, shape, generator=generator)
         if bias == "fast":  # mostly accelerate, so bodies meet walls, each other and the door
             actions = torch.where(torch.rand(shape, generator=generator) < 0.7, 8 * 9 + actions % 9, actions)
@@ -85,7 +86,14 @@ def test_invariants_hold_after_every_step(seed, num_replicas, num_agents, room, 
             assert info["decision"] == env.max_decisions
         assert not reward[~before].any() and torch.equal(obs[~before], torch.zeros_like(obs[~before]))
         assert torch.equal(obs[terminated], torch.zeros_like(obs[terminated]))
-        assert torch.isin(reward, torch.tensor([0.0, -4.0, -15.0, 100.0])).all()
+        # Table 2 events (the default time cost -1 otherwise), plus 1 per metre of approach to the door centre
+        event = torch.where(info["crashed_agent"], -4.0, -1.0)
+        event = torch.where(info["crashed_wall"], -15.0, event)
+        event = torch.where(terminated, 100.0, event)
+        goal = torch.tensor(env.geometry.goal)
+        approach = (start - goal).norm(dim=-1) - (env.positions - goal).norm(dim=-1)
+        expected = torch.where(before, event + env.reward_progress * approach, 0.0)
+        torch.testing.assert_close(reward, expected, atol=1e-4, rtol=1e-5)
         crashed = info["crashed_agent"] | info["crashed_wall"]
         assert not (info["crashed_agent"] & info["crashed_wall"]).any()
         assert (env.speeds[crashed] == 0).all() and not crashed[~before].any()
