@@ -76,7 +76,7 @@ from pedrl.analysis import (
 from pedrl.cli import hydra_output_dir, run_reporting_errors
 from pedrl.io import CheckpointError, CsvWriter, RunLogger, load_checkpoint
 from pedrl.sim import RoomEnv
-from pedrl.sim.validation import check_integer, check_number
+from pedrl.sim.validation import check_choice, check_integer, check_number
 
 CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
 SCALING_COLUMNS: Final = (
@@ -618,8 +618,7 @@ def _validate_values(cfg: DictConfig) -> None:
         raise ValueError(f"agents={agents!r} is invalid: every agent count must appear once")
     check_integer("trials", cfg.get("trials"), minimum=1)
     check_integer("trials_per_batch", cfg.get("trials_per_batch"), minimum=1)
-    if cfg.get("controller") not in CONTROLLERS:
-        raise ValueError(f"controller={cfg.get('controller')!r} is invalid: must be one of {', '.join(CONTROLLERS)}")
+    check_choice("controller", cfg.get("controller"), CONTROLLERS)
     check_number("epsilon", cfg.get("epsilon"), low=0.0, high=1.0)
     if cfg.get("max_decisions") is not None:
         check_integer("max_decisions", cfg.max_decisions, minimum=1)

@@ -33,7 +33,7 @@ from pedrl.io import CheckpointError, CsvWriter, RunLogger, load_checkpoint, sav
 from pedrl.rl import LinearSchedule, epsilon_greedy, table_rows, td_update
 from pedrl.sim import RoomEnv
 from pedrl.sim.sensing import DISTANCE, DOOR_DISTANCE, fill_void_neighbours, void_draws
-from pedrl.sim.validation import check_device, check_integer, check_number
+from pedrl.sim.validation import check_choice, check_device, check_integer, check_number
 from pedrl.vq import ProcessQuantizers, Quantizer
 
 TABLES = ("agent", "process")
@@ -191,10 +191,7 @@ class Trainer:
         check_integer("rooms_per_process", rooms_per_process, minimum=1)
         check_integer("checkpoint_every", checkpoint_every, minimum=0)
         check_integer("vq.num_prototypes", self.vq.num_prototypes, minimum=2)
-        if self.vq.distance_transform not in ("none", "log"):
-            raise ValueError(
-                f"vq.distance_transform={self.vq.distance_transform!r} is invalid: must be 'none' or 'log'"
-            )
+        check_choice("vq.distance_transform", self.vq.distance_transform, ("none", "log"))
         if not isinstance(self.vq.per_process, bool):
             raise ValueError(f"vq.per_process={self.vq.per_process!r} is invalid: must be true or false")
         check_number("alpha", alpha, low=0.0, high=1.0, low_open=True)
@@ -202,12 +199,9 @@ class Trainer:
         check_number("epsilon_start", epsilon_start, low=0.0, high=1.0)
         check_number("epsilon_end", epsilon_end, low=0.0, high=1.0)
         check_number("epsilon_decay_fraction", epsilon_decay_fraction, low=0.0, high=1.0, low_open=True)
-        if void_features not in ("zero", "random"):
-            raise ValueError(f"void_features={void_features!r} is invalid: must be 'zero' or 'random'")
-        if tables not in TABLES:
-            raise ValueError(f"tables={tables!r} is invalid: must be one of {', '.join(TABLES)}")
-        if void_draws not in ("trial", "decision"):
-            raise ValueError(f"void_draws={void_draws!r} is invalid: must be 'trial' or 'decision'")
+        check_choice("void_features", void_features, ("zero", "random"))
+        check_choice("void_draws", void_draws, ("trial", "decision"))
+        check_choice("tables", tables, TABLES)
         self.device = check_device(device)
         self.env_factory = env
         self.processes = processes

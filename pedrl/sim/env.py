@@ -28,7 +28,7 @@ from pedrl.sim.dynamics import (
 from pedrl.sim.geometry import NUM_WALLS, RoomGeometry, X, Y, wrap_angle
 from pedrl.sim.rewards import RewardTable, compute_rewards
 from pedrl.sim.sensing import Observation, feature_names, num_features, observe
-from pedrl.sim.validation import check_device, check_integer, check_real
+from pedrl.sim.validation import check_choice, check_device, check_integer, check_real
 
 MAX_DENSITY: Final = 0.35
 """Largest share of the free room area (where centres may lie) that the bodies may cover at placement."""
@@ -198,16 +198,8 @@ class RoomEnv:
                     f"substep_length={substep_length!r} is invalid: must be in"
                     f" (0, agent_radius={agent_radius!r}] m so that nothing tunnels"
                 )
-        if collision_rule not in COLLISION_RULES:
-            raise ValueError(
-                f"collision_rule={collision_rule!r} is invalid: must be one of {', '.join(COLLISION_RULES)}"
-            )
-        self.collision_rule = collision_rule
-        if collision_order not in COLLISION_ORDERS:
-            raise ValueError(
-                f"collision_order={collision_order!r} is invalid: must be one of {', '.join(COLLISION_ORDERS)}"
-            )
-        self.collision_order = collision_order
+        self.collision_rule = check_choice("collision_rule", collision_rule, COLLISION_RULES)
+        self.collision_order = check_choice("collision_order", collision_order, COLLISION_ORDERS)
         self.goal_depth = check_real("goal_depth", goal_depth, unit="m")
         if self.goal_depth < 0:
             raise ValueError(f"goal_depth={goal_depth!r} is invalid: must be a finite number >= 0 (m)")

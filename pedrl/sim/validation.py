@@ -43,6 +43,13 @@ def check_number(
     return float(value)
 
 
+def check_choice(name: str, value: Any, allowed: tuple[str, ...]) -> str:
+    """``value`` if it is one of ``allowed``, else a one-line ``ValueError`` listing them."""
+    if not isinstance(value, str) or value not in allowed:
+        raise ValueError(f"{name}={value!r} is invalid: must be one of {', '.join(allowed)}")
+    return value
+
+
 def check_device(value: Any) -> torch.device:
     """``value`` as a usable torch device, else a one-line ``ValueError``."""
     try:
