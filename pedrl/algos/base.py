@@ -32,7 +32,7 @@ from tqdm.auto import tqdm
 from pedrl.io import CheckpointError, CsvWriter, RunLogger, load_checkpoint, save_checkpoint
 from pedrl.rl import LinearSchedule, epsilon_greedy, table_rows, td_update
 from pedrl.sim import RoomEnv
-from pedrl.sim.sensing import DISTANCE, DOOR_DISTANCE, fill_void_neighbours, void_draws
+from pedrl.sim.sensing import distance_indices, fill_void_neighbours, void_draws
 from pedrl.sim.validation import check_choice, check_device, check_integer, check_number
 from pedrl.vq import ProcessQuantizers, Quantizer
 
@@ -230,6 +230,8 @@ class Trainer:
         check_number("vq.weight_own", self.vq.weight_own, low=0.0, low_open=True)
         check_number("vq.weight_walls", self.vq.weight_walls, low=0.0, low_open=True)
         self.feature_weights()  # validates the neighbour weights before any compute
+        env = next(iter(self._envs.values()))
+        self._distance_columns = distance_indices(env.num_neighbours, env.num_walls, device=self.device)
 
     # ------------------------------------------------------------------ what subclasses define
     def phases(self) -> list[Phase]:
@@ -611,9 +613,8 @@ class Trainer:
         if self.void_features == "random":
             obs = self._fill_void(obs, num_sensed, decision)
         if self.vq.distance_transform == "log":
-            columns = self._distance_columns(obs.shape[1])
             obs = obs.clone()
-            obs[:, columns] = obs[:, columns].log1p()
+            obs[:, self._distance_columns] = obs[:, self._distance_columns].log1p()
         return obs
 
     def _fill_void(self, obs: torch.Tensor, num_sensed: torch.Tensor, decision: int) -> torch.Tensor:
@@ -632,13 +633,6 @@ class Trainer:
             max_speed=env.max_speed,
             uniform=self._void_uniform,
         )
-
-    def _distance_columns(self, num_features: int) -> torch.Tensor:
-        """Columns of the distance features (door, neighbours, walls) in the state layout of pedrl.sim.sensing."""
-        env = next(iter(self._envs.values()))
-        walls_start = 3 + 3 * env.num_neighbours
-        columns = [DOOR_DISTANCE, *range(3 + DISTANCE, walls_start, 3), *range(walls_start, num_features, 2)]
-        return torch.tensor(columns, device=self.device)
 
     def _process_of_rows(self, num_agents: int) -> torch.Tensor:
         """Learning process of every agent of every room, flat ``(R * E * N,)``: rooms ``p E .. p E + E - 1``

@@ -95,6 +95,23 @@ def feature_indices(
     return torch.cat((own_and_neighbours, walls))
 
 
+def distance_indices(num_neighbours: int, num_walls: int, *, device: str | torch.device = "cpu") -> torch.Tensor:
+    """Indices of the distance features (m): the door's, each neighbour's and each wall's, in layout order.
+
+    Args:
+        num_neighbours: Number ``k`` of neighbour slots.
+        num_walls: Number ``w`` of sensed walls.
+        device: Device of the returned tensor.
+
+    Returns:
+        int64 ``(1 + k + w,)``.
+    """
+    walls_start = NUM_OWN_FEATURES + FEATURES_PER_NEIGHBOUR * num_neighbours
+    neighbours = range(NUM_OWN_FEATURES + DISTANCE, walls_start, FEATURES_PER_NEIGHBOUR)
+    walls = range(walls_start, walls_start + FEATURES_PER_WALL * num_walls, FEATURES_PER_WALL)  # wall{j}_distance
+    return torch.tensor([DOOR_DISTANCE, *neighbours, *walls], dtype=torch.int64, device=device)
+
+
 @dataclass(frozen=True)
 class Observation:
     """The sensed states of all agents.

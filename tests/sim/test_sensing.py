@@ -7,7 +7,14 @@ import torch
 
 from pedrl.sim import RoomEnv
 from pedrl.sim.geometry import RoomGeometry
-from pedrl.sim.sensing import feature_indices, feature_names, fill_void_neighbours, num_features, observe
+from pedrl.sim.sensing import (
+    distance_indices,
+    feature_indices,
+    feature_names,
+    fill_void_neighbours,
+    num_features,
+    observe,
+)
 
 PI32 = torch.tensor(math.pi, dtype=torch.float32).item()
 WIDTH, LENGTH, DOOR = 60.0, 100.0, 2.0
@@ -267,3 +274,10 @@ def test_filled_distances_are_uniform_order_statistics():
     torch.testing.assert_close(distances.mean(0), expected, atol=0.05, rtol=0)
     angles, rel_speeds = filled[:, 14:24:3], filled[:, 12:24:3]
     assert abs(angles.mean().item()) < 0.05 and abs(rel_speeds.mean().item()) < 0.05
+
+
+@pytest.mark.parametrize(("num_neighbours", "num_walls"), [(7, 2), (0, 0), (3, 5)])
+def test_distance_indices_name_exactly_the_distance_features(num_neighbours, num_walls):
+    names = feature_names(num_neighbours, num_walls)
+    expected = [i for i, name in enumerate(names) if name.endswith("distance")]
+    assert distance_indices(num_neighbours, num_walls).tolist() == expected
