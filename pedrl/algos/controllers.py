@@ -60,8 +60,7 @@ class LearnedController:
         self.encode = encode
         self.epsilon = float(epsilon)
         self.generator = generator if generator is not None else torch.Generator(device=q_values.device)
-        self._base: dict[tuple[int, int], torch.Tensor] = {}
-        self._processes: dict[tuple[int, int], torch.Tensor] = {}
+        self._layouts: dict[tuple[int, int], tuple[torch.Tensor, torch.Tensor]] = {}
 
     @property
     def num_processes(self) -> int:
@@ -80,27 +79,21 @@ class LearnedController:
         table = torch.arange(agents, device=device).remainder(self.num_tables)
         return process[:, None].expand(replicas, agents), table[None, :].expand(replicas, agents)
 
-    def _base_rows(self, replicas: int, agents: int) -> torch.Tensor:
-        """Flat row ``(p * A + a) * K`` of every agent's table in ``q_values.view(-1, U)``, ``(R * N,)``."""
+    def _layout(self, replicas: int, agents: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """Flat ``(R * N,)`` learning process of every agent, and the row ``(p * A + a) * K`` of its table in
+        ``q_values.view(-1, U)``; cached per room shape."""
         key = (replicas, agents)
-        if key not in self._base:
+        if key not in self._layouts:
             process, table = self.table_of(replicas, agents)
             rows = table_rows(process, table, 0, num_tables=self.num_tables, num_states=self.q_values.shape[2])
-            self._base[key] = rows.reshape(-1)
-        return self._base[key]
-
-    def _process(self, replicas: int, agents: int) -> torch.Tensor:
-        """Learning process of every agent, flat ``(R * N,)``."""
-        key = (replicas, agents)
-        if key not in self._processes:
-            self._processes[key] = self.table_of(replicas, agents)[0].reshape(-1)
-        return self._processes[key]
+            self._layouts[key] = (process.reshape(-1), rows.reshape(-1))
+        return self._layouts[key]
 
     def act(self, env: RoomEnv | None, obs: torch.Tensor, info: Mapping[str, Any]) -> torch.Tensor:
         """Actions ``(R, N)`` int64 for observations ``obs (R, N, F)``."""
         replicas, agents, _ = obs.shape
-        process = self._process(replicas, agents)
-        rows = self._base_rows(replicas, agents) + self.encode(obs, info, process)
+        process, base_rows = self._layout(replicas, agents)
+        rows = base_rows + self.encode(obs, info, process)
         return epsilon_greedy(self.q_values, rows, self.epsilon, self.generator).view(replicas, agents)
 
 
