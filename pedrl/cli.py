@@ -13,7 +13,8 @@ T = TypeVar("T")
 
 
 def run_reporting_errors(program: str, action: Callable[[], T]) -> T:
-    """Run ``action``; a bad value, path or checkpoint prints ``<program>: error: <one line>`` and exits with 2."""
+    """Run ``action``; a bad value, path or checkpoint, or a file that cannot be written (``OSError``), prints
+    ``<program>: error: <one line>`` and exits with 2."""
     from hydra.errors import InstantiationException
 
     try:
@@ -22,6 +23,8 @@ def run_reporting_errors(program: str, action: Callable[[], T]) -> T:
         message = str(err)
     except InstantiationException as err:
         message = str(err.__cause__ or err)
+    except OSError as err:  # a full disk, a folder without write permission: name the path
+        message = f"{str(err.filename)!r}: {err.strerror}" if err.filename and err.strerror else str(err)
     print(f"{program}: error: {message.splitlines()[0] if message else 'invalid input'}", file=sys.stderr)
     sys.exit(2)
 

@@ -41,6 +41,7 @@ the last frame of a trial cut by ``max_decisions``).
 
 from __future__ import annotations
 
+import copy
 import csv
 import json
 import math
@@ -130,47 +131,38 @@ def load_policy(
 ) -> Policy:
     """Reload a checkpoint written by ``pedrl-train``: its room, quantizer and tables.
 
+    The room and the trainer are built from the known classes only, with the stored config's values validated as
+    if a user had typed them; a stored config that names code (a ``_target_`` other than pedrl's room and
+    trainers, anywhere) is refused before anything is built. Every tensor is checked against that config
+    (:func:`pedrl.algos.restore.restore_state`), whichever the controller.
+
     Raises:
-        CheckpointError: one line, for a missing, foreign or corrupt file or one whose trainer cannot be rebuilt.
+        CheckpointError: one line, for a missing, foreign, corrupt or crafted file, or one whose trainer cannot
+            be rebuilt.
     """
-    from hydra.errors import InstantiationException
-    from hydra.utils import instantiate
     from omegaconf.errors import OmegaConfBaseException
 
+    from pedrl.algos.registry import env_factory
+    from pedrl.algos.restore import check_stored_config, restore_state
     from pedrl.train import build_trainer
 
     checkpoint = load_checkpoint(path, device=device)
-    saved = checkpoint.metadata.get("config")
-    q_values = checkpoint.tensors.get("q_values")
-    if not isinstance(saved, dict) or "env" not in saved or "algo" not in saved:
-        raise CheckpointError(f"checkpoint {str(path)!r} holds no training config to rebuild its room and trainer")
-    if q_values is None or q_values.ndim != 4 or not checkpoint.tensors_with_prefix("quantizer"):
-        raise CheckpointError(f"checkpoint {str(path)!r} holds no Q tables (P, A, K, U) and quantizer")
-    saved = OmegaConf.create(saved)
-    saved.device = str(device)
+    saved = copy.deepcopy(check_stored_config(checkpoint))  # plain values only, no _target_ but pedrl's
+    saved["device"] = str(device)
     if max_decisions is not None:
-        saved.env.max_decisions = max_decisions
+        saved["env"]["max_decisions"] = max_decisions
     try:
-        env_factory = instantiate(saved.env, _partial_=True, _convert_="all")
-        algo = str(checkpoint.metadata.get("algo", saved.algo.get("_target_", "?")))
-        if controller == "greedy":
-            return Policy(GreedyDoorController(), env_factory, q_values.shape[0], q_values.shape[1], algo)
-        trainer = build_trainer(saved, run_dir=Path(path).parent)
-        quantizer = trainer.quantizer_from_state_dict(checkpoint.tensors_with_prefix("quantizer"))
-    except (OmegaConfBaseException, InstantiationException, KeyError, TypeError) as err:
+        trainer = build_trainer(OmegaConf.create(saved), run_dir=Path(path).parent)
+        factory = env_factory(saved["env"])
+    except (ValueError, OmegaConfBaseException, KeyError, TypeError) as err:
         raise CheckpointError(
-            f"checkpoint {str(path)!r} cannot be rebuilt by this pedrl ({_first_line(err)})"
+            f"checkpoint {str(path)!r} holds a config this pedrl refuses ({_first_line(err)})"
         ) from None
-    processes = getattr(quantizer, "num_processes", q_values.shape[0])
-    if processes != q_values.shape[0]:
-        raise CheckpointError(
-            f"checkpoint {str(path)!r} is inconsistent: {processes} quantizers, tables of {q_values.shape[0]} processes"
-        )
-    if quantizer.num_prototypes != q_values.shape[2]:
-        raise CheckpointError(
-            f"checkpoint {str(path)!r} is inconsistent: {quantizer.num_prototypes} prototypes, "
-            f"tables over {q_values.shape[2]} states"
-        )
+    state = restore_state(trainer, checkpoint, continue_training=False)
+    q_values, quantizer = state.q_values, state.quantizer
+    processes, tables = q_values.shape[0], q_values.shape[1]
+    if controller == "greedy":
+        return Policy(GreedyDoorController(), factory, processes, tables, trainer.name)
     learned = LearnedController(
         q_values=q_values,
         encode=partial(trainer.encode_observations, quantizer),
@@ -178,7 +170,7 @@ def load_policy(
         # the trainer's generator also fills void neighbour slots (IT-VQQL): one seed covers both
         generator=trainer.generator,
     )
-    return Policy(learned, env_factory, q_values.shape[0], q_values.shape[1], algo)
+    return Policy(learned, factory, processes, tables, trainer.name)
 
 
 # ---------------------------------------------------------------------- recording

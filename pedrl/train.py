@@ -14,34 +14,37 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 from pedrl.algos import Trainer, TrainResult
+from pedrl.algos.registry import check_names_no_code, env_factory, trainer_class, vq_settings
 from pedrl.cli import hydra_output_dir, run_reporting_errors
 from pedrl.io import CheckpointError
+from pedrl.io.files import replace_atomically
 from pedrl.sim.validation import check_integer
 
 CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
 
 
 def build_trainer(cfg: DictConfig, run_dir: str | Path) -> Trainer:
-    """Instantiate the trainer of ``cfg.algo`` with the room of ``cfg.env``; validates every value first."""
-    from hydra.utils import instantiate
+    """Build the trainer of ``cfg.algo`` with the room of ``cfg.env``; validates every value first.
 
+    Only the known room and trainer classes are built (:mod:`pedrl.algos.registry`): a config names no code, so
+    a ``_target_`` other than theirs, anywhere, is refused, and nothing is instantiated from a config node.
+    """
     _check_top_level(cfg)
-    env = instantiate(cfg.env, _partial_=True, _convert_="all")
     config = OmegaConf.to_container(cfg, resolve=True)
-    return instantiate(
-        cfg.algo,
-        _convert_="all",
-        _recursive_=False,
-        env=env,
-        vq=OmegaConf.to_container(cfg.vq, resolve=True),
-        processes=cfg.processes,
-        rooms_per_process=cfg.rooms_per_process,
-        checkpoint_every=cfg.checkpoint_every,
-        device=cfg.device,
-        seed=cfg.seed,
+    check_names_no_code(config)
+    trainer, settings = trainer_class(config["algo"])
+    return trainer(
+        **settings,
+        env=env_factory(config["env"]),
+        vq=vq_settings(config["vq"]),
+        processes=config["processes"],
+        rooms_per_process=config["rooms_per_process"],
+        checkpoint_every=config["checkpoint_every"],
+        device=config["device"],
+        seed=config["seed"],
         run_dir=str(run_dir),
-        tensorboard=cfg.logger.tensorboard,
-        progress=cfg.progress,
+        tensorboard=config["logger"]["tensorboard"],
+        progress=config["progress"],
         run_config=config,
     )
 
@@ -54,12 +57,18 @@ def train(cfg: DictConfig, *, run_dir: str | Path | None = None) -> TrainResult:
     """
     run_dir = Path(run_dir) if run_dir is not None else hydra_output_dir()
     resume_from = _resume_path(cfg.get("resume"), run_dir)
-    if resume_from is not None and cfg.get("resume") is not True:
+    if resume_from is not None and resume_from.parent.name == "checkpoints":
         run_dir = resume_from.parent.parent  # continue writing into the run that holds the checkpoint
     trainer = build_trainer(cfg, run_dir)
     set_threads(cfg.get("threads"))
     torch.manual_seed(int(cfg.seed))
     result = trainer.fit(resume_from=resume_from)
+    summary_path = result.run_dir / "summary.json"
+    if result.finished_before and summary_path.is_file():
+        # a finished run: its summary and figures stay as they are
+        result.final = result.final or _stored_final(summary_path)
+        print(f"pedrl-train: {str(result.run_dir)!r} had already finished; its outputs are kept", flush=True)
+        return result
     _write_outputs(result, trainer)
     return result
 
@@ -76,7 +85,17 @@ def _write_outputs(result: TrainResult, trainer: Trainer) -> None:
         "phases": result.phases,
         "checkpoint": str(result.checkpoint),
     }
-    (result.run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+    text = json.dumps(summary, indent=2)
+    replace_atomically(result.run_dir / "summary.json", lambda temporary: temporary.write_text(text))
+
+
+def _stored_final(summary_path: Path) -> dict[str, float]:
+    """The final figures of a finished run's ``summary.json`` (empty if it cannot be read)."""
+    try:
+        final = json.loads(summary_path.read_text()).get("final", {})
+    except (OSError, ValueError, AttributeError):
+        return {}
+    return final if isinstance(final, dict) else {}
 
 
 def print_summary(result: TrainResult, name: str) -> None:
@@ -114,6 +133,8 @@ def _check_top_level(cfg: DictConfig) -> None:
 
 
 def _resume_path(resume: Any, run_dir: Path) -> Path | None:
+    """The checkpoint to continue from: ``resume=true`` is the run directory's ``checkpoints/last.safetensors``;
+    ``resume=<a run directory>`` that directory's; ``resume=<a file>`` that checkpoint."""
     if resume is None or resume is False:
         return None
     if resume is True:
@@ -124,9 +145,18 @@ def _resume_path(resume: Any, run_dir: Path) -> Path | None:
                 "or resume=<path to a checkpoint>"
             )
         return path
-    if isinstance(resume, str):
-        return Path(resume)
-    raise ValueError(f"resume={resume!r} is invalid: must be null, true, or the path of a checkpoint")
+    if isinstance(resume, str) and resume:
+        path = Path(resume)
+        if path.is_dir():
+            last = path / "checkpoints" / "last.safetensors"
+            if not last.is_file():
+                raise CheckpointError(
+                    f"resume={resume!r} is a directory without checkpoints/last.safetensors: pass a run directory "
+                    "that holds one, or the path of a .safetensors checkpoint"
+                )
+            return last
+        return path
+    raise ValueError(f"resume={resume!r} is invalid: must be null, true, a run directory or the path of a checkpoint")
 
 
 @hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="train")

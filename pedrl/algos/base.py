@@ -29,7 +29,9 @@ from typing import Any
 import torch
 from tqdm.auto import tqdm
 
+from pedrl.algos.restore import RestoredState, check_stored_config, restore_state
 from pedrl.io import CheckpointError, CsvWriter, RunLogger, load_checkpoint, save_checkpoint
+from pedrl.io.files import remove_temporaries_in
 from pedrl.rl import LinearSchedule, epsilon_greedy, table_rows, td_update
 from pedrl.sim import RoomEnv
 from pedrl.sim.sensing import distance_indices, fill_void_neighbours, void_draws
@@ -121,13 +123,18 @@ class TrialStats:
 
 @dataclass
 class TrainResult:
-    """What :meth:`Trainer.fit` returns: final figures and where the outputs are."""
+    """What :meth:`Trainer.fit` returns: final figures and where the outputs are.
+
+    ``wall_time_s`` is the run's wall time over every segment (a resumed run adds the time up to its checkpoint).
+    """
 
     final: dict[str, float]
     run_dir: Path
     checkpoint: Path
     wall_time_s: float
     phases: list[dict[str, Any]] = field(default_factory=list)
+    finished_before: bool = False
+    """The run was resumed from the checkpoint of its last phase: nothing was left to do or written."""
 
 
 class Trainer:
@@ -274,6 +281,21 @@ class Trainer:
         """Rebuild one (per-process or shared) quantizer from its state dict."""
         return Quantizer.from_state_dict(tensors)
 
+    def check_quantizer(self, part: Any, position: int) -> str | None:
+        """Why ``part`` (a process's quantizer, or the shared one, read from a checkpoint of the phase at
+        ``position``) cannot be this trainer's, or None. The default expects a :class:`pedrl.vq.Quantizer` over the
+        full state with at most ``vq.num_prototypes`` prototypes (k-means keeps fewer when the data has fewer
+        distinct states)."""
+        features = next(iter(self._envs.values())).num_features
+        if not isinstance(part, Quantizer):
+            return f"is a {type(part).__name__}: must be a Quantizer"
+        if part.dim != features or not 1 <= part.num_prototypes <= self.vq.num_prototypes:
+            return (
+                f"has {part.num_prototypes} prototypes of {part.dim} features: must have 1 to "
+                f"vq.num_prototypes={self.vq.num_prototypes} prototypes of {features} features"
+            )
+        return None
+
     def epsilon_schedule(self, phase: Phase) -> Callable[[int], float]:
         """Exploration rate at each trial of ``phase``: linear from ``epsilon_start`` to ``epsilon_end`` over
         ``epsilon_decay_fraction`` of the phase's trials, then constant (every phase learns from scratch)."""
@@ -298,34 +320,41 @@ class Trainer:
     # ------------------------------------------------------------------ the shared loop
     def fit(self, *, resume_from: str | Path | None = None) -> TrainResult:
         """Run every phase (or the rest of them, when resuming) and return the final figures."""
-        start_time = time.perf_counter()
+        self._clock = (time.perf_counter(), 0.0)
         phases = self.phases()
         start_phase, start_trial, previous, resumed = 0, 0, None, None
+        checkpoint_path = self.run_dir / "checkpoints" / "last.safetensors"
+        remove_temporaries_in(checkpoint_path.parent)  # left by a process killed while writing a checkpoint
         if resume_from is not None:
-            resumed = self._load_resume(resume_from, phases)
-            start_phase, start_trial = resumed["phase_position"], resumed["trial"]
-            previous = resumed["previous"]
+            resumed = self._load_resume(resume_from)
+            self._clock = (self._clock[0], resumed.wall_time_s)
+            start_phase = resumed.position + 1 if resumed.phase_complete else resumed.position
+            start_trial = 0 if resumed.phase_complete else resumed.trial
+            previous = (resumed.quantizer, resumed.q_values) if resumed.phase_complete else None
+            if start_phase == len(phases):
+                return self._finished_result(resumed, checkpoint_path)
         global_trial = sum(p.trials for p in phases[:start_phase]) + start_trial
-        logger = RunLogger(self.run_dir, tensorboard=self.tensorboard, purge_step=global_trial if resumed else None)
-        if not resumed:
+        logger = RunLogger(
+            self.run_dir, tensorboard=self.tensorboard, purge_step=global_trial if resumed is not None else None
+        )
+        if resumed is None:
             logger.log_text("config", _markdown_table(self.config))
         curve = CsvWriter(
             self.run_dir / "learning_curve.csv",
             CURVE_COLUMNS,
-            keep_rows=(lambda row: int(row["global_trial"]) < global_trial) if resumed else None,
+            keep_rows=_rows_before(global_trial) if resumed is not None else None,
         )
-        summaries: list[dict[str, Any]] = list(resumed["summaries"]) if resumed else []
+        summaries: list[dict[str, Any]] = list(resumed.summaries) if resumed is not None else []
         last_stats: TrialStats | None = None
-        checkpoint_path = self.run_dir / "checkpoints" / "last.safetensors"
         try:
             for position in range(start_phase, len(phases)):
                 phase = phases[position]
                 env = self._env(phase.num_agents)
-                if resumed and position == start_phase and start_trial > 0:
-                    quantizer, q_values = resumed["quantizer"], resumed["q_values"]
-                    self.generator.set_state(resumed["rng_trainer"])
-                    env.generator.set_state(resumed["rng_env"])
-                    distortion = resumed["distortion"]
+                if resumed is not None and position == start_phase and start_trial > 0:
+                    quantizer, q_values = resumed.quantizer, resumed.q_values
+                    self.generator.set_state(resumed.rng_trainer)
+                    env.generator.set_state(resumed.rng_env)
+                    distortion = resumed.distortion
                 elif self.continues_previous(phase) and previous is not None:
                     quantizer, q_values = previous
                     self._seed_phase(phase, env)
@@ -362,7 +391,7 @@ class Trainer:
                             "vq/q_table_mib": summaries[-1]["q_table_mib"],
                         },
                     )
-                first_trial = start_trial if (resumed and position == start_phase) else 0
+                first_trial = start_trial if (resumed is not None and position == start_phase) else 0
                 schedule = self.epsilon_schedule(phase)
                 bar = tqdm(
                     range(first_trial, phase.trials),
@@ -382,9 +411,13 @@ class Trainer:
                     bar.set_postfix(success=f"{stats.success_rate.mean():.2f}", eps=f"{epsilon:.3f}")
                     done = trial + 1
                     if self.checkpoint_every and done % self.checkpoint_every == 0 and done < phase.trials:
-                        self._save(phase, done, quantizer, q_values, distortion, summaries, env, iteration=False)
+                        self._save(
+                            phase, done, quantizer, q_values, distortion, summaries, env, last_stats, iteration=False
+                        )
                 bar.close()
-                self._save(phase, phase.trials, quantizer, q_values, distortion, summaries, env, iteration=True)
+                self._save(
+                    phase, phase.trials, quantizer, q_values, distortion, summaries, env, last_stats, iteration=True
+                )
                 previous = (quantizer, q_values)
                 logger.flush()
         finally:
@@ -395,9 +428,25 @@ class Trainer:
             final=final,
             run_dir=self.run_dir,
             checkpoint=checkpoint_path,
-            wall_time_s=time.perf_counter() - start_time,
+            wall_time_s=self._wall_time(),
             phases=summaries,
         )
+
+    def _finished_result(self, resumed: RestoredState, checkpoint_path: Path) -> TrainResult:
+        """The result of a run resumed from the checkpoint of its last phase: nothing to do, nothing rewritten."""
+        return TrainResult(
+            final=dict(resumed.final),
+            run_dir=self.run_dir,
+            checkpoint=checkpoint_path,
+            wall_time_s=resumed.wall_time_s,
+            phases=list(resumed.summaries),
+            finished_before=True,
+        )
+
+    def _wall_time(self) -> float:
+        """Wall time of the run so far (s): this segment plus the segments before the checkpoint resumed from."""
+        start, before = self._clock
+        return before + time.perf_counter() - start
 
     def gather(
         self, phase: Phase, env: RoomEnv, previous: tuple[Any, torch.Tensor] | None
@@ -692,7 +741,7 @@ class Trainer:
         )
         curve.write(row)
 
-    def _save(self, phase, trial, quantizer, q_values, distortion, summaries, env, *, iteration: bool) -> None:
+    def _save(self, phase, trial, quantizer, q_values, distortion, summaries, env, stats, *, iteration: bool) -> None:
         tensors = {
             "q_values": q_values,
             "rng/trainer": self.generator.get_state(),
@@ -708,45 +757,41 @@ class Trainer:
             "distortion": distortion,
             "summaries": summaries,
             "config": self.config,
+            "wall_time_s": self._wall_time(),
+            "final": _final_figures(stats) if stats is not None else {},
         }
         folder = self.run_dir / "checkpoints"
         if iteration:
             save_checkpoint(folder / f"iter_{phase.index:04d}.safetensors", tensors=tensors, metadata=metadata)
         save_checkpoint(folder / "last.safetensors", tensors=tensors, metadata=metadata)
 
-    def _load_resume(self, path: str | Path, phases: list[Phase]) -> dict[str, Any]:
+    def _load_resume(self, path: str | Path) -> RestoredState:
+        """Read and validate the checkpoint to continue from (see :mod:`pedrl.algos.restore`)."""
         checkpoint = load_checkpoint(path, device=self.device)
         meta = checkpoint.metadata
         if meta.get("algo") != self.name:
             raise CheckpointError(
                 f"checkpoint {str(path)!r} was written by algo={meta.get('algo')!r}, not {self.name!r}"
             )
-        mismatch = _config_mismatch(meta.get("config", {}), self.config)
+        mismatch = _config_mismatch(check_stored_config(checkpoint), self.config)
         if mismatch:
             raise CheckpointError(f"checkpoint {str(path)!r} comes from an incompatible configuration: {mismatch}")
-        indices = [p.index for p in phases]
-        if meta["iteration"] not in indices:
-            raise CheckpointError(f"checkpoint {str(path)!r} is at phase {meta['iteration']}, not one of {indices}")
-        position = indices.index(meta["iteration"])
-        quantizer = self.quantizer_from_state_dict(checkpoint.tensors_with_prefix("quantizer"))
-        q_values = checkpoint.tensors["q_values"].to(self.device)
-        result = {
-            "summaries": meta.get("summaries", []),
-            "quantizer": quantizer,
-            "q_values": q_values,
-            "distortion": meta.get("distortion", float("nan")),
-            "rng_trainer": checkpoint.tensors["rng/trainer"].cpu(),
-            "rng_env": checkpoint.tensors["rng/env"].cpu(),
-        }
-        if meta["phase_complete"]:
-            result.update(phase_position=position + 1, trial=0, previous=(quantizer, q_values))
-        else:
-            result.update(phase_position=position, trial=int(meta["trial"]), previous=None)
-        return result
+        return restore_state(self, checkpoint)
 
 
 # ---------------------------------------------------------------------- small pure helpers
-_RESUME_INDEPENDENT = ("resume", "device", "progress", "logger", "hydra")
+_RESUME_INDEPENDENT = ("resume", "device", "progress", "logger", "hydra", "threads")
+"""Top-level keys that may change on resume: the results do not depend on them."""
+
+
+def _rows_before(global_trial: int) -> Callable[[Mapping[str, str]], bool]:
+    """Keeps the learning-curve rows of the trials before ``global_trial`` (those a resumed run does not redo)."""
+
+    def keep(row: Mapping[str, str]) -> bool:
+        value = row.get("global_trial") or ""
+        return value.isdigit() and int(value) < global_trial
+
+    return keep
 
 
 def _config_mismatch(saved: Mapping[str, Any], current: Mapping[str, Any], prefix: str = "") -> str:

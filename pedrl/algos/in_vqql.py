@@ -114,5 +114,24 @@ class INVQQL(Trainer):
             return quantizer.encode(obs, num_sensed)
         return super().encode(quantizer, obs, num_sensed, process)
 
+    def check_quantizer(self, part: Any, position: int) -> str | None:
+        """A union with one part per number of sensed neighbours of stages ``1 .. position + 1``, each reading the
+        features of its projection, with at most ``vq.num_prototypes`` prototypes per stage."""
+        if not isinstance(part, UnionQuantizer):
+            return f"is a {type(part).__name__}: must be a UnionQuantizer"
+        expected = sorted({self.sensed_neighbours(m) for m in self.stages[: position + 1]})
+        if part.num_sensed != expected:
+            return f"has parts for {part.num_sensed} sensed neighbours: must have {expected}"
+        env = self._env(self.stages[0])
+        for n in expected:
+            index, quantizer = part.part(n)
+            wanted = feature_indices(n, env.num_neighbours, env.num_walls)
+            if not torch.equal(index.cpu(), wanted) or quantizer.dim != wanted.numel():
+                return f"part {n} reads features {index.tolist()}: must read {wanted.tolist()}"
+        limit = (position + 1) * self.vq.num_prototypes
+        if not 1 <= part.num_prototypes <= limit:
+            return f"has {part.num_prototypes} prototypes: must have 1 to {limit} after stage {position + 1}"
+        return None
+
     def part_from_state_dict(self, tensors: dict[str, torch.Tensor]) -> UnionQuantizer:
         return UnionQuantizer.from_state_dict(tensors)

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
@@ -21,6 +20,7 @@ from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
 import pedrl
+from pedrl.io.files import replace_atomically
 
 FORMAT_NAME: Final = "pedrl-checkpoint"
 FORMAT_VERSION: Final = 1
@@ -28,7 +28,7 @@ METADATA_KEY: Final = "pedrl"
 
 
 class CheckpointError(ValueError):
-    """A checkpoint that cannot be used: missing, corrupt, truncated, foreign or incompatible."""
+    """A checkpoint that cannot be used (missing, corrupt, truncated, foreign or incompatible) or written."""
 
 
 @dataclass(frozen=True)
@@ -55,7 +55,9 @@ class Checkpoint:
 def save_checkpoint(path: str | os.PathLike, *, tensors: dict[str, torch.Tensor], metadata: dict[str, Any]) -> Path:
     """Write a checkpoint atomically: temporary file in the same folder, fsync, then ``os.replace``.
 
-    A process killed at any moment leaves either the previous file or the new one, never a broken one.
+    A process killed at any moment leaves either the previous file or the new one, never a broken one; the
+    temporary it may leave behind (``.<name>.<random>.tmp``) is removed by the next save of the same file. The
+    file gets the mode of any new file (0644 under the usual umask).
 
     Args:
         path: destination ``.safetensors`` path; parent folders are created.
@@ -64,9 +66,12 @@ def save_checkpoint(path: str | os.PathLike, *, tensors: dict[str, torch.Tensor]
 
     Returns:
         The destination path.
+
+    Raises:
+        CheckpointError: one line naming the path, when the file cannot be written (full disk, no permission);
+            the previous file, if any, is left as it was.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     header = {
         "format": FORMAT_NAME,
         "format_version": FORMAT_VERSION,
@@ -74,22 +79,11 @@ def save_checkpoint(path: str | os.PathLike, *, tensors: dict[str, torch.Tensor]
         **metadata,
     }
     cpu_tensors = {name: t.detach().to("cpu").contiguous() for name, t in tensors.items()}
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
+    encoded = {METADATA_KEY: json.dumps(header)}
     try:
-        save_file(cpu_tensors, tmp_name, metadata={METADATA_KEY: json.dumps(header)})
-        with open(tmp_name, "rb+") as handle:
-            os.fsync(handle.fileno())
-        os.replace(tmp_name, path)
-    except BaseException:
-        Path(tmp_name).unlink(missing_ok=True)
-        raise
-    dir_fd = os.open(path.parent, os.O_RDONLY)
-    try:
-        os.fsync(dir_fd)
-    finally:
-        os.close(dir_fd)
-    return path
+        return replace_atomically(path, lambda temporary: save_file(cpu_tensors, str(temporary), metadata=encoded))
+    except (SafetensorError, OSError) as err:
+        raise CheckpointError(f"cannot write checkpoint {str(path)!r}: {_first_line(err)}") from None
 
 
 def load_checkpoint(path: str | os.PathLike, *, device: str | torch.device = "cpu") -> Checkpoint:
@@ -100,6 +94,8 @@ def load_checkpoint(path: str | os.PathLike, *, device: str | torch.device = "cp
             truncated or corrupt, not a pedrl checkpoint, or a newer format).
     """
     path = Path(path)
+    if path.is_dir():
+        raise CheckpointError(f"checkpoint {str(path)!r} is a directory (expected a .safetensors file)")
     if not path.is_file():
         raise CheckpointError(f"checkpoint {str(path)!r} does not exist (expected a .safetensors file)")
     try:
@@ -108,22 +104,30 @@ def load_checkpoint(path: str | os.PathLike, *, device: str | torch.device = "cp
         with safe_open(str(path), framework="pt") as handle:
             raw = (handle.metadata() or {}).get(METADATA_KEY)
         tensors = load_file(str(path), device=str(device))
-    except (SafetensorError, OSError, RuntimeError, ValueError) as err:
-        first_line = str(err).splitlines()[0] if str(err) else type(err).__name__
+    except (SafetensorError, OSError, RuntimeError, ValueError, OverflowError) as err:
         raise CheckpointError(
-            f"checkpoint {str(path)!r} is corrupt or truncated, or not a safetensors file ({first_line})"
+            f"checkpoint {str(path)!r} is corrupt or truncated, or not a safetensors file ({_first_line(err)})"
         ) from None
     if raw is None:
         raise CheckpointError(f"checkpoint {str(path)!r} is a safetensors file but not a pedrl checkpoint")
     try:
         metadata = json.loads(raw)
-    except json.JSONDecodeError:
+    except (json.JSONDecodeError, RecursionError):
         raise CheckpointError(f"checkpoint {str(path)!r} has unreadable pedrl metadata") from None
-    if metadata.get("format") != FORMAT_NAME:
-        raise CheckpointError(f"checkpoint {str(path)!r} is not a pedrl checkpoint (format={metadata.get('format')!r})")
-    if int(metadata.get("format_version", -1)) > FORMAT_VERSION:
+    if not isinstance(metadata, dict) or metadata.get("format") != FORMAT_NAME:
+        found = metadata.get("format") if isinstance(metadata, dict) else type(metadata).__name__
+        raise CheckpointError(f"checkpoint {str(path)!r} is not a pedrl checkpoint (format={found!r})")
+    version = metadata.get("format_version")
+    if isinstance(version, bool) or not isinstance(version, int) or version < 1:
         raise CheckpointError(
-            f"checkpoint {str(path)!r} has format_version={metadata['format_version']}, "
-            f"this pedrl reads up to {FORMAT_VERSION}"
+            f"checkpoint {str(path)!r} has format_version={version!r}: must be an integer in [1, {FORMAT_VERSION}]"
+        )
+    if version > FORMAT_VERSION:
+        raise CheckpointError(
+            f"checkpoint {str(path)!r} has format_version={version}, this pedrl reads up to {FORMAT_VERSION}"
         )
     return Checkpoint(tensors=tensors, metadata=metadata, path=path)
+
+
+def _first_line(err: BaseException) -> str:
+    return (str(err).strip().splitlines() or [type(err).__name__])[0]

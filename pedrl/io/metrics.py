@@ -13,12 +13,15 @@ Each scalar is logged as the mean over learning processes under its own tag, wit
 from __future__ import annotations
 
 import csv
+import io
 import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import torch
+
+from pedrl.io.files import replace_atomically
 
 # TensorBoard is imported lazily: it is slow to import and runs that disable it never pay for it.
 
@@ -104,26 +107,31 @@ class RunLogger:
 class CsvWriter:
     """Appends rows to a CSV file with a fixed header, flushing after every row.
 
+    The file is first replaced atomically (temporary sibling, fsync, ``os.replace``) by the header and the rows
+    kept, so that a process killed while it is rewritten leaves the old file whole, never a truncated one.
+
     Args:
         path: the file.
         columns: the header.
         keep_rows: on resume, keep only the existing rows for which this predicate is true (the rest are dropped,
-            so a resumed run rewrites exactly the rows an uninterrupted one would have written).
+            so a resumed run rewrites exactly the rows an uninterrupted one would have written). A last line cut
+            short by a kill is never kept.
     """
 
     def __init__(self, path: str | os.PathLike, columns: Sequence[str], *, keep_rows=None) -> None:
         self.path = Path(path)
         self.columns = list(columns)
-        kept: list[dict[str, str]] = []
-        if keep_rows is not None and self.path.exists():
-            with open(self.path, newline="") as handle:
-                kept = [row for row in csv.DictReader(handle) if keep_rows(row)]
-        self._handle = open(self.path, "w", newline="")  # noqa: SIM115 - closed in close()
+        kept = _complete_rows(self.path, keep_rows) if keep_rows is not None and self.path.exists() else []
+        replace_atomically(self.path, lambda temporary: self._write_start(temporary, kept))
+        self._handle = open(self.path, "a", newline="")  # noqa: SIM115 - closed in close()
         self._writer = csv.DictWriter(self._handle, fieldnames=self.columns)
-        self._writer.writeheader()
-        for row in kept:
-            self._writer.writerow({c: row.get(c, "") for c in self.columns})
-        self._handle.flush()
+
+    def _write_start(self, temporary: Path, kept: list[dict[str, str]]) -> None:
+        with open(temporary, "w", newline="") as handle:
+            writer = csv.DictWriter(handle, fieldnames=self.columns)
+            writer.writeheader()
+            for row in kept:
+                writer.writerow({c: row.get(c, "") for c in self.columns})
 
     def write(self, row: Mapping[str, Any]) -> None:
         self._writer.writerow({c: _format(row.get(c, "")) for c in self.columns})
@@ -132,6 +140,15 @@ class CsvWriter:
     def close(self) -> None:
         if not self._handle.closed:
             self._handle.close()
+
+
+def _complete_rows(path: Path, keep_rows) -> list[dict[str, str]]:
+    """The rows of ``path`` that ``keep_rows`` accepts, without a last line left unfinished by a kill."""
+    with open(path, newline="") as handle:
+        text = handle.read()
+    if not text.endswith("\n"):
+        text = text[: text.rfind("\n") + 1]
+    return [row for row in csv.DictReader(io.StringIO(text)) if None not in row.values() and keep_rows(row)]
 
 
 def _format(value: Any) -> Any:

@@ -86,3 +86,72 @@ def test_newer_format_is_rejected(tmp_path):
 def test_missing_file(tmp_path):
     with pytest.raises(CheckpointError, match="does not exist"):
         load_checkpoint(tmp_path / "nope.safetensors")
+
+
+def test_a_directory_is_named_as_one(tmp_path):
+    with pytest.raises(CheckpointError, match="is a directory"):
+        load_checkpoint(tmp_path)
+
+
+@pytest.mark.parametrize(
+    ("header", "message"),
+    [
+        ([1, 2, 3], "not a pedrl checkpoint"),
+        ({"format": "pedrl-checkpoint", "format_version": "1"}, "format_version='1'"),
+        ({"format": "pedrl-checkpoint", "format_version": {"x": 1}}, "format_version="),
+    ],
+)
+def test_malformed_metadata_gives_one_line(tmp_path, header, message):
+    from safetensors.torch import save_file
+
+    path = tmp_path / "odd.safetensors"
+    save_file({"w": torch.zeros(2)}, str(path), metadata={"pedrl": json.dumps(header)})
+    with pytest.raises(CheckpointError, match=message) as info:
+        load_checkpoint(path)
+    assert "\n" not in str(info.value)
+
+
+def test_checkpoints_get_the_mode_of_any_new_file(tmp_path):
+    previous = os.umask(0o022)
+    try:
+        path = save_checkpoint(tmp_path / "last.safetensors", tensors=_tensors(), metadata={})
+        save_checkpoint(path, tensors=_tensors(), metadata={})  # a replaced file too
+        (tmp_path / "other.txt").write_text("x")
+    finally:
+        os.umask(previous)
+    assert path.stat().st_mode & 0o777 == 0o644 == (tmp_path / "other.txt").stat().st_mode & 0o777
+
+
+def test_a_temporary_left_by_a_kill_is_removed_by_the_next_save(tmp_path):
+    stale = tmp_path / ".last.safetensors.1a2b3c4d.tmp"
+    stale.write_bytes(b"half a checkpoint")
+    other = tmp_path / "notes.txt"
+    other.write_text("kept")
+    save_checkpoint(tmp_path / "last.safetensors", tensors=_tensors(), metadata={})
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["last.safetensors", "notes.txt"]
+
+
+@pytest.mark.parametrize("error", ["safetensors", "oserror"])
+def test_a_full_disk_gives_one_line_naming_the_file_and_keeps_the_previous_one(tmp_path, monkeypatch, error):
+    from safetensors import SafetensorError
+
+    import pedrl.io.checkpoint as checkpoint_module
+
+    path = save_checkpoint(tmp_path / "last.safetensors", tensors=_tensors(), metadata={"iteration": 1})
+    before = path.read_bytes()
+
+    def full_disk(tensors, filename, metadata=None):
+        with open(filename, "wb") as handle:
+            handle.write(b"\0" * 10)  # a few bytes made it to disk
+        if error == "safetensors":
+            raise SafetensorError("Error while serializing: IoError(Os { code: 28, kind: StorageFull })")
+        raise OSError(28, "No space left on device", filename)
+
+    monkeypatch.setattr(checkpoint_module, "save_file", full_disk)
+    with pytest.raises(CheckpointError) as info:
+        save_checkpoint(path, tensors=_tensors(), metadata={"iteration": 2})
+    message = str(info.value)
+    assert message.startswith(f"cannot write checkpoint {str(path)!r}: ") and "\n" not in message
+    assert "28" in message or "No space" in message
+    assert path.read_bytes() == before
+    assert os.listdir(tmp_path) == ["last.safetensors"]
