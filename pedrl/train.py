@@ -76,8 +76,9 @@ def train(cfg: DictConfig, *, run_dir: str | Path | None = None) -> TrainResult:
 def _write_outputs(result: TrainResult, trainer: Trainer) -> None:
     from pedrl.plot import plot_learning_curve_file
 
-    figure_path = result.run_dir / "learning_curve.png"
-    plot_learning_curve_file(result.run_dir / "learning_curve.csv", figure_path, label=trainer.name)
+    curve_path = result.run_dir / "learning_curve.csv"
+    if curve_path.is_file():  # a finished run resumed from a copied checkpoint has no curve of its own
+        plot_learning_curve_file(curve_path, result.run_dir / "learning_curve.png", label=trainer.name)
     summary = {
         "algo": trainer.name,
         "final": result.final,
