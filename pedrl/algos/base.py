@@ -43,9 +43,9 @@ TABLES = ("agent", "process")
 MAX_TRIALS = 10**9
 """Most learning trials of one phase: years of compute at the fastest measured rates; more is a typo (or a
 ``trials_growth`` that overflows)."""
-TABLE_COPIES = 3
-"""Q tables alive at once in the memory estimate: the phase's, the previous phase's (followed while gathering) and
-their replication to the new agents (IN-VQQL)."""
+TABLE_COPIES = 2
+"""Q tables alive at once in the memory estimate: the phase's and the previous phase's (followed while gathering,
+through a replication to the new agents in IN-VQQL that is freed before the new tables are made)."""
 GATHER_COPIES = 3
 """Copies of every gathered state in the memory estimate: as recorded, concatenated, and prepared for k-means."""
 KMEANS_COPIES = 4
