@@ -3,13 +3,19 @@
 from __future__ import annotations
 
 import sys
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
-from typing import TypeVar
+from typing import Any, NoReturn, TypeVar
+
+from hydra.experimental.callback import Callback
+from omegaconf import DictConfig
 
 from pedrl.io import CheckpointError
 
 T = TypeVar("T")
+PROGRAMS = {"train": "pedrl-train", "evaluate": "pedrl-eval", "plot": "pedrl-plot"}
+"""Console command of each Hydra job name (the module's name)."""
 
 
 def run_reporting_errors(program: str, action: Callable[[], T]) -> T:
@@ -23,10 +29,60 @@ def run_reporting_errors(program: str, action: Callable[[], T]) -> T:
         message = str(err)
     except InstantiationException as err:
         message = str(err.__cause__ or err)
-    except OSError as err:  # a full disk, a folder without write permission: name the path
-        message = f"{str(err.filename)!r}: {err.strerror}" if err.filename and err.strerror else str(err)
+    except OSError as err:  # a read-only folder, a file where a folder should be, ...
+        message = describe_os_error(err)
+    fail(program, message)
+
+
+def fail(program: str, message: str) -> NoReturn:
+    """Print ``<program>: error: <first line of message>`` on stderr and exit with code 2."""
     print(f"{program}: error: {message.splitlines()[0] if message else 'invalid input'}", file=sys.stderr)
     sys.exit(2)
+
+
+def describe_os_error(err: OSError) -> str:
+    """One line naming the path a file-system error is about and the reason: ``cannot use '/x': Permission denied``."""
+    path = err.filename if err.filename is not None else "?"
+    return f"cannot use {str(path)!r}: {err.strerror or err}"
+
+
+class OutputDirCheck(Callback):
+    """Hydra callback: before Hydra creates the run (or sweep) directory, make sure it can be a writable folder.
+
+    Hydra itself would fail there with a traceback; this ends in one line naming the path and exit code 2.
+    """
+
+    def on_run_start(self, config: DictConfig, **kwargs: Any) -> None:
+        self._check(config, config.hydra.run.dir)
+
+    def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
+        self._check(config, config.hydra.sweep.dir)
+
+    @staticmethod
+    def _check(config: DictConfig, directory: Any) -> None:
+        program = PROGRAMS.get(str(config.hydra.job.name), f"pedrl-{config.hydra.job.name}")
+        problem = output_dir_problem(Path(str(directory)))
+        if problem:
+            fail(program, problem)
+
+
+def output_dir_problem(directory: Path) -> str | None:
+    """Why ``directory`` cannot hold a run's outputs (one line naming it), or None when it can.
+
+    It is created if missing (with its parents), then a file is written into it and removed again: permission bits
+    alone do not tell (root ignores them, a read-only mount does not show in them).
+    """
+    allowed = "must be a folder this user can write in (hydra.run.dir=...)"
+    if directory.exists() and not directory.is_dir():
+        return f"output folder {str(directory)!r} is invalid: it is a file; {allowed}"
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=directory):
+            pass
+    except OSError as err:
+        reason = err.strerror or type(err).__name__
+        return f"output folder {str(directory)!r} is invalid: {reason}; {allowed}"
+    return None
 
 
 def hydra_output_dir() -> Path:

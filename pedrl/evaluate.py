@@ -77,7 +77,15 @@ from pedrl.analysis import (
 from pedrl.cli import hydra_output_dir, run_reporting_errors
 from pedrl.io import CheckpointError, CsvWriter, RunLogger, load_checkpoint
 from pedrl.sim import RoomEnv
-from pedrl.sim.validation import check_choice, check_integer, check_number
+from pedrl.sim.validation import (
+    MAX_SEED,
+    check_bool,
+    check_choice,
+    check_device,
+    check_integer,
+    check_memory,
+    check_number,
+)
 
 CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
 SCALING_COLUMNS: Final = (
@@ -98,6 +106,11 @@ STUCK_WINDOW: Final = 20
 """Decisions at the end of a trial over which an agent still in the room counts as stuck if it did not move."""
 STUCK_PATH: Final = 0.4
 """Path length (m) over those decisions below which it did not move: less than one body radius."""
+DENSITY_MAP_BYTES_PER_TILE: Final = 40
+"""Bytes per density-map tile in the memory estimate: the int64 counts, numpy's float64 histogram and the sum."""
+RECORD_BYTES_PER_AGENT_FRAME: Final = 80
+"""Bytes per recorded agent-frame of a batch in the memory estimate: positions and velocities (float32 x 2) on the
+device, stacked on the host and again as trajectories, and the activity flags."""
 FUNDAMENTAL_COLUMNS: Final = ("agents", "trial", "frame", "density", "speed", "flow")
 CONTROLLERS: Final = ("learned", "greedy")
 ENV_SEED_STRIDE: Final = 1009
@@ -353,6 +366,7 @@ def evaluate(cfg: DictConfig, *, run_dir: str | Path | None = None) -> list[dict
     }
     first = next(iter(envs.values()))
     geometry = RoomGeometry(width=first.width, length=first.length, door_width=first.door_width)
+    _check_against_room(cfg, geometry, envs)
     point = (geometry.width / 2, geometry.length - float(cfg.measurement.distance))
     label = f"{policy.algo} ({cfg.controller})"
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -614,28 +628,48 @@ def _validate_values(cfg: DictConfig) -> None:
     check_number("epsilon", cfg.get("epsilon"), low=0.0, high=1.0)
     if cfg.get("max_decisions") is not None:
         check_integer("max_decisions", cfg.max_decisions, minimum=1)
-    check_integer("seed", cfg.get("seed"), minimum=0)
+    check_integer("seed", cfg.get("seed"), minimum=0, maximum=MAX_SEED)
     threads = cfg.get("threads")
     if threads is not None:
         check_integer("threads", threads, minimum=1)
-    device = str(cfg.get("device"))
-    if device != "cpu" and not (device == "cuda" or device.startswith("cuda:")):
-        raise ValueError(f"device={device!r} is invalid: must be 'cpu' or 'cuda[:index]'")
-    if device.startswith("cuda") and not torch.cuda.is_available():
-        raise ValueError(f"device={device!r} is invalid here: no CUDA GPU is available (use device=cpu)")
+    check_device(cfg.get("device"))
     check_number("measurement.radius", cfg.measurement.radius, low=0.0, low_open=True)
     check_number("measurement.distance", cfg.measurement.distance, low=0.0)
     check_number("measurement.min_density", cfg.measurement.min_density, low=0.0)
     check_integer("measurement.plot_points", cfg.measurement.plot_points, minimum=1)
     check_number("density_map.tile_size", cfg.density_map.tile_size, low=0.0, low_open=True)
     check_integer("export.trials", cfg.export.trials, minimum=0)
-    if not isinstance(cfg.animation.enabled, bool):
-        raise ValueError(f"animation.enabled={cfg.animation.enabled!r} is invalid: must be true or false")
+    check_bool("animation.enabled", cfg.animation.enabled)
     check_number("animation.fps", cfg.animation.fps, low=0.0, low_open=True)
     if cfg.animation.max_frames is not None:
         check_integer("animation.max_frames", cfg.animation.max_frames, minimum=1)
-    if not isinstance(cfg.get("tensorboard"), bool):
-        raise ValueError(f"tensorboard={cfg.get('tensorboard')!r} is invalid: must be true or false")
+    check_bool("tensorboard", cfg.get("tensorboard"))
+
+
+def _check_against_room(cfg: DictConfig, geometry: RoomGeometry, envs: dict[int, RoomEnv]) -> None:
+    """The checks that need the checkpoint's room, before any compute: the measurement point lies inside it, and
+    the recordings, density maps and room states fit in memory."""
+    distance = float(cfg.measurement.distance)
+    if distance >= geometry.length:
+        raise ValueError(
+            f"measurement.distance={cfg.measurement.distance!r} is invalid: the measurement point must be inside the "
+            f"room, a distance in [0, {geometry.length:g}) m (the room's length) in front of the door"
+        )
+    tile_size = float(cfg.density_map.tile_size)
+    tiles = math.ceil(geometry.width / tile_size) * math.ceil(geometry.length / tile_size)
+    largest = max(envs.values(), key=lambda env: env.num_replicas * env.num_agents)
+    frames = largest.num_replicas * (largest.max_decisions + 1) * largest.num_agents  # agent-frames of one batch
+    check_memory(
+        {
+            f"density map (density_map.tile_size={cfg.density_map.tile_size!r}: {tiles:.3g} tiles)": (
+                DENSITY_MAP_BYTES_PER_TILE * tiles
+            ),
+            "recorded trials": RECORD_BYTES_PER_AGENT_FRAME * frames,
+            "room": max(env.step_memory() for env in envs.values()),
+        },
+        device=largest.device,
+        advice="raise density_map.tile_size, or lower trials_per_batch, the agents or max_decisions",
+    )
 
 
 def _first_line(err: BaseException) -> str:

@@ -7,6 +7,7 @@ boundaries of every run dashed. ``main`` is a thin Hydra wrapper around :func:`p
 
 from __future__ import annotations
 
+import csv
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -45,7 +46,11 @@ def read_learning_curve(path: str | Path, *, metric: str = "success_rate", smoot
         path = path / "learning_curve.csv"
     if not path.is_file():
         raise ValueError(f"no learning curve at {str(path)!r}: expected a run directory of pedrl-train")
-    rows = read_csv(path)
+    try:
+        rows = read_csv(path)
+    except (UnicodeDecodeError, csv.Error) as err:  # a binary or garbled file
+        reason = str(err).splitlines()[0] if str(err) else type(err).__name__
+        raise ValueError(f"learning curve {str(path)!r} is not a CSV text file ({reason})") from None
     if not rows:
         raise ValueError(f"learning curve {str(path)!r} has no rows yet")
     if f"{metric}_mean" not in rows[0]:

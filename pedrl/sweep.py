@@ -76,6 +76,8 @@ def summarise_sweep(
         ValueError: ``sweep_dir`` is not a directory, holds no finished job, or a job lacks ``parameter``.
     """
     sweep_dir = Path(sweep_dir)
+    if sweep_dir.exists() and not sweep_dir.is_dir():
+        raise ValueError(f"sweep directory {str(sweep_dir)!r} is a file: give the folder of a pedrl-train --multirun")
     if not sweep_dir.is_dir():
         raise ValueError(f"sweep directory {str(sweep_dir)!r} does not exist")
     jobs = sorted((p.parent for p in sweep_dir.glob("*/summary.json")), key=_job_order)
@@ -227,7 +229,7 @@ def _job_row(job: Path, overrides: dict[str, str], varying: list[str], parameter
             **{f"{m}_{s}": float(final[f"{m}_{s}"]) for m in FINAL_METRICS for s in ("mean", "std")},
             "wall_time_s": float(summary["wall_time_s"]),
         }
-    except (json.JSONDecodeError, KeyError, TypeError) as err:
+    except (UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError) as err:
         raise ValueError(f"{str(summary_path)!r} is not a summary written by pedrl-train ({err!r})") from None
     phases = summary.get("phases") or [{}]
     row.update(
@@ -259,7 +261,7 @@ def _read_overrides(job: Path) -> dict[str, str]:
     if not path.is_file():
         return {}
     overrides = {}
-    for item in OmegaConf.to_container(OmegaConf.load(path)) or []:
+    for item in OmegaConf.to_container(_load_yaml(path)) or []:
         key, _, value = str(item).partition("=")
         overrides[key.lstrip("+~")] = value
     return overrides
@@ -268,7 +270,7 @@ def _read_overrides(job: Path) -> dict[str, str]:
 def _parameter_value(job: Path, overrides: dict[str, str], parameter: str) -> Any:
     config_path = job / ".hydra" / "config.yaml"
     if config_path.is_file():
-        value = OmegaConf.select(OmegaConf.load(config_path), parameter, default=None)
+        value = OmegaConf.select(_load_yaml(config_path), parameter, default=None)
         if OmegaConf.is_config(value):
             return str(OmegaConf.to_container(value))  # a list or group: hashable and readable in the table
         if value is not None:
@@ -276,6 +278,18 @@ def _parameter_value(job: Path, overrides: dict[str, str], parameter: str) -> An
     if parameter in overrides:
         return _parse_scalar(overrides[parameter])
     raise ValueError(f"job {str(job)!r} has no value for parameter={parameter!r} (in its config or overrides)")
+
+
+def _load_yaml(path: Path) -> Any:
+    """A job's ``.hydra/*.yaml``; an unreadable one is a one-line ``ValueError`` naming it."""
+    from omegaconf.errors import OmegaConfBaseException
+    from yaml import YAMLError
+
+    try:
+        return OmegaConf.load(path)
+    except (UnicodeDecodeError, YAMLError, OmegaConfBaseException) as err:
+        reason = (str(err).strip().splitlines() or [type(err).__name__])[0]
+        raise ValueError(f"{str(path)!r} is not a config written by Hydra ({reason})") from None
 
 
 def _varying_keys(all_overrides: Any) -> list[str]:

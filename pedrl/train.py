@@ -18,7 +18,7 @@ from pedrl.algos.registry import check_names_no_code, env_factory, trainer_class
 from pedrl.cli import hydra_output_dir, run_reporting_errors
 from pedrl.io import CheckpointError
 from pedrl.io.files import replace_atomically
-from pedrl.sim.validation import check_integer
+from pedrl.sim.validation import MAX_SEED, check_integer
 
 CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
 
@@ -129,8 +129,9 @@ def set_threads(threads: int | None) -> None:
 def _check_top_level(cfg: DictConfig) -> None:
     if cfg.get("threads") is not None:
         check_integer("threads", cfg.get("threads"), minimum=1)
-    for key, minimum in (("processes", 1), ("rooms_per_process", 1), ("checkpoint_every", 0), ("seed", 0)):
+    for key, minimum in (("processes", 1), ("rooms_per_process", 1), ("checkpoint_every", 0)):
         check_integer(key, cfg.get(key), minimum=minimum)
+    check_integer("seed", cfg.get("seed"), minimum=0, maximum=MAX_SEED)
 
 
 def _resume_path(resume: Any, run_dir: Path) -> Path | None:

@@ -20,9 +20,10 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -35,11 +36,24 @@ from pedrl.io.files import remove_temporaries_in
 from pedrl.rl import LinearSchedule, epsilon_greedy, table_rows, td_update
 from pedrl.sim import RoomEnv
 from pedrl.sim.sensing import distance_indices, fill_void_neighbours, void_draws
-from pedrl.sim.validation import check_choice, check_device, check_integer, check_number
+from pedrl.sim.validation import check_bool, check_choice, check_device, check_integer, check_memory, check_number
 from pedrl.vq import ProcessQuantizers, Quantizer
+from pedrl.vq.kmeans import default_chunk_size
 
 TABLES = ("agent", "process")
 """Values of ``algo.tables``: one Q table per learning agent (the paper), or one per process shared by its agents."""
+MAX_TRIALS = 10**9
+"""Most learning trials of one phase: years of compute at the fastest measured rates; more is a typo (or a
+``trials_growth`` that overflows)."""
+TABLE_COPIES = 2
+"""Q tables alive at once in the memory estimate: the phase's and the previous phase's (followed while gathering,
+through a replication to the new agents in IN-VQQL that is freed before the new tables are made)."""
+GATHER_COPIES = 3
+"""Copies of every gathered state in the memory estimate: as recorded, concatenated, and prepared for k-means."""
+KMEANS_COPIES = 4
+"""Copies of the states one k-means fit holds: subsampled, standardised, weighted, and their nearest distances."""
+KMEANS_INITS = ("kmeans++", "random")
+"""Values of ``vq.init``: k-means++ seeding or K random states (see :func:`pedrl.vq.kmeans`)."""
 CURVE_METRICS = ("success_rate", "episodic_return", "crashes_agent", "crashes_wall", "mean_speed", "td_error")
 CURVE_COLUMNS = (
     "phase",
@@ -105,6 +119,34 @@ class VQSettings:
     weight_walls: float = 0.5
     per_process: bool = True
     distance_transform: str = "log"
+
+    def __post_init__(self) -> None:
+        """Check every value (except the neighbour weights, which need the room) before any compute."""
+        check_integer("vq.num_prototypes", self.num_prototypes, minimum=2)
+        check_integer("vq.max_iterations", self.max_iterations, minimum=1)
+        check_number("vq.tolerance", self.tolerance, low=0.0)
+        check_integer("vq.max_states", self.max_states, minimum=1)
+        if self.max_states < self.num_prototypes:
+            raise ValueError(
+                f"vq.max_states={self.max_states!r} is invalid: must be at least vq.num_prototypes="
+                f"{self.num_prototypes} (k-means needs at least one state per prototype)"
+            )
+        check_choice("vq.init", self.init, KMEANS_INITS)
+        if self.chunk_size is not None:
+            check_integer("vq.chunk_size", self.chunk_size, minimum=1)
+        check_number("vq.weight_own", self.weight_own, low=0.0, low_open=True)
+        check_number("vq.weight_walls", self.weight_walls, low=0.0, low_open=True)
+        check_bool("vq.per_process", self.per_process)
+        check_choice("vq.distance_transform", self.distance_transform, ("none", "log"))
+
+    @classmethod
+    def from_config(cls, values: Mapping[str, Any]) -> VQSettings:
+        """Settings from the ``vq`` config group; an unknown key is a one-line ``ValueError``."""
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(values) - known)
+        if unknown:
+            raise ValueError(f"vq.{unknown[0]} is not a vq setting: one of {', '.join(sorted(known))}")
+        return cls(**dict(values))
 
 
 @dataclass
@@ -193,14 +235,12 @@ class Trainer:
         progress: bool = True,
         run_config: Mapping[str, Any] | None = None,
     ) -> None:
-        self.vq = vq if isinstance(vq, VQSettings) else VQSettings(**dict(vq))
+        self.vq = vq if isinstance(vq, VQSettings) else VQSettings.from_config(vq)
         check_integer("processes", processes, minimum=1)
         check_integer("rooms_per_process", rooms_per_process, minimum=1)
         check_integer("checkpoint_every", checkpoint_every, minimum=0)
-        check_integer("vq.num_prototypes", self.vq.num_prototypes, minimum=2)
-        check_choice("vq.distance_transform", self.vq.distance_transform, ("none", "log"))
-        if not isinstance(self.vq.per_process, bool):
-            raise ValueError(f"vq.per_process={self.vq.per_process!r} is invalid: must be true or false")
+        check_bool("progress", progress)
+        check_bool("logger.tensorboard", tensorboard)
         check_number("alpha", alpha, low=0.0, high=1.0, low_open=True)
         check_number("gamma", gamma, low=0.0, high=1.0)
         check_number("epsilon_start", epsilon_start, low=0.0, high=1.0)
@@ -234,11 +274,15 @@ class Trainer:
             self._check_phase(phase)
         for num_agents in sorted({phase.num_agents for phase in self.phases()}):
             self._env(num_agents)  # validates the room parameters before any compute
-        check_number("vq.weight_own", self.vq.weight_own, low=0.0, low_open=True)
-        check_number("vq.weight_walls", self.vq.weight_walls, low=0.0, low_open=True)
         self.feature_weights()  # validates the neighbour weights before any compute
         env = next(iter(self._envs.values()))
         self._distance_columns = distance_indices(env.num_neighbours, env.num_walls, device=self.device)
+        check_memory(
+            self.memory_needs(),
+            device=self.device,
+            advice="lower processes, rooms_per_process, vq.num_prototypes, vq.max_states, the agents, "
+            "algo.gather_trials or env.max_decisions",
+        )
 
     # ------------------------------------------------------------------ what subclasses define
     def phases(self) -> list[Phase]:
@@ -308,6 +352,32 @@ class Trainer:
     def num_tables(self, phase: Phase) -> int:
         """A, the Q tables per process in ``phase``: one per agent, or one shared (``tables``)."""
         return phase.num_agents if self.tables == "agent" else 1
+
+    def max_prototypes(self, phase: Phase) -> int:
+        """Most states of the quantizer of ``phase`` (its tables' K): ``vq.num_prototypes`` unless it grows."""
+        return self.vq.num_prototypes
+
+    def memory_needs(self) -> dict[str, float]:
+        """Estimated bytes of a run's largest allocations, by what they hold: the worst phase of each.
+
+        Q tables ``(R, A, K, 81)`` float32 (:data:`TABLE_COPIES` of them), the gathered states
+        (``gather_trials x R E N x max_decisions`` rows of ``F`` float32, :data:`GATHER_COPIES` copies), one k-means
+        fit (``vq.max_states`` states, :data:`KMEANS_COPIES` copies, and a ``chunk_size x K`` block of scores) and
+        one decision of the room (:meth:`pedrl.sim.RoomEnv.step_memory`).
+        """
+        tables = gathered = kmeans = room = 0
+        chunk = self.vq.chunk_size or default_chunk_size(self.device)
+        for phase in self.phases():
+            env = self._env(phase.num_agents)
+            entries = self.processes * self.num_tables(phase) * self.max_prototypes(phase) * env.num_actions
+            tables = max(tables, TABLE_COPIES * entries * 4)
+            rooms = self.processes * self.rooms_per_process
+            rows = phase.gather_trials * rooms * phase.num_agents * env.max_decisions
+            gathered = max(gathered, rows * (GATHER_COPIES * env.num_features * 4 + 16))
+            fit_rows = min(rows, self.vq.max_states)
+            kmeans = max(kmeans, (KMEANS_COPIES * fit_rows * env.num_features + chunk * self.vq.num_prototypes) * 4)
+            room = max(room, env.step_memory())
+        return {"Q tables": tables, "gathered states": gathered, "k-means": kmeans, "room": room}
 
     def continues_previous(self, phase: Phase) -> bool:
         """True when ``phase`` keeps the previous phase's quantizer and tables instead of starting afresh."""
@@ -393,16 +463,19 @@ class Trainer:
                     )
                 first_trial = start_trial if (resumed is not None and position == start_phase) else 0
                 schedule = self.epsilon_schedule(phase)
+                description = f"{self.name} phase {phase.index}/{len(phases)} ({phase.num_agents} agents)"
+                phase_tic = time.perf_counter()
                 bar = tqdm(
                     range(first_trial, phase.trials),
-                    desc=f"{self.name} phase {phase.index}/{len(phases)} ({phase.num_agents} agents)",
-                    disable=not self.progress,
+                    desc=description,
+                    disable=not (self.progress and _interactive()),
                     leave=False,
                 )
                 for trial in bar:
                     epsilon = schedule(trial)
                     tic = time.perf_counter()
                     stats = self.run_trial(env, quantizer, q_values, epsilon=epsilon, learn=True)
+                    self._check_finite(phase, trial, stats, q_values)
                     elapsed = time.perf_counter() - tic
                     rate = stats.agent_decisions / elapsed
                     self._log_trial(logger, curve, phase, trial, global_trial, epsilon, stats, rate)
@@ -415,6 +488,8 @@ class Trainer:
                             phase, done, quantizer, q_values, distortion, summaries, env, last_stats, iteration=False
                         )
                 bar.close()
+                if self.progress and not _interactive():
+                    self._report_phase(description, phase.trials - first_trial, phase_tic, last_stats)
                 self._save(
                     phase, phase.trials, quantizer, q_values, distortion, summaries, env, last_stats, iteration=True
                 )
@@ -447,6 +522,24 @@ class Trainer:
         """Wall time of the run so far (s): this segment plus the segments before the checkpoint resumed from."""
         start, before = self._clock
         return before + time.perf_counter() - start
+
+    def _check_finite(self, phase: Phase, trial: int, stats: TrialStats, q_values: torch.Tensor) -> None:
+        """Stop with one line when learning turned inf or NaN: the trial's returns and TD errors, and at the
+        phase's last trial the tables themselves (a full pass, too slow for every trial)."""
+        finite = bool(torch.isfinite(stats.episodic_return).all() and torch.isfinite(stats.td_error).all())
+        if finite and trial + 1 == phase.trials:
+            finite = bool(torch.isfinite(q_values).all())
+        if not finite:
+            raise ValueError(
+                f"phase {phase.index}, trial {trial}: the returns or Q tables turned inf or NaN (float32 overflow): "
+                "the rewards (env.reward_*) must be much smaller"
+            )
+
+    @staticmethod
+    def _report_phase(description: str, trials: int, tic: float, stats: TrialStats | None) -> None:
+        """One line per phase instead of a progress bar when the console is not a terminal (a log file)."""
+        success = f", success {float(stats.success_rate.mean()):.2f}" if stats is not None else ""
+        print(f"{description}: {trials} trials in {time.perf_counter() - tic:.1f} s{success}", flush=True)
 
     def gather(
         self, phase: Phase, env: RoomEnv, previous: tuple[Any, torch.Tensor] | None
@@ -780,6 +873,11 @@ class Trainer:
 
 
 # ---------------------------------------------------------------------- small pure helpers
+def _interactive() -> bool:
+    """True when stderr is a terminal, where a progress bar redraws in place (in a log file it would not)."""
+    return sys.stderr.isatty()
+
+
 _RESUME_INDEPENDENT = ("resume", "device", "progress", "logger", "hydra", "threads")
 """Top-level keys that may change on resume: the results do not depend on them."""
 

@@ -61,9 +61,7 @@ class INVQQL(Trainer):
         gather_epsilon: float = 0.07,
         **common: Any,
     ) -> None:
-        self.stages = [int(m) for m in stages]
-        if not self.stages or any(m < 1 for m in self.stages) or self.stages != sorted(set(self.stages)):
-            raise ValueError(f"stages={list(stages)!r} is invalid: must be increasing agent counts >= 1")
+        self.stages = _stages(stages)
         self.trial_budgets = _budgets("trials", trials, len(self.stages), trials_growth)
         self.gather_trials = gather_trials
         self.gather_epsilon = gather_epsilon
@@ -80,6 +78,10 @@ class INVQQL(Trainer):
             )
             for i, (m, budget) in enumerate(zip(self.stages, self.trial_budgets, strict=True))
         ]
+
+    def max_prototypes(self, phase: Phase) -> int:
+        """The union of stage ``i`` has at most ``i K`` prototypes (K more per stage)."""
+        return self.vq.num_prototypes * phase.index
 
     def gather_tables(self, phase: Phase, previous: tuple[Any, torch.Tensor] | None):
         if previous is None:
@@ -135,3 +137,14 @@ class INVQQL(Trainer):
 
     def part_from_state_dict(self, tensors: dict[str, torch.Tensor]) -> UnionQuantizer:
         return UnionQuantizer.from_state_dict(tensors)
+
+
+def _stages(stages: Any) -> list[int]:
+    """``stages`` as a list of strictly increasing agent counts >= 1, else a one-line ``ValueError``."""
+    allowed = "must be a list of increasing integer agent counts >= 1, e.g. [1,2,4]"
+    if isinstance(stages, str | bytes) or not isinstance(stages, Sequence) or not stages:
+        raise ValueError(f"stages={stages!r} is invalid: {allowed}")
+    counts = list(stages)
+    if any(isinstance(m, bool) or not isinstance(m, int) or m < 1 for m in counts) or counts != sorted(set(counts)):
+        raise ValueError(f"stages={counts!r} is invalid: {allowed}")
+    return counts

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Any
 
-from pedrl.algos.base import Phase, Trainer
+from pedrl.algos.base import MAX_TRIALS, Phase, Trainer
+from pedrl.sim.validation import check_integer, check_number
 
 
 class ITVQQL(Trainer):
@@ -43,6 +45,7 @@ class ITVQQL(Trainer):
     ) -> None:
         self.num_agents = num_agents
         self.iterations = iterations
+        check_integer("iterations", iterations, minimum=1, maximum=MAX_TRIALS)
         self.trial_budgets = _budgets("trials", trials, iterations, trials_growth)
         self.gather_trials = gather_trials
         self.gather_epsilon = gather_epsilon
@@ -63,17 +66,27 @@ class ITVQQL(Trainer):
 
 
 def _budgets(name: str, trials: int | Sequence[int], count: int, growth: float) -> list[int]:
-    """Per-phase trial budgets from one number (grown geometrically) or an explicit list."""
-    if isinstance(count, bool) or not isinstance(count, int) or count < 1:
-        raise ValueError(f"the number of phases={count!r} is invalid: must be an integer >= 1")
+    """Per-phase trial budgets from one number (grown geometrically) or an explicit list, each at most
+    :data:`~pedrl.algos.base.MAX_TRIALS`."""
+    check_integer("the number of phases", count, minimum=1)
     if isinstance(trials, int) and not isinstance(trials, bool):
-        if trials < 1:
-            raise ValueError(f"{name}={trials!r} is invalid: must be an integer >= 1 or a list of them")
-        if isinstance(growth, bool) or not isinstance(growth, int | float) or not growth > 0:
-            raise ValueError(f"{name}_growth={growth!r} is invalid: must be a number > 0")
-        return [max(1, round(trials * growth**i)) for i in range(count)]
+        check_integer(name, trials, minimum=1, maximum=MAX_TRIALS)
+        growth = check_number(f"{name}_growth", growth, low=0.0, low_open=True)
+        budgets = []
+        for index in range(count):
+            try:
+                budget = trials * growth**index
+            except OverflowError:  # growth**index beyond the float range
+                budget = math.inf
+            if not budget <= MAX_TRIALS:
+                raise ValueError(
+                    f"{name}_growth={growth!r} is invalid: phase {index + 1} would learn {budget:.3g} trials "
+                    f"({name} * {name}_growth^{index}); every phase must learn at most {MAX_TRIALS:.0e}"
+                )
+            budgets.append(max(1, round(budget)))
+        return budgets
     if isinstance(trials, str) or not isinstance(trials, Sequence) or len(trials) != count:
         raise ValueError(f"{name}={trials!r} is invalid: must be an integer >= 1 or a list of {count} of them")
-    if any(isinstance(t, bool) or not isinstance(t, int) or t < 1 for t in trials):
-        raise ValueError(f"{name}={list(trials)!r} is invalid: every budget must be an integer >= 1")
+    for index, budget in enumerate(trials):
+        check_integer(f"{name}[{index}]", budget, minimum=1, maximum=MAX_TRIALS)
     return list(trials)

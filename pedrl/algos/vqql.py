@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from pedrl.algos.base import Phase, Trainer
+from pedrl.algos.base import MAX_TRIALS, Phase, Trainer
 from pedrl.rl import LinearSchedule
 from pedrl.sim.validation import check_integer
 
@@ -41,8 +41,8 @@ class VQQL(Trainer):
         self.trials = trials
         self.iterations = iterations
         self.gather_trials = gather_trials
-        check_integer("iterations", iterations, minimum=1)
-        check_integer("trials", trials, minimum=iterations)
+        check_integer("iterations", iterations, minimum=1, maximum=MAX_TRIALS)
+        check_integer("trials", trials, minimum=iterations, maximum=MAX_TRIALS)
         super().__init__(**common)
 
     def phases(self) -> list[Phase]:

@@ -26,9 +26,9 @@ from pedrl.sim.dynamics import (
     velocities_from,
 )
 from pedrl.sim.geometry import NUM_WALLS, RoomGeometry, X, Y, wrap_angle
-from pedrl.sim.rewards import RewardTable, compute_rewards
+from pedrl.sim.rewards import MAX_REWARD, RewardTable, compute_rewards
 from pedrl.sim.sensing import Observation, feature_names, num_features, observe
-from pedrl.sim.validation import check_choice, check_device, check_integer, check_real
+from pedrl.sim.validation import check_choice, check_device, check_integer, check_memory, check_number, check_real
 
 MAX_DENSITY: Final = 0.35
 """Largest share of the free room area (where centres may lie) that the bodies may cover at placement."""
@@ -39,6 +39,18 @@ PLACEMENT_TOLERANCE: Final = 1e-4
 COLLISION_ORDERS: Final = ("random", "door_first")
 """Orders of action of the sequential collision rule (see ``RoomEnv``)."""
 OPTION_KEYS: Final = ("positions", "headings", "speeds", "replicas")
+MAX_SUBSTEPS: Final = 1000
+"""Most sub-steps per decision (``max_speed / decisions_per_second / substep_length``, 7 by default): the sequential
+collision rule loops over them, so ``max_speed=1e5`` (250 000 sub-steps) hung and ``1e9`` tried to allocate 20 GB."""
+PAIRWISE_BYTES: Final = 40
+"""Bytes per ``(replica, agent, agent)`` entry of the pairwise matrices a decision allocates (sensing distances and
+sort, the swept-disc pre-filter): a measured upper bound, for the memory estimate of :meth:`RoomEnv.step_memory`."""
+PAIR_BYTES: Final = 120
+"""Bytes per ordered candidate pair of the sequential rule (indices, proposals, gaps)."""
+PAIR_BYTES_PER_SUBSTEP: Final = 40
+"""Bytes per ordered candidate pair and sub-step of the simultaneous rule (proposals, gaps, conflicts)."""
+STATE_BYTES: Final = 128
+"""Bytes per agent of the state, observations, rewards and flags of one decision."""
 
 
 class PlacementError(ValueError):
@@ -184,10 +196,10 @@ class RoomEnv:
         self.speed_ratios = _ratios("speed_ratios", speed_ratios, unit="fraction of max_speed")
         self.turn_ratios = _ratios("turn_ratios", turn_ratios, unit="fraction of pi")
         self.rewards = RewardTable(
-            goal=check_real("reward_goal", reward_goal, unit="reward"),
-            crash_wall=check_real("reward_crash_wall", reward_crash_wall, unit="reward"),
-            crash_agent=check_real("reward_crash_agent", reward_crash_agent, unit="reward"),
-            default=check_real("reward_default", reward_default, unit="reward"),
+            goal=check_number("reward_goal", reward_goal, low=-MAX_REWARD, high=MAX_REWARD),
+            crash_wall=check_number("reward_crash_wall", reward_crash_wall, low=-MAX_REWARD, high=MAX_REWARD),
+            crash_agent=check_number("reward_crash_agent", reward_crash_agent, low=-MAX_REWARD, high=MAX_REWARD),
+            default=check_number("reward_default", reward_default, low=-MAX_REWARD, high=MAX_REWARD),
         )
         if substep_length is None:
             self.substep_length = self.agent_radius
@@ -203,9 +215,7 @@ class RoomEnv:
         self.goal_depth = check_real("goal_depth", goal_depth, unit="m")
         if self.goal_depth < 0:
             raise ValueError(f"goal_depth={goal_depth!r} is invalid: must be a finite number >= 0 (m)")
-        self.reward_progress = check_real("reward_progress", reward_progress, unit="reward per m")
-        if self.reward_progress < 0:
-            raise ValueError(f"reward_progress={reward_progress!r} is invalid: must be a finite number >= 0")
+        self.reward_progress = check_number("reward_progress", reward_progress, low=0.0, high=MAX_REWARD)
         free_area = (self.width - 2.0 * self.agent_radius) * (self.length - 2.0 * self.agent_radius)
         body_area = self.num_agents * math.pi * self.agent_radius**2
         if body_area > MAX_DENSITY * free_area:
@@ -215,6 +225,14 @@ class RoomEnv:
                 f" (they would cover {body_area / free_area:.0%} of the free area; at most {MAX_DENSITY:.0%})"
             )
 
+        self.decision_length = 1.0 / self.decisions_per_second
+        self.num_substeps = self._check_substeps()
+        check_memory(
+            {"room state and collision pairs": self.step_memory()},
+            device=self.device,
+            advice="fewer agents or replicas (processes, rooms_per_process, trials_per_batch)",
+        )
+
         # ---- constants
         self.geometry = RoomGeometry.build(
             width=self.width,
@@ -222,10 +240,6 @@ class RoomEnv:
             door_width=self.door_width,
             goal_depth=self.goal_depth,
             device=self.device,
-        )
-        self.decision_length = 1.0 / self.decisions_per_second
-        self.num_substeps = count_substeps(
-            max_speed=self.max_speed, decision_length=self.decision_length, substep_length=self.substep_length
         )
         self.speed_changes = torch.tensor(self.speed_ratios, device=self.device) * self.max_speed
         self.turn_changes = torch.tensor(self.turn_ratios, device=self.device) * math.pi
@@ -249,6 +263,32 @@ class RoomEnv:
         self._reset_at = torch.zeros(self.num_replicas, dtype=torch.int64)  # host: _steps_taken at each reset
         self._oldest_reset = 0
         self._was_reset = False
+
+    def _check_substeps(self) -> int:
+        """Sub-steps per decision, at most :data:`MAX_SUBSTEPS`, else a one-line ``ValueError`` with the numbers."""
+        move = self.max_speed * self.decision_length  # m per decision at top speed
+        if move / self.substep_length > MAX_SUBSTEPS:
+            raise ValueError(
+                f"max_speed={self.max_speed!r} m/s, decisions_per_second={self.decisions_per_second!r} and "
+                f"substep_length={self.substep_length!r} m are invalid together: a decision would take "
+                f"{move / self.substep_length:.3g} sub-steps; max_speed / decisions_per_second / substep_length "
+                f"must be at most {MAX_SUBSTEPS}"
+            )
+        return count_substeps(
+            max_speed=self.max_speed, decision_length=self.decision_length, substep_length=self.substep_length
+        )
+
+    def step_memory(self) -> int:
+        """Estimated peak bytes of one :meth:`step`: the worst case, every pair of agents close enough to collide.
+
+        Pairwise ``(R, N, N)`` matrices, plus the candidate pairs of the collision rule: ``R N (N - 1)`` ordered
+        pairs, each held once (sequential) or at every sub-step (simultaneous).
+        """
+        rooms, agents = self.num_replicas, self.num_agents
+        ordered_pairs = rooms * agents * (agents - 1)
+        simultaneous = self.collision_rule == "simultaneous"
+        per_pair = PAIR_BYTES_PER_SUBSTEP * self.num_substeps if simultaneous else PAIR_BYTES
+        return rooms * agents * (STATE_BYTES + PAIRWISE_BYTES * agents) + ordered_pairs * per_pair
 
     # ------------------------------------------------------------------ public API
 

@@ -3,8 +3,14 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Final
 
 import torch
+
+MAX_REWARD: Final = 1e6
+"""Largest ``|reward|`` (and ``reward_progress``, per m) accepted. Q values and returns are float32 sums of rewards
+over up to ``max_decisions`` decisions (bounded by ``max|r| / (1 - gamma)`` and ``max|r| * max_decisions``); this
+keeps them about 20 orders of magnitude below float32's 3.4e38 (``reward_goal=1e38`` learned inf and NaN tables)."""
 
 
 @dataclass(frozen=True)

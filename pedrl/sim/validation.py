@@ -3,15 +3,33 @@
 from __future__ import annotations
 
 import math
+import os
+from collections.abc import Mapping
 from numbers import Integral, Real
+from pathlib import Path
 from typing import Any
 
 import torch
 
+DEVICE_TYPES = ("cpu", "cuda")
+"""Device types pedrl runs on (``cuda[:index]`` for a GPU)."""
+MAX_SEED = 2**32 - 1
+"""Largest ``seed``: derived seeds (``seed * 10007 + phase``, ``seed * 1013 + agents``) stay within int64."""
+
 
 def check_integer(name: str, value: Any, *, minimum: int, maximum: int | None = None) -> int:
-    """``value`` as an int in ``[minimum, maximum]``, else a one-line ``ValueError``."""
+    """``value`` as an int in ``[minimum, maximum]``, else a one-line ``ValueError``.
+
+    A whole float (``1e9`` or ``5.0`` on the command line, which YAML reads as floats) is refused with a hint to
+    write the digits, so that the message does not look like a contradiction.
+    """
     allowed = f"an integer >= {minimum}" if maximum is None else f"an integer in [{minimum}, {maximum}]"
+    in_range = isinstance(value, float) and minimum <= value <= (math.inf if maximum is None else maximum)
+    if in_range and value.is_integer():
+        raise ValueError(
+            f"{name}={value!r} is invalid: must be {allowed}, written with digits only "
+            f"({value!r} is read as a float: write {int(value)})"
+        )
     if isinstance(value, bool) or not isinstance(value, Integral):
         raise ValueError(f"{name}={value!r} is invalid: must be {allowed}")
     if value < minimum or (maximum is not None and value > maximum):
@@ -50,14 +68,67 @@ def check_choice(name: str, value: Any, allowed: tuple[str, ...]) -> str:
     return value
 
 
+def check_bool(name: str, value: Any) -> bool:
+    """``value`` if it is a bool (``true``/``false`` on the command line), else a one-line ``ValueError``."""
+    if not isinstance(value, bool):
+        raise ValueError(f"{name}={value!r} is invalid: must be true or false")
+    return value
+
+
 def check_device(value: Any) -> torch.device:
-    """``value`` as a usable torch device, else a one-line ``ValueError``."""
+    """``value`` as a usable CPU or CUDA torch device, else a one-line ``ValueError``."""
     try:
         device = torch.device(value)
+        if device.type not in DEVICE_TYPES:
+            raise ValueError(f"device type {device.type!r} is not supported")
         torch.empty(1, device=device)
     except (RuntimeError, AssertionError, TypeError, ValueError) as error:
         reason = (str(error).strip().splitlines() or [type(error).__name__])[0].split(". ")[0][:100]
         raise ValueError(
-            f"device={value!r} is invalid: must be a torch device available here, e.g. 'cpu' ({reason})"
+            f"device={value!r} is invalid: must be cpu or cuda[:index], available here ({reason})"
         ) from None
     return device
+
+
+# ---------------------------------------------------------------------- memory
+GIB = 2**30
+
+
+def available_memory(device: torch.device) -> int:
+    """Bytes that can still be allocated on ``device``: free GPU memory, or the host's ``MemAvailable``."""
+    if device.type == "cuda":
+        free, _ = torch.cuda.mem_get_info(device)
+        return int(free)
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:  # not Linux: the physical memory
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (AttributeError, OSError, ValueError):
+        return 2**63 - 1
+
+
+def check_memory(needs: Mapping[str, float], *, device: torch.device, advice: str) -> None:
+    """Refuse, with one line giving the numbers, a run whose estimated peak memory exceeds what ``device`` has free.
+
+    Args:
+        needs: estimated bytes of the largest allocations, by what they hold (e.g. ``"Q tables"``).
+        device: where they are allocated.
+        advice: which values to lower, appended to the message.
+    """
+    total = sum(needs.values())
+    available = available_memory(device)
+    if total <= available:
+        return
+    parts = ", ".join(f"{what} {_gib(size)}" for what, size in sorted(needs.items(), key=lambda kv: -kv[1]) if size)
+    raise ValueError(
+        f"this run needs about {_gib(total)} of memory ({parts}), more than the {_gib(available)} available on "
+        f"{device.type}: {advice}"
+    )
+
+
+def _gib(size: float) -> str:
+    return f"{size / GIB:.3g} GiB"
