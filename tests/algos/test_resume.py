@@ -163,7 +163,10 @@ def test_an_os_error_gives_one_line_naming_the_path(capsys):
     with pytest.raises(SystemExit) as info:
         run_reporting_errors("pedrl-train", fails)
     assert info.value.code == 2
-    assert capsys.readouterr().err == "pedrl-train: error: '/runs/a/learning_curve.csv': No space left on device\n"
+    assert (
+        capsys.readouterr().err
+        == "pedrl-train: error: cannot use '/runs/a/learning_curve.csv': No space left on device\n"
+    )
 
 
 # ---------------------------------------------------------------------- kill anywhere
