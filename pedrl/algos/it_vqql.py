@@ -19,7 +19,9 @@ class ITVQQL(Trainer):
     values before quantization (``void_features="random"``, section 5.1) so the quantizer always sees full states.
 
     Args:
-        num_agents: learning agents (paper: 20).
+        num_agents: learning agents (paper: 20): one number for every iteration, or one per iteration (a crowd
+            curriculum: the last iterations learn, and quantize, the dense states of a larger crowd; tables are
+            shared by agents ``n mod A``, so ``tables="process"`` keeps one table whatever the count).
         iterations: number of iterations (paper: 15).
         trials: learning trials per iteration: one number for all, or one per iteration.
         trials_growth: when ``trials`` is one number, iteration ``i`` learns ``trials * trials_growth**(i-1)``
@@ -35,7 +37,7 @@ class ITVQQL(Trainer):
     def __init__(
         self,
         *,
-        num_agents: int = 20,
+        num_agents: int | Sequence[int] = 20,
         iterations: int = 15,
         trials: int | Sequence[int] = 1000,
         trials_growth: float = 1.0,
@@ -43,9 +45,9 @@ class ITVQQL(Trainer):
         gather_epsilon: float = 0.07,
         **common: Any,
     ) -> None:
-        self.num_agents = num_agents
         self.iterations = iterations
         check_integer("iterations", iterations, minimum=1, maximum=MAX_TRIALS)
+        self.agents_per_iteration = _agents("num_agents", num_agents, iterations)
         self.trial_budgets = _budgets("trials", trials, iterations, trials_growth)
         self.gather_trials = gather_trials
         self.gather_epsilon = gather_epsilon
@@ -56,12 +58,12 @@ class ITVQQL(Trainer):
         return [
             Phase(
                 index=i + 1,
-                num_agents=self.num_agents,
+                num_agents=agents,
                 trials=budget,
                 gather_trials=self.gather_trials,
                 gather_epsilon=1.0 if i == 0 else self.gather_epsilon,
             )
-            for i, budget in enumerate(self.trial_budgets)
+            for i, (agents, budget) in enumerate(zip(self.agents_per_iteration, self.trial_budgets, strict=True))
         ]
 
 
@@ -90,3 +92,15 @@ def _budgets(name: str, trials: int | Sequence[int], count: int, growth: float) 
     for index, budget in enumerate(trials):
         check_integer(f"{name}[{index}]", budget, minimum=1, maximum=MAX_TRIALS)
     return list(trials)
+
+
+def _agents(name: str, num_agents: int | Sequence[int], count: int) -> list[int]:
+    """Agents of each of ``count`` phases from one number or a list of ``count`` numbers, each an integer >= 1."""
+    if isinstance(num_agents, int) and not isinstance(num_agents, bool):
+        check_integer(name, num_agents, minimum=1)
+        return [num_agents] * count
+    if isinstance(num_agents, str) or not isinstance(num_agents, Sequence) or len(num_agents) != count:
+        raise ValueError(f"{name}={num_agents!r} is invalid: must be an integer >= 1 or a list of {count} of them")
+    for index, agents in enumerate(num_agents):
+        check_integer(f"{name}[{index}]", agents, minimum=1)
+    return list(num_agents)

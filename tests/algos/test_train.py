@@ -241,3 +241,14 @@ def test_log_distance_transform_changes_only_distances(train_config, tmp_path):
     assert torch.equal(before[:, ~distance], after[:, ~distance])
     torch.testing.assert_close(after[:, distance], before[:, distance].log1p())
     assert distance.sum() == 1 + env.num_neighbours + env.num_walls
+
+
+def test_it_vqql_iterations_can_learn_in_a_larger_crowd(train_config, tmp_path):
+    cfg = train_config("algo=it_vqql", "algo.iterations=2", "algo.num_agents=[2,5]", "algo.tables=agent", "logger=none")
+    train(cfg, run_dir=tmp_path)
+    rows = read_csv(tmp_path / "learning_curve.csv")
+    assert {(row["phase"], row["agents"]) for row in rows} == {("1", "2"), ("2", "5")}
+    q_values = load_checkpoint(tmp_path / "checkpoints" / "last.safetensors").tensors["q_values"]
+    assert q_values.shape[1] == 5  # the last iteration's tables, one per agent of the larger crowd
+    with pytest.raises(ValueError, match=r"num_agents=\[2\] is invalid: must be an integer >= 1 or a list of 2"):
+        build_trainer(train_config("algo=it_vqql", "algo.iterations=2", "algo.num_agents=[2]"), tmp_path)
