@@ -202,7 +202,7 @@ TRAIN_CASES: list[tuple[str, tuple[str, ...]]] = [
     ("progress=maybe", ("progress='maybe'", "true or false")),
     ("progress=2", ("progress=2", "true or false")),
     ("logger.tensorboard=maybe", ("logger.tensorboard='maybe'", "true or false")),
-    ("resume=5", ("resume=5", "null, true, or the path")),
+    ("resume=5", ("resume=5", "null, true, a run directory or the path")),
     ("resume=true", ("resume=true", "does not exist")),
     # ---- the room (conf/env/room.yaml)
     ("env.width=0", ("width=0", "> 0")),
@@ -264,7 +264,7 @@ TRAIN_CASES: list[tuple[str, tuple[str, ...]]] = [
     ("vq.weight_neighbours=-1", ("vq.weight_neighbours=-1", "a number > 0")),
     ("vq.per_process=maybe", ("vq.per_process='maybe'", "true or false")),
     ("vq.distance_transform=sqrt", ("vq.distance_transform='sqrt'", "none, log")),
-    ("+vq.foo=1", ("vq.foo is not a vq setting", "num_prototypes")),
+    ("+vq.foo=1", ("vq.foo is not a quantizer setting", "num_prototypes")),
     # ---- VQQL (conf/algo/vqql.yaml)
     ("algo.trials=0", ("trials=0", "integer in [2, 1000000000]")),
     ("algo.trials=abc", ("trials='abc'", "integer in")),

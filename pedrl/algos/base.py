@@ -145,7 +145,7 @@ class VQSettings:
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(values) - known)
         if unknown:
-            raise ValueError(f"vq.{unknown[0]} is not a vq setting: one of {', '.join(sorted(known))}")
+            raise ValueError(f"vq.{unknown[0]} is not a quantizer setting: allowed: {', '.join(sorted(known))}")
         return cls(**dict(values))
 
 

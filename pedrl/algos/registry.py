@@ -117,13 +117,10 @@ def trainer_class(algo: Mapping[str, Any]) -> tuple[type[Trainer], dict[str, Any
 
 
 def vq_settings(vq: Mapping[str, Any]) -> dict[str, Any]:
-    """The ``vq`` config as :class:`pedrl.algos.VQSettings` keyword arguments (unknown keys refused)."""
+    """The ``vq`` config as :class:`pedrl.algos.VQSettings` keyword arguments (one line for an unknown key)."""
     if not isinstance(vq, Mapping):
         raise ValueError(f"vq={vq!r} is invalid: must be a mapping of quantizer settings")
-    allowed = tuple(VQSettings.__dataclass_fields__)
-    for key in vq:
-        if key not in allowed:
-            raise ValueError(f"vq.{key} is not a quantizer setting: allowed: {', '.join(allowed)}")
+    VQSettings.from_config(vq)
     return dict(vq)
 
 
