@@ -290,18 +290,12 @@ def _assert_refused_everywhere(path: Path, cfg, tmp_path: Path, canary: Path, me
     assert not (canary.parent / "made").exists(), "no code from the file ran"
 
 
-@pytest.mark.parametrize("case", list(CORPUS))
-def test_crafted_vqql_checkpoint_is_refused(case, originals, tmp_path, canary):
-    original, cfg = originals["vqql"]
-    make, message = CORPUS[case]
-    path = _craft(original, tmp_path, make, canary)
-    _assert_refused_everywhere(path, copy.deepcopy(cfg), tmp_path, canary, message)
-
-
-@pytest.mark.parametrize("case", list(UNION_CORPUS))
-def test_crafted_in_vqql_checkpoint_is_refused(case, originals, tmp_path, canary):
-    original, cfg = originals["in_vqql"]
-    make, message = UNION_CORPUS[case]
+@pytest.mark.parametrize(
+    ("algo", "case"), [("vqql", case) for case in CORPUS] + [("in_vqql", case) for case in UNION_CORPUS]
+)
+def test_crafted_checkpoint_is_refused(algo, case, originals, tmp_path, canary):
+    original, cfg = originals[algo]
+    make, message = (CORPUS if algo == "vqql" else UNION_CORPUS)[case]
     path = _craft(original, tmp_path, make, canary)
     _assert_refused_everywhere(path, copy.deepcopy(cfg), tmp_path, canary, message)
 
