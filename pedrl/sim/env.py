@@ -383,7 +383,8 @@ class RoomEnv:
             priority = torch.rand(self.active.shape, generator=self.generator, device=self.device)
             if self.collision_order == "door_first":  # metres dominate, the uniform draw breaks ties
                 priority = self._goal_distance(self.positions) + priority * 1e-3
-            movement = move_agents_sequential(**motion, priority=priority)
+            # off the CPU: fixed rounds with masks, so that a decision never waits for the host (same result)
+            movement = move_agents_sequential(**motion, priority=priority, sync_free=self.device.type != "cpu")
         else:
             movement = move_agents(**motion)
         speeds = torch.where(movement.blocked, 0.0, speeds)
