@@ -377,7 +377,7 @@ def move_agents_sequential(
     step_scale = torch.arange(1, num_substeps + 1, device=device).to(dtype).view(-1, 1, 1, 1)  # (S, 1, 1, 1)
     # p + k d, as in move_agents, so that moves without collisions agree to the bit between the two rules
     proposals = positions + step_scale * step  # (S, R, N, 2)
-    walls = geometry.touches_walls(proposals, radius=agent_radius)  # (S, R, N)
+    walls = _touch_walls(proposals, geometry, agent_radius, exact_everywhere=sync_free)  # (S, R, N)
     passes_door = proposals[..., Y] >= geometry.length
 
     # pairs that can touch during the decision: swept discs overlap; [r, i, j]: i the mover, j the obstacle
@@ -386,10 +386,13 @@ def move_agents_sequential(
     if not sync_free and not bool(candidate.any()):
         return _walk_to_walls(positions, step, going, walls, passes_door)
 
-    dst_first = priority.unsqueeze(1) < priority.unsqueeze(2)  # [r, i, j]: j acts before i
+    pairs = _DensePairs(candidate) if sync_free else _ListedPairs(candidate)
+    dst_first = pairs.dst(priority) < pairs.src(priority)  # the obstacle acts before the mover
     # x and y apart: a sum over a last axis of 2 is slow on CPU; gx * gx + gy * gy is that sum to the bit
     proposal_x, proposal_y = proposals[..., X], proposals[..., Y]  # (S, R, N)
-    hits_new_all = _within(proposal_x, proposal_y, proposal_x, proposal_y, contact_sq) & (candidate & dst_first)
+    gap_x = pairs.src(proposal_x) - pairs.dst(proposal_x)
+    gap_y = pairs.src(proposal_y) - pairs.dst(proposal_y)
+    hits_new_all = pairs.restrict((gap_x * gap_x + gap_y * gap_y < contact_sq) & dst_first)  # every sub-step
     present = active.clone()  # bodies that collide (in the room)
     blocked = torch.zeros_like(active)
     crashed_wall = torch.zeros_like(active)
@@ -402,16 +405,17 @@ def move_agents_sequential(
             break
         hits_wall = going & walls[index]
         candidates = going & ~hits_wall  # movers not stopped by a wall
-        hits_now = _within(proposal_x[index], proposal_y[index], current[..., X], current[..., Y], contact_sq)
-        hits_now &= candidate & present.unsqueeze(1)
+        gap_x = pairs.src(proposal_x[index]) - pairs.dst(current[..., X])
+        gap_y = pairs.src(proposal_y[index]) - pairs.dst(current[..., Y])
+        hits_now = pairs.restrict((gap_x * gap_x + gap_y * gap_y < contact_sq) & pairs.dst(present))
         hits_new = hits_new_all[index]
         # a conflict only matters for a candidate mover, and only candidates move: no "going" masks needed
         moved = candidates
         if sync_free or bool((hits_now | hits_new).any()):
             for _ in range(rounds):
-                dst_moves = moved.unsqueeze(1)
+                dst_moves = pairs.dst(moved)
                 conflict = (hits_now & ~(dst_first & dst_moves)) | (hits_new & dst_moves)
-                new_moved = candidates & ~conflict.any(2)
+                new_moved = candidates & ~pairs.any_by_src(conflict)
                 if not sync_free and bool(torch.equal(new_moved, moved)):
                     break
                 moved = new_moved
@@ -422,7 +426,7 @@ def move_agents_sequential(
         current = positions + moved_substeps.unsqueeze(-1) * step
         blocked |= going & ~moved
         crashed_wall |= hits_wall
-        passed = moved & (current[..., Y] >= geometry.length)
+        passed = moved & passes_door[index]  # a mover stands on its proposal
         reached |= passed
         present &= ~passed
         going = moved & ~passed
@@ -436,14 +440,75 @@ def move_agents_sequential(
     )
 
 
-def _within(
-    mover_x: torch.Tensor, mover_y: torch.Tensor, other_x: torch.Tensor, other_y: torch.Tensor, limit_sq: float
+def _touch_walls(
+    points: torch.Tensor, geometry: RoomGeometry, radius: float, *, exact_everywhere: bool
 ) -> torch.Tensor:
-    """``(..., N, N)`` bool, ``[..., i, j]``: ``|mover_i - other_j|^2 < limit_sq`` for points given as ``(..., N)``
-    coordinates (m); the squared gap is ``gx * gx + gy * gy``, as ``(gap * gap).sum(-1)`` computes it."""
-    gap_x = mover_x.unsqueeze(-1) - other_x.unsqueeze(-2)
-    gap_y = mover_y.unsqueeze(-1) - other_y.unsqueeze(-2)
-    return gap_x * gap_x + gap_y * gap_y < limit_sq
+    """``geometry.touches_walls(points)`` ``(...)`` bool for points ``(..., 2)``, to the bit.
+
+    Unless ``exact_everywhere``, the exact test runs only on the points outside ``[r, W - r] x [r, L - r]`` shrunk
+    by ``PAIR_MARGIN`` (``nonzero``, a host read); the others touch no wall.
+    """
+    if exact_everywhere:
+        return geometry.touches_walls(points, radius=radius)
+    half_x, half_y = 0.5 * geometry.width, 0.5 * geometry.length
+    inner_x, inner_y = half_x - radius - PAIR_MARGIN, half_y - radius - PAIR_MARGIN
+    clear = ((points[..., X] - half_x).abs_() <= inner_x) & ((points[..., Y] - half_y).abs_() <= inner_y)
+    near = (~clear).view(-1).nonzero().squeeze(1)
+    touches = torch.zeros(clear.numel(), dtype=torch.bool, device=points.device)
+    if near.shape[0] > 0:
+        touches[near] = geometry.touches_walls(points.reshape(-1, 2).index_select(0, near), radius=radius)
+    return touches.view(clear.shape)
+
+
+class _DensePairs:
+    """Mover-obstacle pairs as a dense ``(R, N, N)`` mask ``[r, i, j]`` (i the mover): fixed shapes, for CUDA."""
+
+    def __init__(self, candidate: torch.Tensor) -> None:
+        self.mask = candidate
+
+    def src(self, values: torch.Tensor) -> torch.Tensor:
+        """Per-agent ``(..., R, N)`` values of each pair's mover, ``(..., R, N, 1)``."""
+        return values.unsqueeze(-1)
+
+    def dst(self, values: torch.Tensor) -> torch.Tensor:
+        """Per-agent ``(..., R, N)`` values of each pair's obstacle, ``(..., R, 1, N)``."""
+        return values.unsqueeze(-2)
+
+    def restrict(self, flags: torch.Tensor) -> torch.Tensor:
+        """``flags`` of every pair, False outside the kept pairs."""
+        return flags & self.mask
+
+    def any_by_src(self, flags: torch.Tensor) -> torch.Tensor:
+        """``(R, N)``: whether any kept pair of each mover is flagged."""
+        return flags.any(-1)
+
+
+class _ListedPairs:
+    """Mover-obstacle pairs listed by flat agent index (``nonzero`` of the mask): small tensors, for the CPU."""
+
+    def __init__(self, candidate: torch.Tensor) -> None:
+        num_replicas, num_agents, _ = candidate.shape
+        replica, mover, obstacle = candidate.nonzero().unbind(1)  # (M,) each; both orders of every pair
+        self._src = replica * num_agents + mover
+        self._dst = replica * num_agents + obstacle
+        self._shape = (num_replicas, num_agents)
+
+    def src(self, values: torch.Tensor) -> torch.Tensor:
+        """Per-agent ``(..., R, N)`` values of each pair's mover, ``(..., M)``."""
+        return values.flatten(-2).index_select(-1, self._src)
+
+    def dst(self, values: torch.Tensor) -> torch.Tensor:
+        """Per-agent ``(..., R, N)`` values of each pair's obstacle, ``(..., M)``."""
+        return values.flatten(-2).index_select(-1, self._dst)
+
+    def restrict(self, flags: torch.Tensor) -> torch.Tensor:
+        """``flags`` of every pair (all pairs are kept ones)."""
+        return flags
+
+    def any_by_src(self, flags: torch.Tensor) -> torch.Tensor:
+        """``(R, N)``: whether any pair of each mover is flagged."""
+        counts = torch.zeros(self._shape[0] * self._shape[1], dtype=torch.int32, device=flags.device)
+        return (counts.index_add_(0, self._src, flags.to(torch.int32)) > 0).view(self._shape)
 
 
 def _walk_to_walls(
