@@ -52,10 +52,10 @@ def td_update(
     rows = torch.where(valid, rows, zero)
     actions = torch.where(valid, actions, zero)
     bootstrap = valid & ~terminal
-    next_value = flat[torch.where(bootstrap, next_rows, zero)].amax(1)
+    next_value = flat.index_select(0, torch.where(bootstrap, next_rows, zero)).amax(1)  # gathers: index_select
     target = rewards + gamma * torch.where(bootstrap, next_value, torch.zeros_like(next_value))
     entries = rows * num_actions + actions
-    td_error = torch.where(valid, target - q_values.view(-1)[entries], torch.zeros_like(target))
+    td_error = torch.where(valid, target - q_values.view(-1).index_select(0, entries), torch.zeros_like(target))
 
     # duplicates: the size of each entry's group, found by sorting (no host read: skipped entries form a group
     # of their own under the key -1, and add 0 to entry 0)
