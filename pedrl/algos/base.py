@@ -832,12 +832,18 @@ def _rows_before(global_trial: int) -> Callable[[Mapping[str, str]], bool]:
     return keep
 
 
+_NEWER_KEYS = {"env.compile_sensing": False}
+"""Keys added after checkpoints were first written, with the value the runs of older checkpoints had."""
+
+
 def _config_mismatch(saved: Mapping[str, Any], current: Mapping[str, Any], prefix: str = "") -> str:
-    """The first differing key between two nested configs, ignoring keys that may change on resume."""
+    """The first differing key between two nested configs, ignoring keys that may change on resume; a key that an
+    older checkpoint lacks counts as its value in ``_NEWER_KEYS``."""
     for key in sorted(set(saved) | set(current)):
         if not prefix and key in _RESUME_INDEPENDENT:
             continue
-        a, b = saved.get(key, "<absent>"), current.get(key, "<absent>")
+        a = saved.get(key, _NEWER_KEYS.get(f"{prefix}{key}", "<absent>"))
+        b = current.get(key, "<absent>")
         if isinstance(a, Mapping) and isinstance(b, Mapping):
             found = _config_mismatch(a, b, f"{prefix}{key}.")
             if found:
