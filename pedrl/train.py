@@ -6,6 +6,7 @@
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 from typing import Any
 
@@ -60,7 +61,7 @@ def train(cfg: DictConfig, *, run_dir: str | Path | None = None) -> TrainResult:
     if resume_from is not None and resume_from.parent.name == "checkpoints":
         run_dir = resume_from.parent.parent  # continue writing into the run that holds the checkpoint
     trainer = build_trainer(cfg, run_dir)
-    set_threads(cfg.get("threads"))
+    set_threads(cfg.get("threads") if cfg.get("threads") is not None else launcher_threads())
     torch.manual_seed(int(cfg.seed))
     result = trainer.fit(resume_from=resume_from)
     summary_path = result.run_dir / "summary.json"
@@ -124,6 +125,37 @@ def set_threads(threads: int | None) -> None:
     """Set torch's CPU thread count (None: leave torch's default); validated by :func:`build_trainer`."""
     if threads is not None and torch.get_num_threads() != threads:
         torch.set_num_threads(threads)
+
+
+def launcher_threads() -> int | None:
+    """This job's share of the cores when it runs under ``hydra/launcher=parallel``: ``cores // n_jobs`` (at least 1),
+    so that the jobs running side by side do not each spin one OpenMP thread per core against each other; None
+    otherwise (a single run, or another launcher: torch's default)."""
+    from hydra.core.hydra_config import HydraConfig
+
+    if not HydraConfig.initialized():
+        return None
+    launcher = HydraConfig.get().get("launcher") or {}
+    if "joblib" not in str(launcher.get("_target_", "")).lower():
+        return None
+    return share_of_cores(launcher.get("n_jobs"), available_cores())
+
+
+def available_cores() -> int:
+    """CPU cores this process may run on."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
+def share_of_cores(n_jobs: Any, cores: int) -> int:
+    """Threads per job when ``n_jobs`` jobs share ``cores`` cores: ``cores // jobs``, at least 1.
+
+    ``n_jobs`` follows joblib: a positive count, ``-1`` one job per core, ``-2`` all cores but one, and so on;
+    None counts as one job.
+    """
+    jobs = 1 if n_jobs is None else int(n_jobs)
+    if jobs < 0:
+        jobs = max(1, cores + 1 + jobs)
+    return max(1, cores // max(1, jobs))
 
 
 def _check_top_level(cfg: DictConfig) -> None:

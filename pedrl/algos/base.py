@@ -55,6 +55,10 @@ KMEANS_COPIES = 4
 KMEANS_INITS = ("kmeans++", "random")
 """Values of ``vq.init``: k-means++ seeding or K random states (see :func:`pedrl.vq.kmeans`)."""
 CURVE_METRICS = ("success_rate", "episodic_return", "crashes_agent", "crashes_wall", "mean_speed", "td_error")
+DEVICE_CHECK_EVERY = 8
+"""Decisions between two reads of "is any room still occupied" by the trial loop on a GPU (each read waits)."""
+_TOTALS = ("return", "crashes_agent", "crashes_wall", "reached", "speed_sum", "decisions")
+"""Per-agent totals a trial accumulates, in the order of the rows of ``run_trial``'s accumulator."""
 CURVE_COLUMNS = (
     "phase",
     "agents",
@@ -277,6 +281,10 @@ class Trainer:
         self.feature_weights()  # validates the neighbour weights before any compute
         env = next(iter(self._envs.values()))
         self._distance_columns = distance_indices(env.num_neighbours, env.num_walls, device=self.device)
+        self._distance_mask = torch.zeros(env.num_features, dtype=torch.bool, device=self.device)
+        self._distance_mask[self._distance_columns] = True
+        self._row_cache: dict[tuple[int, int, int], torch.Tensor] = {}
+        self._process_cache: dict[int, torch.Tensor] = {}
         check_memory(
             self.memory_needs(),
             device=self.device,
@@ -626,78 +634,100 @@ class Trainer:
         """Run one trial in every room, acting epsilon-greedily and (if ``learn``) applying equation 1.
 
         ``q_values`` is ``(R, A, K, U)`` with ``A`` equal to the room's agents (or dividing it: agent ``n`` uses
-        table ``n mod A``).
+        table ``n mod A``). Only the agents still in a room are encoded. On CPU the loop ends as soon as every room
+        is empty; on other devices it reads that flag only every ``DEVICE_CHECK_EVERY`` decisions, so that no
+        decision waits for the host (the extra decisions of empty rooms change nothing).
         """
         rooms, num_agents = env.num_replicas, env.num_agents
+        on_cpu = self.device.type == "cpu"
         obs, info = env.reset()
         base_rows = self._rows(q_values, num_agents)
-        rows = base_rows + self.encode_observations(quantizer, obs, info)
-        returns = torch.zeros(rooms * num_agents, device=self.device)
-        crashes_agent = torch.zeros_like(returns)
-        crashes_wall = torch.zeros_like(returns)
-        reached = torch.zeros_like(returns)
-        speed_sum = torch.zeros_like(returns)
-        moves = torch.zeros_like(returns)
-        td_sum = torch.zeros((), device=self.device)
-        td_count = torch.zeros((), device=self.device)
-        decisions = 0
+        in_room = env.active.reshape(-1)
+        rows = base_rows + self.encode_observations(quantizer, obs, info, rows_mask=in_room if on_cpu else None)
+        # per agent: return, crashes with agents, crashes with walls, reached, speed sum, decisions
+        totals = torch.zeros(len(_TOTALS), rooms * num_agents, device=self.device)
+        td_total = torch.zeros(2, device=self.device)  # sum of |TD error|, number of updates
+        decisions = torch.zeros((), dtype=torch.int64, device=self.device)
+        step = 0
         while True:
             valid = env.active.reshape(-1)
             actions = epsilon_greedy(q_values, rows, epsilon, self.generator)
             obs, reward, terminated, truncated, info = env.step(actions.view(rooms, num_agents))
-            next_rows = base_rows + self.encode_observations(quantizer, obs, info)
+            reward, terminated = reward.reshape(-1), terminated.reshape(-1)
+            in_room = valid & ~terminated  # their next state is needed: in the room, or cut by the clock
+            next_rows = base_rows + self.encode_observations(
+                quantizer, obs, info, rows_mask=in_room if on_cpu else None
+            )
             if learn:
                 td = td_update(
                     q_values,
                     rows,
                     actions,
-                    reward.reshape(-1),
+                    reward,
                     next_rows,
-                    terminated.reshape(-1),
+                    terminated,
                     valid,
                     alpha=self.alpha,
                     gamma=self.gamma,
                 )
-                td_sum += td.abs().sum()
-                td_count += valid.sum()
+                td_total += torch.stack((td.abs().sum(), valid.sum()))
             validf = valid.float()
-            returns += reward.reshape(-1)
-            crashes_agent += info["crashed_agent"].reshape(-1).float()
-            crashes_wall += info["crashed_wall"].reshape(-1).float()
-            reached += info["reached"].reshape(-1).float()
-            speed_sum += info["speed"].reshape(-1) * validf
-            moves += validf
+            events = (info["crashed_agent"], info["crashed_wall"], info["reached"])
+            totals += torch.stack(
+                (reward, *(event.reshape(-1) for event in events), info["speed"].reshape(-1) * validf, validf)
+            )
+            decisions += valid.any()
             rows = next_rows
-            decisions += 1
-            if not bool(env.active.any()):
+            step += 1
+            if (on_cpu or step % DEVICE_CHECK_EVERY == 0) and not bool(env.active.any()):
                 break
+        returns, crashes_agent, crashes_wall, reached, speed_sum, moves = totals.view(len(_TOTALS), self.processes, -1)
+        speed = speed_sum.sum(1) / moves.sum(1).clamp_min(1)
         per_process = self.processes
-
-        def by_process(values: torch.Tensor) -> torch.Tensor:
-            return values.view(per_process, -1).mean(dim=1)
-
-        speed = speed_sum.view(per_process, -1).sum(1) / moves.view(per_process, -1).sum(1).clamp_min(1)
-        td_error = (td_sum / td_count.clamp_min(1)).expand(per_process) if learn else torch.zeros(per_process)
+        td_error = (td_total[0] / td_total[1].clamp_min(1)).expand(per_process) if learn else torch.zeros(per_process)
         return TrialStats(
-            success_rate=by_process(reached).cpu(),
-            episodic_return=by_process(returns).cpu(),
-            crashes_agent=by_process(crashes_agent).cpu(),
-            crashes_wall=by_process(crashes_wall).cpu(),
+            success_rate=reached.mean(1).cpu(),
+            episodic_return=returns.mean(1).cpu(),
+            crashes_agent=crashes_agent.mean(1).cpu(),
+            crashes_wall=crashes_wall.mean(1).cpu(),
             mean_speed=speed.cpu(),
             td_error=td_error.cpu(),
-            decisions=decisions,
+            decisions=int(decisions),
             agent_decisions=int(moves.sum()),
         )
 
     def encode_observations(
-        self, quantizer: Any, obs: torch.Tensor, info: Mapping[str, Any], process: torch.Tensor | None = None
+        self,
+        quantizer: Any,
+        obs: torch.Tensor,
+        info: Mapping[str, Any],
+        process: torch.Tensor | None = None,
+        *,
+        rows_mask: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """Prototype ids ``(R * N,)`` of a room's observations ``(R, N, F)``, void slots treated as configured.
 
-        ``process (R * N,)``: the learning process of every agent (see :meth:`encode`).
+        ``process (R * N,)``: the learning process of every agent (see :meth:`encode`). ``rows_mask (R * N,)`` bool:
+        encode only these agents (those still in a room); the others get id 0. With every agent masked in, or
+        ``None``, all are encoded at once.
         """
         num_sensed = info["num_sensed"].reshape(-1)
         prepared = self._prepare(obs.reshape(-1, obs.shape[-1]), num_sensed, info["decision"])
+        if rows_mask is not None:
+            selected = rows_mask.nonzero().squeeze(1)
+            if selected.shape[0] < rows_mask.shape[0]:
+                if process is None:
+                    process = self._process_of_rows(obs.shape[1])
+                ids = torch.zeros(rows_mask.shape[0], dtype=torch.int64, device=obs.device)
+                if selected.shape[0] > 0:
+                    own = self.encode(
+                        quantizer,
+                        prepared.index_select(0, selected),
+                        num_sensed.index_select(0, selected),
+                        process.index_select(0, selected),
+                    )
+                    ids.index_copy_(0, selected, own)
+                return ids
         return self.encode(quantizer, prepared, num_sensed, process)
 
     # ------------------------------------------------------------------ helpers
@@ -755,8 +785,7 @@ class Trainer:
         if self.void_features == "random":
             obs = self._fill_void(obs, num_sensed, decision)
         if self.vq.distance_transform == "log":
-            obs = obs.clone()
-            obs[:, self._distance_columns] = obs[:, self._distance_columns].log1p()
+            obs = torch.where(self._distance_mask, obs.log1p(), obs)  # other columns may be < -1: NaN, not taken
         return obs
 
     def _fill_void(self, obs: torch.Tensor, num_sensed: torch.Tensor, decision: int) -> torch.Tensor:
@@ -779,12 +808,21 @@ class Trainer:
     def _process_of_rows(self, num_agents: int) -> torch.Tensor:
         """Learning process of every agent of every room, flat ``(R * E * N,)``: rooms ``p E .. p E + E - 1``
         belong to process ``p``."""
-        rows_per_process = self.rooms_per_process * num_agents
-        return torch.arange(self.processes, device=self.device).repeat_interleave(rows_per_process)
+        if num_agents not in self._process_cache:
+            rows_per_process = self.rooms_per_process * num_agents
+            process = torch.arange(self.processes, device=self.device).repeat_interleave(rows_per_process)
+            self._process_cache[num_agents] = process
+        return self._process_cache[num_agents]
 
     def _rows(self, q_values: torch.Tensor, num_agents: int) -> torch.Tensor:
         """Flat row offsets ``(R * E * N,)`` of every agent's table in ``q_values.view(-1, U)``."""
         processes, tables, num_states, _ = q_values.shape
+        key = (tables, num_states, num_agents)
+        if key not in self._row_cache:
+            self._row_cache[key] = self._build_rows(tables, num_states, num_agents)
+        return self._row_cache[key]
+
+    def _build_rows(self, tables: int, num_states: int, num_agents: int) -> torch.Tensor:
         process = self._process_of_rows(num_agents)
         table = (
             torch.arange(num_agents, device=self.device)
@@ -892,12 +930,18 @@ def _rows_before(global_trial: int) -> Callable[[Mapping[str, str]], bool]:
     return keep
 
 
+_NEWER_KEYS = {"env.compile_sensing": False}
+"""Keys added after checkpoints were first written, with the value the runs of older checkpoints had."""
+
+
 def _config_mismatch(saved: Mapping[str, Any], current: Mapping[str, Any], prefix: str = "") -> str:
-    """The first differing key between two nested configs, ignoring keys that may change on resume."""
+    """The first differing key between two nested configs, ignoring keys that may change on resume; a key that an
+    older checkpoint lacks counts as its value in ``_NEWER_KEYS``."""
     for key in sorted(set(saved) | set(current)):
         if not prefix and key in _RESUME_INDEPENDENT:
             continue
-        a, b = saved.get(key, "<absent>"), current.get(key, "<absent>")
+        a = saved.get(key, _NEWER_KEYS.get(f"{prefix}{key}", "<absent>"))
+        b = current.get(key, "<absent>")
         if isinstance(a, Mapping) and isinstance(b, Mapping):
             found = _config_mismatch(a, b, f"{prefix}{key}.")
             if found:

@@ -5,85 +5,22 @@ Sections:
     kmeans    Lloyd iteration time on 200k x 28 with K = 4096 against scikit-learn and faiss (same data and init),
               and encode throughput
     e2e       end-to-end training decisions/s at R = 20, A = 20, K = 4096 through the real trainer loop
-              (simulation, sensing, encoding, epsilon-greedy and the TD update), for several E (rooms per process)
+              (simulation, sensing, encoding, epsilon-greedy and the TD update), for several E (rooms per process),
+              each also as a fraction of the float32 matmul peak measured in the same run; optionally with a
+              second busy torch process (--contention) and beside the code of another commit (--baseline)
 """
 
 from __future__ import annotations
 
 import argparse
-import functools
 import json
+import os
 import platform
-import time
 from pathlib import Path
 
 import torch
 
 SECTIONS = ("sim", "kmeans", "e2e")
-
-
-def bench_end_to_end(*, quick: bool = False, device: str = "cpu") -> dict:
-    """Agent-decisions per second of the VQQL learning loop at R = 20, A = 20, K = 4096."""
-    from pedrl.algos import VQQL
-    from pedrl.sim import RoomEnv
-
-    processes, agents, prototypes = 20, 20, (512 if quick else 4096)
-    results = []
-    for rooms in (1, 4, 16, 32) if not quick else (1, 2):
-        trainer = VQQL(
-            env=functools.partial(RoomEnv),
-            vq={"num_prototypes": prototypes, "max_iterations": 3, "max_states": 100_000},
-            num_agents=agents,
-            trials=1,
-            gather_trials=1,
-            processes=processes,
-            rooms_per_process=rooms,
-            device=device,
-            progress=False,
-            tensorboard=False,
-        )
-        env = trainer._env(agents)
-        env.reset(seed=0)
-        phase = trainer.phases()[0]
-        states, num_sensed, _ = trainer.gather(phase, env, None)
-        quantizer, _ = trainer.fit_quantizer(phase, states, num_sensed, None)
-        q_values = torch.zeros((processes, agents, quantizer.num_prototypes, env.num_actions), device=device)
-        trainer.run_trial(env, quantizer, q_values, epsilon=0.4, learn=True)  # warm-up
-        decisions, elapsed, trials = 0, 0.0, (1 if quick else 3)
-        for _ in range(trials):
-            _sync(device)
-            tic = time.perf_counter()
-            stats = trainer.run_trial(env, quantizer, q_values, epsilon=0.4, learn=True)
-            _sync(device)
-            elapsed += time.perf_counter() - tic
-            decisions += stats.agent_decisions
-        results.append(
-            {
-                "processes": processes,
-                "rooms_per_process": rooms,
-                "agents": agents,
-                "prototypes": quantizer.num_prototypes,
-                "agent_decisions": decisions,
-                "seconds": elapsed,
-                "agent_decisions_per_s": decisions / elapsed,
-            }
-        )
-        print(
-            f"  e2e R={processes} E={rooms} A={agents} K={quantizer.num_prototypes}: "
-            f"{decisions / elapsed:,.0f} agent-decisions/s",
-            flush=True,
-        )
-    best = max(results, key=lambda r: r["agent_decisions_per_s"])
-    return {
-        "e2e": results,
-        "e2e_best_agent_decisions_per_s": best["agent_decisions_per_s"],
-        "e2e_target_agent_decisions_per_s": 500_000,
-    }
-
-
-def _sync(device: str) -> None:
-    if str(device).startswith("cuda"):
-        torch.cuda.synchronize()
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -92,7 +29,17 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--device", default="cpu", help="cpu or cuda")
     parser.add_argument("--only", default=",".join(SECTIONS), help=f"comma-separated sections of {SECTIONS}")
     parser.add_argument("--output", default="outputs/bench/bench.json", help="where the JSON goes")
+    parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's, one per core)")
+    parser.add_argument("--rooms", default=None, help="e2e: comma-separated E values (default 1,4,16,32; quick 1,2)")
+    parser.add_argument("--trials", type=int, default=None, help="e2e: timed trials per E, the best kept (default 3)")
+    parser.add_argument("--contention", action="store_true", help="e2e: also measure beside a busy torch process")
+    parser.add_argument(
+        "--baseline", default=None, metavar="COMMIT", help="e2e: also measure COMMIT's code (temporary worktree), first"
+    )
     args = parser.parse_args(argv)
+    if args.threads is not None:
+        torch.set_num_threads(args.threads)
+        os.environ["OMP_NUM_THREADS"] = str(args.threads)  # the same for the --baseline subprocess
     sections = [s for s in args.only.split(",") if s]
     unknown = sorted(set(sections) - set(SECTIONS))
     if unknown:
@@ -117,8 +64,20 @@ def main(argv: list[str] | None = None) -> dict:
         print("kmeans ...", flush=True)
         report.update(run_kmeans(quick=args.quick, device=args.device))
     if "e2e" in sections:
+        from pedrl.bench.e2e import run as run_e2e
+
         print("end to end ...", flush=True)
-        report.update(bench_end_to_end(quick=args.quick, device=args.device))
+        rooms = [int(value) for value in args.rooms.split(",")] if args.rooms else None
+        report.update(
+            run_e2e(
+                quick=args.quick,
+                device=args.device,
+                rooms=rooms,
+                trials=args.trials,
+                contention=args.contention,
+                baseline=args.baseline,
+            )
+        )
     output = Path(args.output)
     output.parent.mkdir(parents=True, exist_ok=True)
     previous = json.loads(output.read_text()) if output.exists() else {}

@@ -30,6 +30,7 @@ def td_update(
     - All TD errors are computed from the tables before the step. When several entries hit the same
       `(row, action)` in one call, their increments are averaged: `Q += alpha * mean(td)`. With `E` rooms of one
       process sharing a table this is one mean TD step per decision, not `E` steps.
+    - Nothing is read back on the host (no data-dependent shapes), so a GPU never waits for it.
 
     Args:
         q_values: `(R, A, K, U)` float32 Q tables, updated in place.
@@ -51,13 +52,17 @@ def td_update(
     rows = torch.where(valid, rows, zero)
     actions = torch.where(valid, actions, zero)
     bootstrap = valid & ~terminal
-    next_value = flat[torch.where(bootstrap, next_rows, zero)].amax(1)
+    next_value = flat.index_select(0, torch.where(bootstrap, next_rows, zero)).amax(1)  # gathers: index_select
     target = rewards + gamma * torch.where(bootstrap, next_value, torch.zeros_like(next_value))
     entries = rows * num_actions + actions
-    td_error = torch.where(valid, target - q_values.view(-1)[entries], torch.zeros_like(target))
+    td_error = torch.where(valid, target - q_values.view(-1).index_select(0, entries), torch.zeros_like(target))
 
-    entries, steps = entries[valid], td_error[valid]
-    if entries.numel() > 0:
-        _, inverse, counts = torch.unique(entries, return_inverse=True, return_counts=True)
-        q_values.view(-1).index_add_(0, entries, steps * (alpha / counts[inverse].to(steps.dtype)))
+    # duplicates: the size of each entry's group, found by sorting (no host read: skipped entries form a group
+    # of their own under the key -1, and add 0 to entry 0)
+    keys, order = torch.where(valid, entries, -1).sort()
+    starts = torch.ones_like(keys, dtype=torch.bool)
+    starts[1:] = keys[1:] != keys[:-1]
+    group = torch.empty_like(order).scatter_(0, order, starts.cumsum(0) - 1)
+    counts = torch.zeros_like(td_error).index_add_(0, group, torch.ones_like(td_error))
+    q_values.view(-1).index_add_(0, entries, td_error * (alpha / counts.index_select(0, group)))
     return td_error

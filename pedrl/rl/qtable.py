@@ -94,7 +94,8 @@ def greedy(q_values: torch.Tensor, rows: torch.Tensor, generator: torch.Generato
     Returns:
         `(B,)` int64 actions in `[0, U)`.
     """
-    return _greedy_from_rows(q_values.view(-1, q_values.shape[-1])[rows], generator)
+    # index_select: a plain row gather from a large table is several times slower on CPU
+    return _greedy_from_rows(q_values.view(-1, q_values.shape[-1]).index_select(0, rows), generator)
 
 
 def epsilon_greedy(

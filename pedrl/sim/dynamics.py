@@ -146,6 +146,12 @@ def _take(values: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
 
 
 @lru_cache(maxsize=16)
+def _eye(num_agents: int, device: torch.device) -> torch.Tensor:
+    """``(N, N)`` bool identity: no agent collides with itself."""
+    return torch.eye(num_agents, dtype=torch.bool, device=device)
+
+
+@lru_cache(maxsize=16)
 def _upper_triangle(num_agents: int, device: torch.device) -> torch.Tensor:
     """``(N, N)`` bool, True above the diagonal: each unordered pair once."""
     return torch.ones(num_agents, num_agents, dtype=torch.bool, device=device).triu_(1)
@@ -319,6 +325,7 @@ def move_agents_sequential(
     decision_length: float,
     num_substeps: int,
     priority: torch.Tensor,
+    sync_free: bool = False,
 ) -> Movement:
     """Move every active agent through one decision with the paper's collision rule, resolved sequentially.
 
@@ -331,10 +338,22 @@ def move_agents_sequential(
     (where it stands now). Refused agents stop for the rest of the decision. So no body ever overlaps
     another, and two agents heading for the same spot no longer both freeze: the first to act takes it.
 
-    The order is resolved for all agents at once by a fixed-point iteration over the pairs whose swept discs
-    overlap during the decision: after round ``t`` the ``t`` first movers of each replica are final, and the
-    outcome equals the literal agent-by-agent loop (``tests/sim/test_dynamics.py``). Agents whose centre reaches
-    ``y >= length`` have left through the door: they stop there and no longer collide.
+    How it is computed, with the same floating-point operations as the literal agent-by-agent loop
+    (``tests/sim/test_dynamics.py`` checks every output to the bit):
+
+    1. Proposals ``p + k d`` do not depend on collisions, so the walls, the door and the proposal-to-proposal
+       contacts of every sub-step are evaluated at once. Only pairs whose swept discs (straight move widened by
+       the radius) overlap can ever touch; they are kept as a dense ``(R, N, N)`` mask.
+    2. Without such a pair the decision is solved in closed form: each mover walks until the first sub-step
+       whose proposal touches a wall (it stops there) or passes the door (it leaves).
+    3. Otherwise the sub-steps run in turn, and within each the order of action is resolved for all agents at
+       once by a fixed-point iteration over the kept pairs: after round ``t`` the ``t`` first movers of each
+       replica are final, so ``N`` rounds always suffice.
+
+    With ``sync_free`` (for CUDA) nothing is read back on the host: step 2 is skipped, every sub-step runs and
+    every sub-step with a kept pair runs exactly ``N`` rounds, which leaves the fixed point unchanged; the
+    result is the same. Otherwise (CPU default) sub-steps stop once nobody moves and rounds once nothing
+    changes.
 
     Args:
         positions: Positions at the start of the decision ``(R, N, 2)`` (m).
@@ -345,71 +364,69 @@ def move_agents_sequential(
         decision_length: Duration of the decision (s).
         num_substeps: Number of sub-steps ``S``.
         priority: Order of action ``(R, N)`` float (lowest acts first); distinct values within a replica.
+        sync_free: Bounded iterations with masks instead of convergence tests read on the host.
 
     Returns:
         The :class:`Movement` of the decision.
     """
-    num_replicas, num_agents, _ = positions.shape
+    num_agents = positions.shape[1]
+    device, dtype = positions.device, positions.dtype
     contact_sq = 4.0 * agent_radius * agent_radius
     step = velocities * (decision_length / num_substeps)  # (R, N, 2)
     going = active & (step != 0).any(-1)  # still moving in this decision
+    step_scale = torch.arange(1, num_substeps + 1, device=device).to(dtype).view(-1, 1, 1, 1)  # (S, 1, 1, 1)
+    # p + k d, as in move_agents, so that moves without collisions agree to the bit between the two rules
+    proposals = positions + step_scale * step  # (S, R, N, 2)
+    walls = _touch_walls(proposals, geometry, agent_radius, exact_everywhere=sync_free)  # (S, R, N)
+    passes_door = proposals[..., Y] >= geometry.length
+
+    # pairs that can touch during the decision: swept discs overlap; [r, i, j]: i the mover, j the obstacle
+    centre_x, centre_y, half_move = _swept_discs(positions, step * going.unsqueeze(-1), active, num_substeps)
+    candidate = _discs_overlap(centre_x, centre_y, half_move, agent_radius) & ~_eye(num_agents, device)
+    if not sync_free and not bool(candidate.any()):
+        return _walk_to_walls(positions, step, going, walls, passes_door)
+
+    pairs = _DensePairs(candidate) if sync_free else _ListedPairs(candidate)
+    dst_first = pairs.dst(priority) < pairs.src(priority)  # the obstacle acts before the mover
+    # x and y apart: a sum over a last axis of 2 is slow on CPU; gx * gx + gy * gy is that sum to the bit
+    proposal_x, proposal_y = proposals[..., X], proposals[..., Y]  # (S, R, N)
+    gap_x = pairs.src(proposal_x) - pairs.dst(proposal_x)
+    gap_y = pairs.src(proposal_y) - pairs.dst(proposal_y)
+    hits_new_all = pairs.restrict((gap_x * gap_x + gap_y * gap_y < contact_sq) & dst_first)  # every sub-step
     present = active.clone()  # bodies that collide (in the room)
     blocked = torch.zeros_like(active)
     crashed_wall = torch.zeros_like(active)
     reached = torch.zeros_like(active)
-    moved_substeps = torch.zeros(active.shape, dtype=positions.dtype, device=positions.device)
+    moved_substeps = torch.zeros(active.shape, dtype=dtype, device=device)
     current = positions
-
-    # pairs that can touch during the decision: swept discs (straight move widened by the radius) overlap
-    centre_x, centre_y, half_move = _swept_discs(positions, step * going.unsqueeze(-1), active, num_substeps)
-    candidate = _discs_overlap(centre_x, centre_y, half_move, agent_radius)
-    candidate &= ~torch.eye(num_agents, dtype=torch.bool, device=positions.device)
-    pairs = candidate.nonzero()  # (M, 3): replica, src (the mover), dst (the obstacle); both orders
-    replica, src_agent, dst_agent = pairs.unbind(1)
-    src = replica * num_agents + src_agent
-    dst = replica * num_agents + dst_agent
-    flat_priority = priority.reshape(-1)
-    dst_first = _take(flat_priority, dst) < _take(flat_priority, src)  # (M,) dst acts before src
-    num_flat = num_replicas * num_agents
-
-    for substep in range(1, num_substeps + 1):
-        if not bool(going.any()):
+    rounds = num_agents if sync_free else num_agents + 1
+    for index in range(num_substeps):
+        if not sync_free and not bool(going.any()):
             break
-        # p + k d, as in move_agents, so that moves without collisions agree to the bit between the two rules
-        proposal = positions + float(substep) * step
-        hits_wall = going & geometry.touches_walls(proposal, radius=agent_radius)
+        hits_wall = going & walls[index]
         candidates = going & ~hits_wall  # movers not stopped by a wall
-        if pairs.shape[0] > 0:
-            flat_current = current.reshape(-1, 2)
-            src_going = _take(going.reshape(-1), src)
-            src_proposal = _take(proposal.reshape(-1, 2), src)
-            dst_now = _take(flat_current, dst)
-            gap_now = src_proposal - dst_now
-            hits_now = ((gap_now * gap_now).sum(-1) < contact_sq) & src_going & _take(present.reshape(-1), dst)
-            gap_new = src_proposal - _take(proposal.reshape(-1, 2), dst)
-            hits_new = ((gap_new * gap_new).sum(-1) < contact_sq) & src_going & dst_first
-            dst_going = _take(going.reshape(-1), dst)
-            moves = candidates.reshape(-1)
-            for _ in range(num_agents + 1):
-                dst_moves = _take(moves, dst) & dst_going
+        gap_x = pairs.src(proposal_x[index]) - pairs.dst(current[..., X])
+        gap_y = pairs.src(proposal_y[index]) - pairs.dst(current[..., Y])
+        hits_now = pairs.restrict((gap_x * gap_x + gap_y * gap_y < contact_sq) & pairs.dst(present))
+        hits_new = hits_new_all[index]
+        # a conflict only matters for a candidate mover, and only candidates move: no "going" masks needed
+        moved = candidates
+        if sync_free or bool((hits_now | hits_new).any()):
+            for _ in range(rounds):
+                dst_moves = pairs.dst(moved)
                 conflict = (hits_now & ~(dst_first & dst_moves)) | (hits_new & dst_moves)
-                stopped = torch.zeros(num_flat, dtype=torch.int32, device=positions.device)
-                stopped = stopped.index_add_(0, src, conflict.to(torch.int32)) > 0
-                new_moves = candidates.reshape(-1) & ~stopped
-                if bool(torch.equal(new_moves, moves)):
+                new_moved = candidates & ~pairs.any_by_src(conflict)
+                if not sync_free and bool(torch.equal(new_moved, moved)):
                     break
-                moves = new_moves
-            else:  # pragma: no cover - round t fixes the t-th mover of every replica
-                raise RuntimeError("sequential collision resolution did not converge")
-            moved = moves.view(num_replicas, num_agents)
-        else:
-            moved = candidates
-        moved_substeps = moved_substeps + moved.to(positions.dtype)
+                moved = new_moved
+            else:
+                if not sync_free:  # pragma: no cover - round t fixes the t-th mover of every replica
+                    raise RuntimeError("sequential collision resolution did not converge")
+        moved_substeps = moved_substeps + moved.to(dtype)
         current = positions + moved_substeps.unsqueeze(-1) * step
-        stopped_now = going & ~moved
-        blocked |= stopped_now
+        blocked |= going & ~moved
         crashed_wall |= hits_wall
-        passed = moved & (current[..., Y] >= geometry.length)
+        passed = moved & passes_door[index]  # a mover stands on its proposal
         reached |= passed
         present &= ~passed
         going = moved & ~passed
@@ -419,5 +436,101 @@ def move_agents_sequential(
         blocked=blocked,
         crashed_wall=crashed_wall,
         crashed_agent=blocked & ~crashed_wall,
+        reached=reached,
+    )
+
+
+def _touch_walls(
+    points: torch.Tensor, geometry: RoomGeometry, radius: float, *, exact_everywhere: bool
+) -> torch.Tensor:
+    """``geometry.touches_walls(points)`` ``(...)`` bool for points ``(..., 2)``, to the bit.
+
+    Unless ``exact_everywhere``, the exact test runs only on the points outside ``[r, W - r] x [r, L - r]`` shrunk
+    by ``PAIR_MARGIN`` (``nonzero``, a host read); the others touch no wall.
+    """
+    if exact_everywhere:
+        return geometry.touches_walls(points, radius=radius)
+    half_x, half_y = 0.5 * geometry.width, 0.5 * geometry.length
+    inner_x, inner_y = half_x - radius - PAIR_MARGIN, half_y - radius - PAIR_MARGIN
+    clear = ((points[..., X] - half_x).abs_() <= inner_x) & ((points[..., Y] - half_y).abs_() <= inner_y)
+    near = (~clear).view(-1).nonzero().squeeze(1)
+    touches = torch.zeros(clear.numel(), dtype=torch.bool, device=points.device)
+    if near.shape[0] > 0:
+        touches[near] = geometry.touches_walls(points.reshape(-1, 2).index_select(0, near), radius=radius)
+    return touches.view(clear.shape)
+
+
+class _DensePairs:
+    """Mover-obstacle pairs as a dense ``(R, N, N)`` mask ``[r, i, j]`` (i the mover): fixed shapes, for CUDA."""
+
+    def __init__(self, candidate: torch.Tensor) -> None:
+        self.mask = candidate
+
+    def src(self, values: torch.Tensor) -> torch.Tensor:
+        """Per-agent ``(..., R, N)`` values of each pair's mover, ``(..., R, N, 1)``."""
+        return values.unsqueeze(-1)
+
+    def dst(self, values: torch.Tensor) -> torch.Tensor:
+        """Per-agent ``(..., R, N)`` values of each pair's obstacle, ``(..., R, 1, N)``."""
+        return values.unsqueeze(-2)
+
+    def restrict(self, flags: torch.Tensor) -> torch.Tensor:
+        """``flags`` of every pair, False outside the kept pairs."""
+        return flags & self.mask
+
+    def any_by_src(self, flags: torch.Tensor) -> torch.Tensor:
+        """``(R, N)``: whether any kept pair of each mover is flagged."""
+        return flags.any(-1)
+
+
+class _ListedPairs:
+    """Mover-obstacle pairs listed by flat agent index (``nonzero`` of the mask): small tensors, for the CPU."""
+
+    def __init__(self, candidate: torch.Tensor) -> None:
+        num_replicas, num_agents, _ = candidate.shape
+        replica, mover, obstacle = candidate.nonzero().unbind(1)  # (M,) each; both orders of every pair
+        self._src = replica * num_agents + mover
+        self._dst = replica * num_agents + obstacle
+        self._shape = (num_replicas, num_agents)
+
+    def src(self, values: torch.Tensor) -> torch.Tensor:
+        """Per-agent ``(..., R, N)`` values of each pair's mover, ``(..., M)``."""
+        return values.flatten(-2).index_select(-1, self._src)
+
+    def dst(self, values: torch.Tensor) -> torch.Tensor:
+        """Per-agent ``(..., R, N)`` values of each pair's obstacle, ``(..., M)``."""
+        return values.flatten(-2).index_select(-1, self._dst)
+
+    def restrict(self, flags: torch.Tensor) -> torch.Tensor:
+        """``flags`` of every pair (all pairs are kept ones)."""
+        return flags
+
+    def any_by_src(self, flags: torch.Tensor) -> torch.Tensor:
+        """``(R, N)``: whether any pair of each mover is flagged."""
+        counts = torch.zeros(self._shape[0] * self._shape[1], dtype=torch.int32, device=flags.device)
+        return (counts.index_add_(0, self._src, flags.to(torch.int32)) > 0).view(self._shape)
+
+
+def _walk_to_walls(
+    positions: torch.Tensor, step: torch.Tensor, going: torch.Tensor, walls: torch.Tensor, passes_door: torch.Tensor
+) -> Movement:
+    """The sequential rule when no two movers can touch: each walks until its first wall (stop) or the door (out).
+
+    ``walls`` and ``passes_door`` ``(S, R, N)`` bool say whether the proposal of each sub-step touches a wall or
+    is past the door. A proposal that does both is refused (the wall is checked first).
+    """
+    num_substeps = walls.shape[0]
+    substep = torch.arange(1, num_substeps + 1, device=positions.device).view(-1, 1, 1)
+    never = num_substeps + 1
+    first_wall = torch.where(walls, substep, never).amin(0)  # (R, N)
+    first_door = torch.where(passes_door, substep, never).amin(0)
+    blocked = going & (first_wall <= first_door) & (first_wall < never)
+    reached = going & (first_door < first_wall)
+    moves = torch.minimum(first_wall - 1, first_door).masked_fill_(~going, 0)
+    return Movement(
+        positions=positions + moves.to(positions.dtype).unsqueeze(-1) * step,
+        blocked=blocked,
+        crashed_wall=blocked,
+        crashed_agent=torch.zeros_like(blocked),
         reached=reached,
     )

@@ -236,6 +236,8 @@ class PrototypeIndex:
             dummies = torch.zeros(pad, dim + 4, device=self.device)
             dummies[:, dim + 2] = math.inf  # never a candidate
             self._bf16_transposed = torch.cat([augmented, dummies]).to(torch.bfloat16).t()
+            width = self._bf16_transposed.shape[1] // BF16_CLASS_SIZE
+            self._member_offsets = torch.arange(BF16_CLASS_SIZE, device=self.device) * width  # (16,)
             self._max_norm = float(sq_norms.max().sqrt()) * 1.001
             self._max_rounded_sq_norm = float(rounded_sq_norms.max()) * 1.001
 
@@ -338,7 +340,9 @@ class PrototypeIndex:
             # int16 comparisons against a broadcast column are slow in torch; a materialised one is not.
             column = threshold_keys[:, None].expand(n, width).contiguous()
             rows, classes = (class_min <= column).nonzero(as_tuple=True)
-            members = keys[rows, :, classes]
+            # members[p, m] = keys[rows[p], m, classes[p]], gathered from the flat block (faster than fancy indexing)
+            member_index = (rows * padded + classes).unsqueeze(1) + self._member_offsets
+            members = keys.view(-1).take(member_index)
             column = threshold_keys[rows][:, None].expand(-1, BF16_CLASS_SIZE).contiguous()
             pairs, member = (members <= column).nonzero(as_tuple=True)
             if pairs.numel() > BF16_MAX_CANDIDATES_PER_ROW * n:
@@ -346,7 +350,11 @@ class PrototypeIndex:
                 continue
             candidate_rows = rows[pairs]
             candidates = member * width + classes[pairs]
-            exact = (points[start + candidate_rows] - self._centred[candidates]).square().sum(1)
+            exact = (
+                (points.index_select(0, start + candidate_rows) - self._centred.index_select(0, candidates))
+                .square()
+                .sum(1)
+            )
             # Row-wise argmin as one scatter: non-negative float32 values order like their bit patterns, so
             # (distance bits << 32 | index) sorts by distance, then index.
             packed = (exact.view(torch.int32).to(torch.int64) << 32) | candidates

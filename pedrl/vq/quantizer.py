@@ -13,7 +13,7 @@ from typing import Any, Literal
 
 import torch
 
-from pedrl.vq.kmeans import KMeansResult, Precision, PrototypeIndex, kmeans
+from pedrl.vq.kmeans import MIN_GROUP_SIZE, KMeansResult, Precision, PrototypeIndex, _block_argmin, kmeans
 
 __all__ = ["ProcessQuantizers", "Quantizer", "UnionQuantizer"]
 
@@ -373,6 +373,18 @@ class UnionQuantizer:
         return f"UnionQuantizer(part_sizes={self.part_sizes}, device={self.device})"
 
 
+def _first_argmin(scores: torch.Tensor) -> torch.Tensor:
+    """`scores.argmin(-1)` (the first minimum), by the two-level minimum of `pedrl.vq.kmeans._block_argmin` when
+    groups of `MIN_GROUP_SIZE` columns divide the last axis: on CPU a full `argmin` over 4096 columns costs several
+    times the product that filled it."""
+    width = scores.shape[-1]
+    if scores.device.type != "cpu" or width % MIN_GROUP_SIZE:
+        return scores.argmin(-1)
+    flat = scores.reshape(-1, width)
+    rows = torch.arange(flat.shape[0], device=scores.device)
+    return _block_argmin(flat, rows, MIN_GROUP_SIZE)[1].view(scores.shape[:-1])
+
+
 PROCESS_PREFIX = "process"
 """Key prefix of a part in `ProcessQuantizers.state_dict`: `process{p:03d}/<the part's key>`."""
 
@@ -444,6 +456,8 @@ class ProcessQuantizers:
             process = torch.arange(self.num_processes, device=states.device).repeat_interleave(
                 rows // self.num_processes
             )
+        elif self._stacked is not None:
+            return self._encode_grouped(states, process)
         ids = torch.empty(rows, dtype=torch.int64, device=states.device)
         for index, part in enumerate(self.parts):
             selected = (process == index).nonzero().squeeze(1)
@@ -465,7 +479,21 @@ class ProcessQuantizers:
         standardised = (states.to(torch.float32) - mean.unsqueeze(1)) / std.unsqueeze(1)
         # ||x - c||^2 = ||x||^2 - 2 x.c + ||c||^2; ||x||^2 is the same for every c of a row
         scores = torch.baddbmm(squared_norms, standardised, prototypes.transpose(1, 2), alpha=-2.0)
-        return scores.argmin(-1)
+        return _first_argmin(scores)
+
+    def _encode_grouped(self, states: torch.Tensor, process: torch.Tensor) -> torch.Tensor:
+        """Ids of `(B, d)` states of any processes `(B,)`: the rows are grouped by process into a `(P, m, d)`
+        batch (`m` the most rows of one process, the rest padded) for one batched product: `(B,)`."""
+        order = torch.argsort(process, stable=True)  # (B,) rows grouped by process
+        owner = process.index_select(0, order)
+        counts = torch.bincount(process, minlength=self.num_processes)
+        starts = torch.cumsum(counts, 0) - counts
+        slot = torch.arange(order.shape[0], device=states.device) - starts.index_select(0, owner)
+        padded = states.new_zeros(self.num_processes, int(counts.max()), states.shape[-1])
+        padded[owner, slot] = states.index_select(0, order)
+        ids = torch.empty(order.shape[0], dtype=torch.int64, device=states.device)
+        ids[order] = self._encode_stacked(padded)[owner, slot]
+        return ids
 
     def to(self, device: torch.device | str) -> ProcessQuantizers:
         """A copy on `device`."""

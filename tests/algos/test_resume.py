@@ -311,3 +311,14 @@ def test_a_run_killed_anywhere_resumes_to_the_same_numbers(reference, tmp_path, 
         assert read_csv(tmp_path / "learning_curve.csv") == rows_before, "no row lost"
     train(tiny_config(*TINY, "resume=true"), run_dir=tmp_path)
     _assert_same_run(reference, tmp_path)
+
+
+def test_checkpoints_written_before_compile_sensing_existed_still_resume():
+    from pedrl.algos.base import _config_mismatch
+
+    current = {"env": {"width": 60.0, "compile_sensing": False}, "seed": 0}
+    older = {"env": {"width": 60.0}, "seed": 0}
+    assert _config_mismatch(older, current) == ""
+    assert "env.compile_sensing" in _config_mismatch(
+        older, {**current, "env": {"width": 60.0, "compile_sensing": True}}
+    )

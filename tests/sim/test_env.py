@@ -1,6 +1,7 @@
 """RoomEnv: analytic scenes, episodes, seeding, replicas, resets, validation."""
 
 import math
+import shutil
 
 import pytest
 import torch
@@ -388,3 +389,33 @@ def test_progress_reward_and_time_cost_by_default():
     _place(env, [(30.0, 50.0)], [DOWN], [0.0])  # standing still: the time cost alone
     _, reward, _, _, _ = env.step(_noop(env))
     assert reward.item() == pytest.approx(-1.0)
+
+
+# ---------------------------------------------------------------- compiled sensing (opt-in)
+
+
+@pytest.mark.skipif(not (shutil.which("g++") or shutil.which("c++")), reason="inductor needs a C++ compiler")
+def test_compiled_sensing_is_not_recompiled_per_trial_and_matches_eager_sensing():
+    from torch._dynamo.utils import counters
+
+    kwargs = dict(num_replicas=2, num_agents=5, width=8.0, length=10.0, door_width=1.5)
+    compiled, eager = RoomEnv(**kwargs, compile_sensing=True), RoomEnv(**kwargs)
+    generator = torch.Generator().manual_seed(0)
+
+    def run_trial(seed: int) -> None:
+        obs, _ = compiled.reset(seed=seed)
+        reference, _ = eager.reset(seed=seed)
+        torch.testing.assert_close(obs, reference, rtol=1e-5, atol=1e-5)
+        for _ in range(6):
+            actions = torch.randint(0, compiled.num_actions, (2, 5), generator=generator)
+            obs = compiled.step(actions)[0]
+            reference = eager.step(actions)[0]
+            torch.testing.assert_close(obs, reference, rtol=1e-4, atol=1e-4)  # the same moves: sensing differs in ulps
+
+    run_trial(0)
+    graphs = counters["stats"]["unique_graphs"]
+    assert graphs >= 1
+    for seed in (1, 2, 3):
+        run_trial(seed)
+    compiled.reset(seed=4, options={"replicas": torch.tensor([True, False])})  # a partial reset: same shapes
+    assert counters["stats"]["unique_graphs"] == graphs
