@@ -175,7 +175,8 @@ def load_policy(
     q_values, quantizer = state.q_values, state.quantizer
     processes, tables = q_values.shape[0], q_values.shape[1]
     if controller == "greedy":
-        return Policy(GreedyDoorController(), factory, processes, tables, trainer.name)
+        greedy = GreedyDoorController(epsilon=epsilon, generator=torch.Generator(device=device))
+        return Policy(greedy, factory, processes, tables, trainer.name)
     learned = LearnedController(
         q_values=q_values,
         encode=partial(trainer.encode_observations, quantizer),
@@ -386,7 +387,7 @@ def evaluate(cfg: DictConfig, *, run_dir: str | Path | None = None) -> list[dict
         for agents, env in envs.items():
             tic = time.perf_counter()
             env.generator.manual_seed(int(cfg.seed) * ENV_SEED_STRIDE + agents)
-            if isinstance(policy.controller, LearnedController):
+            if isinstance(policy.controller, LearnedController | GreedyDoorController):
                 policy.controller.generator.manual_seed(int(cfg.seed) * CONTROLLER_SEED_STRIDE + agents)
             stats, diagram, density = _simulate_agent_count(env, policy, cfg, geometry, point, run_dir)
             row = stats.row(agents)

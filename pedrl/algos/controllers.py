@@ -103,8 +103,19 @@ class GreedyDoorController:
     Every decision it takes the largest speed increase (full speed from standstill in one decision with the
     default ratios) and the turn that leaves the smallest angle between heading and the line to the door centre.
     It has no collision avoidance: the room's collision rule stops it on contact (speed 0 for the rest of the
-    decision), as it stops learned agents, and it accelerates again at the next decision.
+    decision), as it stops learned agents, and it accelerates again at the next decision. With ``epsilon > 0`` a
+    fraction ``epsilon`` of its actions are uniform random ones, as the learned controller's are: a push to the
+    door with some noise, which tells what the room lets a crowd do.
+
+    Args:
+        epsilon: fraction of random actions in ``[0, 1]``.
+        generator: random source of those actions (CPU generator for a CPU room).
     """
+
+    def __init__(self, *, epsilon: float = 0.0, generator: torch.Generator | None = None) -> None:
+        check_number("epsilon", epsilon, low=0.0, high=1.0)
+        self.epsilon = float(epsilon)
+        self.generator = generator if generator is not None else torch.Generator()
 
     def act(self, env: RoomEnv, obs: torch.Tensor, info: Mapping[str, Any]) -> torch.Tensor:
         """Actions ``(R, N)`` int64 for observations ``obs (R, N, F)`` of ``env``."""
@@ -113,4 +124,11 @@ class GreedyDoorController:
         residual = torch.remainder(velocity_angle.unsqueeze(-1) + turns + math.pi, 2 * math.pi) - math.pi
         turn_index = residual.abs().argmin(dim=-1)
         speed_index = int(torch.as_tensor(env.speed_ratios).argmax())
-        return speed_index * len(env.turn_ratios) + turn_index
+        actions = speed_index * len(env.turn_ratios) + turn_index
+        if self.epsilon == 0.0:
+            return actions
+        draw = torch.rand(actions.shape, generator=self.generator, device=self.generator.device)
+        random = torch.randint(
+            0, env.num_actions, actions.shape, generator=self.generator, device=self.generator.device
+        )
+        return torch.where(draw.to(actions.device) < self.epsilon, random.to(actions.device), actions)
