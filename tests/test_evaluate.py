@@ -248,7 +248,6 @@ def test_greedy_controller_turns_towards_the_door_at_full_speed():
     assert turn_index.tolist() == [[4, 3, 7, 0]]  # no turn, -0.1 pi, +0.5 pi, -0.75 pi
 
 
-
 def test_greedy_controller_with_epsilon_replaces_that_share_of_its_actions():
     env = SimpleNamespace(
         speed_ratios=(-1.0, -0.5, -0.25, -0.1, 0.0, 0.1, 0.25, 0.5, 1.0),
@@ -264,6 +263,7 @@ def test_greedy_controller_with_epsilon_replaces_that_share_of_its_actions():
     assert torch.equal(GreedyDoorController(epsilon=0.0).act(env, obs, {}), torch.full((50, 200), 76))
     with pytest.raises(ValueError, match="epsilon"):
         GreedyDoorController(epsilon=-0.1)
+
 
 # ---------------------------------------------------------------------- bad input
 @pytest.mark.parametrize("case", ["missing", "not_a_checkpoint"])
