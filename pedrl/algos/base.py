@@ -800,7 +800,7 @@ class Trainer:
             num_sensed,
             num_neighbours=env.num_neighbours,
             num_walls=env.num_walls,
-            max_distance=math.hypot(env.width, env.length),
+            max_distance=env.max_distance,
             max_speed=env.max_speed,
             uniform=self._void_uniform,
         )

@@ -13,7 +13,7 @@ from pedrl.sim.dynamics import (
     velocities_from,
 )
 from pedrl.sim.env import PlacementError, RoomEnv
-from pedrl.sim.geometry import NUM_WALLS, WALL_NAMES, RoomGeometry, X, Y, build_walls, wrap_angle
+from pedrl.sim.geometry import NUM_WALLS, WALL_NAMES, Geometry, SpawnArea, X, Y, build_walls, wrap_angle
 from pedrl.sim.rewards import RewardTable, compute_rewards
 from pedrl.sim.sensing import (
     Observation,
@@ -38,7 +38,8 @@ __all__ = [
     "PlacementError",
     "RewardTable",
     "RoomEnv",
-    "RoomGeometry",
+    "Geometry",
+    "SpawnArea",
     "apply_actions",
     "build_walls",
     "compute_rewards",

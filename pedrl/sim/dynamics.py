@@ -8,8 +8,8 @@ sub-step every moving agent proposes its next position; a proposal is blocked wh
 intersects a wall (``dist(centre, segment) < radius``) or another active body (``|p_i - p_j| < 2 radius``,
 using the other's proposal if it is still moving, else its position). Blocked agents stay where they are and
 stop for the rest of the decision. Blocking is iterated, for all agents at once, until no new agent is
-blocked. An agent whose centre reaches ``y >= length`` has left through the door: it stops there and no
-longer collides.
+blocked. An agent whose centre passes an exit (``Geometry.passes_exits``; in the paper's room ``y >= length``
+within the door) has left: it stops there and no longer collides.
 
 :func:`move_agents` computes exactly this rule, but resolves all sub-steps of a decision together instead of
 looping over them: see its docstring.
@@ -24,7 +24,7 @@ from typing import Final
 
 import torch
 
-from pedrl.sim.geometry import RoomGeometry, X, Y, wrap_angle
+from pedrl.sim.geometry import Geometry, X, Y, wrap_angle
 
 NUM_SPEED_CHANGES: Final = 9
 NUM_TURNS: Final = 9
@@ -130,7 +130,7 @@ class Movement:
         blocked: Agents stopped by a collision ``(R, N)`` bool; their speed becomes 0.
         crashed_wall: Agents blocked by a wall ``(R, N)`` bool.
         crashed_agent: Agents blocked by another body and not by a wall ``(R, N)`` bool.
-        reached: Agents whose centre reached ``y >= length`` (through the door) ``(R, N)`` bool.
+        reached: Agents whose centre passed an exit ``(R, N)`` bool.
     """
 
     positions: torch.Tensor
@@ -187,7 +187,7 @@ def move_agents(
     positions: torch.Tensor,
     velocities: torch.Tensor,
     active: torch.Tensor,
-    geometry: RoomGeometry,
+    geometry: Geometry,
     agent_radius: float,
     decision_length: float,
     num_substeps: int,
@@ -201,9 +201,9 @@ def move_agents(
     ``P_i[min(k, B_i - 1, E_i)]``.
 
     1. Walls and the door do not depend on other agents: ``B_i`` starts as the first sub-step whose proposal
-       touches a wall (unless the agent passes the door first) and ``E_i`` as the first with ``y >= length``.
-       Only movers whose swept disc (the straight move widened by the radius) leaves the rectangle
-       ``[r, W - r] x [r, L - r]`` are traced sub-step by sub-step; the others can touch no wall.
+       touches a wall (unless the agent passes an exit first) and ``E_i`` as the first past an exit. Only
+       movers whose swept disc (the straight move widened by the radius) leaves the geometry's clear box
+       (``[r, W - r] x [r, L - r]`` in the paper's room) are traced sub-step by sub-step; the others touch no wall.
     2. A conservative pre-filter (overlapping swept discs) keeps only the pairs that could ever touch during
        the decision. With none, the decision is already solved.
     3. Otherwise, repeat: evaluate every kept pair at every sub-step under the current block times, find each
@@ -247,12 +247,10 @@ def move_agents(
     # swept discs: centre of the straight move and half its length
     centre_x, centre_y, half_move = _swept_discs(positions, step, active, num_substeps)
 
-    # 1. walls and door, agent by agent; a disc that stays in [r, W - r] x [r, L - r] touches no wall and
-    # stays below the door, so only the other movers are traced sub-step by sub-step
-    room_half_x, room_half_y = 0.5 * geometry.width, 0.5 * geometry.length
-    free_x = room_half_x - agent_radius - PAIR_MARGIN - half_move  # (R, N)
-    free_y = room_half_y - agent_radius - PAIR_MARGIN - half_move
-    clear = ((centre_x - room_half_x).abs_() <= free_x) & ((centre_y - room_half_y).abs_() <= free_y)
+    # 1. walls and exits, agent by agent; a swept disc inside the clear box touches no wall and passes no exit,
+    # so only the other movers are traced sub-step by sub-step
+    centres = torch.stack((centre_x, centre_y), dim=-1)
+    clear = geometry.clear_of_walls(centres, margin=half_move + (agent_radius + PAIR_MARGIN))
     near_walls = (moving & ~clear).view(-1).nonzero().squeeze(1)  # (W,) flat agent indices
     first_wall = never.expand(num_flat).clone()  # (R * N,)
     first_door = first_wall.clone()
@@ -260,7 +258,8 @@ def move_agents(
         trace = _take(flat_positions, near_walls) + substep_scale * _take(flat_step, near_walls)  # (S, W, 2)
         hits_wall = geometry.touches_walls(trace, radius=agent_radius)
         first_wall.index_copy_(0, near_walls, torch.where(hits_wall, substep_row, never).amin(0))
-        passes_door = trace[..., Y] >= geometry.length
+        depth = _take(flat_step, near_walls).norm(dim=-1) + PAIR_MARGIN  # a crossing is at most one sub-step deep
+        passes_door = geometry.passes_exits(trace, depth=depth)
         first_door.index_copy_(0, near_walls, torch.where(passes_door, substep_row, never).amin(0))
     blocked_at = torch.where(first_wall <= first_door, first_wall, never)  # (R * N,)
 
@@ -320,7 +319,7 @@ def move_agents_sequential(
     positions: torch.Tensor,
     velocities: torch.Tensor,
     active: torch.Tensor,
-    geometry: RoomGeometry,
+    geometry: Geometry,
     agent_radius: float,
     decision_length: float,
     num_substeps: int,
@@ -341,7 +340,7 @@ def move_agents_sequential(
     How it is computed, with the same floating-point operations as the literal agent-by-agent loop
     (``tests/sim/test_dynamics.py`` checks every output to the bit):
 
-    1. Proposals ``p + k d`` do not depend on collisions, so the walls, the door and the proposal-to-proposal
+    1. Proposals ``p + k d`` do not depend on collisions, so the walls, the exits and the proposal-to-proposal
        contacts of every sub-step are evaluated at once. Only pairs whose swept discs (straight move widened by
        the radius) overlap can ever touch; they are kept as a dense ``(R, N, N)`` mask.
     2. Without such a pair the decision is solved in closed form: each mover walks until the first sub-step
@@ -378,7 +377,7 @@ def move_agents_sequential(
     # p + k d, as in move_agents, so that moves without collisions agree to the bit between the two rules
     proposals = positions + step_scale * step  # (S, R, N, 2)
     walls = _touch_walls(proposals, geometry, agent_radius, exact_everywhere=sync_free)  # (S, R, N)
-    passes_door = proposals[..., Y] >= geometry.length
+    passes_door = geometry.passes_exits(proposals, depth=step.norm(dim=-1) + PAIR_MARGIN)
 
     # pairs that can touch during the decision: swept discs overlap; [r, i, j]: i the mover, j the obstacle
     centre_x, centre_y, half_move = _swept_discs(positions, step * going.unsqueeze(-1), active, num_substeps)
@@ -440,19 +439,15 @@ def move_agents_sequential(
     )
 
 
-def _touch_walls(
-    points: torch.Tensor, geometry: RoomGeometry, radius: float, *, exact_everywhere: bool
-) -> torch.Tensor:
+def _touch_walls(points: torch.Tensor, geometry: Geometry, radius: float, *, exact_everywhere: bool) -> torch.Tensor:
     """``geometry.touches_walls(points)`` ``(...)`` bool for points ``(..., 2)``, to the bit.
 
-    Unless ``exact_everywhere``, the exact test runs only on the points outside ``[r, W - r] x [r, L - r]`` shrunk
-    by ``PAIR_MARGIN`` (``nonzero``, a host read); the others touch no wall.
+    Unless ``exact_everywhere``, the exact test runs only on the points outside the geometry's clear box shrunk by
+    ``r + PAIR_MARGIN`` (``nonzero``, a host read); the others touch no wall.
     """
     if exact_everywhere:
         return geometry.touches_walls(points, radius=radius)
-    half_x, half_y = 0.5 * geometry.width, 0.5 * geometry.length
-    inner_x, inner_y = half_x - radius - PAIR_MARGIN, half_y - radius - PAIR_MARGIN
-    clear = ((points[..., X] - half_x).abs_() <= inner_x) & ((points[..., Y] - half_y).abs_() <= inner_y)
+    clear = geometry.clear_of_walls(points, margin=radius + PAIR_MARGIN)
     near = (~clear).view(-1).nonzero().squeeze(1)
     touches = torch.zeros(clear.numel(), dtype=torch.bool, device=points.device)
     if near.shape[0] > 0:

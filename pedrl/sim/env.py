@@ -26,7 +26,7 @@ from pedrl.sim.dynamics import (
     move_agents_sequential,
     velocities_from,
 )
-from pedrl.sim.geometry import NUM_WALLS, RoomGeometry, X, Y, wrap_angle
+from pedrl.sim.geometry import NUM_WALLS, Geometry, X, Y, inside_polygon, spawn_counts, wrap_angle
 from pedrl.sim.rewards import MAX_REWARD, RewardTable, compute_rewards
 from pedrl.sim.sensing import Observation, feature_names, num_features, observe
 from pedrl.sim.validation import (
@@ -94,7 +94,7 @@ def _ratios(name: str, value: Any, *, unit: str) -> tuple[float, ...]:
 
 
 class RoomEnv:
-    """R replicas of a closed room with a door, each holding N agents that must leave through the door.
+    """R replicas of a walkable area (the paper's room by default), each holding N agents that must leave by an exit.
 
     Every replica and agent shares one trial clock (paper section 5): an agent's trial ends when it reaches
     the door (``terminated``) or when its replica's clock reaches ``max_decisions`` (``truncated``); it is
@@ -107,7 +107,9 @@ class RoomEnv:
         headings: Headings ``(R, N)`` (rad, world frame, in ``(-pi, pi]``).
         speeds: Speeds ``(R, N)`` (m/s, in ``[0, max_speed]``); frozen once an agent is inactive.
         active: Agents still in their trial ``(R, N)`` bool.
-        geometry: The room (:class:`~pedrl.sim.geometry.RoomGeometry`).
+        geometry: Walls, exits and spawn areas (:class:`~pedrl.sim.geometry.Geometry`).
+        exit_index: The exit each agent heads for ``(R, N)`` int64: its group's, or the nearest at placement.
+        stage: The waypoint each agent aims at ``(R, N)`` int64; past its group's waypoints, its exit.
         generator: The environment's random generator, on ``device``; ``reset(seed=...)`` reseeds it.
         num_actions: 81.
         num_features: ``3 + 3 * num_neighbours + 2 * num_walls``.
@@ -144,6 +146,7 @@ class RoomEnv:
         goal_depth: float = 0.0,
         reward_progress: float = 1.0,
         compile_sensing: bool = False,
+        geometry: Geometry | None = None,
     ) -> None:
         """Validate the configuration and allocate the state (call :meth:`reset` before :meth:`step`).
 
@@ -187,6 +190,9 @@ class RoomEnv:
                 percent of a learning decision, for 10 to 30 s of compilation per process, and the features differ
                 from the eager ones in the last bits (1e-6), so seeded runs are reproducible only with the same
                 setting.
+            geometry: Any walkable area (``pedrl.scenarios`` builds one from polygons); ``None`` is the paper's
+                room of ``width``, ``length`` and ``door_width`` (:meth:`Geometry.rectangle`), which are then
+                ignored except as the extent of the area. Its ``goal_depth`` is the geometry's own.
 
         Raises:
             ValueError: With a one-line message naming the bad value, for any invalid argument, including more
@@ -199,16 +205,28 @@ class RoomEnv:
         self.width = check_real("width", width, unit="m", positive=True)
         self.length = check_real("length", length, unit="m", positive=True)
         self.door_width = check_real("door_width", door_width, unit="m", positive=True)
-        if self.door_width > self.width:
-            raise ValueError(
-                f"door_width={door_width!r} is invalid: the door must fit in its wall, at most width={width!r} m"
-            )
         self.agent_radius = check_real("agent_radius", agent_radius, unit="m", positive=True)
-        if 2.0 * self.agent_radius > self.door_width:
-            raise ValueError(
-                f"agent_radius={agent_radius!r} is invalid: a body must fit through the door, at most"
-                f" door_width / 2 = {self.door_width / 2.0!r} m"
-            )
+        if geometry is None:
+            if self.door_width > self.width:
+                raise ValueError(
+                    f"door_width={door_width!r} is invalid: the door must fit in its wall, at most width={width!r} m"
+                )
+            if 2.0 * self.agent_radius > self.door_width:
+                raise ValueError(
+                    f"agent_radius={agent_radius!r} is invalid: a body must fit through the door, at most"
+                    f" door_width / 2 = {self.door_width / 2.0!r} m"
+                )
+        elif not isinstance(geometry, Geometry):
+            raise ValueError(f"geometry of type {type(geometry).__name__} is invalid: must be a pedrl.sim.Geometry")
+        else:
+            self.width = geometry.bounds[2] - geometry.bounds[0]
+            self.length = geometry.bounds[3] - geometry.bounds[1]
+            narrowest = float(torch.linalg.vector_norm(geometry.exits[:, 1] - geometry.exits[:, 0], dim=-1).min())
+            if 2.0 * self.agent_radius > narrowest:
+                raise ValueError(
+                    f"agent_radius={agent_radius!r} is invalid: a body must fit through every exit, at most"
+                    f" {narrowest / 2.0:g} m (half the narrowest exit)"
+                )
         if 2.0 * self.agent_radius >= min(self.width, self.length):
             raise ValueError(
                 f"agent_radius={agent_radius!r} is invalid: a body must fit in the room, less than"
@@ -218,7 +236,8 @@ class RoomEnv:
         self.decisions_per_second = check_real("decisions_per_second", decisions_per_second, unit="1/s", positive=True)
         self.max_decisions = check_integer("max_decisions", max_decisions, minimum=1)
         self.num_neighbours = check_integer("num_neighbours", num_neighbours, minimum=0)
-        self.num_walls = check_integer("num_walls", num_walls, minimum=0, maximum=NUM_WALLS)
+        wall_count = NUM_WALLS if geometry is None else geometry.num_walls
+        self.num_walls = check_integer("num_walls", num_walls, minimum=0, maximum=wall_count)
         self.speed_ratios = _ratios("speed_ratios", speed_ratios, unit="fraction of max_speed")
         self.turn_ratios = _ratios("turn_ratios", turn_ratios, unit="fraction of pi")
         self.rewards = RewardTable(
@@ -243,14 +262,25 @@ class RoomEnv:
             raise ValueError(f"goal_depth={goal_depth!r} is invalid: must be a finite number >= 0 (m)")
         self.reward_progress = check_number("reward_progress", reward_progress, low=0.0, high=MAX_REWARD)
         self.compile_sensing = check_bool("compile_sensing", compile_sensing)
-        free_area = (self.width - 2.0 * self.agent_radius) * (self.length - 2.0 * self.agent_radius)
-        body_area = self.num_agents * math.pi * self.agent_radius**2
-        if body_area > MAX_DENSITY * free_area:
-            raise ValueError(
-                f"num_agents={num_agents!r} is invalid: {self.num_agents} bodies of radius"
-                f" {self.agent_radius} m cannot be placed in a {self.width} m x {self.length} m room"
-                f" (they would cover {body_area / free_area:.0%} of the free area; at most {MAX_DENSITY:.0%})"
+        if geometry is None:
+            geometry = Geometry.rectangle(
+                width=self.width, length=self.length, door_width=self.door_width, goal_depth=self.goal_depth
             )
+        self.spawn_counts = spawn_counts(self.num_agents, [spawn.weight for spawn in geometry.spawns])
+        for index, (spawn, count) in enumerate(zip(geometry.spawns, self.spawn_counts, strict=True)):
+            free_area = spawn.free_area(self.agent_radius)
+            body_area = count * math.pi * self.agent_radius**2
+            if body_area > MAX_DENSITY * free_area:
+                where = (
+                    f"a {self.width} m x {self.length} m room"
+                    if len(geometry.spawns) == 1
+                    else f"spawn area {index} ({spawn.area:.4g} m^2, {count} of the agents)"
+                )
+                share = f"{body_area / free_area:.0%}" if free_area > 0 else "all"
+                raise ValueError(
+                    f"num_agents={num_agents!r} is invalid: {count} bodies of radius {self.agent_radius} m cannot be"
+                    f" placed in {where} (they would cover {share} of the free area; at most {MAX_DENSITY:.0%})"
+                )
 
         self.decision_length = 1.0 / self.decisions_per_second
         self.num_substeps = self._check_substeps()
@@ -261,13 +291,8 @@ class RoomEnv:
         )
 
         # ---- constants
-        self.geometry = RoomGeometry.build(
-            width=self.width,
-            length=self.length,
-            door_width=self.door_width,
-            goal_depth=self.goal_depth,
-            device=self.device,
-        )
+        self.geometry = geometry if geometry.device == self.device else geometry.to(self.device)
+        self._build_spawn_tables()
         self.speed_changes = torch.tensor(self.speed_ratios, device=self.device) * self.max_speed
         self.turn_changes = torch.tensor(self.turn_ratios, device=self.device) * math.pi
         self.num_features = num_features(self.num_neighbours, self.num_walls)
@@ -285,11 +310,59 @@ class RoomEnv:
         self.headings = torch.zeros(shape, device=self.device)
         self.speeds = torch.zeros(shape, device=self.device)
         self.active = torch.zeros(shape, dtype=torch.bool, device=self.device)
+        self.exit_index = torch.zeros(shape, dtype=torch.int64, device=self.device)
+        self.stage = torch.zeros(shape, dtype=torch.int64, device=self.device)
         self.decisions = torch.zeros(self.num_replicas, dtype=torch.int64, device=self.device)
         self._steps_taken = 0
         self._reset_at = torch.zeros(self.num_replicas, dtype=torch.int64)  # host: _steps_taken at each reset
         self._oldest_reset = 0
         self._was_reset = False
+
+    def _build_spawn_tables(self) -> None:
+        """Per-agent tables of the spawn groups (agents numbered group by group): drawing box, exit and route."""
+        radius, device = self.agent_radius, self.device
+        group = torch.repeat_interleave(
+            torch.arange(len(self.spawn_counts), device=device), torch.tensor(self.spawn_counts, device=device)
+        )
+        self._group = group  # (N,)
+        low, span, exits = [], [], []
+        for spawn in self.geometry.spawns:
+            x_min, y_min, x_max, y_max = spawn.box
+            low.append([x_min + radius, y_min + radius])
+            span.append([x_max - x_min - 2.0 * radius, y_max - y_min - 2.0 * radius])
+            exits.append(spawn.exit)
+        self._spawn_low = torch.tensor(low, device=device)[group]  # (N, 2)
+        self._spawn_span = torch.tensor(span, device=device)[group]
+        self._assigned_exit = torch.tensor(exits, device=device)[group]  # (N,), -1: nearest
+        most = max(spawn.waypoints.shape[0] for spawn in self.geometry.spawns)
+        routes = torch.full((len(self.geometry.spawns), most, 2), math.nan, device=device)
+        for index, spawn in enumerate(self.geometry.spawns):
+            routes[index, : spawn.waypoints.shape[0]] = spawn.waypoints
+        self._waypoints = routes[group]  # (N, K, 2), NaN past the end of a route
+        self._route_length = torch.tensor([s.waypoints.shape[0] for s in self.geometry.spawns], device=device)[group]
+
+    def targets(self) -> torch.Tensor:
+        """The point each agent aims at ``(R, N, 2)`` (m): its current waypoint, else its exit's goal point. The
+        reference line of the state and the progress reward run to it."""
+        goals = self.geometry.exit_goals[self.exit_index]  # (R, N, 2)
+        if self._waypoints.shape[1] == 0:
+            return goals
+        on_route = self.stage < self._route_length  # (R, N)
+        stage = self.stage.clamp(max=self._waypoints.shape[1] - 1)
+        waypoint = torch.gather(
+            self._waypoints.expand(self.num_replicas, -1, -1, -1), 2, stage[..., None, None].expand(-1, -1, 1, 2)
+        ).squeeze(2)
+        return torch.where(on_route.unsqueeze(-1), waypoint, goals)
+
+    def _advance_routes(self) -> None:
+        """Agents within ``waypoint_radius`` of their current waypoint aim at the next one."""
+        if self._waypoints.shape[1] == 0:
+            return
+        radius = self.geometry.waypoint_radius
+        for _ in range(self._waypoints.shape[1]):  # a waypoint may lie within the radius of the previous one
+            offset = self.targets() - self.positions
+            arrived = ((offset * offset).sum(-1) < radius * radius) & (self.stage < self._route_length)
+            self.stage = self.stage + arrived.to(torch.int64)
 
     def _check_substeps(self) -> int:
         """Sub-steps per decision, at most :data:`MAX_SUBSTEPS`, else a one-line ``ValueError`` with the numbers."""
@@ -384,6 +457,11 @@ class RoomEnv:
         self.speeds = torch.where(chosen, speeds, self.speeds)
         self.velocities = velocities_from(speeds=self.speeds, headings=self.headings)
         self.active = self.active | chosen
+        assigned = self._assigned_exit.expand(shape)
+        exits = torch.where(assigned >= 0, assigned, self.geometry.nearest_exits(self.positions))
+        self.exit_index = torch.where(chosen, exits, self.exit_index)
+        self.stage = torch.where(chosen, 0, self.stage)
+        self._advance_routes()
         self.decisions = torch.where(replicas, 0, self.decisions)
         self._reset_at[replicas.cpu()] = self._steps_taken
         self._oldest_reset = int(self._reset_at.min())
@@ -423,6 +501,7 @@ class RoomEnv:
             raise RuntimeError("RoomEnv.step() called before reset()")
         actions = self._check_actions(actions)
         acting = self.active
+        targets = self.targets()  # this decision's targets, for the order of action and the progress
 
         # ---- decide: new speeds and headings
         speeds, headings = apply_actions(
@@ -449,7 +528,7 @@ class RoomEnv:
         if self.collision_rule == "sequential":
             priority = torch.rand(self.active.shape, generator=self.generator, device=self.device)
             if self.collision_order == "door_first":  # metres dominate, the uniform draw breaks ties
-                priority = self._goal_distance(self.positions) + priority * 1e-3
+                priority = self._goal_distance(self.positions, targets) + priority * 1e-3
             # off the CPU: fixed rounds with masks, so that a decision never waits for the host (same result)
             movement = move_agents_sequential(**motion, priority=priority, sync_free=self.device.type != "cpu")
         else:
@@ -457,7 +536,7 @@ class RoomEnv:
         speeds = torch.where(movement.blocked, 0.0, speeds)
         velocities = torch.where(movement.blocked.unsqueeze(-1), 0.0, velocities)
 
-        progress = self._goal_distance(self.positions) - self._goal_distance(movement.positions)  # (R, N) m
+        progress = self._goal_distance(self.positions, targets) - self._goal_distance(movement.positions, targets)
 
         # ---- end of trial: door, then the clock
         self._steps_taken += 1
@@ -469,6 +548,7 @@ class RoomEnv:
         self.headings = headings
         self.velocities = velocities
         self.active = in_room & ~truncated
+        self._advance_routes()
 
         # ---- rewards and observations
         reward = compute_rewards(
@@ -501,14 +581,15 @@ class RoomEnv:
             observers=observers,
             sensed=sensed,
             geometry=self.geometry,
+            goals=self.targets(),
             num_neighbours=self.num_neighbours,
             num_walls=self.num_walls,
         )
 
-    def _goal_distance(self, positions: torch.Tensor) -> torch.Tensor:
-        """Distance from each centre ``(R, N, 2)`` to the goal point ``(R, N)`` (m)."""
-        goal_x, goal_y = self.geometry.goal
-        return torch.hypot(positions[..., X] - goal_x, positions[..., Y] - goal_y)
+    @staticmethod
+    def _goal_distance(positions: torch.Tensor, targets: torch.Tensor) -> torch.Tensor:
+        """Distance from each centre ``(R, N, 2)`` to its target ``(R, N, 2)``: ``(R, N)`` (m)."""
+        return torch.hypot(positions[..., X] - targets[..., X], positions[..., Y] - targets[..., Y])
 
     def _info(
         self,
@@ -556,17 +637,24 @@ class RoomEnv:
         return value
 
     def _uniform_positions(self, shape: tuple[int, ...]) -> torch.Tensor:
-        """Centres uniform in the part of the room clear of walls ``(*shape, 2)`` (m)."""
+        """Centres uniform in each agent's spawn box shrunk by the body radius ``(*shape, 2)`` (m)."""
         uniform = torch.rand((*shape, 2), generator=self.generator, device=self.device)
-        span = torch.tensor(
-            [self.width - 2.0 * self.agent_radius, self.length - 2.0 * self.agent_radius], device=self.device
-        )
-        return self.agent_radius + uniform * span
+        return self._spawn_low + uniform * self._spawn_span
+
+    def _misplaced(self, positions: torch.Tensor) -> torch.Tensor:
+        """``(R, N)`` bool: the centre is outside its spawn area or its body touches a wall."""
+        touches = self.geometry.touches_walls(positions, radius=self.agent_radius)
+        outside = torch.zeros_like(touches)
+        for index, spawn in enumerate(self.geometry.spawns):
+            if not spawn.is_box:  # a box holds every centre drawn in it
+                outside |= (self._group == index) & ~inside_polygon(positions, spawn.edges)
+        return touches | outside
 
     def _place(self, replicas: torch.Tensor) -> torch.Tensor:
-        """Non-overlapping uniform positions ``(R, N, 2)`` for the chosen replicas ``(R,)``, by rejection.
+        """Non-overlapping positions ``(R, N, 2)`` in the spawn areas for the chosen replicas ``(R,)``, by rejection.
 
-        Each round redraws only the agents that overlap an earlier-indexed agent of their replica.
+        Each round redraws only the agents that overlap an earlier-indexed agent of their replica, lie outside
+        their spawn area or touch a wall.
         """
         shape = (self.num_replicas, self.num_agents)
         positions = self._uniform_positions(shape)
@@ -574,7 +662,7 @@ class RoomEnv:
         for _ in range(MAX_PLACEMENT_ROUNDS):
             offsets = positions.unsqueeze(2) - positions.unsqueeze(1)
             overlapping = ((offsets * offsets).sum(-1) < contact_sq) & self._earlier_agents
-            redraw = overlapping.any(-1) & replicas.unsqueeze(-1)
+            redraw = (overlapping.any(-1) | self._misplaced(positions)) & replicas.unsqueeze(-1)
             if not bool(redraw.any()):
                 return positions
             positions = torch.where(redraw.unsqueeze(-1), self._uniform_positions(shape), positions)
@@ -589,12 +677,7 @@ class RoomEnv:
         chosen = replicas.unsqueeze(-1)
         clearance = self.agent_radius - PLACEMENT_TOLERANCE
         wall_sq = self.geometry.squared_wall_distances(positions).amin(-1)
-        inside = (
-            (positions[..., X] > 0)
-            & (positions[..., X] < self.width)
-            & (positions[..., Y] > 0)
-            & (positions[..., Y] < self.length)
-        )
+        inside = self.geometry.inside(positions)
         bad = chosen & ~(inside & (wall_sq >= clearance * clearance))
         if bool(bad.any()):
             replica, agent = (int(index) for index in bad.nonzero()[0])

@@ -1,6 +1,11 @@
-"""The room: a rectangle with a door in one short side, bounded by five wall segments (pure torch).
+"""Geometry of the simulation: wall segments, exits, spawn areas and routes, as tensors (pure torch).
 
-The room is ``[0, width] x [0, length]`` (metres). The door is a gap of ``door_width`` centred on the side
+A walkable area is bounded by wall segments and exit segments. An agent leaves through any exit: it has left once
+its centre is on the far side of an exit segment (within the exit's span). :class:`Geometry` holds this for
+any polygon; ``pedrl.scenarios`` builds it from WKT or shapely polygons. The paper's room is
+:meth:`Geometry.rectangle`:
+
+The paper's room is ``[0, width] x [0, length]`` (metres). The door is a gap of ``door_width`` centred on the side
 ``y = length``; the goal point is ``(width / 2, length + goal_depth)``, the door centre by default. The five
 walls, in this order:
 
@@ -12,21 +17,25 @@ walls, in this order:
  4    left         ``(0, length) - (0, 0)``
 ====  ===========  =====================================
 
-Segments are ``(S, 2, 2)`` tensors: segment ``s`` runs from ``segments[s, 0]`` to ``segments[s, 1]``.
+The general geometry pads its walls to a multiple of :data:`WALL_PADDING` with points far away, so that
+rooms of different shapes share tensor shapes. Segments are ``(S, 2, 2)`` tensors: segment ``s`` runs from
+``segments[s, 0]`` to ``segments[s, 1]``.
 Point tensors have any leading shape, e.g. ``(R, N, 2)``, with axis constants ``X = 0``, ``Y = 1``.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from typing import Final
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any, Final
 
 import torch
 
 X: Final = 0
 Y: Final = 1
 NUM_WALLS: Final = 5
+"""Walls of the paper's rectangular room (:func:`build_walls`)."""
 WALL_NAMES: Final = ("bottom", "right", "top_right", "top_left", "left")
 TWO_PI: Final = 2.0 * math.pi
 
@@ -73,7 +82,7 @@ def build_walls(*, width: float, length: float, door_width: float, device: str |
 
 
 def closest_points_on_segments(points: torch.Tensor, segments: torch.Tensor) -> torch.Tensor:
-    """Closest point of every segment to every point (general segments; see also :class:`RoomGeometry`).
+    """Closest point of every segment to every point (general segments; see also :class:`Geometry`).
 
     Args:
         points: Points ``(..., 2)`` (m).
@@ -105,32 +114,163 @@ def distances_to_segments(points: torch.Tensor, segments: torch.Tensor) -> torch
     return torch.linalg.vector_norm(points.unsqueeze(-2) - closest, dim=-1)
 
 
+WALL_PADDING: Final = 8
+"""Walls are padded with far-away points to a multiple of this count."""
+FAR: Final = 1.0e6
+"""Coordinate (m) of the padding points: never among the sensed walls, never touched."""
+
+
+def inside_polygon(points: torch.Tensor, edges: torch.Tensor) -> torch.Tensor:
+    """Even-odd test of points against the closed boundary ``edges`` (outer ring and holes, any order).
+
+    The tensor counterpart, for points on the device, of shapely's ``contains_xy``; points on an edge count as
+    either side.
+
+    Args:
+        points: Points ``(..., 2)`` (m).
+        edges: Boundary segments ``(P, 2, 2)`` (m), forming closed rings.
+
+    Returns:
+        ``(...)`` bool.
+    """
+    start, end = edges[:, 0], edges[:, 1]  # (P, 2)
+    x, y = points[..., X].unsqueeze(-1), points[..., Y].unsqueeze(-1)  # (..., 1)
+    straddles = (start[:, Y] > y) != (end[:, Y] > y)  # (..., P)
+    dy = end[:, Y] - start[:, Y]
+    crossing_x = start[:, X] + (y - start[:, Y]) * (end[:, X] - start[:, X]) / torch.where(dy == 0, 1.0, dy)
+    return ((straddles & (x < crossing_x)).sum(-1) % 2) == 1
+
+
 @dataclass(frozen=True, eq=False)
-class RoomGeometry:
-    """The room, its door and its walls, fixed at build time (for the simulation, evaluation and plots).
+class SpawnArea:
+    """Where a group of agents starts, which exit it takes, and its route there.
 
     Attributes:
-        width: Room width along x (m).
-        length: Room length along y (m); the door is in the side ``y = length``.
-        door_width: Width of the door gap (m).
-        walls: The five wall segments, float32 ``(5, 2, 2)`` (m), order as in the module docstring.
+        box: Bounding box ``(x_min, y_min, x_max, y_max)`` of the area (m): centres are drawn uniformly in it,
+            shrunk by the body radius, and kept if inside ``edges`` and clear of every wall.
+        edges: Boundary segments of the area ``(P, 2, 2)`` (m).
+        area: Area (m^2).
+        perimeter: Perimeter (m).
+        exit: Index of the exit the group takes, or -1 for each agent's nearest exit (decided at placement).
+        weight: Share of the agents in this group (relative to the other groups).
+        waypoints: Points ``(K, 2)`` (m) the agents aim at in turn before their exit (the reference line of the
+            state runs to the current one); ``(0, 2)`` for none.
     """
 
-    width: float
-    length: float
-    door_width: float
+    box: tuple[float, float, float, float]
+    edges: torch.Tensor
+    area: float
+    perimeter: float
+    exit: int = -1
+    weight: float = 1.0
+    waypoints: torch.Tensor | None = None
+
+    @property
+    def is_box(self) -> bool:
+        """Whether the area is its bounding box (an axis-aligned rectangle)."""
+        x_min, y_min, x_max, y_max = self.box
+        return abs((x_max - x_min) * (y_max - y_min) - self.area) <= 1e-9 * max(self.area, 1.0)
+
+    def free_area(self, radius: float) -> float:
+        """Area (m^2) where a centre may lie, clear of the boundary by ``radius``: the inner parallel body,
+        ``area - perimeter r + 4 r^2``, exact for rectangles, an estimate for other shapes."""
+        return max(self.area - self.perimeter * radius + 4.0 * radius * radius, 0.0)
+
+
+@dataclass(frozen=True, eq=False)
+class Geometry:
+    """Walls, exits and spawn areas of one walkable area, fixed at build time (for the simulation).
+
+    Attributes:
+        walls: Wall segments ``(S, 2, 2)`` float32 (m), the ``num_walls`` real ones first, then padding points.
+        num_walls: Number of real wall segments.
+        exits: Exit segments ``(E, 2, 2)`` float32 (m), on the boundary.
+        exit_normals: Unit normals ``(E, 2)`` pointing out of the walkable area through each exit.
+        exit_goals: Goal point of each exit ``(E, 2)`` (m): its centre, ``goal_depth`` behind the exit.
+        spawns: The spawn areas (at least one).
+        bounds: ``(x_min, y_min, x_max, y_max)`` of the walkable area (m).
+        clear_box: An axis-aligned box ``(x_min, y_min, x_max, y_max)`` inside the walkable area that no wall or
+            exit crosses (m), for the fast paths of the collision rules; a box of zero size disables them.
+        waypoint_radius: Distance (m) at which an agent counts a waypoint as reached and aims at the next.
+        name: A label (the scenario's name).
+    """
+
     walls: torch.Tensor
-    goal_depth: float = 0.0
+    num_walls: int
+    exits: torch.Tensor
+    exit_normals: torch.Tensor
+    exit_goals: torch.Tensor
+    spawns: tuple[SpawnArea, ...]
+    bounds: tuple[float, float, float, float]
+    clear_box: tuple[float, float, float, float]
+    waypoint_radius: float = 2.0
+    name: str = "custom"
     _box_low: torch.Tensor = field(init=False, repr=False)
     _box_high: torch.Tensor = field(init=False, repr=False)
+    _axis_aligned: bool = field(init=False, repr=False)
+    _exit_tangents: torch.Tensor = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        # Every wall is axis-aligned, so its closest point to p is p clamped to the wall's bounding box.
-        object.__setattr__(self, "_box_low", self.walls.amin(1))  # (5, 2)
+        # For an axis-aligned wall the closest point to p is p clamped to the wall's bounding box (exact).
+        object.__setattr__(self, "_box_low", self.walls.amin(1))  # (S, 2)
         object.__setattr__(self, "_box_high", self.walls.amax(1))
+        direction = self.walls[:, 1] - self.walls[:, 0]
+        object.__setattr__(self, "_axis_aligned", bool(((direction == 0).any(-1)).all()))
+        object.__setattr__(self, "_exit_tangents", self.exits[:, 1] - self.exits[:, 0])
 
     @classmethod
     def build(
+        cls,
+        *,
+        walls: Any,
+        exits: Any,
+        exit_normals: Any,
+        spawns: Sequence[SpawnArea],
+        bounds: tuple[float, float, float, float],
+        clear_box: tuple[float, float, float, float] | None = None,
+        goal_depth: float = 0.0,
+        waypoint_radius: float = 2.0,
+        name: str = "custom",
+        device: str | torch.device = "cpu",
+    ) -> Geometry:
+        """Build a geometry from plain coordinates (m): walls ``(S, 2, 2)``, exits ``(E, 2, 2)`` and their outward
+        normals ``(E, 2)``; pads the walls to a multiple of :data:`WALL_PADDING` and moves everything to ``device``.
+        """
+        walls = torch.as_tensor(walls, dtype=torch.float32).reshape(-1, 2, 2)
+        exits = torch.as_tensor(exits, dtype=torch.float32).reshape(-1, 2, 2)
+        normals = torch.as_tensor(exit_normals, dtype=torch.float32).reshape(-1, 2)
+        num_walls = walls.shape[0]
+        padding = -num_walls % WALL_PADDING
+        walls = torch.cat((walls, torch.full((padding, 2, 2), FAR)))
+        goals = [
+            [(a[X] + b[X]) / 2.0 + goal_depth * n[X], (a[Y] + b[Y]) / 2.0 + goal_depth * n[Y]]
+            for (a, b), n in zip(exits.double().tolist(), normals.double().tolist(), strict=True)
+        ]
+        spawns = tuple(
+            replace(
+                spawn,
+                edges=spawn.edges.to(device=device, dtype=torch.float32),
+                waypoints=(
+                    torch.zeros(0, 2) if spawn.waypoints is None else torch.as_tensor(spawn.waypoints).reshape(-1, 2)
+                ).to(device=device, dtype=torch.float32),
+            )
+            for spawn in spawns
+        )
+        return cls(
+            walls=walls.to(device),
+            num_walls=num_walls,
+            exits=exits.to(device),
+            exit_normals=normals.to(device),
+            exit_goals=torch.tensor(goals, dtype=torch.float32, device=device).reshape(-1, 2),
+            spawns=spawns,
+            bounds=tuple(float(v) for v in bounds),
+            clear_box=tuple(float(v) for v in (bounds if clear_box is None else clear_box)),
+            waypoint_radius=float(waypoint_radius),
+            name=name,
+        )
+
+    @classmethod
+    def rectangle(
         cls,
         *,
         width: float,
@@ -138,31 +278,37 @@ class RoomGeometry:
         door_width: float,
         goal_depth: float = 0.0,
         device: str | torch.device = "cpu",
-    ) -> RoomGeometry:
-        """Build the room of the given size (m) with its walls on ``device``."""
-        walls = build_walls(width=width, length=length, door_width=door_width, device=device)
-        return cls(
-            width=float(width),
-            length=float(length),
-            door_width=float(door_width),
-            walls=walls,
-            goal_depth=float(goal_depth),
+    ) -> Geometry:
+        """The paper's room: ``[0, width] x [0, length]`` with a door of ``door_width`` centred in ``y = length``.
+
+        Its five walls are :func:`build_walls`; agents spawn anywhere in the room and leave through the door.
+        """
+        width, length = float(width), float(length)
+        door_left, door_right = width / 2.0 - door_width / 2.0, width / 2.0 + door_width / 2.0
+        edges = torch.tensor(
+            [[[0.0, 0.0], [width, 0.0]], [[width, 0.0], [width, length]], [[width, length], [0.0, length]],
+             [[0.0, length], [0.0, 0.0]]]
+        )  # fmt: skip
+        room = SpawnArea(
+            box=(0.0, 0.0, width, length), edges=edges, area=width * length, perimeter=2.0 * (width + length)
+        )
+        return cls.build(
+            walls=build_walls(width=width, length=length, door_width=door_width),
+            exits=[[[door_right, length], [door_left, length]]],
+            exit_normals=[[0.0, 1.0]],
+            spawns=(room,),
+            bounds=(0.0, 0.0, width, length),
+            goal_depth=goal_depth,
+            name="paper_room",
+            device=device,
         )
 
-    @property
-    def door_left(self) -> float:
-        """x of the left door post (m)."""
-        return self.width / 2.0 - self.door_width / 2.0
+    # ------------------------------------------------------------------ properties
 
     @property
-    def door_right(self) -> float:
-        """x of the right door post (m)."""
-        return self.width / 2.0 + self.door_width / 2.0
-
-    @property
-    def goal(self) -> tuple[float, float]:
-        """The goal point ``(width / 2, length + goal_depth)`` (m): the door centre when ``goal_depth = 0``."""
-        return (self.width / 2.0, self.length + self.goal_depth)
+    def num_exits(self) -> int:
+        """Number of exits."""
+        return self.exits.shape[0]
 
     @property
     def device(self) -> torch.device:
@@ -171,51 +317,100 @@ class RoomGeometry:
 
     @property
     def diagonal(self) -> float:
-        """Length of the room diagonal (m): no two points of the room are further apart."""
-        return math.hypot(self.width, self.length)
+        """Diagonal of the bounding box (m): no two points of the walkable area are further apart."""
+        x_min, y_min, x_max, y_max = self.bounds
+        return math.hypot(x_max - x_min, y_max - y_min)
+
+    @property
+    def boundary(self) -> torch.Tensor:
+        """The closed boundary of the walkable area ``(num_walls + E, 2, 2)``: real walls and exits."""
+        return torch.cat((self.walls[: self.num_walls], self.exits))
+
+    # ------------------------------------------------------------------ walls
 
     def closest_wall_points(self, points: torch.Tensor) -> torch.Tensor:
-        """Closest point of each wall to each point; equal to :func:`closest_points_on_segments` of the walls.
+        """Closest point of each wall to each point: ``(..., S, 2)`` (m) for points ``(..., 2)``.
 
-        Args:
-            points: Points ``(..., 2)`` (m).
-
-        Returns:
-            Closest points ``(..., 5, 2)`` (m).
+        Axis-aligned walls (every wall of the rectilinear scenarios) clamp the point to the wall's box, which is
+        exact; other walls project onto the segment (:func:`closest_points_on_segments`).
         """
-        return torch.clamp(points.unsqueeze(-2), self._box_low, self._box_high)
+        clamped = torch.clamp(points.unsqueeze(-2), self._box_low, self._box_high)
+        if self._axis_aligned:
+            return clamped
+        aligned = (self.walls[:, 1] - self.walls[:, 0] == 0).any(-1).unsqueeze(-1)  # (S, 1)
+        return torch.where(aligned, clamped, closest_points_on_segments(points, self.walls))
 
     def wall_offsets(self, points: torch.Tensor) -> torch.Tensor:
-        """Offsets from each point to the closest point of each wall.
-
-        Args:
-            points: Points ``(..., 2)`` (m).
-
-        Returns:
-            Closest point minus point ``(..., 5, 2)`` (m), walls in the documented order.
-        """
+        """Closest point of each wall minus each point ``(..., S, 2)`` (m)."""
         return self.closest_wall_points(points) - points.unsqueeze(-2)
 
     def squared_wall_distances(self, points: torch.Tensor) -> torch.Tensor:
-        """Squared distance from each point to each wall.
-
-        Args:
-            points: Points ``(..., 2)`` (m).
-
-        Returns:
-            Squared distances ``(..., 5)`` (m^2).
-        """
+        """Squared distance from each point ``(..., 2)`` to each wall ``(..., S)`` (m^2)."""
         offsets = self.wall_offsets(points)
         return (offsets * offsets).sum(-1)
 
     def touches_walls(self, points: torch.Tensor, *, radius: float) -> torch.Tensor:
-        """Whether a disc of ``radius`` centred at each point intersects a wall (``dist < radius``).
-
-        Args:
-            points: Disc centres ``(..., 2)`` (m).
-            radius: Disc radius (m).
-
-        Returns:
-            ``(...)`` bool.
-        """
+        """Whether a disc of ``radius`` centred at each point ``(..., 2)`` intersects a wall (``dist < radius``)."""
         return self.squared_wall_distances(points).amin(-1) < radius * radius
+
+    def clear_of_walls(self, points: torch.Tensor, *, margin: float) -> torch.Tensor:
+        """Whether a disc of radius ``margin`` at each point ``(..., 2)`` lies inside :attr:`clear_box`: it
+        then touches no wall and is past no exit. Conservative: ``False`` says nothing."""
+        x_min, y_min, x_max, y_max = self.clear_box
+        half_x, half_y = 0.5 * (x_max - x_min), 0.5 * (y_max - y_min)
+        mid_x, mid_y = x_min + half_x, y_min + half_y
+        return ((points[..., X] - mid_x).abs_() <= half_x - margin) & (
+            (points[..., Y] - mid_y).abs_() <= half_y - margin
+        )
+
+    # ------------------------------------------------------------------ exits
+
+    def passes_exits(self, points: torch.Tensor, *, depth: float | torch.Tensor) -> torch.Tensor:
+        """Whether each centre ``(..., 2)`` is past an exit: on its far side, by less than ``depth`` (m, a number
+        or a tensor of shape ``(...)``), within its span. A centre moving less than ``depth`` per check can get
+        past the line of an exit only through its span (walls stop the others), so a crossing is always caught;
+        the depth keeps points of a non-convex area that lie far beyond an exit's line from counting."""
+        if isinstance(depth, torch.Tensor):
+            depth = depth.unsqueeze(-1)
+        offset = points.unsqueeze(-2) - self.exits[:, 0]  # (..., E, 2)
+        beyond = offset[..., X] * self.exit_normals[:, X] + offset[..., Y] * self.exit_normals[:, Y]
+        along = offset[..., X] * self._exit_tangents[:, X] + offset[..., Y] * self._exit_tangents[:, Y]
+        span = (self._exit_tangents * self._exit_tangents).sum(-1)
+        return ((beyond >= 0) & (beyond < depth) & (along >= 0) & (along <= span)).any(-1)
+
+    def nearest_exits(self, points: torch.Tensor) -> torch.Tensor:
+        """Index of the exit whose goal point is nearest to each point ``(..., 2)``: ``(...)`` int64."""
+        offset = points.unsqueeze(-2) - self.exit_goals
+        return (offset * offset).sum(-1).argmin(-1)
+
+    def inside(self, points: torch.Tensor) -> torch.Tensor:
+        """Whether each point ``(..., 2)`` lies inside the walkable area (even-odd against :attr:`boundary`)."""
+        return inside_polygon(points, self.boundary)
+
+    def to(self, device: str | torch.device) -> Geometry:
+        """The same geometry with every tensor on ``device``."""
+        spawns = tuple(
+            replace(spawn, edges=spawn.edges.to(device), waypoints=spawn.waypoints.to(device)) for spawn in self.spawns
+        )
+        return replace(
+            self,
+            walls=self.walls.to(device),
+            exits=self.exits.to(device),
+            exit_normals=self.exit_normals.to(device),
+            exit_goals=self.exit_goals.to(device),
+            spawns=spawns,
+        )
+
+
+def spawn_counts(num_agents: int, weights: Sequence[float]) -> tuple[int, ...]:
+    """Split ``num_agents`` among spawn groups in proportion to ``weights`` (largest remainder, ties to the first).
+
+    Agents are numbered group by group: the first ``counts[0]`` belong to group 0, and so on.
+    """
+    total = float(sum(weights))
+    exact = [num_agents * weight / total for weight in weights]
+    counts = [math.floor(share) for share in exact]
+    by_remainder = sorted(range(len(weights)), key=lambda index: (counts[index] - exact[index], index))
+    for index in by_remainder[: num_agents - sum(counts)]:
+        counts[index] += 1
+    return tuple(counts)

@@ -1,6 +1,7 @@
 """The deictic state of each agent (paper Table 1), its feature layout, and the helpers built on it.
 
-The reference line joins the agent's centre to the door centre; its world angle is ``phi``. Every angle is
+The reference line joins the agent's centre to its goal (the door centre in the paper's room; in general the
+agent's current waypoint or exit, ``RoomEnv.targets``); its world angle is ``phi``. Every angle is
 relative to ``phi`` and wrapped to ``(-pi, pi]``. With ``k`` neighbours and ``w`` walls there are
 ``3 + 3k + 2w`` features (28 for the paper's ``k = 7``, ``w = 2``):
 
@@ -9,7 +10,7 @@ index    name                        definition                                 
 =======  ==========================  ==============================================================  ====
 0        ``speed``                   own speed ``s``                                                 m/s
 1        ``velocity_angle``          ``wrap(theta - phi)``                                           rad
-2        ``door_distance``           distance from the centre to the door centre                     m
+2        ``door_distance``           distance from the centre to its goal (the door centre)          m
 3+3i     ``neighbour{i}_rel_speed``  ``(v_j - v_i) . u_ij``, ``u_ij`` the unit vector from i to j    m/s
 4+3i     ``neighbour{i}_distance``   centre-to-centre distance to the i-th nearest active agent      m
 5+3i     ``neighbour{i}_angle``      ``wrap(atan2(p_j - p_i) - phi)``                                rad
@@ -30,7 +31,7 @@ from typing import Final
 
 import torch
 
-from pedrl.sim.geometry import TWO_PI, RoomGeometry, X, Y, wrap_angle
+from pedrl.sim.geometry import TWO_PI, Geometry, X, Y, wrap_angle
 
 NUM_OWN_FEATURES: Final = 3
 FEATURES_PER_NEIGHBOUR: Final = 3
@@ -135,9 +136,10 @@ def observe(
     speeds: torch.Tensor,
     observers: torch.Tensor,
     sensed: torch.Tensor,
-    geometry: RoomGeometry,
+    geometry: Geometry,
     num_neighbours: int,
     num_walls: int,
+    goals: torch.Tensor | None = None,
 ) -> Observation:
     """Compute the deictic state of every agent (module docstring layout).
 
@@ -148,9 +150,11 @@ def observe(
         speeds: Speeds ``(R, N)`` (m/s).
         observers: Agents whose state is computed ``(R, N)`` bool; the other rows are 0.
         sensed: Agents that can be sensed as neighbours ``(R, N)`` bool (an agent never senses itself).
-        geometry: The room.
+        geometry: Walls and exits.
+        goals: Each agent's target ``(R, N, 2)`` (m), the other end of its reference line: its waypoint or exit
+            (``RoomEnv.targets``); ``None`` is the goal point of the first exit for everyone.
         num_neighbours: Number ``k`` of neighbour slots, ``>= 0``.
-        num_walls: Number ``w`` of sensed walls, in ``[0, 5]``.
+        num_walls: Number ``w`` of sensed walls, at most ``geometry.num_walls``.
 
     Returns:
         The :class:`Observation`.
@@ -159,7 +163,9 @@ def observe(
     device = positions.device
     shape = (num_replicas, num_agents)
     slots = min(num_neighbours, num_agents - 1)  # neighbour slots that can ever be filled
-    goal_x, goal_y = geometry.goal
+    if goals is None:
+        goals = geometry.exit_goals[0].expand(num_replicas, num_agents, 2)
+    goal_x, goal_y = goals[..., X], goals[..., Y]
     x, y = positions[..., X], positions[..., Y]
     to_goal_x = goal_x - x  # the reference line, (R, N)
     to_goal_y = goal_y - y
@@ -186,7 +192,7 @@ def observe(
         neighbour_mask = torch.zeros(*shape, 0, dtype=torch.bool, device=device)
 
     if num_walls > 0:
-        offsets = geometry.wall_offsets(positions)  # closest point - p, (R, N, 5, 2)
+        offsets = geometry.wall_offsets(positions)  # closest point - p, (R, N, S, 2)
         wall_distance = torch.hypot(offsets[..., X], offsets[..., Y])
         wall_distance, order = torch.topk(wall_distance, num_walls, dim=-1, largest=False)  # (R, N, w)
         offsets = torch.gather(offsets, 2, order.unsqueeze(-1).expand(-1, -1, -1, 2))

@@ -9,7 +9,7 @@ from omegaconf import OmegaConf
 from pedrl.sim import RoomEnv
 
 CONFIG = Path(__file__).resolve().parents[2] / "conf" / "env" / "room.yaml"
-RUN_TIME = {"num_replicas", "num_agents", "device"}
+RUN_TIME = {"num_replicas", "num_agents", "device", "geometry"}  # geometry: built from the scenario group
 
 
 def test_room_config_instantiates_with_run_time_arguments():

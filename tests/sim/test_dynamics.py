@@ -22,7 +22,7 @@ from pedrl.sim.dynamics import (
     move_agents_sequential,
     velocities_from,
 )
-from pedrl.sim.geometry import RoomGeometry, build_walls, distances_to_segments
+from pedrl.sim.geometry import Geometry, build_walls, distances_to_segments
 
 
 def reference_move(
@@ -30,7 +30,7 @@ def reference_move(
     positions: torch.Tensor,
     velocities: torch.Tensor,
     active: torch.Tensor,
-    geometry: RoomGeometry,
+    geometry: Geometry,
     agent_radius: float,
     decision_length: float,
     num_substeps: int,
@@ -65,7 +65,7 @@ def reference_move(
             crashed_agent |= new
         crashed_wall |= wall_hit
         moved = moved + go.long()
-        arrived = go & (proposal[..., 1] >= geometry.length)
+        arrived = go & (proposal[..., 1] >= geometry.bounds[3])
         reached |= arrived
         in_room &= ~arrived
         going = go & ~arrived
@@ -83,7 +83,7 @@ def reference_sequential_move(
     positions: torch.Tensor,
     velocities: torch.Tensor,
     active: torch.Tensor,
-    geometry: RoomGeometry,
+    geometry: Geometry,
     agent_radius: float,
     decision_length: float,
     num_substeps: int,
@@ -116,7 +116,7 @@ def reference_sequential_move(
                     going[r, i] = False
                     continue
                 moved[r, i] += 1
-                if proposal[1] >= geometry.length:  # out: it collides until the end of this sub-step
+                if proposal[1] >= geometry.bounds[3]:  # out: it collides until the end of this sub-step
                     reached[r, i] = True
                     going[r, i] = False
         present &= ~reached
@@ -201,7 +201,7 @@ def test_count_substeps(max_speed, decision_length, substep_length, expected):
 
 
 def test_touches_walls_equals_segment_distance_test():
-    geometry = RoomGeometry.build(width=6.0, length=8.0, door_width=1.2)
+    geometry = Geometry.rectangle(width=6.0, length=8.0, door_width=1.2)
     generator = torch.Generator().manual_seed(0)
     radius = 0.4
     points = torch.rand(20000, 2, generator=generator) * torch.tensor([6.0 + 4 * radius, 8.0 + 4 * radius])
@@ -250,7 +250,7 @@ def test_move_agents_equals_the_literal_substep_rule(seed, num_replicas, num_age
         speeds = torch.where(torch.rand(shape, generator=generator) < 0.2, 0.0, speeds)
         headings = math.pi - 2 * math.pi * torch.rand(shape, generator=generator)
         # aim a third of the agents at the door, so the door and its posts are exercised
-        goal_x, goal_y = env.geometry.goal
+        goal_x, goal_y = env.geometry.exit_goals[0].tolist()
         to_door = torch.atan2(goal_y - env.positions[..., 1], goal_x - env.positions[..., 0])
         headings = torch.where(torch.rand(shape, generator=generator) < 0.3, to_door, headings)
         kwargs = dict(
@@ -273,7 +273,7 @@ def test_move_agents_equals_the_literal_substep_rule(seed, num_replicas, num_age
 
 
 def test_standing_agent_that_is_walked_into_is_not_penalised():
-    geometry = RoomGeometry.build(width=60.0, length=100.0, door_width=2.0)
+    geometry = Geometry.rectangle(width=60.0, length=100.0, door_width=2.0)
     # the mover's first sub-step (2.5 / 7 = 0.357 m) would bring the centres to 0.843 m apart, the second to
     # 0.486 m: it is blocked in sub-step 2 and stays after sub-step 1
     positions = torch.tensor([[[10.0, 50.0], [11.2, 50.0]]])
@@ -303,7 +303,7 @@ def test_dense_rooms_match_the_reference_and_exercise_every_event():
         if not env.active.any():
             env.reset()
         speeds = torch.full((3, 12), env.max_speed)
-        goal_x, goal_y = env.geometry.goal
+        goal_x, goal_y = env.geometry.exit_goals[0].tolist()
         headings = torch.atan2(goal_y - env.positions[..., 1], goal_x - env.positions[..., 0])
         headings = headings + 0.6 * torch.randn(3, 12, generator=generator)
         kwargs = dict(
@@ -338,7 +338,7 @@ def _sequential(positions, velocities, priority=None, geometry=None):
         positions=positions,
         velocities=velocities,
         active=torch.ones(1, num_agents, dtype=torch.bool),
-        geometry=geometry or RoomGeometry.build(width=60.0, length=100.0, door_width=2.0),
+        geometry=geometry or Geometry.rectangle(width=60.0, length=100.0, door_width=2.0),
         agent_radius=0.4,
         decision_length=1.0,
         num_substeps=7,
@@ -359,13 +359,13 @@ def test_a_leader_caught_by_a_faster_follower_keeps_walking(priority):
 @pytest.mark.parametrize("rule", ["sequential", "simultaneous"])
 def test_two_agents_below_the_door_heading_for_its_centre(rule):
     """Simultaneously both stop at every decision and stay frozen for ever; sequentially both leave."""
-    geometry = RoomGeometry.build(width=60.0, length=100.0, door_width=2.0)
+    geometry = Geometry.rectangle(width=60.0, length=100.0, door_width=2.0)
     positions = torch.tensor([[[29.5, 97.0], [30.5, 97.0]]])
     active = torch.ones(1, 2, dtype=torch.bool)
     reached = torch.zeros_like(active)
     generator = torch.Generator().manual_seed(0)
     for _ in range(10):
-        to_door = torch.tensor(geometry.goal) - positions
+        to_door = geometry.exit_goals[0] - positions
         velocities = 2.5 * to_door / to_door.norm(dim=-1, keepdim=True)
         kwargs = dict(
             positions=positions,
@@ -400,7 +400,7 @@ def test_move_agents_sequential_equals_the_literal_agent_by_agent_loop(seed, num
     shape = (num_replicas, num_agents)
     for _ in range(8):
         speeds = torch.where(torch.rand(shape, generator=generator) < 0.2, 0.0, env.max_speed)
-        goal_x, goal_y = env.geometry.goal
+        goal_x, goal_y = env.geometry.exit_goals[0].tolist()
         to_door = torch.atan2(goal_y - env.positions[..., 1], goal_x - env.positions[..., 0])
         headings = to_door + 0.8 * torch.randn(shape, generator=generator)
         kwargs = dict(

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 import pedrl.sim.env as env_module
-from pedrl.sim import NOOP_ACTION, PlacementError, RoomEnv
+from pedrl.sim import NOOP_ACTION, PlacementError, RoomEnv, build_walls
 from pedrl.sim.dynamics import NUM_ACTIONS
 
 UP, DOWN, RIGHT, LEFT = math.pi / 2, -math.pi / 2, 0.0, math.pi
@@ -160,7 +160,11 @@ def test_info_keys_shapes_and_dtypes():
     assert info["neighbour_mask"].shape == (3, 4, 7) and info["speed"].dtype == torch.float32
     assert isinstance(info["decision"], int) and info["decision"] == 1
     assert env.num_actions == 81 and env.num_features == 28
-    assert env.geometry.width == 60.0 and env.geometry.walls.shape == (5, 2, 2)
+    assert (
+        env.width == 60.0
+        and env.geometry.num_walls == 5
+        and env.geometry.walls[:5].tolist() == build_walls(width=60.0, length=100.0, door_width=2.0).tolist()
+    )
 
 
 def test_reset_places_agents_apart_clear_of_walls_standing():

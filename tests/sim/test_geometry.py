@@ -7,12 +7,17 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from pedrl.sim.geometry import (
+    FAR,
     NUM_WALLS,
     WALL_NAMES,
-    RoomGeometry,
+    WALL_PADDING,
+    Geometry,
+    SpawnArea,
     build_walls,
     closest_points_on_segments,
     distances_to_segments,
+    inside_polygon,
+    spawn_counts,
     wrap_angle,
 )
 
@@ -33,12 +38,59 @@ def test_walls_are_the_five_documented_segments_in_order():
     assert WALL_NAMES == ("bottom", "right", "top_right", "top_left", "left")
 
 
-def test_room_geometry_describes_door_and_goal():
-    room = RoomGeometry.build(width=60.0, length=100.0, door_width=2.0)
-    assert (room.door_left, room.door_right) == (29.0, 31.0)
-    assert room.goal == (30.0, 100.0)
+def test_rectangle_describes_walls_door_goal_and_padding():
+    room = Geometry.rectangle(width=60.0, length=100.0, door_width=2.0, goal_depth=1.5)
+    assert room.num_walls == NUM_WALLS and room.walls.shape == (WALL_PADDING, 2, 2)
+    assert torch.equal(room.walls[:NUM_WALLS], build_walls(width=60.0, length=100.0, door_width=2.0))
+    assert (room.walls[NUM_WALLS:] == FAR).all()  # padding: far-away points
+    assert room.exits.tolist() == [[[31.0, 100.0], [29.0, 100.0]]] and room.exit_normals.tolist() == [[0.0, 1.0]]
+    assert room.exit_goals.tolist() == [[30.0, 101.5]]
     assert room.diagonal == math.hypot(60.0, 100.0)
-    assert torch.equal(room.walls, build_walls(width=60.0, length=100.0, door_width=2.0))
+    assert room.bounds == room.clear_box == (0.0, 0.0, 60.0, 100.0)
+    # the padding is never touched nor among the nearest walls
+    points = torch.tensor([[30.0, 50.0], [0.5, 99.5]])
+    assert room.squared_wall_distances(points)[:, NUM_WALLS:].min() > 1e11
+
+
+def test_exits_are_passed_only_through_their_span_and_within_the_depth():
+    room = Geometry.rectangle(width=10.0, length=10.0, door_width=2.0)
+    points = torch.tensor([[5.0, 10.0], [5.0, 10.3], [4.1, 10.2], [3.9, 10.2], [5.0, 9.99], [5.0, 10.6]])
+    assert room.passes_exits(points, depth=0.5).tolist() == [True, True, True, False, False, False]
+    assert room.inside(torch.tensor([[5.0, 5.0], [5.0, 10.5], [-1.0, 5.0], [9.9, 0.1]])).tolist() == [
+        True,
+        False,
+        False,
+        True,
+    ]
+
+
+def test_inside_polygon_handles_holes():
+    outer = [[0.0, 0.0], [4.0, 0.0], [4.0, 4.0], [0.0, 4.0]]
+    hole = [[1.0, 1.0], [1.0, 3.0], [3.0, 3.0], [3.0, 1.0]]
+    rings = [torch.tensor(ring) for ring in (outer, hole)]
+    edges = torch.cat([torch.stack((ring, ring.roll(-1, 0)), dim=1) for ring in rings])
+    points = torch.tensor([[0.5, 0.5], [2.0, 2.0], [3.5, 2.0], [5.0, 2.0]])
+    assert inside_polygon(points, edges).tolist() == [True, False, True, False]
+
+
+def test_general_walls_project_onto_slanted_segments():
+    spawn = SpawnArea(box=(0.0, 0.0, 1.0, 1.0), edges=torch.zeros(0, 2, 2), area=1.0, perimeter=4.0)
+    geometry = Geometry.build(
+        walls=[[[0.0, 0.0], [4.0, 4.0]], [[0.0, 0.0], [4.0, 0.0]]],
+        exits=[[[4.0, 0.0], [4.0, 4.0]]],
+        exit_normals=[[1.0, 0.0]],
+        spawns=[spawn],
+        bounds=(0.0, 0.0, 4.0, 4.0),
+    )
+    distance = geometry.squared_wall_distances(torch.tensor([[3.0, 1.0]]))[0, :2].sqrt()
+    torch.testing.assert_close(distance, torch.tensor([math.sqrt(2.0), 1.0]))
+
+
+def test_spawn_counts_split_by_weight_with_largest_remainders():
+    assert spawn_counts(10, [1.0, 1.0]) == (5, 5)
+    assert spawn_counts(7, [1.0, 1.0]) == (4, 3)
+    assert spawn_counts(10, [1.0, 2.0, 1.0]) == (2, 5, 3) or spawn_counts(10, [1.0, 2.0, 1.0]) == (3, 5, 2)
+    assert sum(spawn_counts(101, [0.3, 0.3, 0.4])) == 101
 
 
 def test_point_segment_distance_and_closest_point_analytic():
@@ -64,7 +116,7 @@ def test_distances_broadcast_over_batches():
 
 
 def test_room_wall_queries_equal_the_general_segment_functions():
-    room = RoomGeometry.build(width=10.0, length=12.0, door_width=3.0)
+    room = Geometry.rectangle(width=10.0, length=12.0, door_width=3.0)
     generator = torch.Generator().manual_seed(1)
     points = torch.rand(3, 50, 2, generator=generator) * torch.tensor([14.0, 16.0]) - 2.0
     torch.testing.assert_close(room.closest_wall_points(points), closest_points_on_segments(points, room.walls))

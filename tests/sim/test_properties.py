@@ -90,7 +90,7 @@ def test_invariants_hold_after_every_step(seed, num_replicas, num_agents, room, 
         event = torch.where(info["crashed_agent"], -4.0, -1.0)
         event = torch.where(info["crashed_wall"], -15.0, event)
         event = torch.where(terminated, 100.0, event)
-        goal = torch.tensor(env.geometry.goal)
+        goal = env.geometry.exit_goals[0]
         approach = (start - goal).norm(dim=-1) - (env.positions - goal).norm(dim=-1)
         expected = torch.where(before, event + env.reward_progress * approach, 0.0)
         torch.testing.assert_close(reward, expected, atol=1e-4, rtol=1e-5)

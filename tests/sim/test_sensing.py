@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from pedrl.sim import RoomEnv
-from pedrl.sim.geometry import RoomGeometry
+from pedrl.sim.geometry import Geometry
 from pedrl.sim.sensing import (
     distance_indices,
     feature_indices,
@@ -222,7 +222,7 @@ def test_fill_void_neighbours_rejects_a_wrong_layout():
 
 
 def test_inactive_agents_are_neither_observers_nor_sensed():
-    room = RoomGeometry.build(width=WIDTH, length=LENGTH, door_width=DOOR)
+    room = Geometry.rectangle(width=WIDTH, length=LENGTH, door_width=DOOR)
     positions = torch.tensor([[[10.0, 10.0], [11.0, 10.0], [13.0, 10.0], [30.0, 50.0]]])
     sensed = torch.tensor([[True, False, True, True]])
     observation = observe(
