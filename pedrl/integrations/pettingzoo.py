@@ -1,0 +1,287 @@
+"""A PettingZoo ``ParallelEnv`` over one replica of :class:`~pedrl.sim.RoomEnv`.
+
+Usage::
+
+    from pedrl.integrations.pettingzoo import parallel_env
+
+    env = parallel_env(num_agents=5, width=6.0, length=8.0, door_width=1.5, max_decisions=30)
+    obs, infos = env.reset(seed=0)
+    while env.agents:
+        actions = {agent: env.action_space(agent).sample() for agent in env.agents}
+        obs, rewards, terminations, truncations, infos = env.step(actions)
+
+The adapter adds nothing to the simulation: its observations, rewards and flags are those of ``RoomEnv`` for
+replica 0, converted to numpy float32 arrays and Python floats and bools. An agent is in ``agents`` while it is in
+its trial; the step in which it reaches the door (``terminations``) or the trial clock reaches ``max_decisions``
+(``truncations``) is the last one that reports it. Needs ``pip install pedrl[pettingzoo]``.
+"""
+
+from __future__ import annotations
+
+import math
+import operator
+import warnings
+from collections.abc import Mapping
+from typing import Any, Final
+
+import numpy as np
+import torch
+
+try:
+    import gymnasium
+    from gymnasium import spaces
+    from pettingzoo import ParallelEnv
+except ImportError as error:  # one line naming the fix, the cause chained
+    raise ImportError(
+        f"pedrl.integrations.pettingzoo needs pettingzoo and gymnasium ({error}): pip install pedrl[pettingzoo]"
+    ) from error
+
+from pedrl.sim import NOOP_ACTION, RoomEnv
+
+__all__ = ["PedestrianParallelEnv", "parallel_env"]
+
+AGENT_PREFIX: Final = "pedestrian_"
+INFO_KEYS: Final = ("crashed_agent", "crashed_wall", "reached", "speed")
+"""Per-agent info keys, taken from ``RoomEnv``'s info for the agent."""
+PLACEMENT_OPTIONS: Final = {"positions": 2, "headings": 1, "speeds": 1}
+"""``reset`` options passed to ``RoomEnv.reset``, with the number of axes of one replica's value."""
+BOUND_SLACK: Final = 1e-5
+"""Relative widening of the bounds that float32 rounding could reach (distances, relative speeds, velocities)."""
+
+
+def _widen(value: float) -> float:
+    return value * (1.0 + BOUND_SLACK)
+
+
+def observation_bounds(env: RoomEnv) -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper bounds ``(F,)`` float32 of every feature of ``env``, from the feature names.
+
+    Own speed in ``[0, max_speed]``; angles in ``[-pi, pi]`` (``RoomEnv`` wraps them to ``(-pi, pi]``); relative
+    speeds in ``[-2 max_speed, 2 max_speed]``; the distance to the goal point in ``[0, max_distance + goal_depth]``
+    (the goal point lies ``goal_depth`` behind the door, on the room's boundary); other distances (neighbours,
+    walls: both ends in the room) in ``[0, max_distance]``, the room diagonal. The bounds that rounding could reach
+    are widened by ``BOUND_SLACK``; a feature of unknown kind gets ``(-inf, inf)``. Inactive agents' zeros are
+    inside every bound.
+    """
+    max_speed = float(env.max_speed)
+    max_distance = float(env.max_distance)
+    goal_depth = float(getattr(env, "goal_depth", 0.0))
+    low, high = [], []
+    for name in env.feature_names:
+        if name == "speed":
+            bounds = (0.0, max_speed)  # clamped to max_speed in float32: exact
+        elif name.endswith("_angle"):
+            bounds = (-math.pi, math.pi)  # float32 pi is above pi, and the wrap never exceeds it
+        elif name.endswith("_rel_speed"):
+            bounds = (-_widen(2.0 * max_speed), _widen(2.0 * max_speed))
+        elif name == "door_distance":
+            bounds = (0.0, _widen(max_distance + goal_depth))
+        elif name.endswith("_distance"):
+            bounds = (0.0, _widen(max_distance))
+        else:
+            bounds = (-math.inf, math.inf)
+        low.append(bounds[0])
+        high.append(bounds[1])
+    return np.asarray(low, dtype=np.float32), np.asarray(high, dtype=np.float32)
+
+
+class PedestrianParallelEnv(ParallelEnv):
+    """PettingZoo ``ParallelEnv`` over a ``RoomEnv`` with one replica: one room, ``num_agents`` pedestrians.
+
+    Agents are ``"pedestrian_0"`` .. ``"pedestrian_{N-1}"``, agent ``i`` being the room's agent ``i``. Each
+    observes ``RoomEnv``'s ``num_features`` deictic features (``feature_names``) as a float32 array, and picks one
+    of the 81 actions (``Discrete(81)``, ``pedrl.sim.NOOP_ACTION`` keeps speed and heading).
+
+    ``step`` semantics, for a dict of actions keyed by agent:
+
+    - an agent of ``agents`` missing from the dict takes the no-op (``NOOP_ACTION``): it keeps its speed and
+      heading, as a pedestrian that decides nothing new would;
+    - actions for agents that already left ``agents`` are ignored (``RoomEnv`` ignores inactive agents); an
+      unknown agent name or an action outside ``[0, 81)`` is a ``ValueError``;
+    - the returned dicts are keyed by the agents active before the step; those that reached the door
+      (``terminations``, observation 0) or ran out of time (``truncations``) leave ``agents`` afterwards;
+    - infos hold ``crashed_agent``, ``crashed_wall``, ``reached`` (bools) and ``speed`` (m/s after the step);
+    - with no agent left, ``step`` returns empty dicts and does not advance the room.
+
+    ``reset(seed, options)`` reseeds the room's generator when ``seed`` is given; ``options`` may hold one
+    replica's hand placement, ``positions`` ``(N, 2)`` (m), ``headings`` ``(N,)`` (rad) and ``speeds`` ``(N,)``
+    (m/s), as ``RoomEnv.reset`` takes them (a leading replica axis of 1 is accepted too). Other option keys are
+    ignored with a warning (PettingZoo's API test passes arbitrary ones).
+
+    ``state()`` is the global state for centralised training: the positions (m) then the velocities (m/s) of all
+    ``N`` agents, ``(4 N,)`` float32 as ``[x0, y0, x1, y1, ..., vx0, vy0, ...]``, zero for agents not in ``agents``.
+
+    The room may live on any device: its tensors are copied to the CPU once per call.
+
+    Args:
+        env: A built ``RoomEnv`` with ``num_replicas == 1``; the adapter resets and steps it.
+        render_mode: Only ``None``: nothing is rendered (``pedrl-eval`` draws animations of whole trials).
+
+    Raises:
+        ValueError: If ``env.num_replicas`` is not 1 or ``render_mode`` is not ``None``.
+    """
+
+    metadata: dict[str, Any] = {"name": "pedrl_room_v0", "render_modes": [], "is_parallelizable": True}
+
+    def __init__(self, env: RoomEnv, *, render_mode: str | None = None) -> None:
+        num_replicas = getattr(env, "num_replicas", None)
+        if num_replicas != 1:
+            raise ValueError(
+                f"env.num_replicas={num_replicas!r} is invalid: PedestrianParallelEnv wraps one room, build"
+                " RoomEnv(num_replicas=1, ...)"
+            )
+        if render_mode is not None:
+            raise ValueError(f"render_mode={render_mode!r} is invalid: PedestrianParallelEnv supports only None")
+        self.env = env
+        self.render_mode = render_mode
+        self.possible_agents: list[str] = [f"{AGENT_PREFIX}{index}" for index in range(env.num_agents)]
+        self.agents: list[str] = []
+        self._index = {agent: index for index, agent in enumerate(self.possible_agents)}
+        low, high = observation_bounds(env)
+        # one object per agent, always the same one (PettingZoo seeds and caches spaces per agent)
+        self.observation_spaces = {
+            agent: spaces.Box(low=low, high=high, dtype=np.float32) for agent in self.possible_agents
+        }
+        self.action_spaces = {agent: spaces.Discrete(env.num_actions) for agent in self.possible_agents}
+        max_velocity = _widen(float(env.max_speed))
+        num_agents = env.num_agents
+        state_low = np.concatenate((np.full(2 * num_agents, -np.inf), np.full(2 * num_agents, -max_velocity))).astype(
+            np.float32
+        )
+        self.state_space = spaces.Box(low=state_low, high=-state_low, dtype=np.float32)
+        self._was_reset = False
+
+    # ------------------------------------------------------------------ spaces
+
+    def observation_space(self, agent: str) -> spaces.Box:
+        """``Box(float32, (num_features,))`` of ``agent``, the same object at every call."""
+        return self.observation_spaces[agent]
+
+    def action_space(self, agent: str) -> spaces.Discrete:
+        """``Discrete(81)`` of ``agent``, the same object at every call."""
+        return self.action_spaces[agent]
+
+    # ------------------------------------------------------------------ API
+
+    def reset(
+        self, seed: int | None = None, options: Mapping[str, Any] | None = None
+    ) -> tuple[dict[str, np.ndarray], dict[str, dict[str, Any]]]:
+        """Start a new trial: every agent in ``agents``; returns the observations and infos of all of them."""
+        obs, info = self.env.reset(seed=seed, options=self._room_options(options))
+        self._was_reset = True
+        active = self.env.active[0].cpu().tolist()
+        self.agents = [agent for agent, alive in zip(self.possible_agents, active, strict=True) if alive]
+        indices = list(range(len(self.possible_agents)))
+        return self._observations(obs, indices), self._infos(info, indices)
+
+    def step(
+        self, actions: Mapping[str, Any]
+    ) -> tuple[dict[str, np.ndarray], dict[str, float], dict[str, bool], dict[str, bool], dict[str, dict[str, Any]]]:
+        """Advance the room one decision (see the class docstring for missing and extra actions)."""
+        if not self._was_reset:
+            raise RuntimeError("PedestrianParallelEnv.step() called before reset()")
+        room_actions = self._room_actions(actions)
+        acting = [self._index[agent] for agent in self.agents]
+        if not acting:
+            return {}, {}, {}, {}, {}
+        obs, reward, terminated, truncated, info = self.env.step(room_actions)
+        rewards = reward[0].cpu().tolist()
+        terminations = terminated[0].cpu().tolist()
+        truncations = truncated[0].cpu().tolist()
+        names = [self.possible_agents[index] for index in acting]
+        result = (
+            self._observations(obs, acting),
+            {agent: float(rewards[index]) for agent, index in zip(names, acting, strict=True)},
+            {agent: bool(terminations[index]) for agent, index in zip(names, acting, strict=True)},
+            {agent: bool(truncations[index]) for agent, index in zip(names, acting, strict=True)},
+            self._infos(info, acting),
+        )
+        self.agents = [
+            agent for agent, index in zip(names, acting, strict=True) if not (terminations[index] or truncations[index])
+        ]
+        return result
+
+    def state(self) -> np.ndarray:
+        """Positions then velocities of all agents, ``(4 N,)`` float32, zero for agents not in ``agents``."""
+        active = self.env.active[0].unsqueeze(-1)
+        positions = torch.where(active, self.env.positions[0], 0.0)
+        velocities = torch.where(active, self.env.velocities[0], 0.0)
+        return torch.cat((positions.flatten(), velocities.flatten())).to(torch.float32).cpu().numpy()
+
+    def render(self) -> None:
+        """Nothing to render (``render_mode`` is ``None``)."""
+        gymnasium.logger.warn("PedestrianParallelEnv.render() does nothing: it supports only render_mode=None")
+
+    def close(self) -> None:
+        """Nothing to release."""
+
+    # ------------------------------------------------------------------ conversions
+
+    def _room_options(self, options: Mapping[str, Any] | None) -> dict[str, torch.Tensor]:
+        """One replica's placement options with the replica axis added; other keys ignored with a warning."""
+        options = dict(options or {})
+        ignored = sorted(repr(key) for key in options if key not in PLACEMENT_OPTIONS)
+        if ignored:
+            warnings.warn(
+                f"PedestrianParallelEnv.reset ignores the options {', '.join(ignored)}: it takes"
+                f" {', '.join(PLACEMENT_OPTIONS)}",
+                UserWarning,
+                stacklevel=3,
+            )
+        room_options = {}
+        for key, axes in PLACEMENT_OPTIONS.items():
+            if options.get(key) is None:
+                continue
+            value = torch.as_tensor(np.asarray(options[key], dtype=np.float32))
+            room_options[key] = value.unsqueeze(0) if value.dim() == axes else value  # RoomEnv checks the shape
+        return room_options
+
+    def _room_actions(self, actions: Mapping[str, Any]) -> torch.Tensor:
+        """Actions ``(1, N)`` int64: the given ones, the no-op for the others (inactive agents' are ignored)."""
+        if not isinstance(actions, Mapping):
+            raise ValueError(f"actions of type {type(actions).__name__} is invalid: must be a dict keyed by agent")
+        room_actions = torch.full((1, len(self.possible_agents)), NOOP_ACTION, dtype=torch.int64)
+        num_actions = self.env.num_actions
+        for agent, action in actions.items():
+            index = self._index.get(agent)
+            if index is None:
+                raise ValueError(f"actions key {agent!r} is invalid: must be one of pedestrian_0 .. pedestrian_N-1")
+            try:
+                value = operator.index(action)
+            except TypeError:
+                value = None
+            if value is None or not 0 <= value < num_actions:
+                raise ValueError(f"actions[{agent!r}]={action!r} is invalid: must be an integer in [0, {num_actions})")
+            room_actions[0, index] = value
+        return room_actions
+
+    def _observations(self, obs: torch.Tensor, indices: list[int]) -> dict[str, np.ndarray]:
+        rows = obs[0].to(torch.float32).cpu().numpy()
+        return {self.possible_agents[index]: rows[index].copy() for index in indices}
+
+    def _infos(self, info: Mapping[str, Any], indices: list[int]) -> dict[str, dict[str, Any]]:
+        columns = {key: info[key][0].cpu().tolist() for key in INFO_KEYS}
+        infos = {}
+        for index in indices:
+            values = {key: columns[key][index] for key in INFO_KEYS}
+            infos[self.possible_agents[index]] = {
+                "crashed_agent": bool(values["crashed_agent"]),
+                "crashed_wall": bool(values["crashed_wall"]),
+                "reached": bool(values["reached"]),
+                "speed": float(values["speed"]),
+            }
+        return infos
+
+
+def parallel_env(*, render_mode: str | None = None, **room_kwargs: Any) -> PedestrianParallelEnv:
+    """Build ``RoomEnv(num_replicas=1, **room_kwargs)`` and wrap it in a :class:`PedestrianParallelEnv`.
+
+    Args:
+        render_mode: Only ``None``.
+        **room_kwargs: ``RoomEnv`` keywords (``num_agents``, ``width``, ``max_decisions``, ``device``...).
+
+    Raises:
+        ValueError: For an invalid room keyword (``RoomEnv``'s one-line message) or ``num_replicas`` other than 1.
+    """
+    room = RoomEnv(**{"num_replicas": 1, **room_kwargs})
+    return PedestrianParallelEnv(room, render_mode=render_mode)
