@@ -36,7 +36,7 @@ def build_trainer(cfg: DictConfig, run_dir: str | Path) -> Trainer:
     trainer, settings = trainer_class(config["algo"])
     return trainer(
         **settings,
-        env=env_factory(config["env"]),
+        env=env_factory(config["env"], config.get("scenario")),
         vq=vq_settings(config["vq"]),
         processes=config["processes"],
         rooms_per_process=config["rooms_per_process"],

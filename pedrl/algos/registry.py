@@ -10,7 +10,8 @@ validate like any typed value; nothing is ever instantiated from a config node.
 from __future__ import annotations
 
 import inspect
-from collections.abc import Mapping
+import math
+from collections.abc import Callable, Mapping
 from functools import partial
 from typing import Any, Final
 
@@ -18,7 +19,9 @@ from pedrl.algos.base import Trainer, VQSettings
 from pedrl.algos.in_vqql import INVQQL
 from pedrl.algos.it_vqql import ITVQQL
 from pedrl.algos.vqql import VQQL
+from pedrl.scenarios import build_scenario
 from pedrl.sim import RoomEnv
+from pedrl.sim.validation import check_number, check_real
 
 ENV_CLASSES: Final[dict[str, type[RoomEnv]]] = {"pedrl.sim.RoomEnv": RoomEnv, "pedrl.sim.env.RoomEnv": RoomEnv}
 """Allowed values of ``env._target_``."""
@@ -32,8 +35,8 @@ TRAINER_CLASSES: Final[dict[str, type[Trainer]]] = {
 }
 """Allowed values of ``algo._target_``."""
 KNOWN_TARGETS: Final = {"env._target_": ENV_CLASSES, "algo._target_": TRAINER_CLASSES}
-ENV_RUN_ARGUMENTS: Final = ("num_replicas", "num_agents", "device")
-"""Room arguments the trainers supply at run time (not config values)."""
+ENV_RUN_ARGUMENTS: Final = ("num_replicas", "num_agents", "device", "geometry")
+"""Room arguments supplied at run time (not config values): the geometry comes from the ``scenario`` config."""
 TRAINER_RUN_ARGUMENTS: Final = (
     "env",
     "vq",
@@ -96,14 +99,30 @@ def _check_special_key(name: str, value: Any) -> None:
         raise ValueError(f"{name}={value!r} is invalid: must be one of {', '.join(known)}")
 
 
-def env_factory(env: Mapping[str, Any]) -> partial[RoomEnv]:
-    """The room of the ``env`` config: ``factory(num_replicas=, num_agents=, device=)`` builds it.
+def env_factory(env: Mapping[str, Any], scenario: Mapping[str, Any] | None = None) -> Callable[..., RoomEnv]:
+    """The room of the ``env`` config in the ``scenario``: ``factory(num_replicas=, num_agents=, device=)`` builds it.
+
+    The scenario (``None``: the paper's room of the ``env`` keys) is built once, with shapely; each room then checks
+    that its agents fit in the spawn areas before it allocates anything.
 
     Raises:
-        ValueError: one line, for a key the room does not take (values are validated when the room is built).
+        ValueError: one line, for a key the room does not take or a bad scenario (values are validated when the room
+            is built).
     """
     settings = _settings("env", env, ENV_CLASSES, supplied=ENV_RUN_ARGUMENTS)
-    return partial(ENV_CLASSES[env["_target_"]], **settings)
+    goal_depth = check_number("goal_depth", settings.get("goal_depth", 0.0), low=0.0, high=math.inf)
+    radius = check_real("agent_radius", settings.get("agent_radius", 0.4), unit="m", positive=True)
+    built = build_scenario(scenario, room=settings)
+    geometry = built.geometry(goal_depth=goal_depth)
+    room = partial(ENV_CLASSES[env["_target_"]], geometry=geometry, **settings)
+
+    def factory(*, num_replicas: int, num_agents: int, device: str | Any = "cpu") -> RoomEnv:
+        if isinstance(num_agents, int) and not isinstance(num_agents, bool) and num_agents > 0:
+            built.check_capacity(num_agents, radius)
+        return room(num_replicas=num_replicas, num_agents=num_agents, device=device)
+
+    factory.scenario = built  # type: ignore[attr-defined]
+    return factory
 
 
 def trainer_class(algo: Mapping[str, Any]) -> tuple[type[Trainer], dict[str, Any]]:

@@ -273,7 +273,7 @@ class RoomEnv:
             if body_area > MAX_DENSITY * free_area:
                 where = (
                     f"a {self.width} m x {self.length} m room"
-                    if len(geometry.spawns) == 1
+                    if len(geometry.spawns) == 1 and spawn.box == geometry.bounds
                     else f"spawn area {index} ({spawn.area:.4g} m^2, {count} of the agents)"
                 )
                 share = f"{body_area / free_area:.0%}" if free_area > 0 else "all"
@@ -344,24 +344,36 @@ class RoomEnv:
     def targets(self) -> torch.Tensor:
         """The point each agent aims at ``(R, N, 2)`` (m): its current waypoint, else its exit's goal point. The
         reference line of the state and the progress reward run to it."""
+        return self._route_point(self.stage)
+
+    def _route_point(self, stage: torch.Tensor) -> torch.Tensor:
+        """Waypoint ``stage`` of each agent's route ``(R, N, 2)``, or its exit's goal point past the route's end."""
         goals = self.geometry.exit_goals[self.exit_index]  # (R, N, 2)
         if self._waypoints.shape[1] == 0:
             return goals
-        on_route = self.stage < self._route_length  # (R, N)
-        stage = self.stage.clamp(max=self._waypoints.shape[1] - 1)
-        waypoint = torch.gather(
-            self._waypoints.expand(self.num_replicas, -1, -1, -1), 2, stage[..., None, None].expand(-1, -1, 1, 2)
-        ).squeeze(2)
-        return torch.where(on_route.unsqueeze(-1), waypoint, goals)
+        index = stage.clamp(max=self._waypoints.shape[1] - 1)[..., None, None].expand(-1, -1, 1, 2)
+        waypoint = torch.gather(self._waypoints.expand(self.num_replicas, -1, -1, -1), 2, index).squeeze(2)
+        return torch.where((stage < self._route_length).unsqueeze(-1), waypoint, goals)
 
     def _advance_routes(self) -> None:
-        """Agents within ``waypoint_radius`` of their current waypoint aim at the next one."""
+        """Agents that reached their waypoint aim at the next point of their route.
+
+        A waypoint is reached within ``waypoint_radius`` of it, or past it: beyond the line through it across the
+        direction to the next point, less than ``waypoint_radius`` to the side. (Agents move up to ``max_speed /
+        decisions_per_second`` per decision, so they overshoot a small disc.)
+        """
         if self._waypoints.shape[1] == 0:
             return
         radius = self.geometry.waypoint_radius
-        for _ in range(self._waypoints.shape[1]):  # a waypoint may lie within the radius of the previous one
-            offset = self.targets() - self.positions
-            arrived = ((offset * offset).sum(-1) < radius * radius) & (self.stage < self._route_length)
+        for _ in range(self._waypoints.shape[1]):  # fixed rounds, no host sync
+            current = self._route_point(self.stage)
+            direction = self._route_point(self.stage + 1) - current
+            direction = direction / torch.linalg.vector_norm(direction, dim=-1, keepdim=True).clamp_min(1e-9)
+            offset = self.positions - current
+            ahead = offset[..., X] * direction[..., X] + offset[..., Y] * direction[..., Y]
+            side = offset[..., X] * direction[..., Y] - offset[..., Y] * direction[..., X]
+            near = (offset * offset).sum(-1) < radius * radius
+            arrived = (near | ((ahead >= 0) & (side.abs() < radius))) & (self.stage < self._route_length)
             self.stage = self.stage + arrived.to(torch.int64)
 
     def _check_substeps(self) -> int:

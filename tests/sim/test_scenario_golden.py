@@ -6,17 +6,25 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from pedrl.scenarios import build_scenario
+
 DATA = Path(__file__).parents[1] / "data"
 spec = importlib.util.spec_from_file_location("make_paper_room_golden", DATA / "make_paper_room_golden.py")
 golden = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(golden)
 
 
+@pytest.mark.parametrize("through", ["rectangle", "scenario"])
 @pytest.mark.parametrize("case", sorted(golden.CASES))
-def test_paper_room_matches_the_rectangle_simulation_to_the_bit(case):
-    """Features, positions, rewards, arrivals and crashes of seeded random walks, against the pre-polygon code."""
+def test_paper_room_matches_the_rectangle_simulation_to_the_bit(case, through):
+    """Features, positions, rewards, arrivals and crashes of seeded random walks, against the pre-polygon code:
+    through ``Geometry.rectangle`` (the room's default) and through the shapely-built ``paper_room`` scenario, whose
+    walls come in another order."""
     stored = np.load(DATA / "paper_room_golden.npz")
     kwargs, decisions = golden.CASES[case]
+    if through == "scenario":
+        room = {"width": 60.0, "length": 100.0, "door_width": 2.0} | kwargs
+        kwargs = kwargs | {"geometry": build_scenario({"name": "paper_room"}, room=room).geometry()}
     record = golden.simulate(kwargs, decisions)
     for key, value in record.items():
         expected = stored[f"{case}/{key}"]

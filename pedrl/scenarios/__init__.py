@@ -1,0 +1,426 @@
+"""Scenarios: walkable areas from polygons (shapely), with exits, spawn areas and routes, built into a sim geometry.
+
+A scenario is a walkable polygon (an outer boundary with holes for obstacles, as in PedPy and JuPedSim), exit segments
+on its boundary, and spawn areas (polygons inside it), each with a share of the agents, the exit they take (or each
+agent's nearest) and an optional route of waypoints. :func:`build_scenario` makes one from a ``scenario`` config
+(the ``scenario/`` Hydra group), :meth:`Scenario.geometry` turns it into the tensors of
+:class:`pedrl.sim.Geometry`. shapely does every polygon operation: validity, boundaries, containment, erosion.
+
+Built-in scenarios (:data:`SCENARIOS`):
+
+=============  =====================================================================================================
+``paper_room``  the paper's room: ``width x length`` (the ``env`` keys), a door of ``door_width`` centred in the far
+                short side; agents start anywhere
+``bottleneck``  a waiting area feeding a corridor through an opening of ``opening`` m (Seyfried / Liddle layout);
+                agents start in the waiting area; the exit is the far end of the corridor
+``corridor``    a straight corridor, two groups starting at opposite ends, each heading for the other end (lanes)
+``corner``      RiMEA test 6: a 2 m wide corridor turning left; agents start in its first 6 m, and aim at the corner
+                before the exit
+``four_exits``  RiMEA test 9: a 30 m x 20 m room with four 1 m exits, two in each long side; ``closed_exits`` closes
+                some (they become walls); each agent takes its nearest open exit
+``custom``      ``geometry``: a WKT file of the walkable polygon; ``exits``: ``[[x1, y1, x2, y2], ...]`` segments on its
+                boundary; ``spawn``: ``[[x_min, y_min, x_max, y_max], ...]`` boxes (default: the whole area)
+=============  =====================================================================================================
+"""
+
+from __future__ import annotations
+
+import inspect
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Final
+
+import shapely
+import torch
+from shapely.geometry import LineString, Point, Polygon, box
+
+from pedrl.sim.env import MAX_DENSITY
+from pedrl.sim.geometry import Geometry, SpawnArea
+
+SCENARIOS: Final = ("paper_room", "bottleneck", "corridor", "corner", "four_exits", "custom")
+"""Names accepted by ``scenario.name``."""
+WAYPOINT_SETBACK: Final = 0.8
+"""Distance (m) before and after the bottleneck's entrance of the waypoints that line agents up with it."""
+TOLERANCE: Final = 1e-6
+"""Distance (m) within which an exit counts as lying on the boundary, and a spawn area inside the walkable area."""
+LIDDLE_WIDTHS: Final = (0.9, 1.0, 1.1, 1.2, 1.4, 1.6, 1.8, 2.0, 2.3, 2.5)
+"""Bottleneck widths (m) of the Seyfried / Liddle experiments."""
+LIDDLE_FLOWS: Final = (1.71, 2.02, 2.19, 2.53, 2.91, 3.11, 3.91, 3.91, 4.52, 5.55)
+"""Measured flows (1/s) through the bottleneck at :data:`LIDDLE_WIDTHS` (Liddle et al.; about ``J = 2.22 w - 0.25``)."""
+
+
+@dataclass(frozen=True)
+class Spawn:
+    """A spawn area: where a group starts, its share of the agents, its exit (-1: nearest) and its waypoints."""
+
+    area: Polygon
+    weight: float = 1.0
+    exit: int = -1
+    waypoints: tuple[tuple[float, float], ...] = ()
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A walkable polygon with exits and spawn areas (shapely objects), plus named measurement lines.
+
+    Attributes:
+        name: The scenario's name.
+        walkable: The walkable area.
+        exits: The open exits, segments on the boundary of ``walkable``.
+        spawns: The spawn areas.
+        lines: Named measurement lines (e.g. ``"opening"`` across the bottleneck), for flows.
+        waypoint_radius: Distance (m) at which a waypoint counts as reached.
+    """
+
+    name: str
+    walkable: Polygon
+    exits: tuple[LineString, ...]
+    spawns: tuple[Spawn, ...]
+    lines: Mapping[str, LineString] = field(default_factory=dict)
+    waypoint_radius: float = 2.0
+
+    def __post_init__(self) -> None:
+        _check_polygon(self.walkable, "the walkable area")
+        if not self.exits:
+            raise ValueError(f"scenario {self.name!r} has no open exit: at least one is needed")
+        boundary = self.walkable.boundary
+        for index, exit_ in enumerate(self.exits):
+            if exit_.length <= 0 or boundary.buffer(TOLERANCE).covers(exit_) is False:
+                raise ValueError(
+                    f"exit {index} {_coords(exit_)} is invalid: it must be a segment on the boundary of the walkable"
+                    " area"
+                )
+        if not self.spawns:
+            raise ValueError(f"scenario {self.name!r} has no spawn area")
+        grown = self.walkable.buffer(TOLERANCE)
+        for index, spawn in enumerate(self.spawns):
+            _check_polygon(spawn.area, f"spawn area {index}")
+            if not grown.covers(spawn.area):
+                raise ValueError(
+                    f"spawn area {index} {_bounds(spawn.area)} is invalid: it must lie inside the walkable area"
+                    f" {_bounds(self.walkable)}"
+                )
+            if not -1 <= spawn.exit < len(self.exits):
+                raise ValueError(
+                    f"spawn area {index} exit={spawn.exit} is invalid: must be -1 (nearest) or in"
+                    f" [0, {len(self.exits)})"
+                )
+
+    def check_capacity(self, num_agents: int, agent_radius: float) -> None:
+        """One-line ``ValueError`` if ``num_agents`` bodies cannot be placed in the spawn areas.
+
+        The bodies of a group may cover at most :data:`~pedrl.sim.env.MAX_DENSITY` of the part of its spawn area
+        where a centre can lie (the area eroded by the radius, and clear of the walls).
+        """
+        from pedrl.sim.geometry import spawn_counts
+
+        counts = spawn_counts(num_agents, [spawn.weight for spawn in self.spawns])
+        free_space = self.walkable.buffer(-agent_radius)
+        for index, (spawn, count) in enumerate(zip(self.spawns, counts, strict=True)):
+            free = spawn.area.buffer(-agent_radius).intersection(free_space).area
+            body = count * math.pi * agent_radius**2
+            if body > MAX_DENSITY * free:
+                most = int(MAX_DENSITY * free / (math.pi * agent_radius**2))
+                raise ValueError(
+                    f"num_agents={num_agents} is invalid: {count} bodies of radius {agent_radius} m do not fit in"
+                    f" spawn area {index} of scenario {self.name!r} ({spawn.area.area:.4g} m^2): at most {most} there"
+                    f" ({MAX_DENSITY:.0%} of its free area)"
+                )
+
+    def geometry(self, *, goal_depth: float = 0.0, device: str | torch.device = "cpu") -> Geometry:
+        """The simulation's :class:`~pedrl.sim.Geometry`: walls are the boundary minus the exits."""
+        walls = _segments(self.walkable.boundary.difference(shapely.union_all(self.exits)))
+        exits = [list(exit_.coords)[:2] for exit_ in self.exits]
+        normals = [_outward_normal(self.walkable, exit_) for exit_ in self.exits]
+        spawns = tuple(
+            SpawnArea(
+                box=tuple(spawn.area.bounds),
+                edges=torch.tensor(_ring_segments(spawn.area), dtype=torch.float32).reshape(-1, 2, 2),
+                area=spawn.area.area,
+                perimeter=spawn.area.length,
+                exit=spawn.exit,
+                weight=spawn.weight,
+                waypoints=torch.tensor(spawn.waypoints, dtype=torch.float32).reshape(-1, 2),
+            )
+            for spawn in self.spawns
+        )
+        return Geometry.build(
+            walls=torch.tensor(walls, dtype=torch.float32).reshape(-1, 2, 2),
+            exits=exits,
+            exit_normals=normals,
+            spawns=spawns,
+            bounds=tuple(self.walkable.bounds),
+            clear_box=_clear_box(self.walkable),
+            goal_depth=goal_depth,
+            waypoint_radius=self.waypoint_radius,
+            name=self.name,
+            device=device,
+        )
+
+    def to_wkt(self) -> str:
+        """The walkable area as WKT (PedPy's ``WalkableArea`` reads it)."""
+        return self.walkable.wkt
+
+
+# ---------------------------------------------------------------------------------------------- built-in scenarios
+
+
+def paper_room(*, width: float = 60.0, length: float = 100.0, door_width: float = 2.0) -> Scenario:
+    """The paper's room: a door of ``door_width`` centred in the side ``y = length``; agents start anywhere."""
+    room = box(0.0, 0.0, width, length)
+    door = LineString([(width / 2 + door_width / 2, length), (width / 2 - door_width / 2, length)])
+    return Scenario("paper_room", room, (door,), (Spawn(room),))
+
+
+def bottleneck(
+    *,
+    opening: float = 1.2,
+    corridor_length: float = 4.0,
+    room_width: float = 10.0,
+    room_length: float = 10.0,
+    spawn_length: float = 8.0,
+) -> Scenario:
+    """Waiting area ``[0, room_width] x [0, room_length]``, a corridor of ``opening`` x ``corridor_length`` centred on
+    its far side; agents start in the first ``spawn_length`` m of the waiting area and leave at the corridor's end.
+    The measurement line ``"opening"`` spans the corridor's entrance."""
+    _positive(opening=opening, corridor_length=corridor_length, room_width=room_width, room_length=room_length)
+    if opening > room_width:
+        raise ValueError(f"scenario.opening={opening!r} is invalid: at most room_width={room_width!r} m")
+    left, right = (room_width - opening) / 2, (room_width + opening) / 2
+    end = room_length + corridor_length
+    walkable = shapely.union(box(0.0, 0.0, room_width, room_length), box(left, room_length, right, end))
+    walkable = shapely.normalize(shapely.simplify(walkable, 0.0))
+    spawn = box(0.0, 0.0, room_width, min(spawn_length, room_length - WAYPOINT_SETBACK))
+    lines = {"opening": LineString([(left, room_length), (right, room_length)])}
+    # the route lines agents up with the opening before they aim at the exit: with bodies that stop on contact
+    # (no sliding), a straight line from the side to the exit catches a door post and holds the agent there
+    centre = room_width / 2
+    route = (
+        (centre, room_length - WAYPOINT_SETBACK),
+        (centre, room_length + min(WAYPOINT_SETBACK, corridor_length / 2)),
+    )
+    exit_ = LineString([(right, end), (left, end)])
+    return Scenario(
+        "bottleneck", walkable, (exit_,), (Spawn(spawn, exit=0, waypoints=route),), lines, waypoint_radius=0.4
+    )
+
+
+def corridor(*, length: float = 40.0, width: float = 5.0, spawn_length: float = 12.0) -> Scenario:
+    """A corridor ``[0, length] x [0, width]`` open at both ends; half the agents start in its first
+    ``spawn_length`` m and leave at ``x = length``, the other half the other way. Line ``"middle"`` crosses it."""
+    _positive(length=length, width=width, spawn_length=spawn_length)
+    if 2 * spawn_length > length:
+        raise ValueError(f"scenario.spawn_length={spawn_length!r} is invalid: at most length / 2 = {length / 2!r} m")
+    walkable = box(0.0, 0.0, length, width)
+    east = LineString([(length, 0.0), (length, width)])
+    west = LineString([(0.0, width), (0.0, 0.0)])
+    spawns = (
+        Spawn(box(0.0, 0.0, spawn_length, width), exit=0),
+        Spawn(box(length - spawn_length, 0.0, length, width), exit=1),
+    )
+    lines = {"middle": LineString([(length / 2, 0.0), (length / 2, width)])}
+    return Scenario("corridor", walkable, (east, west), spawns, lines)
+
+
+def corner(*, width: float = 2.0, leg: float = 12.0, spawn_length: float = 10.0) -> Scenario:
+    """RiMEA test 6: a corridor of ``width`` along x for ``leg`` m, turning left into a leg along y of ``leg`` m; the
+    agents start in its first ``spawn_length`` m, aim at the corner's centre, then at the exit at the end."""
+    _positive(width=width, leg=leg, spawn_length=spawn_length)
+    walkable = shapely.normalize(shapely.union(box(0.0, 0.0, leg, width), box(leg - width, 0.0, leg, leg)))
+    exit_ = LineString([(leg, leg), (leg - width, leg)])
+    turn = (leg - width / 2, width / 2)
+    spawn = Spawn(box(0.0, 0.0, min(spawn_length, leg - width), width), exit=0, waypoints=(turn,))
+    return Scenario("corner", walkable, (exit_,), (spawn,), waypoint_radius=width / 2)
+
+
+def four_exits(
+    *, width: float = 30.0, length: float = 20.0, exit_width: float = 1.0, closed_exits: Sequence[int] = ()
+) -> Scenario:
+    """RiMEA test 9: a room ``width x length`` with four exits of ``exit_width``, two near the ends of each long side
+    (0: bottom left, 1: bottom right, 2: top left, 3: top right); ``closed_exits`` become walls."""
+    _positive(width=width, length=length, exit_width=exit_width)
+    room = box(0.0, 0.0, width, length)
+    margin = 1.0
+    if 2 * (margin + exit_width) > width:
+        raise ValueError(f"scenario.exit_width={exit_width!r} is invalid: two exits must fit in each long side")
+    exits = [
+        LineString([(margin + exit_width, 0.0), (margin, 0.0)]),
+        LineString([(width - margin, 0.0), (width - margin - exit_width, 0.0)]),
+        LineString([(margin, length), (margin + exit_width, length)]),
+        LineString([(width - margin - exit_width, length), (width - margin, length)]),
+    ]
+    closed = sorted({_index("closed_exits", value, 4) for value in closed_exits})
+    if len(closed) == 4:
+        raise ValueError("scenario.closed_exits=[0, 1, 2, 3] is invalid: at least one exit must stay open")
+    open_exits = tuple(exit_ for index, exit_ in enumerate(exits) if index not in closed)
+    return Scenario("four_exits", room, open_exits, (Spawn(room),))
+
+
+def custom(
+    *, geometry: str | Path, exits: Sequence[Sequence[float]], spawn: Sequence[Sequence[float]] | None = None
+) -> Scenario:
+    """A user's walkable area: ``geometry`` a WKT file holding one polygon (holes allowed), ``exits`` segments
+    ``[x1, y1, x2, y2]`` on its boundary, ``spawn`` boxes ``[x_min, y_min, x_max, y_max]`` (default: the whole area,
+    each agent taking its nearest exit)."""
+    walkable = read_wkt(geometry)
+    if not exits:
+        raise ValueError("scenario.exits is missing: give at least one exit segment [x1, y1, x2, y2] on the boundary")
+    lines = tuple(
+        LineString(_numbers(f"scenario.exits[{i}]", value, 4).reshape(2, 2).tolist()) for i, value in enumerate(exits)
+    )
+    if spawn:
+        areas = tuple(Spawn(box(*_numbers(f"scenario.spawn[{i}]", value, 4).tolist())) for i, value in enumerate(spawn))
+    else:
+        areas = (Spawn(walkable),)
+    return Scenario("custom", walkable, lines, areas)
+
+
+BUILDERS: Final = {
+    "paper_room": paper_room,
+    "bottleneck": bottleneck,
+    "corridor": corridor,
+    "corner": corner,
+    "four_exits": four_exits,
+    "custom": custom,
+}
+
+
+def build_scenario(config: Mapping[str, Any] | None, *, room: Mapping[str, Any] | None = None) -> Scenario:
+    """The scenario of a ``scenario`` config (``name`` and the builder's keys; ``None`` is the paper's room).
+
+    ``room`` holds the ``env`` settings: the paper's room takes its ``width``, ``length`` and ``door_width`` there.
+    A ``geometry`` path makes any scenario ``custom``.
+
+    Raises:
+        ValueError: one line naming the bad value and what is allowed.
+    """
+    settings = dict(config or {"name": "paper_room"})
+    name = settings.pop("name", "paper_room")
+    if not isinstance(name, str) or name not in BUILDERS:
+        raise ValueError(f"scenario.name={name!r} is invalid: must be one of {', '.join(SCENARIOS)}")
+    if settings.get("geometry") is not None:  # a user's polygon replaces the scenario's own
+        name = "custom"
+        settings = {key: settings.get(key) for key in ("geometry", "exits", "spawn")}
+    elif name != "custom":
+        for key in ("exits", "spawn"):
+            if settings.get(key) is not None:
+                raise ValueError(
+                    f"scenario.{key} is set without scenario.geometry: it describes a custom polygon (a WKT file)"
+                )
+    settings = {key: value for key, value in settings.items() if value is not None}
+    if name == "paper_room":
+        room = room or {}
+        settings = {key: room[key] for key in ("width", "length", "door_width") if key in room} | settings
+    builder = BUILDERS[name]
+    allowed = list(inspect.signature(builder).parameters)
+    for key in settings:
+        if key not in allowed:
+            raise ValueError(
+                f"scenario.{key} is not a setting of scenario {name!r}: allowed: {', '.join(allowed) or 'none'}"
+            )
+    try:
+        return builder(**settings)
+    except (TypeError, shapely.errors.GEOSException) as err:
+        raise ValueError(f"scenario {name!r} is invalid: {str(err).splitlines()[0]}") from None
+
+
+def read_wkt(path: str | Path) -> Polygon:
+    """The polygon of a WKT file (one ``POLYGON``, or a collection holding exactly one), else a one-line error."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as err:
+        raise ValueError(
+            f"scenario.geometry={str(path)!r} is invalid: cannot read it ({err.strerror or err})"
+        ) from None
+    try:
+        shape = shapely.from_wkt(text.strip())
+    except shapely.errors.GEOSException as err:
+        raise ValueError(f"scenario.geometry={str(path)!r} is invalid: not WKT ({str(err).splitlines()[0]})") from None
+    polygons = [part for part in shapely.get_parts(shape) if isinstance(part, Polygon)]
+    if len(polygons) != 1:
+        raise ValueError(
+            f"scenario.geometry={str(path)!r} is invalid: it must hold exactly one POLYGON, it holds {len(polygons)}"
+        )
+    return polygons[0]
+
+
+# ---------------------------------------------------------------------------------------------- helpers
+
+
+def _check_polygon(polygon: Polygon, what: str) -> None:
+    if not isinstance(polygon, Polygon) or polygon.is_empty:
+        raise ValueError(
+            f"{what} is invalid: must be a non-empty polygon, got {getattr(polygon, 'geom_type', polygon)}"
+        )
+    if not polygon.is_valid:
+        reason = shapely.is_valid_reason(polygon)
+        raise ValueError(f"{what} {_bounds(polygon)} is invalid: {reason} (a polygon must not intersect itself)")
+
+
+def _segments(lines: Any) -> list[list[list[float]]]:
+    """Every straight segment of a (multi)line geometry: ``[[[x1, y1], [x2, y2]], ...]``."""
+    segments = []
+    for part in shapely.get_parts(shapely.line_merge(lines) if lines.geom_type == "MultiLineString" else lines):
+        coords = list(part.coords)
+        segments += [[list(a), list(b)] for a, b in zip(coords[:-1], coords[1:], strict=True) if a != b]
+    return segments
+
+
+def _ring_segments(polygon: Polygon) -> list[list[list[float]]]:
+    """Segments of every ring of a polygon (exterior and holes)."""
+    return _segments(shapely.MultiLineString([polygon.exterior, *polygon.interiors]))
+
+
+def _outward_normal(walkable: Polygon, exit_: LineString) -> list[float]:
+    """Unit normal of ``exit_`` pointing out of ``walkable``."""
+    (x1, y1), (x2, y2) = list(exit_.coords)[:2]
+    length = math.hypot(x2 - x1, y2 - y1)
+    normal = [(y2 - y1) / length, -(x2 - x1) / length]
+    middle = ((x1 + x2) / 2, (y1 + y2) / 2)
+    probe = Point(middle[0] - 1e-3 * normal[0], middle[1] - 1e-3 * normal[1])  # inside if the normal points out
+    return normal if walkable.contains(probe) else [-normal[0], -normal[1]]
+
+
+def _clear_box(walkable: Polygon) -> tuple[float, float, float, float]:
+    """An axis-aligned box inside ``walkable``: the area itself if it is a rectangle, else the square inscribed in
+    its largest inscribed circle."""
+    if walkable.equals(box(*walkable.bounds)):
+        return tuple(walkable.bounds)
+    radius_line = shapely.maximum_inscribed_circle(walkable)
+    (cx, cy), _ = list(radius_line.coords)
+    half = radius_line.length / math.sqrt(2.0) * (1 - 1e-6)
+    return (cx - half, cy - half, cx + half, cy + half)
+
+
+def _positive(**values: Any) -> None:
+    for name, value in values.items():
+        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) or value <= 0:
+            raise ValueError(f"scenario.{name}={value!r} is invalid: must be a finite number > 0 (m)")
+
+
+def _numbers(name: str, value: Any, count: int) -> torch.Tensor:
+    try:
+        numbers = torch.tensor([float(v) for v in value], dtype=torch.float64)
+    except (TypeError, ValueError):
+        numbers = torch.zeros(0)
+    if numbers.shape != (count,) or not bool(torch.isfinite(numbers).all()):
+        raise ValueError(f"{name}={value!r} is invalid: must be {count} finite numbers (m)")
+    return numbers
+
+
+def _index(name: str, value: Any, size: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value < size:
+        raise ValueError(f"scenario.{name} holds {value!r}: must be exit indices in [0, {size})")
+    return value
+
+
+def _coords(line: LineString) -> str:
+    return "[" + ", ".join(f"({x:g}, {y:g})" for x, y in line.coords) + "]"
+
+
+def _bounds(polygon: Any) -> str:
+    x_min, y_min, x_max, y_max = polygon.bounds
+    return f"[{x_min:g}, {y_min:g}] x [{x_max:g}, {y_max:g}]"

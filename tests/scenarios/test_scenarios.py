@@ -1,0 +1,160 @@
+"""Scenarios from polygons: each built-in one, custom WKT input, the bad inputs, and physical invariants in each."""
+
+import math
+
+import pytest
+import torch
+from shapely.geometry import box
+
+from pedrl.algos.controllers import GreedyDoorController
+from pedrl.algos.registry import env_factory
+from pedrl.scenarios import SCENARIOS, Scenario, Spawn, build_scenario
+from pedrl.sim import RoomEnv
+from pedrl.sim.geometry import distances_to_segments
+
+BUILT_IN = [name for name in SCENARIOS if name != "custom"]
+AGENTS = {"paper_room": 20, "bottleneck": 30, "corridor": 30, "corner": 7, "four_exits": 40}
+ENV = {"_target_": "pedrl.sim.RoomEnv", "max_decisions": 60}
+
+
+@pytest.mark.parametrize("name", BUILT_IN)
+def test_each_scenario_keeps_bodies_apart_inside_and_off_the_walls(name):
+    """Greedy walkers with noise for 60 decisions: no overlap, nobody through a wall, nobody above top speed, and
+    every agent still in the area is inside the walkable polygon."""
+    env = env_factory(ENV, {"name": name})(num_replicas=2, num_agents=AGENTS[name])
+    controller = GreedyDoorController(epsilon=0.2, generator=torch.Generator().manual_seed(1))
+    obs, info = env.reset(seed=3)
+    walls = env.geometry.walls[: env.geometry.num_walls].double()
+    left = torch.zeros(env.num_replicas, env.num_agents, dtype=torch.bool)
+    for _ in range(60):
+        before = env.positions.clone()
+        obs, _, terminated, _, info = env.step(controller.act(env, obs, info))
+        left |= terminated
+        inside = env.active
+        positions = env.positions.double()
+        assert env.geometry.inside(env.positions)[inside].all()
+        assert (distances_to_segments(positions, walls).amin(-1)[inside] >= env.agent_radius - 1e-5).all()
+        gaps = torch.cdist(positions, positions) + torch.eye(env.num_agents, dtype=torch.float64) * 1e9
+        both = inside.unsqueeze(-1) & inside.unsqueeze(-2)
+        assert (gaps[both] >= 2 * env.agent_radius - 1e-5).all()
+        moved = (env.positions - before).norm(dim=-1)
+        assert (moved <= env.max_speed / env.decisions_per_second + 1e-4).all()
+    assert left.any() or name == "corridor"  # someone found an exit (the greedy crowds of the corridor deadlock)
+
+
+def test_paper_room_scenario_uses_the_env_size_and_one_door():
+    scenario = build_scenario({"name": "paper_room"}, room={"width": 20.0, "length": 30.0, "door_width": 3.0})
+    geometry = scenario.geometry(goal_depth=1.0)
+    assert geometry.bounds == (0.0, 0.0, 20.0, 30.0) and geometry.num_walls == 5
+    assert geometry.exit_goals.tolist() == [[10.0, 31.0]]
+
+
+def test_corridor_groups_head_for_opposite_ends_and_four_exits_take_the_nearest():
+    env = env_factory(ENV, {"name": "corridor"})(num_replicas=1, num_agents=10)
+    env.reset(seed=0)
+    assert env.exit_index[0].tolist() == [0] * 5 + [1] * 5
+    assert (env.positions[0, :5, 0] <= 12.0).all() and (env.positions[0, 5:, 0] >= 28.0).all()
+    env = env_factory(ENV, {"name": "four_exits"})(num_replicas=1, num_agents=40)
+    env.reset(seed=0)
+    goals = env.geometry.exit_goals
+    distance = torch.cdist(env.positions[0], goals)
+    assert torch.equal(env.exit_index[0], distance.argmin(-1))
+    assert len(set(env.exit_index[0].tolist())) == 4
+
+
+def test_closed_exits_become_walls():
+    open_all = build_scenario({"name": "four_exits"}).geometry()
+    two_closed = build_scenario({"name": "four_exits", "closed_exits": [2, 3]}).geometry()
+    assert open_all.num_exits == 4 and two_closed.num_exits == 2
+    assert (two_closed.exit_normals[:, 1] < 0).all()  # the bottom exits stay open
+    top = torch.tensor([[1.5, 19.9], [28.5, 19.9]])
+    assert two_closed.touches_walls(top, radius=0.4).all() and not open_all.touches_walls(top, radius=0.4).any()
+
+
+def test_corner_route_aims_at_the_turn_then_at_the_exit():
+    env = env_factory(ENV, {"name": "corner"})(num_replicas=1, num_agents=1)
+    env.reset(options={"positions": [[(2.0, 1.0)]], "headings": [[0.0]], "speeds": [[0.0]]})
+    torch.testing.assert_close(env.targets()[0, 0], torch.tensor([11.0, 1.0]))
+    env.reset(options={"positions": [[(10.8, 1.2)]], "headings": [[0.0]], "speeds": [[0.0]]})
+    torch.testing.assert_close(env.targets()[0, 0], torch.tensor([11.0, 12.0]))
+    # the reference line: the door distance is the distance to the target
+    obs, _ = env.reset(options={"positions": [[(2.0, 1.0)]], "headings": [[0.0]], "speeds": [[0.0]]})
+    assert obs[0, 0, 2].item() == pytest.approx(9.0)
+
+
+def test_custom_geometry_from_wkt_with_a_hole(tmp_path):
+    path = tmp_path / "room.wkt"
+    path.write_text("POLYGON ((0 0, 12 0, 12 10, 0 10, 0 0), (5 4, 7 4, 7 6, 5 6, 5 4))")
+    scenario = build_scenario(
+        {"name": "paper_room", "geometry": str(path), "exits": [[12, 4, 12, 6]], "spawn": [[0, 0, 4, 10]]}
+    )
+    assert scenario.name == "custom"
+    geometry = scenario.geometry()
+    assert geometry.num_walls == 5 + 4  # the outer ring, split by the exit, and the pillar
+    assert geometry.exit_normals.tolist() == [[1.0, 0.0]]
+    env = RoomEnv(num_replicas=2, num_agents=10, geometry=geometry)
+    env.reset(seed=0)
+    assert (env.positions[..., 0] <= 4.0).all()
+    assert not env.geometry.inside(torch.tensor([[6.0, 5.0]])).any()  # the pillar is not walkable
+
+
+BAD = [
+    ({"name": "mall"}, "scenario.name='mall' is invalid: must be one of paper_room"),
+    ({"name": "bottleneck", "opening": -1.0}, "scenario.opening=-1.0 is invalid"),
+    ({"name": "bottleneck", "wdith": 2.0}, "scenario.wdith is not a setting of scenario 'bottleneck'"),
+    ({"name": "four_exits", "closed_exits": [0, 1, 2, 3]}, "at least one exit must stay open"),
+    ({"name": "four_exits", "closed_exits": [7]}, "scenario.closed_exits holds 7"),
+    ({"name": "corridor", "exits": [[0, 0, 1, 1]]}, "scenario.exits is set without scenario.geometry"),
+]
+
+
+@pytest.mark.parametrize(("config", "message"), BAD)
+def test_bad_scenarios_give_one_line_errors(config, message):
+    with pytest.raises(ValueError, match=None) as err:
+        build_scenario(config)
+    assert message in str(err.value) and "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize(
+    ("wkt", "exits", "spawn", "message"),
+    [
+        ("POLYGON ((0 0, 10 10, 10 0, 0 10, 0 0))", [[10, 0, 10, 10]], None, "Self-intersection"),
+        ("POLYGON ((0 0, 10 0, 10 10, 0 10, 0 0))", [[5, 5, 6, 5]], None, "must be a segment on the boundary"),
+        ("POLYGON ((0 0, 10 0, 10 10, 0 10, 0 0))", [[10, 2, 10, 4]], [[8, 8, 12, 12]], "must lie inside the walkable"),
+        ("POINT (1 2)", [[10, 2, 10, 4]], None, "must hold exactly one POLYGON"),
+        ("POLYGON ((0 0, 10 0", [[10, 2, 10, 4]], None, "not WKT"),
+        ("POLYGON ((0 0, 10 0, 10 10, 0 10, 0 0))", [[10, 2, 10]], None, "must be 4 finite numbers"),
+    ],
+)
+def test_bad_custom_geometry_gives_one_line_errors(tmp_path, wkt, exits, spawn, message):
+    path = tmp_path / "room.wkt"
+    path.write_text(wkt)
+    with pytest.raises(ValueError) as err:
+        build_scenario({"name": "custom", "geometry": str(path), "exits": exits, "spawn": spawn})
+    assert message in str(err.value) and "\n" not in str(err.value), str(err.value)
+
+
+def test_missing_wkt_file_names_the_path(tmp_path):
+    with pytest.raises(ValueError, match="cannot read it"):
+        build_scenario({"name": "custom", "geometry": str(tmp_path / "nope.wkt"), "exits": [[0, 0, 1, 0]]})
+
+
+def test_more_agents_than_fit_in_the_spawn_area_is_refused_before_any_room_is_built():
+    factory = env_factory(ENV, {"name": "corner"})
+    with pytest.raises(ValueError, match=r"num_agents=20 is invalid: 20 bodies .* at most 7 there"):
+        factory(num_replicas=1, num_agents=20)
+
+
+def test_spawn_areas_are_split_by_weight_and_checked():
+    room = box(0, 0, 20, 10)
+    scenario = Scenario(
+        "two",
+        room,
+        (build_scenario({"name": "paper_room"}, room={"width": 20.0, "length": 10.0}).exits[0],),
+        (Spawn(box(0, 0, 5, 10), weight=3.0), Spawn(box(15, 0, 20, 10), weight=1.0)),
+    )
+    env = RoomEnv(num_replicas=1, num_agents=8, geometry=scenario.geometry())
+    env.reset(seed=1)
+    assert env.spawn_counts == (6, 2)
+    assert (env.positions[0, :6, 0] <= 5).all() and (env.positions[0, 6:, 0] >= 15).all()
+    assert math.isclose(scenario.geometry().spawns[0].area, 50.0)
