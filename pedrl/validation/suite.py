@@ -487,22 +487,9 @@ def lanes(make_room: RoomMaker, controller: Controller, invariants: Invariants, 
     recording = rollout(env, controller, invariants, seed=5)
     half = env.num_agents // 2
     direction = np.where(np.arange(env.num_agents) < half, 1, -1)  # group 0 walks to +x
-    diameter = 2 * env.agent_radius
-    values = []
-    positions, active = recording.positions, recording.active
-    for frame in range(positions.shape[0]):
-        for replica in range(positions.shape[1]):
-            here = active[frame, replica] & (np.abs(positions[frame, replica, :, 0] - 20.0) <= 10.0)
-            if here.sum() < 2:
-                continue
-            xy, sign = positions[frame, replica, here], direction[here]
-            dx = np.abs(xy[:, None, 0] - xy[None, :, 0])
-            dy = np.abs(xy[:, None, 1] - xy[None, :, 1])
-            near = (dy < diameter) & (dx < 5.0) & ~np.eye(len(xy), dtype=bool)
-            same = (near & (sign[:, None] == sign[None, :])).sum(1)
-            opposite = (near & (sign[:, None] != sign[None, :])).sum(1)
-            total = same + opposite
-            values += (((same - opposite)[total > 0] / total[total > 0]) ** 2).tolist()
+    values = lane_order_values(
+        recording.positions, recording.active, direction, lane_width=2 * env.agent_radius, window=(10.0, 30.0)
+    )
     order = float(np.mean(values)) if values else None
     return TestResult(
         "lanes in a bidirectional corridor",
@@ -513,6 +500,44 @@ def lanes(make_room: RoomMaker, controller: Controller, invariants: Invariants, 
         "Rex and Löwen (2007), lane order parameter",
         {"evacuated": recording.evacuated, "agent_frames": len(values)},
     )
+
+
+def lane_order_values(
+    positions: np.ndarray,
+    active: np.ndarray,
+    direction: np.ndarray,
+    *,
+    lane_width: float,
+    window: tuple[float, float],
+    reach: float = 5.0,
+) -> list[float]:
+    """``((n_same - n_opposite) / (n_same + n_opposite))^2`` of every agent-frame with ``x`` in ``window`` and a
+    neighbour: agents less than ``lane_width`` to the side and ``reach`` along x, counted by walking ``direction``.
+
+    Args:
+        positions: ``(T, R, N, 2)`` centres (m).
+        active: ``(T, R, N)`` in-room flags.
+        direction: ``(N,)`` +1 / -1, the way each agent walks.
+        lane_width: Lateral distance (m) within which two agents share a lane.
+        window: ``(x_min, x_max)`` of the agents counted (m).
+        reach: Longitudinal distance (m) within which neighbours count.
+    """
+    values: list[float] = []
+    for frame in range(positions.shape[0]):
+        for replica in range(positions.shape[1]):
+            x = positions[frame, replica, :, 0]
+            here = active[frame, replica] & (x >= window[0]) & (x <= window[1])
+            if here.sum() < 2:
+                continue
+            xy, sign = positions[frame, replica, here], direction[here]
+            dx = np.abs(xy[:, None, 0] - xy[None, :, 0])
+            dy = np.abs(xy[:, None, 1] - xy[None, :, 1])
+            near = (dy < lane_width) & (dx < reach) & ~np.eye(len(xy), dtype=bool)
+            same = (near & (sign[:, None] == sign[None, :])).sum(1)
+            opposite = (near & (sign[:, None] != sign[None, :])).sum(1)
+            total = same + opposite
+            values += (((same - opposite)[total > 0] / total[total > 0]) ** 2).tolist()
+    return values
 
 
 class _Both:

@@ -1,0 +1,108 @@
+"""Reports of the validation suite: ``validation.json``, ``validation.md`` and figures (PNG and TensorBoard)."""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+from matplotlib.figure import Figure
+
+from pedrl.io.files import replace_atomically
+from pedrl.validation.suite import TestResult
+
+
+def write_reports(
+    run_dir: Path,
+    results: Mapping[str, Sequence[TestResult]],
+    figures: Mapping[str, Mapping[str, Figure]],
+    *,
+    meta: Mapping[str, Any],
+    tensorboard: bool = True,
+) -> dict[str, Path]:
+    """Write ``validation.json`` (every row of every controller), ``validation.md`` (one column per controller) and
+    ``figures/<controller>_<name>.png`` (plus TensorBoard images under ``tb/`` when ``tensorboard``)."""
+    run_dir.mkdir(parents=True, exist_ok=True)
+    rows = [{"controller": name, **_plain(asdict(row))} for name, rows_ in results.items() for row in rows_]
+    document = {**meta, "tests": rows}
+    paths = {"json": run_dir / "validation.json", "md": run_dir / "validation.md"}
+    text = json.dumps(document, indent=2, allow_nan=False) + "\n"
+    replace_atomically(paths["json"], lambda path: path.write_text(text))
+    report = markdown(results, meta=meta)
+    replace_atomically(paths["md"], lambda path: path.write_text(report))
+    (run_dir / "figures").mkdir(exist_ok=True)
+    writer = None
+    if tensorboard:
+        from torch.utils.tensorboard import SummaryWriter
+
+        writer = SummaryWriter(str(run_dir / "tb"))
+    for controller, named in figures.items():
+        for name, figure in named.items():
+            figure.tight_layout()
+            figure.savefig(run_dir / "figures" / f"{controller}_{name}.png", dpi=110)
+            if writer is not None:
+                writer.add_figure(f"validation/{controller}/{name}", figure)
+    if writer is not None:
+        for controller, rows_ in results.items():
+            for index, row in enumerate(rows_):
+                writer.add_scalar(f"validation/{controller}/passed", float(row.passed), index)
+        writer.close()
+    return paths
+
+
+def markdown(results: Mapping[str, Sequence[TestResult]], *, meta: Mapping[str, Any]) -> str:
+    """The report as a Markdown table: one row per test, measured value and verdict per controller."""
+    controllers = list(results)
+    lines = ["# pedrl validation", ""]
+    lines += [f"- {key}: {value}" for key, value in meta.items()]
+    lines += ["", "| test | " + " | ".join(controllers) + " | reference | source |"]
+    lines.append("|---" * (len(controllers) + 3) + "|")
+    by_test: dict[str, dict[str, TestResult]] = {}
+    for controller, rows in results.items():
+        for row in rows:
+            by_test.setdefault(row.test, {})[controller] = row
+    for test, cells in by_test.items():
+        first = next(iter(cells.values()))
+        measured = [_cell(cells.get(controller)) for controller in controllers]
+        lines.append(f"| {test} | " + " | ".join(measured) + f" | {first.reference} | {first.source} |")
+    passed = {c: sum(row.passed for row in rows) for c, rows in results.items()}
+    lines += ["", "Passed: " + ", ".join(f"{c} {passed[c]}/{len(results[c])}" for c in controllers), ""]
+    lines += ["## Details", ""]
+    for controller, rows in results.items():
+        for row in rows:
+            details = ", ".join(f"{key} {_format(value)}" for key, value in row.details.items())
+            lines.append(f"- **{controller}, {row.test}**: {details}")
+    return "\n".join(lines) + "\n"
+
+
+def _cell(row: TestResult | None) -> str:
+    if row is None:
+        return "not run"
+    verdict = "pass" if row.passed else "FAIL"
+    return f"{_format(row.value)} {row.unit}: **{verdict}**"
+
+
+def _format(value: Any) -> str:
+    if value is None:
+        return "n/a"
+    if isinstance(value, float):
+        return f"{value:.3g}"
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{k}: {_format(v)}" for k, v in value.items()) + "}"
+    if isinstance(value, list):
+        return "[" + ", ".join(_format(v) for v in value) + "]"
+    return str(value)
+
+
+def _plain(value: Any) -> Any:
+    """JSON-safe: infinities and NaN become ``None``."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {key: _plain(item) for key, item in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain(item) for item in value]
+    return value
