@@ -157,7 +157,7 @@ def load_policy(
 
     from pedrl.algos.registry import env_factory
     from pedrl.algos.restore import check_stored_config, restore_state
-    from pedrl.train import build_trainer
+    from pedrl.runtime import build_trainer
 
     checkpoint = load_checkpoint(path, device=device)
     saved = copy.deepcopy(check_stored_config(checkpoint))  # plain values only, no _target_ but pedrl's
@@ -346,7 +346,7 @@ def evaluate(cfg: DictConfig, *, run_dir: str | Path | None = None) -> list[dict
     """
     # ---- validation and setup: every check before any compute
     _validate(cfg)
-    from pedrl.train import set_threads
+    from pedrl.runtime import set_threads
 
     set_threads(cfg.get("threads"))
     run_dir = Path(run_dir) if run_dir is not None else hydra_output_dir()
