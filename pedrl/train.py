@@ -47,7 +47,7 @@ def train(cfg: DictConfig, *, run_dir: str | Path | None = None) -> TrainResult:
 
 
 def _write_outputs(result: TrainResult, trainer: Trainer) -> None:
-    from pedrl.plot import plot_learning_curve_file
+    from pedrl.learning_curves import plot_learning_curve_file
 
     curve_path = result.run_dir / "learning_curve.csv"
     if curve_path.is_file():  # a finished run resumed from a copied checkpoint has no curve of its own
