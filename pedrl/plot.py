@@ -2,152 +2,22 @@
 
 ``pedrl-plot runs=[outputs/A,outputs/B,outputs/C]`` reads each run's ``learning_curve.csv`` and draws the success
 rate (mean over learning processes, with a ±std band) against the trial number, with the iteration or stage
-boundaries of every run dashed. ``main`` is a thin Hydra wrapper around :func:`plot_runs`.
+boundaries of every run dashed. ``main`` is a thin Hydra wrapper around
+:func:`pedrl.learning_curves.plot_runs`.
 """
 
 from __future__ import annotations
 
-import csv
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import hydra
-import numpy as np
-from matplotlib.axes import Axes
 from omegaconf import DictConfig
 
-from pedrl.analysis import plot_learning_curves
 from pedrl.cli import run_reporting_errors
-from pedrl.io import read_csv
+from pedrl.learning_curves import plot_runs
 
 CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
-
-
-def read_learning_curve(path: str | Path, *, metric: str = "success_rate", smooth: int = 1):
-    """Read ``learning_curve.csv``.
-
-    Args:
-        path: the CSV, or the run directory holding it.
-        metric: one of the curve metrics (``success_rate``, ``episodic_return``, ...).
-        smooth: moving-average window in trials (1: raw); the average is trailing and restarts at every phase.
-
-    Returns:
-        ``(global_trial (T,), mean (T,), std (T,), boundaries)`` where boundaries are the trial numbers at which a
-        new phase (iteration or stage) starts.
-
-    Raises:
-        ValueError: no such file, no rows, an unknown metric, a bad ``smooth`` or a malformed row.
-    """
-    if isinstance(smooth, bool) or not isinstance(smooth, int) or smooth < 1:
-        raise ValueError(f"smooth={smooth!r} is invalid: must be an integer >= 1 (trials in the moving average)")
-    path = Path(path)
-    if path.is_dir():
-        path = path / "learning_curve.csv"
-    if not path.is_file():
-        raise ValueError(f"no learning curve at {str(path)!r}: expected a run directory of pedrl-train")
-    try:
-        rows = read_csv(path)
-    except (UnicodeDecodeError, csv.Error) as err:  # a binary or garbled file
-        reason = str(err).splitlines()[0] if str(err) else type(err).__name__
-        raise ValueError(f"learning curve {str(path)!r} is not a CSV text file ({reason})") from None
-    if not rows:
-        raise ValueError(f"learning curve {str(path)!r} has no rows yet")
-    if f"{metric}_mean" not in rows[0]:
-        known = sorted(k[: -len("_mean")] for k in rows[0] if k.endswith("_mean"))
-        raise ValueError(f"metric={metric!r} is not in {str(path)!r}: one of {', '.join(known)}")
-    try:
-        trials = np.array([int(r["global_trial"]) for r in rows], dtype=float)
-        mean = np.array([float(r[f"{metric}_mean"]) for r in rows])
-        std = np.array([float(r[f"{metric}_std"]) for r in rows])
-        phases = np.array([int(r["phase"]) for r in rows])
-    except (KeyError, TypeError, ValueError) as err:
-        raise ValueError(f"learning curve {str(path)!r} is malformed: {err!r}") from None
-    boundaries = trials[1:][np.diff(phases) != 0].tolist()
-    if smooth > 1:
-        mean, std = _moving_average(mean, phases, smooth), _moving_average(std, phases, smooth)
-    return trials, mean, std, boundaries
-
-
-def _moving_average(values: np.ndarray, phases: np.ndarray, window: int) -> np.ndarray:
-    """Trailing moving average that restarts at every phase boundary (phases learn from scratch)."""
-    out = np.empty_like(values)
-    for phase in np.unique(phases):
-        idx = np.flatnonzero(phases == phase)
-        cumulative = np.cumsum(np.insert(values[idx], 0, 0.0))
-        ends = np.arange(1, idx.size + 1)
-        starts = np.maximum(ends - window, 0)
-        out[idx] = (cumulative[ends] - cumulative[starts]) / (ends - starts)
-    return out
-
-
-def draw_runs(
-    runs: Sequence[str | Path],
-    *,
-    labels: Sequence[str] | None = None,
-    metric: str = "success_rate",
-    smooth: int = 1,
-    axes: Axes | None = None,
-) -> Axes:
-    """Draw the learning curves of ``runs`` (run directories or CSVs) into ``axes``; returns the axes.
-
-    Every run's phase boundaries are dashed vertical lines in the colour of its curve, so that runs with different
-    phases (a VQQL block, an IT-VQQL iteration, an IN-VQQL stage) stay apart. Default labels are the run
-    directories' names, made unique with their parents' names where two runs share a name.
-    """
-    runs = [Path(r) for r in runs]
-    if not runs:
-        raise ValueError("runs=[] is invalid: give one or more run directories, e.g. runs=[outputs/a,outputs/b]")
-    labels = [str(label) for label in labels] if labels else _default_labels(runs)
-    if len(labels) != len(runs):
-        raise ValueError(f"labels={labels!r} is invalid: must give one label per run ({len(runs)})")
-    if len(set(labels)) != len(labels):
-        raise ValueError(f"labels={labels!r} is invalid: every run needs its own label")
-    curves, boundaries = {}, {}
-    for run, label in zip(runs, labels, strict=True):
-        trials, mean, std, bounds = read_learning_curve(run, metric=metric, smooth=smooth)
-        curves[label] = (trials, mean, std)
-        boundaries[label] = bounds
-    ylabel = "success rate (fraction of agents reaching the door)" if metric == "success_rate" else metric
-    axes = plot_learning_curves(curves, axes=axes, ylabel=ylabel)
-    colours = {line.get_label(): line.get_color() for line in axes.get_lines()}
-    for label, bounds in boundaries.items():
-        for boundary in bounds:
-            axes.axvline(boundary, color=colours[label], linestyle="--", linewidth=0.8, alpha=0.8)
-    return axes
-
-
-def plot_runs(
-    runs: Sequence[str | Path],
-    output: str | Path,
-    *,
-    labels: Sequence[str] | None = None,
-    metric: str = "success_rate",
-    smooth: int = 1,
-) -> Path:
-    """Draw the learning curves of ``runs`` in one figure saved at ``output``; returns ``output``."""
-    axes = draw_runs(runs, labels=labels, metric=metric, smooth=smooth)
-    output = Path(output)
-    output.parent.mkdir(parents=True, exist_ok=True)
-    axes.figure.savefig(output, dpi=120)  # the figure's constrained layout already fits the labels
-    return output
-
-
-def _default_labels(runs: Sequence[Path]) -> list[str]:
-    """The shortest trailing parts of the run paths that tell every run apart (``0`` and ``0`` of two sweeps)."""
-    parts = [(r.parent if r.suffix == ".csv" else r).resolve().parts for r in runs]
-    depth = 1
-    while depth < max(len(p) for p in parts):
-        labels = ["/".join(p[-depth:]) for p in parts]
-        if len(set(labels)) == len(labels):
-            return labels
-        depth += 1
-    return ["/".join(p) for p in parts]
-
-
-def plot_learning_curve_file(csv_path: str | Path, output: str | Path, *, label: str, smooth: int = 1) -> Path:
-    """``learning_curve.png`` of one run."""
-    return plot_runs([csv_path], output, labels=[label], smooth=smooth)
 
 
 @hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="plot")

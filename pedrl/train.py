@@ -6,48 +6,20 @@
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 from typing import Any
 
 import hydra
 import torch
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
 from pedrl.algos import Trainer, TrainResult
-from pedrl.algos.registry import check_names_no_code, env_factory, trainer_class, vq_settings
 from pedrl.cli import hydra_output_dir, run_reporting_errors
 from pedrl.io import CheckpointError
 from pedrl.io.files import replace_atomically
-from pedrl.sim.validation import MAX_SEED, check_integer
+from pedrl.runtime import build_trainer, launcher_threads, set_threads
 
 CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
-
-
-def build_trainer(cfg: DictConfig, run_dir: str | Path) -> Trainer:
-    """Build the trainer of ``cfg.algo`` with the room of ``cfg.env``; validates every value first.
-
-    Only the known room and trainer classes are built (:mod:`pedrl.algos.registry`): a config names no code, so
-    a ``_target_`` other than theirs, anywhere, is refused, and nothing is instantiated from a config node.
-    """
-    _check_top_level(cfg)
-    config = OmegaConf.to_container(cfg, resolve=True)
-    check_names_no_code(config)
-    trainer, settings = trainer_class(config["algo"])
-    return trainer(
-        **settings,
-        env=env_factory(config["env"], config.get("scenario")),
-        vq=vq_settings(config["vq"]),
-        processes=config["processes"],
-        rooms_per_process=config["rooms_per_process"],
-        checkpoint_every=config["checkpoint_every"],
-        device=config["device"],
-        seed=config["seed"],
-        run_dir=str(run_dir),
-        tensorboard=config["logger"]["tensorboard"],
-        progress=config["progress"],
-        run_config=config,
-    )
 
 
 def train(cfg: DictConfig, *, run_dir: str | Path | None = None) -> TrainResult:
@@ -75,7 +47,7 @@ def train(cfg: DictConfig, *, run_dir: str | Path | None = None) -> TrainResult:
 
 
 def _write_outputs(result: TrainResult, trainer: Trainer) -> None:
-    from pedrl.plot import plot_learning_curve_file
+    from pedrl.learning_curves import plot_learning_curve_file
 
     curve_path = result.run_dir / "learning_curve.csv"
     if curve_path.is_file():  # a finished run resumed from a copied checkpoint has no curve of its own
@@ -119,51 +91,6 @@ def print_summary(result: TrainResult, name: str) -> None:
     ]
     width = max(len(k) for k, _ in rows)
     print("\n" + "\n".join(f"  {k:<{width}}  {v}" for k, v in rows))
-
-
-def set_threads(threads: int | None) -> None:
-    """Set torch's CPU thread count (None: leave torch's default); validated by :func:`build_trainer`."""
-    if threads is not None and torch.get_num_threads() != threads:
-        torch.set_num_threads(threads)
-
-
-def launcher_threads() -> int | None:
-    """This job's share of the cores when it runs under ``hydra/launcher=parallel``: ``cores // n_jobs`` (at least 1),
-    so that the jobs running side by side do not each spin one OpenMP thread per core against each other; None
-    otherwise (a single run, or another launcher: torch's default)."""
-    from hydra.core.hydra_config import HydraConfig
-
-    if not HydraConfig.initialized():
-        return None
-    launcher = HydraConfig.get().get("launcher") or {}
-    if "joblib" not in str(launcher.get("_target_", "")).lower():
-        return None
-    return share_of_cores(launcher.get("n_jobs"), available_cores())
-
-
-def available_cores() -> int:
-    """CPU cores this process may run on."""
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-
-
-def share_of_cores(n_jobs: Any, cores: int) -> int:
-    """Threads per job when ``n_jobs`` jobs share ``cores`` cores: ``cores // jobs``, at least 1.
-
-    ``n_jobs`` follows joblib: a positive count, ``-1`` one job per core, ``-2`` all cores but one, and so on;
-    None counts as one job.
-    """
-    jobs = 1 if n_jobs is None else int(n_jobs)
-    if jobs < 0:
-        jobs = max(1, cores + 1 + jobs)
-    return max(1, cores // max(1, jobs))
-
-
-def _check_top_level(cfg: DictConfig) -> None:
-    if cfg.get("threads") is not None:
-        check_integer("threads", cfg.get("threads"), minimum=1)
-    for key, minimum in (("processes", 1), ("rooms_per_process", 1), ("checkpoint_every", 0)):
-        check_integer(key, cfg.get(key), minimum=minimum)
-    check_integer("seed", cfg.get("seed"), minimum=0, maximum=MAX_SEED)
 
 
 def _resume_path(resume: Any, run_dir: Path) -> Path | None:

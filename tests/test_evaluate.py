@@ -14,7 +14,7 @@ from omegaconf import open_dict
 
 from pedrl.algos.controllers import GreedyDoorController, LearnedController
 from pedrl.analysis import RoomGeometry, read_pedpy_trajectory
-from pedrl.evaluate import SCALING_COLUMNS, evaluate
+from pedrl.evaluation import SCALING_COLUMNS, evaluate
 from pedrl.io import CheckpointError, read_csv
 from pedrl.train import train
 
@@ -316,7 +316,7 @@ def test_missing_checkpoint_argument_and_foreign_files(tmp_path):
 
 
 def test_stuck_agents_are_those_left_in_the_room_that_did_not_move_in_the_last_20_decisions():
-    from pedrl.evaluate import stuck_agents
+    from pedrl.evaluation import stuck_agents
 
     frames = 41
     positions = np.zeros((1, frames, 4, 2))

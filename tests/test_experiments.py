@@ -13,7 +13,8 @@ from hydra import initialize_config_dir
 
 from pedrl.algos.base import Trainer
 from pedrl.io import load_checkpoint, read_csv
-from pedrl.train import CONFIG_DIR, build_trainer, train
+from pedrl.runtime import build_trainer
+from pedrl.train import CONFIG_DIR, train
 
 EXPERIMENTS = sorted(p.stem for p in (Path(CONFIG_DIR) / "experiment").glob("*.yaml"))
 PAPER = {"paper_vqql": ("VQQL", 0.25), "paper_it": ("ITVQQL", 0.35), "paper_in": ("INVQQL", 0.35)}

@@ -11,7 +11,7 @@ from hydra import compose, initialize_config_dir
 from omegaconf import open_dict
 
 from pedrl.algos.base import CURVE_COLUMNS
-from pedrl.plot import draw_runs, plot_runs, read_learning_curve
+from pedrl.learning_curves import draw_runs, plot_runs, read_learning_curve
 from pedrl.train import CONFIG_DIR, train
 
 DEBUG_RUNS = {"VQQL": "vqql", "IT-VQQL": "it_vqql", "IN-VQQL": "in_vqql"}

@@ -7,7 +7,7 @@ from hydra import compose as hydra_compose
 from hydra import initialize_config_dir
 from hydra.core.hydra_config import HydraConfig
 
-from pedrl.train import available_cores, launcher_threads, share_of_cores
+from pedrl.runtime import available_cores, launcher_threads, share_of_cores
 
 CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
 

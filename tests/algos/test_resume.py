@@ -13,7 +13,8 @@ from omegaconf import open_dict
 
 from pedrl.cli import run_reporting_errors
 from pedrl.io import CheckpointError, load_checkpoint, read_csv
-from pedrl.train import build_trainer, train
+from pedrl.runtime import build_trainer
+from pedrl.train import train
 
 CONFIG_DIR = str(Path(__file__).resolve().parents[2] / "conf")
 # Two VQQL blocks of 10 trials in a 10 m room, mid-phase checkpoints every 3 trials: a whole run takes seconds.

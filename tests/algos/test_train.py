@@ -8,7 +8,8 @@ import pytest
 import torch
 
 from pedrl.io import CheckpointError, load_checkpoint, read_csv
-from pedrl.train import build_trainer, train
+from pedrl.runtime import build_trainer
+from pedrl.train import train
 
 ALGOS = ("vqql", "it_vqql", "in_vqql")
 

@@ -20,7 +20,7 @@ from hydra import compose, initialize_config_dir
 from omegaconf import open_dict
 from safetensors.torch import load_file, save_file
 
-from pedrl.evaluate import load_policy
+from pedrl.evaluation import load_policy
 from pedrl.io import CheckpointError
 from pedrl.io.checkpoint import METADATA_KEY
 from pedrl.train import train

@@ -1,0 +1,168 @@
+"""The eval config (``conf/eval.yaml``): its validation, and :func:`evaluate`, which runs the engine on it.
+
+Every check runs before any compute: :func:`validate_config` on the values alone, :func:`check_against_room` once
+the checkpoint's room is known. :func:`evaluate` then hands plain values (:class:`EvalSettings`) to
+:func:`pedrl.evaluation.engine.evaluate_policy`.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any, Final
+
+import torch
+from omegaconf import DictConfig, ListConfig, OmegaConf
+
+from pedrl.analysis import RoomGeometry
+from pedrl.cli import hydra_output_dir
+from pedrl.evaluation.engine import (
+    EvalSettings,
+    _first_line,
+    build_rooms,
+    evaluate_policy,
+    load_policy,
+    room_geometry,
+)
+from pedrl.runtime import set_threads
+from pedrl.sim import RoomEnv
+from pedrl.sim.validation import (
+    MAX_SEED,
+    check_bool,
+    check_choice,
+    check_device,
+    check_integer,
+    check_memory,
+    check_number,
+)
+
+CONTROLLERS: Final = ("learned", "greedy")
+DENSITY_MAP_BYTES_PER_TILE: Final = 40
+"""Bytes per density-map tile in the memory estimate: the int64 counts, numpy's float64 histogram and the sum."""
+RECORD_BYTES_PER_AGENT_FRAME: Final = 80
+"""Bytes per recorded agent-frame of a batch in the memory estimate: positions and velocities (float32 x 2) on the
+device, stacked on the host and again as trajectories, and the activity flags."""
+
+
+# ---------------------------------------------------------------------- the evaluation
+def evaluate(cfg: DictConfig, *, run_dir: str | Path | None = None) -> list[dict[str, Any]]:
+    """Evaluate ``cfg.checkpoint`` at every agent count of ``cfg.agents``; returns the ``scaling.csv`` rows.
+
+    Every output goes under ``run_dir`` (default: Hydra's output dir); see the :mod:`pedrl.evaluation` docstring.
+
+    Raises:
+        ValueError: one line, for an invalid config value (before any compute).
+        CheckpointError: one line, for a checkpoint that cannot be used.
+    """
+    # ---- validation and setup: every check before any compute
+    validate_config(cfg)
+    set_threads(cfg.get("threads"))
+    run_dir = Path(run_dir) if run_dir is not None else hydra_output_dir()
+    device = torch.device(cfg.device)
+    policy = load_policy(
+        cfg.checkpoint,
+        controller=cfg.controller,
+        epsilon=float(cfg.epsilon),
+        device=device,
+        max_decisions=cfg.max_decisions,
+    )
+    trials_per_batch = min(int(cfg.trials_per_batch), int(cfg.trials))
+    envs = build_rooms(policy, list(cfg.agents), trials_per_batch=trials_per_batch, device=device)
+    geometry = room_geometry(envs)
+    check_against_room(cfg, geometry, envs)
+
+    # ---- the evaluation, from plain values
+    settings = settings_from_config(cfg)
+    return evaluate_policy(policy, envs, geometry, settings, run_dir=run_dir, config_text=OmegaConf.to_yaml(cfg))
+
+
+def settings_from_config(cfg: DictConfig) -> EvalSettings:
+    """The plain values of a validated eval config (:func:`validate_config`)."""
+    return EvalSettings(
+        trials=int(cfg.trials),
+        seed=int(cfg.seed),
+        controller=str(cfg.controller),
+        radius=float(cfg.measurement.radius),
+        distance=float(cfg.measurement.distance),
+        min_density=float(cfg.measurement.min_density),
+        plot_points=int(cfg.measurement.plot_points),
+        tile_size=float(cfg.density_map.tile_size),
+        export_trials=int(cfg.export.trials),
+        animation=bool(cfg.animation.enabled),
+        animation_fps=float(cfg.animation.fps),
+        animation_max_frames=None if cfg.animation.max_frames is None else int(cfg.animation.max_frames),
+        tensorboard=bool(cfg.tensorboard),
+    )
+
+
+# ---------------------------------------------------------------------- validation
+def validate_config(cfg: DictConfig) -> None:
+    """Raise a one-line ``ValueError`` naming the first invalid (or missing) value of the eval config."""
+    from omegaconf.errors import OmegaConfBaseException
+
+    try:
+        _validate_values(cfg)
+    except OmegaConfBaseException as err:  # e.g. a key deleted with ~key
+        raise ValueError(f"the eval config is incomplete: {_first_line(err)}") from None
+
+
+def _validate_values(cfg: DictConfig) -> None:
+    checkpoint = cfg.get("checkpoint")
+    if checkpoint in (None, "", "???"):
+        raise ValueError("checkpoint is missing: pass checkpoint=<path of a .safetensors checkpoint>")
+    agents = cfg.get("agents")
+    if not isinstance(agents, ListConfig | list | tuple) or not agents:
+        raise ValueError(f"agents={agents!r} is invalid: must be a non-empty list of integers >= 1, e.g. [20,40]")
+    agents = list(agents)
+    if any(isinstance(a, bool) or not isinstance(a, int) or a < 1 for a in agents):
+        raise ValueError(f"agents={agents!r} is invalid: must be a non-empty list of integers >= 1, e.g. [20,40]")
+    if len(set(agents)) != len(agents):
+        raise ValueError(f"agents={agents!r} is invalid: every agent count must appear once")
+    check_integer("trials", cfg.get("trials"), minimum=1)
+    check_integer("trials_per_batch", cfg.get("trials_per_batch"), minimum=1)
+    check_choice("controller", cfg.get("controller"), CONTROLLERS)
+    check_number("epsilon", cfg.get("epsilon"), low=0.0, high=1.0)
+    if cfg.get("max_decisions") is not None:
+        check_integer("max_decisions", cfg.max_decisions, minimum=1)
+    check_integer("seed", cfg.get("seed"), minimum=0, maximum=MAX_SEED)
+    threads = cfg.get("threads")
+    if threads is not None:
+        check_integer("threads", threads, minimum=1)
+    check_device(cfg.get("device"))
+    check_number("measurement.radius", cfg.measurement.radius, low=0.0, low_open=True)
+    check_number("measurement.distance", cfg.measurement.distance, low=0.0)
+    check_number("measurement.min_density", cfg.measurement.min_density, low=0.0)
+    check_integer("measurement.plot_points", cfg.measurement.plot_points, minimum=1)
+    check_number("density_map.tile_size", cfg.density_map.tile_size, low=0.0, low_open=True)
+    check_integer("export.trials", cfg.export.trials, minimum=0)
+    check_bool("animation.enabled", cfg.animation.enabled)
+    check_number("animation.fps", cfg.animation.fps, low=0.0, low_open=True)
+    if cfg.animation.max_frames is not None:
+        check_integer("animation.max_frames", cfg.animation.max_frames, minimum=1)
+    check_bool("tensorboard", cfg.get("tensorboard"))
+
+
+def check_against_room(cfg: DictConfig, geometry: RoomGeometry, envs: dict[int, RoomEnv]) -> None:
+    """The checks that need the checkpoint's room, before any compute: the measurement point lies inside it, and
+    the recordings, density maps and room states fit in memory."""
+    distance = float(cfg.measurement.distance)
+    if distance >= geometry.length:
+        raise ValueError(
+            f"measurement.distance={cfg.measurement.distance!r} is invalid: the measurement point must be inside the "
+            f"room, a distance in [0, {geometry.length:g}) m (the room's length) in front of the door"
+        )
+    tile_size = float(cfg.density_map.tile_size)
+    tiles = math.ceil(geometry.width / tile_size) * math.ceil(geometry.length / tile_size)
+    largest = max(envs.values(), key=lambda env: env.num_replicas * env.num_agents)
+    frames = largest.num_replicas * (largest.max_decisions + 1) * largest.num_agents  # agent-frames of one batch
+    check_memory(
+        {
+            f"density map (density_map.tile_size={cfg.density_map.tile_size!r}: {tiles:.3g} tiles)": (
+                DENSITY_MAP_BYTES_PER_TILE * tiles
+            ),
+            "recorded trials": RECORD_BYTES_PER_AGENT_FRAME * frames,
+            "room": max(env.step_memory() for env in envs.values()),
+        },
+        device=largest.device,
+        advice="raise density_map.tile_size, or lower trials_per_batch, the agents or max_decisions",
+    )

@@ -1,0 +1,472 @@
+"""The evaluation engine: a checkpoint made ready to simulate, its trials recorded, the figures of Tables 4/5.
+
+Every function takes plain arguments (no config): :func:`pedrl.evaluation.config.evaluate` turns the eval config
+into them. The outputs and the definitions of the ``scaling.csv`` columns are in the :mod:`pedrl.evaluation`
+docstring.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from functools import partial
+from pathlib import Path
+from typing import Any, Final
+
+import numpy as np
+import torch
+from omegaconf import OmegaConf
+
+from pedrl.algos.controllers import Controller, GreedyDoorController, LearnedController
+from pedrl.analysis import (
+    DensityMap,
+    FundamentalDiagram,
+    RoomGeometry,
+    Trajectories,
+    animate_trial,
+    compute_density_map,
+    compute_fundamental_diagram,
+    write_geometry_wkt,
+    write_pedpy_trajectory,
+)
+from pedrl.evaluation.report import write_density_map, write_fundamental_diagram, write_scaling_json
+from pedrl.io import CheckpointError, CsvWriter, RunLogger, load_checkpoint
+from pedrl.sim import RoomEnv
+
+SCALING_COLUMNS: Final = (
+    "agents",
+    "fails_pct",
+    "fails_std",
+    "mean_speed",
+    "speed_std",
+    "evacuation_time_s",
+    "evacuated_trials",
+    "evacuated_pct",
+    "stuck_pct",
+    "door_flow",
+    "crashes_per_agent",
+    "trials",
+)
+STUCK_WINDOW: Final = 20
+"""Decisions at the end of a trial over which an agent still in the room counts as stuck if it did not move."""
+STUCK_PATH: Final = 0.4
+"""Path length (m) over those decisions below which it did not move: less than one body radius."""
+ENV_SEED_STRIDE: Final = 1009
+"""Room seed of an agent count: ``seed * ENV_SEED_STRIDE + agents`` (a prime, so counts never share a seed)."""
+CONTROLLER_SEED_STRIDE: Final = 1013
+"""Controller seed of an agent count: ``seed * CONTROLLER_SEED_STRIDE + agents``."""
+
+
+# ---------------------------------------------------------------------- what is evaluated
+@dataclass
+class Policy:
+    """A checkpoint made ready to simulate.
+
+    Attributes:
+        controller: what chooses the actions.
+        env_factory: ``env_factory(num_replicas=, num_agents=, device=)`` builds the checkpoint's room.
+        processes: P, the learning processes stored in the checkpoint.
+        tables: A, the learned tables per process.
+        algo: the algorithm that wrote the checkpoint.
+    """
+
+    controller: Controller
+    env_factory: Any
+    processes: int
+    tables: int
+    algo: str
+
+
+def load_policy(
+    path: str | Path, *, controller: str, epsilon: float, device: torch.device, max_decisions: int | None
+) -> Policy:
+    """Reload a checkpoint written by ``pedrl-train``: its room, quantizer and tables.
+
+    The room and the trainer are built from the known classes only, with the stored config's values validated as
+    if a user had typed them; a stored config that names code (a ``_target_`` other than pedrl's room and
+    trainers, anywhere) is refused before anything is built. Every tensor is checked against that config
+    (:func:`pedrl.algos.restore.restore_state`), whichever the controller.
+
+    Raises:
+        CheckpointError: one line, for a missing, foreign, corrupt or crafted file, or one whose trainer cannot
+            be rebuilt.
+    """
+    from omegaconf.errors import OmegaConfBaseException
+
+    from pedrl.algos.registry import env_factory
+    from pedrl.algos.restore import check_stored_config, restore_state
+    from pedrl.runtime import build_trainer
+
+    checkpoint = load_checkpoint(path, device=device)
+    saved = copy.deepcopy(check_stored_config(checkpoint))  # plain values only, no _target_ but pedrl's
+    saved["device"] = str(device)
+    if max_decisions is not None:
+        saved["env"]["max_decisions"] = max_decisions
+    try:
+        trainer = build_trainer(OmegaConf.create(saved), run_dir=Path(path).parent)
+        factory = env_factory(saved["env"])
+    except (ValueError, OmegaConfBaseException, KeyError, TypeError) as err:
+        raise CheckpointError(
+            f"checkpoint {str(path)!r} holds a config this pedrl refuses ({_first_line(err)})"
+        ) from None
+    state = restore_state(trainer, checkpoint, continue_training=False)
+    q_values, quantizer = state.q_values, state.quantizer
+    processes, tables = q_values.shape[0], q_values.shape[1]
+    if controller == "greedy":
+        greedy = GreedyDoorController(epsilon=epsilon, generator=torch.Generator(device=device))
+        return Policy(greedy, factory, processes, tables, trainer.name)
+    learned = LearnedController(
+        q_values=q_values,
+        encode=partial(trainer.encode_observations, quantizer),
+        epsilon=epsilon,
+        # the trainer's generator also fills void neighbour slots (IT-VQQL): one seed covers both
+        generator=trainer.generator,
+    )
+    return Policy(learned, factory, processes, tables, trainer.name)
+
+
+# ---------------------------------------------------------------------- recording
+@dataclass(frozen=True)
+class BatchRecord:
+    """One trial in each of R replicas, recorded frame by frame (numpy, on the host).
+
+    Attributes:
+        positions: ``(R, T, N, 2)`` agent centres (m), frame 0 the initial state, frame t after decision t.
+        velocities: ``(R, T, N, 2)`` velocities (m/s).
+        active: ``(R, T, N)`` bool, the agent is in frame t (it took decision t; every agent in frame 0).
+        reached: ``(R, N)`` bool, the agent passed the door.
+        exit_time: ``(R, N)`` time (s) at which it passed the door, NaN if it did not.
+        crashes: ``(R, N)`` decisions in which it hit a wall or another agent.
+        speed_sum: ``(R,)`` sum over agents and decisions taken of the speed after the decision (m/s).
+        speed_sq_sum: ``(R,)`` the same sum of squared speeds (m^2/s^2).
+        speed_count: ``(R,)`` decisions taken (agent-decisions).
+    """
+
+    positions: np.ndarray
+    velocities: np.ndarray
+    active: np.ndarray
+    reached: np.ndarray
+    exit_time: np.ndarray
+    crashes: np.ndarray
+    speed_sum: np.ndarray
+    speed_sq_sum: np.ndarray
+    speed_count: np.ndarray
+
+    def trajectories(self, replica: int, geometry: RoomGeometry, framerate: float) -> Trajectories:
+        return Trajectories(
+            positions=self.positions[replica],
+            velocities=self.velocities[replica],
+            active=self.active[replica],
+            framerate=framerate,
+            geometry=geometry,
+        )
+
+
+def record_batch(env: RoomEnv, controller: Controller) -> BatchRecord:
+    """Reset ``env`` (its generator draws the scene) and run one trial in every replica to its end."""
+    obs, info = env.reset()
+    shape = env.active.shape
+    device = env.positions.device
+    positions, velocities, active = [env.positions.cpu()], [env.velocities.cpu()], [env.active.cpu()]
+    reached = torch.zeros(shape, dtype=torch.bool, device=device)
+    exit_time = torch.full(shape, float("nan"), device=device)
+    crashes = torch.zeros(shape, dtype=torch.int64, device=device)
+    speed_sum = torch.zeros(shape, dtype=torch.float64, device=device)
+    speed_sq_sum = torch.zeros(shape, dtype=torch.float64, device=device)
+    speed_count = torch.zeros(shape, dtype=torch.int64, device=device)
+    decision = 0
+    while bool(env.active.any()):
+        acting = env.active
+        actions = controller.act(env, obs, info)
+        obs, _, _, _, info = env.step(actions)
+        decision += 1
+        reached |= info["reached"]
+        exit_time = torch.where(info["reached"], decision * env.decision_length, exit_time)
+        crashes += (info["crashed_agent"] | info["crashed_wall"]).to(torch.int64)
+        speed = torch.where(acting, info["speed"].double(), 0.0)
+        speed_sum += speed
+        speed_sq_sum += speed * speed
+        speed_count += acting.to(torch.int64)
+        positions.append(env.positions.cpu())
+        velocities.append(env.velocities.cpu())
+        active.append(acting.cpu())
+    return BatchRecord(
+        positions=torch.stack(positions, 1).numpy(),
+        velocities=torch.stack(velocities, 1).numpy(),
+        active=torch.stack(active, 1).numpy(),
+        reached=reached.cpu().numpy(),
+        exit_time=exit_time.cpu().numpy(),
+        crashes=crashes.cpu().numpy(),
+        speed_sum=speed_sum.sum(1).cpu().numpy(),
+        speed_sq_sum=speed_sq_sum.sum(1).cpu().numpy(),
+        speed_count=speed_count.sum(1).cpu().numpy(),
+    )
+
+
+# ---------------------------------------------------------------------- statistics
+@dataclass
+class ScalingStats:
+    """Per-trial figures of one agent count, gathered batch after batch."""
+
+    fails_pct: list[float] = field(default_factory=list)
+    evacuation_times: list[float] = field(default_factory=list)
+    door_flows: list[float] = field(default_factory=list)
+    crashes_per_agent: list[float] = field(default_factory=list)
+    stuck_pct: list[float] = field(default_factory=list)
+    speed_sum: float = 0.0
+    speed_sq_sum: float = 0.0
+    speed_count: int = 0
+
+    def add(self, record: BatchRecord, keep: int) -> None:
+        """Add the first ``keep`` replicas of ``record``."""
+        reached, exit_time = record.reached[:keep], record.exit_time[:keep]
+        num_agents = reached.shape[1]
+        self.fails_pct.extend((100.0 * (1.0 - reached.mean(axis=1))).tolist())
+        self.crashes_per_agent.extend((record.crashes[:keep].sum(axis=1) / num_agents).tolist())
+        self.stuck_pct.extend((100.0 * stuck_agents(record.positions[:keep], reached).mean(axis=1)).tolist())
+        self.speed_sum += float(record.speed_sum[:keep].sum())
+        self.speed_sq_sum += float(record.speed_sq_sum[:keep].sum())
+        self.speed_count += int(record.speed_count[:keep].sum())
+        for passed, times in zip(reached, exit_time, strict=True):
+            times = times[passed]
+            if passed.all():
+                self.evacuation_times.append(float(times.max()))
+            if times.size >= 2 and times.max() > times.min():
+                self.door_flows.append(float((times.size - 1) / (times.max() - times.min())))
+
+    def row(self, agents: int) -> dict[str, Any]:
+        """The ``scaling.csv`` row (see the :mod:`pedrl.evaluation` docstring)."""
+        fails = np.asarray(self.fails_pct)
+        count = max(self.speed_count, 1)
+        mean_speed = self.speed_sum / count
+        variance = max(self.speed_sq_sum / count - mean_speed**2, 0.0)
+        return {
+            "agents": agents,
+            "fails_pct": float(fails.mean()),
+            "fails_std": float(fails.std()),
+            "mean_speed": mean_speed,
+            "speed_std": math.sqrt(variance),
+            "evacuation_time_s": float(np.mean(self.evacuation_times)) if self.evacuation_times else math.nan,
+            "evacuated_trials": len(self.evacuation_times),
+            "evacuated_pct": 100.0 * len(self.evacuation_times) / max(len(self.fails_pct), 1),
+            "stuck_pct": float(np.mean(self.stuck_pct)),
+            "door_flow": float(np.mean(self.door_flows)) if self.door_flows else math.nan,
+            "crashes_per_agent": float(np.mean(self.crashes_per_agent)),
+            "trials": len(self.fails_pct),
+        }
+
+
+def stuck_agents(positions: np.ndarray, reached: np.ndarray) -> np.ndarray:
+    """Agents still in the room at the end whose last ``STUCK_WINDOW`` decisions moved them less than ``STUCK_PATH``.
+
+    Args:
+        positions: ``(R, T, N, 2)`` centres (m), frame 0 the initial state; an agent that did not reach the door
+            was in the room until the last frame (its trial was cut by the clock).
+        reached: ``(R, N)`` bool, the agent passed the door.
+
+    Returns:
+        ``(R, N)`` bool.
+    """
+    window = positions[:, -(STUCK_WINDOW + 1) :]  # the last 20 decisions (all of them in shorter trials)
+    path = np.linalg.norm(np.diff(window, axis=1), axis=-1).sum(axis=1)  # (R, N) m
+    return ~reached & (path < STUCK_PATH)
+
+
+# ---------------------------------------------------------------------- the evaluation
+@dataclass(frozen=True)
+class EvalSettings:
+    """The plain values of an evaluation (the eval config's, validated by
+    :func:`pedrl.evaluation.config.validate_config`).
+
+    Attributes:
+        trials: trials per learning process and agent count.
+        seed: seeds the rooms and the controller of every agent count (``ENV_SEED_STRIDE``,
+            ``CONTROLLER_SEED_STRIDE``) and the samples drawn in the fundamental-diagram figure.
+        controller: the controller's name (``learned`` or ``greedy``), for the titles.
+        radius: Gaussian radius (m) of the local density (``measurement.radius``).
+        distance: distance (m) of the measurement point in front of the door centre (``measurement.distance``).
+        min_density: frames below this local density (1/m^2) give no diagram sample (``measurement.min_density``).
+        plot_points: most samples drawn per agent count in the figure (``measurement.plot_points``).
+        tile_size: density-map tile size (m) (``density_map.tile_size``).
+        export_trials: simulated trials written as PedPy trajectories (``export.trials``).
+        animation: write ``animation_<agents>.gif`` (``animation.enabled``).
+        animation_fps: its frames per second (``animation.fps``).
+        animation_max_frames: its most frames, None for all (``animation.max_frames``).
+        tensorboard: write TensorBoard events under ``tb/``.
+    """
+
+    trials: int
+    seed: int
+    controller: str
+    radius: float
+    distance: float
+    min_density: float
+    plot_points: int
+    tile_size: float
+    export_trials: int
+    animation: bool
+    animation_fps: float
+    animation_max_frames: int | None
+    tensorboard: bool
+
+
+def build_rooms(
+    policy: Policy, counts: Sequence[int], *, trials_per_batch: int, device: torch.device
+) -> dict[int, RoomEnv]:
+    """The checkpoint's room for every agent count of ``counts``, each simulating ``trials_per_batch`` trials of
+    every learning process at once (``policy.processes * trials_per_batch`` replicas)."""
+    return {
+        int(agents): policy.env_factory(
+            num_replicas=policy.processes * trials_per_batch, num_agents=int(agents), device=device
+        )
+        for agents in counts
+    }
+
+
+def room_geometry(envs: dict[int, RoomEnv]) -> RoomGeometry:
+    """The room of ``envs`` (all of them share it) as the analysis functions take it."""
+    first = next(iter(envs.values()))
+    return RoomGeometry(width=first.width, length=first.length, door_width=first.door_width)
+
+
+def evaluate_policy(
+    policy: Policy,
+    envs: dict[int, RoomEnv],
+    geometry: RoomGeometry,
+    settings: EvalSettings,
+    *,
+    run_dir: str | Path,
+    config_text: str | None = None,
+) -> list[dict[str, Any]]:
+    """Simulate ``policy`` in every room of ``envs`` (one per agent count) and write every output under
+    ``run_dir``; returns the ``scaling.csv`` rows.
+
+    The rooms come from :func:`build_rooms`, ``geometry`` from :func:`room_geometry`; the outputs are listed in the
+    :mod:`pedrl.evaluation` docstring. ``config_text``, when given, is logged to TensorBoard as the run's config.
+    """
+    run_dir = Path(run_dir)
+    point = (geometry.width / 2, geometry.length - settings.distance)
+    label = f"{policy.algo} ({settings.controller})"
+    run_dir.mkdir(parents=True, exist_ok=True)
+    logger = RunLogger(run_dir, tensorboard=settings.tensorboard)
+    if config_text is not None:
+        logger.log_text("eval/config", "```\n" + config_text + "```")
+    table = CsvWriter(run_dir / "scaling.csv", SCALING_COLUMNS)
+    diagrams: dict[int, FundamentalDiagram] = {}
+    rows: list[dict[str, Any]] = []
+    print(
+        f"pedrl-eval: {label}, {policy.processes} processes x {policy.tables} tables, agents {list(envs)}, "
+        f"{settings.trials} trials per process -> {run_dir}",
+        flush=True,
+    )
+
+    # ---- one agent count after another
+    try:
+        for agents, env in envs.items():
+            tic = time.perf_counter()
+            env.generator.manual_seed(settings.seed * ENV_SEED_STRIDE + agents)
+            if isinstance(policy.controller, LearnedController | GreedyDoorController):
+                policy.controller.generator.manual_seed(settings.seed * CONTROLLER_SEED_STRIDE + agents)
+            stats, diagram, density = simulate_agent_count(env, policy, settings, geometry, point, run_dir)
+            row = stats.row(agents)
+            rows.append(row)
+            table.write(row)
+            diagrams[agents] = diagram
+            title = f"{label}: {agents} agents, {row['trials']} trials"
+            figure = write_density_map(run_dir, density, geometry, agents=agents, title=title)
+            logger.log_figure(f"eval/density_map_{agents}", figure)
+            logger.log_scalars(agents, {f"eval/{k}": v for k, v in row.items() if k != "agents"})
+            print(
+                f"  {agents:>4} agents: fails {row['fails_pct']:5.1f} ± {row['fails_std']:4.1f} %, "
+                f"speed {row['mean_speed']:.2f} ± {row['speed_std']:.2f} m/s, stuck {row['stuck_pct']:.1f} %, "
+                f"evacuated {row['evacuated_pct']:.0f} % of trials "
+                f"({time.perf_counter() - tic:.1f} s)",
+                flush=True,
+            )
+        figure = write_fundamental_diagram(
+            run_dir,
+            diagrams,
+            label=label,
+            point=point,
+            radius=settings.radius,
+            max_points=settings.plot_points,
+            seed=settings.seed,
+        )
+        logger.log_figure("eval/fundamental_diagram", figure)
+    finally:
+        table.close()
+        logger.close()
+    write_scaling_json(run_dir, rows)
+    return rows
+
+
+def simulate_agent_count(
+    env: RoomEnv,
+    policy: Policy,
+    settings: EvalSettings,
+    geometry: RoomGeometry,
+    point: tuple[float, float],
+    run_dir: Path,
+) -> tuple[ScalingStats, FundamentalDiagram, DensityMap]:
+    """``settings.trials`` trials per process in batches: Table 4/5 figures, diagram samples, density map, exports."""
+    stats = ScalingStats()
+    diagrams: list[FundamentalDiagram] = []
+    density: DensityMap | None = None
+    runs_per_batch = env.num_replicas  # processes * trials_per_batch; replica i of batch b is run b * R + i
+    total_runs = settings.trials * policy.processes
+    to_export = min(settings.export_trials, total_runs)
+    folder = run_dir / "trajectories" / f"agents_{env.num_agents}"
+    framerate = env.decisions_per_second
+    for first_run in range(0, total_runs, runs_per_batch):
+        record = record_batch(env, policy.controller)
+        keep = min(runs_per_batch, total_runs - first_run)
+        stats.add(record, keep)
+        runs = [record.trajectories(i, geometry, framerate) for i in range(keep)]
+        diagram = compute_fundamental_diagram(
+            runs, point=point, radius=settings.radius, min_density=settings.min_density
+        )
+        diagrams.append(_offset_trials(diagram, first_run))
+        batch_map = compute_density_map(runs, tile_size=settings.tile_size, geometry=geometry)
+        density = batch_map if density is None else _add_maps(density, batch_map)
+        if first_run == 0 and settings.animation:
+            animate_trial(
+                runs[0],
+                run_dir / f"animation_{env.num_agents}.gif",
+                fps=settings.animation_fps,
+                max_frames=settings.animation_max_frames,
+                agent_radius=env.agent_radius,
+                max_speed=env.max_speed,
+            )
+        for i in range(min(keep, to_export - first_run)):
+            if first_run + i == 0:
+                folder.mkdir(parents=True, exist_ok=True)
+                write_geometry_wkt(run_dir / "trajectories" / "geometry.wkt", geometry)
+            write_pedpy_trajectory(folder / f"trial_{first_run + i:03d}.txt", runs[i])
+    assert density is not None  # at least one batch ran
+    return stats, _concatenate_diagrams(diagrams), density
+
+
+def _offset_trials(diagram: FundamentalDiagram, offset: int) -> FundamentalDiagram:
+    return replace(diagram, trial=diagram.trial + offset)
+
+
+def _concatenate_diagrams(diagrams: Sequence[FundamentalDiagram]) -> FundamentalDiagram:
+    return replace(
+        diagrams[0],
+        density=np.concatenate([d.density for d in diagrams]),
+        speed=np.concatenate([d.speed for d in diagrams]),
+        flow=np.concatenate([d.flow for d in diagrams]),
+        trial=np.concatenate([d.trial for d in diagrams]),
+        frame=np.concatenate([d.frame for d in diagrams]),
+    )
+
+
+def _add_maps(a: DensityMap, b: DensityMap) -> DensityMap:
+    return replace(a, counts=a.counts + b.counts, num_frames=a.num_frames + b.num_frames)
+
+
+def _first_line(err: BaseException) -> str:
+    return (str(err).strip().splitlines() or [type(err).__name__])[0]

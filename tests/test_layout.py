@@ -1,0 +1,72 @@
+"""The module layout (issue 12): entry points import library modules only, and the room stays free of Hydra and I/O.
+
+Read from the source with ``ast`` (nothing is imported), so that an import inside a function counts as well.
+"""
+
+import ast
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parent.parent / "pedrl"
+ENTRY_POINTS = ("pedrl.train", "pedrl.evaluate", "pedrl.plot", "pedrl.sweep")
+SIM_FORBIDDEN = ("hydra", "omegaconf", "pedrl.io")
+"""What pedrl/sim/ never imports: no config framework, and none of pedrl.io's file I/O (checkpoints, CSV, logs)."""
+
+
+def module_name(path: Path, root: Path = PACKAGE.parent) -> str:
+    """The dotted name of the module at ``path``, relative to the folder ``root`` that holds the package."""
+    parts = path.relative_to(root).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def imported_modules(path: Path, root: Path = PACKAGE.parent) -> set[str]:
+    """Every module ``path`` imports, anywhere in the file, by its absolute name; ``from a import b`` counts as
+    both ``a`` and ``a.b`` (``b`` may be a module)."""
+    package = module_name(path, root).split(".")
+    if path.name != "__init__.py":
+        package = package[:-1]
+    names = set()
+    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+        if isinstance(node, ast.Import):
+            names.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            base = ".".join(package[: len(package) - node.level + 1] if node.level else [])
+            module = ".".join(part for part in (base, node.module or "") if part)
+            names.add(module)
+            names.update(f"{module}.{alias.name}" for alias in node.names)
+    return names
+
+
+def within(name: str, modules: tuple[str, ...]) -> bool:
+    return any(name == module or name.startswith(f"{module}.") for module in modules)
+
+
+def entry_point_path(name: str) -> Path:
+    return PACKAGE.parent / f"{name.replace('.', '/')}.py"
+
+
+def test_the_import_reader_sees_imports_inside_functions_and_relative_ones(tmp_path):
+    (tmp_path / "pedrl" / "sim").mkdir(parents=True)
+    sample = tmp_path / "pedrl" / "sim" / "sample.py"
+    sample.write_text("import os\n\ndef f():\n    from pedrl import train\n    from ..io import files\n")
+    names = imported_modules(sample, root=tmp_path)
+    assert {"os", "pedrl.train", "pedrl.io", "pedrl.io.files"} <= names
+    # every entry point shares pedrl.cli (pedrl.sweep imports it inside a function)
+    for entry_point in ENTRY_POINTS:
+        assert "pedrl.cli" in imported_modules(entry_point_path(entry_point)), entry_point
+
+
+@pytest.mark.parametrize("entry_point", ENTRY_POINTS)
+def test_entry_points_do_not_import_each_other(entry_point):
+    """What two entry points share lives in a library module (pedrl.runtime, pedrl.learning_curves,
+    pedrl.evaluation), so that each entry point stays a thin wrapper."""
+    imports = imported_modules(entry_point_path(entry_point))
+    others = [name for name in sorted(imports) if within(name, ENTRY_POINTS)]
+    assert not others, f"{entry_point} imports the entry point(s) {others}"
+
+
+@pytest.mark.parametrize("path", sorted((PACKAGE / "sim").rglob("*.py")), ids=lambda p: p.name)
+def test_sim_imports_neither_hydra_nor_omegaconf_nor_io(path):
+    forbidden = [name for name in sorted(imported_modules(path)) if within(name, SIM_FORBIDDEN)]
+    assert not forbidden, f"{module_name(path)} imports {forbidden}"
