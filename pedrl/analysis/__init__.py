@@ -43,7 +43,7 @@ from pedrl.analysis.plots import (
     plot_learning_curves,
     plot_room,
 )
-from pedrl.analysis.trajectories import DEFAULT_EXIT_DEPTH, RoomGeometry, Trajectories
+from pedrl.analysis.trajectories import DEFAULT_EXIT_DEPTH, AreaGeometry, Geometry, RoomGeometry, Trajectories
 
 __all__ = [
     "DEFAULT_EXIT_DEPTH",
@@ -59,6 +59,8 @@ __all__ = [
     "Y_COL",
     "DensityMap",
     "FundamentalDiagram",
+    "AreaGeometry",
+    "Geometry",
     "RoomGeometry",
     "SpeedDensityFit",
     "SpeedDensityModel",

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from pedrl.analysis.trajectories import RoomGeometry, Trajectories, X, Y
+from pedrl.analysis.trajectories import Geometry, Trajectories, X, Y
 
 
 @dataclass(frozen=True, eq=False)
@@ -84,7 +84,7 @@ def compute_tile_edges(extent: float, tile_size: float) -> NDArray[np.float64]:
 
 
 def compute_density_map(
-    trajectories_list: Sequence[Trajectories] | Trajectories, *, tile_size: float, geometry: RoomGeometry
+    trajectories_list: Sequence[Trajectories] | Trajectories, *, tile_size: float, geometry: Geometry
 ) -> DensityMap:
     """Count the active agent centres inside the room per tile, over all frames and trials.
 
@@ -100,8 +100,8 @@ def compute_density_map(
         raise ValueError(f"tile_size must be positive, got {tile_size}")
     if isinstance(trajectories_list, Trajectories):
         trajectories_list = [trajectories_list]
-    x_edges = compute_tile_edges(geometry.width, tile_size)
-    y_edges = compute_tile_edges(geometry.length, tile_size)
+    x_edges = geometry.x_min + compute_tile_edges(geometry.width, tile_size)
+    y_edges = geometry.y_min + compute_tile_edges(geometry.length, tile_size)
     counts = np.zeros((len(x_edges) - 1, len(y_edges) - 1), dtype=np.int64)
     num_frames = 0
     for trajectories in trajectories_list:

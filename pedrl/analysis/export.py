@@ -28,7 +28,7 @@ from typing import Final
 import numpy as np
 from numpy.typing import NDArray
 
-from pedrl.analysis.trajectories import DEFAULT_EXIT_DEPTH, RoomGeometry, Trajectories, X, Y
+from pedrl.analysis.trajectories import DEFAULT_EXIT_DEPTH, Geometry, Trajectories, X, Y
 
 ID_COL: Final = "id"
 FRAME_COL: Final = "frame"
@@ -59,7 +59,7 @@ def write_pedpy_trajectory(path: str | Path, trajectories: Trajectories, *, firs
         [
             "pedrl trajectories, one trial (PedPy text format)",
             f"{FRAMERATE_KEY}: {trajectories.framerate!r}",
-            f"room: width {geometry.width!r}, length {geometry.length!r}, door_width {geometry.door_width!r}",
+            geometry.describe(),
             f"{ID_COL} {FRAME_COL} {X_COL}/m {Y_COL}/m",
         ]
     )
@@ -124,7 +124,7 @@ def read_pedpy_trajectory(
     return ids, frames, xy, framerate
 
 
-def write_geometry_wkt(path: str | Path, geometry: RoomGeometry, *, exit_depth: float = DEFAULT_EXIT_DEPTH) -> Path:
+def write_geometry_wkt(path: str | Path, geometry: Geometry, *, exit_depth: float = DEFAULT_EXIT_DEPTH) -> Path:
     """Write the walkable area as WKT text (``pedpy.WalkableArea(path.read_text())`` loads it).
 
     See :meth:`RoomGeometry.walkable_polygon` for the polygon (room plus an apron of ``exit_depth`` m).

@@ -219,7 +219,8 @@ class FundamentalDiagram:
 
 def default_measurement_point(trajectories: Trajectories, *, radius: float = DEFAULT_RADIUS) -> NDArray[np.float64]:
     """The paper's point "near the exit": ``radius`` metres inside the room from the door centre (m)."""
-    return trajectories.geometry.door_center - np.array([0.0, radius])
+    geometry = trajectories.geometry
+    return geometry.door_center - radius * geometry.door_normal
 
 
 def compute_fundamental_diagram(

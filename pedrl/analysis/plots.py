@@ -21,7 +21,7 @@ from numpy.typing import ArrayLike
 
 from pedrl.analysis.density_map import DensityMap
 from pedrl.analysis.fundamental import FundamentalDiagram, SpeedDensityModel, fit_speed_density
-from pedrl.analysis.trajectories import RoomGeometry, Trajectories
+from pedrl.analysis.trajectories import Geometry, Trajectories
 
 X_LABEL: Final = "x (m)"
 Y_LABEL: Final = "y (m)"
@@ -42,13 +42,13 @@ def _new_axes(*, ncols: int = 1, figsize: tuple[float, float] = (6.0, 4.5)) -> A
 
 
 def plot_room(
-    geometry: RoomGeometry,
+    geometry: Geometry,
     *,
     axes: Axes | None = None,
     wall_color: str = "black",
     door_color: str = "tab:green",
 ) -> Axes:
-    """Draw the five walls (solid) and the door (dashed), with equal aspect and axes in metres.
+    """Draw the walls (solid) and the door, the first exit (dashed), with equal aspect and axes in metres.
 
     Returns:
         The axes drawn into.
@@ -59,8 +59,8 @@ def plot_room(
     door = geometry.door
     axes.plot(door[:, 0], door[:, 1], linestyle="--", color=door_color, linewidth=2.0, label="door", zorder=3)
     margin = 0.05 * max(geometry.width, geometry.length)
-    axes.set_xlim(-margin, geometry.width + margin)
-    axes.set_ylim(-margin, geometry.length + margin)
+    axes.set_xlim(geometry.x_min - margin, geometry.x_min + geometry.width + margin)
+    axes.set_ylim(geometry.y_min - margin, geometry.y_min + geometry.length + margin)
     axes.set_aspect("equal")
     axes.set_xlabel(X_LABEL)
     axes.set_ylabel(Y_LABEL)
@@ -115,7 +115,7 @@ def plot_fundamental_diagram(
 def plot_density_map(
     density_map: DensityMap,
     *,
-    geometry: RoomGeometry,
+    geometry: Geometry,
     axes: Axes | None = None,
     cmap: str = "Greys",
     colorbar: bool = True,

@@ -61,6 +61,25 @@ class RoomGeometry:
         return np.array([self.width / 2, self.length])
 
     @property
+    def x_min(self) -> float:
+        """Left edge of the room (m): 0."""
+        return 0.0
+
+    @property
+    def y_min(self) -> float:
+        """Bottom edge of the room (m): 0."""
+        return 0.0
+
+    @property
+    def door_normal(self) -> NDArray[np.float64]:
+        """Unit vector out of the room through the door: ``(0, 1)``."""
+        return np.array([0.0, 1.0])
+
+    def describe(self) -> str:
+        """One line naming the room, for file headers."""
+        return f"room: width {self.width!r}, length {self.length!r}, door_width {self.door_width!r}"
+
+    @property
     def door(self) -> NDArray[np.float64]:
         """The door gap as a segment ``[[door_left, length], [door_right, length]]`` (m), shape ``(2, 2)``."""
         return np.array([[self.door_left, self.length], [self.door_right, self.length]])
@@ -124,6 +143,106 @@ class RoomGeometry:
         return f"POLYGON (({coords}))"
 
 
+@dataclass(frozen=True, eq=False)
+class AreaGeometry:
+    """Any walkable area (a scenario of :mod:`pedrl.scenarios`): a polygon, its walls and its exits.
+
+    It answers what :class:`RoomGeometry` answers, so every analysis takes either; the "door" is the first exit.
+
+    Attributes:
+        wkt: The walkable polygon as WKT (holes allowed).
+        walls: ``(S, 2, 2)`` wall segments (m).
+        exits: ``(E, 2, 2)`` exit segments (m).
+        exit_normals: ``(E, 2)`` unit vectors out of the area through each exit.
+        name: The scenario's name.
+    """
+
+    wkt: str
+    walls: NDArray[np.float64]
+    exits: NDArray[np.float64]
+    exit_normals: NDArray[np.float64]
+    name: str = "custom"
+
+    def __post_init__(self) -> None:
+        import shapely
+
+        polygon = shapely.from_wkt(self.wkt)
+        object.__setattr__(self, "_polygon", polygon)
+        object.__setattr__(self, "walls", np.asarray(self.walls, dtype=np.float64).reshape(-1, 2, 2))
+        object.__setattr__(self, "exits", np.asarray(self.exits, dtype=np.float64).reshape(-1, 2, 2))
+        object.__setattr__(self, "exit_normals", np.asarray(self.exit_normals, dtype=np.float64).reshape(-1, 2))
+
+    @property
+    def bounds(self) -> tuple[float, float, float, float]:
+        """``(x_min, y_min, x_max, y_max)`` of the walkable area (m)."""
+        return tuple(float(v) for v in self._polygon.bounds)
+
+    @property
+    def x_min(self) -> float:
+        return self.bounds[0]
+
+    @property
+    def y_min(self) -> float:
+        return self.bounds[1]
+
+    @property
+    def width(self) -> float:
+        """Extent along x (m)."""
+        return self.bounds[2] - self.bounds[0]
+
+    @property
+    def length(self) -> float:
+        """Extent along y (m)."""
+        return self.bounds[3] - self.bounds[1]
+
+    @property
+    def door(self) -> NDArray[np.float64]:
+        """The first exit ``(2, 2)`` (m)."""
+        return self.exits[0]
+
+    @property
+    def door_center(self) -> NDArray[np.float64]:
+        """Centre of the first exit ``(2,)`` (m)."""
+        return self.exits[0].mean(axis=0)
+
+    @property
+    def door_normal(self) -> NDArray[np.float64]:
+        """Unit vector out of the area through the first exit."""
+        return self.exit_normals[0]
+
+    def describe(self) -> str:
+        """One line naming the area, for file headers."""
+        x_min, y_min, x_max, y_max = self.bounds
+        return f"area: {self.name}, bounds [{x_min:g}, {y_min:g}] x [{x_max:g}, {y_max:g}], {len(self.exits)} exits"
+
+    def contains(self, points: ArrayLike) -> NDArray[np.bool_]:
+        """Which points lie in the walkable area (agents past an exit are outside), ``(...)`` bool."""
+        import shapely
+
+        p = np.asarray(points, dtype=np.float64)
+        return shapely.contains_xy(self._polygon, p[..., X], p[..., Y])
+
+    def to_wkt(self, *, exit_depth: float = DEFAULT_EXIT_DEPTH) -> str:
+        """The walkable area with an apron of ``exit_depth`` beyond each exit (the last positions of agents that just
+        left), as WKT for ``pedpy.WalkableArea``."""
+        import shapely
+        from shapely.geometry import Polygon
+
+        if exit_depth < 0:
+            raise ValueError(f"exit_depth must be >= 0, got {exit_depth}")
+        if exit_depth == 0:
+            return self._polygon.wkt
+        aprons = [
+            Polygon([a, b, b + exit_depth * n, a + exit_depth * n])
+            for (a, b), n in zip(self.exits, self.exit_normals, strict=True)
+        ]
+        return shapely.union_all([self._polygon, *aprons]).wkt
+
+
+Geometry = RoomGeometry | AreaGeometry
+"""What the analysis functions take: the paper's room or any walkable area."""
+
+
 @dataclass(frozen=True)
 class Trajectories:
     """The recorded states of one trial.
@@ -147,7 +266,7 @@ class Trajectories:
     velocities: NDArray[np.floating]
     active: NDArray[np.bool_]
     framerate: float
-    geometry: RoomGeometry
+    geometry: Geometry
 
     def __post_init__(self) -> None:
         positions = np.asarray(self.positions)
@@ -167,8 +286,8 @@ class Trajectories:
             raise ValueError(f"active must be bool, got {active.dtype}")
         if not self.framerate > 0:
             raise ValueError(f"framerate must be positive, got {self.framerate}")
-        if not isinstance(self.geometry, RoomGeometry):
-            raise TypeError(f"geometry must be a RoomGeometry, got {type(self.geometry).__name__}")
+        if not isinstance(self.geometry, RoomGeometry | AreaGeometry):
+            raise TypeError(f"geometry must be a RoomGeometry or AreaGeometry, got {type(self.geometry).__name__}")
         if not (np.isfinite(positions[active]).all() and np.isfinite(velocities[active]).all()):
             raise ValueError("positions and velocities of active agents must be finite")
         object.__setattr__(self, "positions", positions)

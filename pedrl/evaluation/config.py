@@ -14,7 +14,7 @@ from typing import Any, Final
 import torch
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
-from pedrl.analysis import RoomGeometry
+from pedrl.analysis.trajectories import Geometry
 from pedrl.cli import hydra_output_dir
 from pedrl.evaluation.engine import (
     EvalSettings,
@@ -22,6 +22,7 @@ from pedrl.evaluation.engine import (
     build_rooms,
     evaluate_policy,
     load_policy,
+    measurement_point,
     room_geometry,
 )
 from pedrl.runtime import set_threads
@@ -65,15 +66,22 @@ def evaluate(cfg: DictConfig, *, run_dir: str | Path | None = None) -> list[dict
         epsilon=float(cfg.epsilon),
         device=device,
         max_decisions=cfg.max_decisions,
+        scenario=_scenario(cfg),
     )
     trials_per_batch = min(int(cfg.trials_per_batch), int(cfg.trials))
     envs = build_rooms(policy, list(cfg.agents), trials_per_batch=trials_per_batch, device=device)
-    geometry = room_geometry(envs)
+    geometry = room_geometry(envs, policy.env_factory.scenario)
     check_against_room(cfg, geometry, envs)
 
     # ---- the evaluation, from plain values
     settings = settings_from_config(cfg)
     return evaluate_policy(policy, envs, geometry, settings, run_dir=run_dir, config_text=OmegaConf.to_yaml(cfg))
+
+
+def _scenario(cfg: DictConfig) -> dict[str, Any] | None:
+    """The ``scenario`` asked for (``scenario=<name>`` on the command line), else ``None``: the checkpoint's own."""
+    scenario = cfg.get("scenario")
+    return None if scenario is None else OmegaConf.to_container(scenario, resolve=True)
 
 
 def settings_from_config(cfg: DictConfig) -> EvalSettings:
@@ -142,11 +150,11 @@ def _validate_values(cfg: DictConfig) -> None:
     check_bool("tensorboard", cfg.get("tensorboard"))
 
 
-def check_against_room(cfg: DictConfig, geometry: RoomGeometry, envs: dict[int, RoomEnv]) -> None:
+def check_against_room(cfg: DictConfig, geometry: Geometry, envs: dict[int, RoomEnv]) -> None:
     """The checks that need the checkpoint's room, before any compute: the measurement point lies inside it, and
     the recordings, density maps and room states fit in memory."""
     distance = float(cfg.measurement.distance)
-    if distance >= geometry.length:
+    if distance >= geometry.length or not bool(geometry.contains(measurement_point(geometry, distance))):
         raise ValueError(
             f"measurement.distance={cfg.measurement.distance!r} is invalid: the measurement point must be inside the "
             f"room, a distance in [0, {geometry.length:g}) m (the room's length) in front of the door"

@@ -22,6 +22,7 @@ from omegaconf import OmegaConf
 
 from pedrl.algos.controllers import Controller, GreedyDoorController, LearnedController
 from pedrl.analysis import (
+    AreaGeometry,
     DensityMap,
     FundamentalDiagram,
     RoomGeometry,
@@ -32,8 +33,10 @@ from pedrl.analysis import (
     write_geometry_wkt,
     write_pedpy_trajectory,
 )
+from pedrl.analysis.trajectories import Geometry
 from pedrl.evaluation.report import write_density_map, write_fundamental_diagram, write_scaling_json
 from pedrl.io import CheckpointError, CsvWriter, RunLogger, load_checkpoint
+from pedrl.scenarios import Scenario
 from pedrl.sim import RoomEnv
 
 SCALING_COLUMNS: Final = (
@@ -67,7 +70,9 @@ class Policy:
 
     Attributes:
         controller: what chooses the actions.
-        env_factory: ``env_factory(num_replicas=, num_agents=, device=)`` builds the checkpoint's room.
+        env_factory: ``env_factory(num_replicas=, num_agents=, device=)`` builds the checkpoint's room, in its
+            scenario or the one asked for; ``env_factory.scenario`` is that :class:`~pedrl.scenarios.Scenario`.
+        env_settings: the checkpoint's ``env`` config (bodies, speeds, sensing, rewards), plain values.
         processes: P, the learning processes stored in the checkpoint.
         tables: A, the learned tables per process.
         algo: the algorithm that wrote the checkpoint.
@@ -75,20 +80,28 @@ class Policy:
 
     controller: Controller
     env_factory: Any
+    env_settings: dict[str, Any]
     processes: int
     tables: int
     algo: str
 
 
 def load_policy(
-    path: str | Path, *, controller: str, epsilon: float, device: torch.device, max_decisions: int | None
+    path: str | Path,
+    *,
+    controller: str,
+    epsilon: float,
+    device: torch.device,
+    max_decisions: int | None,
+    scenario: dict[str, Any] | None = None,
 ) -> Policy:
     """Reload a checkpoint written by ``pedrl-train``: its room, quantizer and tables.
 
     The room and the trainer are built from the known classes only, with the stored config's values validated as
     if a user had typed them; a stored config that names code (a ``_target_`` other than pedrl's room and
     trainers, anywhere) is refused before anything is built. Every tensor is checked against that config
-    (:func:`pedrl.algos.restore.restore_state`), whichever the controller.
+    (:func:`pedrl.algos.restore.restore_state`), whichever the controller. The rooms are built in ``scenario`` (a
+    ``scenario`` config), else in the checkpoint's own (the paper's room for checkpoints that predate scenarios).
 
     Raises:
         CheckpointError: one line, for a missing, foreign, corrupt or crafted file, or one whose trainer cannot
@@ -107,7 +120,7 @@ def load_policy(
         saved["env"]["max_decisions"] = max_decisions
     try:
         trainer = build_trainer(OmegaConf.create(saved), run_dir=Path(path).parent)
-        factory = env_factory(saved["env"])
+        factory = env_factory(saved["env"], scenario if scenario is not None else saved.get("scenario"))
     except (ValueError, OmegaConfBaseException, KeyError, TypeError) as err:
         raise CheckpointError(
             f"checkpoint {str(path)!r} holds a config this pedrl refuses ({_first_line(err)})"
@@ -117,7 +130,7 @@ def load_policy(
     processes, tables = q_values.shape[0], q_values.shape[1]
     if controller == "greedy":
         greedy = GreedyDoorController(epsilon=epsilon, generator=torch.Generator(device=device))
-        return Policy(greedy, factory, processes, tables, trainer.name)
+        return Policy(greedy, factory, saved["env"], processes, tables, trainer.name)
     learned = LearnedController(
         q_values=q_values,
         encode=partial(trainer.encode_observations, quantizer),
@@ -125,7 +138,7 @@ def load_policy(
         # the trainer's generator also fills void neighbour slots (IT-VQQL): one seed covers both
         generator=trainer.generator,
     )
-    return Policy(learned, factory, processes, tables, trainer.name)
+    return Policy(learned, factory, saved["env"], processes, tables, trainer.name)
 
 
 # ---------------------------------------------------------------------- recording
@@ -155,7 +168,7 @@ class BatchRecord:
     speed_sq_sum: np.ndarray
     speed_count: np.ndarray
 
-    def trajectories(self, replica: int, geometry: RoomGeometry, framerate: float) -> Trajectories:
+    def trajectories(self, replica: int, geometry: Geometry, framerate: float) -> Trajectories:
         return Trajectories(
             positions=self.positions[replica],
             velocities=self.velocities[replica],
@@ -326,16 +339,31 @@ def build_rooms(
     }
 
 
-def room_geometry(envs: dict[int, RoomEnv]) -> RoomGeometry:
-    """The room of ``envs`` (all of them share it) as the analysis functions take it."""
+def room_geometry(envs: dict[int, RoomEnv], scenario: Scenario | None = None) -> Geometry:
+    """The area of ``envs`` (all of them share it) as the analysis functions take it: the paper's rectangle, or any
+    other ``scenario``'s polygon."""
     first = next(iter(envs.values()))
-    return RoomGeometry(width=first.width, length=first.length, door_width=first.door_width)
+    if scenario is None or scenario.name == "paper_room":
+        return RoomGeometry(width=first.width, length=first.length, door_width=first.door_width)
+    geometry = first.geometry
+    return AreaGeometry(
+        wkt=scenario.to_wkt(),
+        walls=geometry.walls[: geometry.num_walls].cpu().numpy(),
+        exits=geometry.exits.cpu().numpy(),
+        exit_normals=geometry.exit_normals.cpu().numpy(),
+        name=scenario.name,
+    )
+
+
+def measurement_point(geometry: Geometry, distance: float) -> np.ndarray:
+    """The point of the fundamental diagram: ``distance`` m inside the area from the centre of its (first) door."""
+    return geometry.door_center - distance * geometry.door_normal
 
 
 def evaluate_policy(
     policy: Policy,
     envs: dict[int, RoomEnv],
-    geometry: RoomGeometry,
+    geometry: Geometry,
     settings: EvalSettings,
     *,
     run_dir: str | Path,
@@ -348,7 +376,7 @@ def evaluate_policy(
     :mod:`pedrl.evaluation` docstring. ``config_text``, when given, is logged to TensorBoard as the run's config.
     """
     run_dir = Path(run_dir)
-    point = (geometry.width / 2, geometry.length - settings.distance)
+    point = tuple(float(v) for v in measurement_point(geometry, settings.distance))
     label = f"{policy.algo} ({settings.controller})"
     run_dir.mkdir(parents=True, exist_ok=True)
     logger = RunLogger(run_dir, tensorboard=settings.tensorboard)
@@ -407,7 +435,7 @@ def simulate_agent_count(
     env: RoomEnv,
     policy: Policy,
     settings: EvalSettings,
-    geometry: RoomGeometry,
+    geometry: Geometry,
     point: tuple[float, float],
     run_dir: Path,
 ) -> tuple[ScalingStats, FundamentalDiagram, DensityMap]:

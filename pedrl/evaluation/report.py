@@ -19,7 +19,7 @@ from matplotlib.figure import Figure
 from pedrl.analysis import (
     DensityMap,
     FundamentalDiagram,
-    RoomGeometry,
+    Geometry,
     SpeedDensityModel,
     fit_speed_density,
     plot_density_map,
@@ -30,7 +30,7 @@ FUNDAMENTAL_COLUMNS: Final = ("agents", "trial", "frame", "density", "speed", "f
 
 
 # ---------------------------------------------------------------------- figures and files
-def write_density_map(run_dir: Path, density: DensityMap, geometry: RoomGeometry, *, agents: int, title: str) -> Figure:
+def write_density_map(run_dir: Path, density: DensityMap, geometry: Geometry, *, agents: int, title: str) -> Figure:
     """``density_map_<agents>.npy`` (the counts) and ``density_map_<agents>.png``; returns the figure."""
     np.save(run_dir / f"density_map_{agents}.npy", density.counts)
     # a figure shaped like the room, so that the colour bar is as tall as the map
@@ -44,10 +44,10 @@ def write_density_map(run_dir: Path, density: DensityMap, geometry: RoomGeometry
     return figure
 
 
-def _label_door(axes: Any, geometry: RoomGeometry) -> None:
+def _label_door(axes: Any, geometry: Geometry) -> None:
     axes.annotate(
         "door",
-        (geometry.width / 2, geometry.length),
+        tuple(float(v) for v in geometry.door_center),
         xytext=(0, 2),
         textcoords="offset points",
         ha="center",

@@ -101,7 +101,7 @@ def test_rimea_1_greedy_walks_40_m_near_free_speed():
     make = room_maker({}, device=torch.device("cpu"))
     greedy = GreedyDoorController()
     row = rimea_1(make, greedy, Invariants(), Budget(quick=True))
-    assert row.passed and row.value == 17.0  # 16 decisions at 2.5 m/s from the 0.5 m start, one to turn and reach
+    assert row.passed and row.value == 16.0 == row.details["ideal_s"]  # 39.5 m at 2.5 m/s: 16 decisions
 
 
 def test_pedrl_validate_quick_writes_reports_for_the_checkpoint_and_the_greedy_reference(tmp_path):
