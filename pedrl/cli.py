@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import sys
 import tempfile
 from collections.abc import Callable
@@ -14,7 +15,7 @@ from omegaconf import DictConfig
 from pedrl.io import CheckpointError
 
 T = TypeVar("T")
-PROGRAMS = {"train": "pedrl-train", "evaluate": "pedrl-eval", "plot": "pedrl-plot"}
+PROGRAMS = {"train": "pedrl-train", "evaluate": "pedrl-eval", "plot": "pedrl-plot", "validate": "pedrl-validate"}
 """Console command of each Hydra job name (the module's name)."""
 
 
@@ -32,6 +33,47 @@ def run_reporting_errors(program: str, action: Callable[[], T]) -> T:
     except OSError as err:  # a read-only folder, a file where a folder should be, ...
         message = describe_os_error(err)
     fail(program, message)
+
+
+def check_group_choices(
+    program: str, args: list[str], config_dir: str | Path, groups: tuple[str, ...] | None = None
+) -> None:
+    """Refuse ``group=option`` overrides naming no file of ``conf/<group>/``, or a group the program does not
+    compose (``groups``; ``None``: every group), with one line where Hydra would print a multi-line composition
+    error: ``pedrl-train: error: scenario='mall' is invalid: must be one of ...``."""
+    for arg in args:
+        key, sep, value = arg.partition("=")
+        key = key.lstrip("+~")
+        if arg.startswith("-") or not sep or "." in key or not value or "(" in value:
+            continue
+        group = Path(config_dir) / key
+        if not group.is_dir():
+            continue
+        if groups is not None and key not in groups and not key.startswith("hydra"):
+            own = ", ".join(("hydra", *groups))
+            fail(program, f"{key}={value!r} is invalid: {program} has no {key} group (its groups: {own})")
+        options = sorted(path.stem for path in group.glob("*.yaml"))
+        for option in value.split(","):  # a --multirun list
+            if option not in options and option != "null":
+                fail(program, f"{key}={option!r} is invalid: must be one of {', '.join(options)}")
+
+
+def checked_groups(
+    program: str, config_dir: str | Path, groups: tuple[str, ...] | None = None
+) -> Callable[[Callable[..., T]], Callable[..., T]]:
+    """Decorate a ``@hydra.main`` entry point: check its command line's group options first
+    (:func:`check_group_choices`), when it is called as a console script (without arguments)."""
+
+    def decorate(main: Callable[..., T]) -> Callable[..., T]:
+        @functools.wraps(main)
+        def run(*args: Any, **kwargs: Any) -> T:
+            if not args and not kwargs:
+                check_group_choices(program, sys.argv[1:], config_dir, groups)
+            return main(*args, **kwargs)
+
+        return run
+
+    return decorate
 
 
 def fail(program: str, message: str) -> NoReturn:

@@ -11,12 +11,13 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig
 
-from pedrl.cli import run_reporting_errors
+from pedrl.cli import checked_groups, run_reporting_errors
 from pedrl.evaluation import evaluate, print_table
 
 CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
 
 
+@checked_groups("pedrl-eval", CONFIG_DIR, groups=("scenario",))
 @hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="eval")
 def main(cfg: DictConfig) -> None:
     """Evaluate a checkpoint at scale and print Tables 4/5; a bad value or file exits with code 2 and one line."""

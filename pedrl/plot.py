@@ -14,12 +14,13 @@ from typing import Any
 import hydra
 from omegaconf import DictConfig
 
-from pedrl.cli import run_reporting_errors
+from pedrl.cli import checked_groups, run_reporting_errors
 from pedrl.learning_curves import plot_runs
 
 CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
 
 
+@checked_groups("pedrl-plot", CONFIG_DIR, groups=())
 @hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="plot")
 def main(cfg: DictConfig) -> None:
     """Plot the runs of ``cfg.runs`` together."""

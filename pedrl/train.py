@@ -14,7 +14,7 @@ import torch
 from omegaconf import DictConfig
 
 from pedrl.algos import Trainer, TrainResult
-from pedrl.cli import hydra_output_dir, run_reporting_errors
+from pedrl.cli import checked_groups, hydra_output_dir, run_reporting_errors
 from pedrl.io import CheckpointError
 from pedrl.io.files import replace_atomically
 from pedrl.runtime import build_trainer, launcher_threads, set_threads
@@ -120,6 +120,7 @@ def _resume_path(resume: Any, run_dir: Path) -> Path | None:
     raise ValueError(f"resume={resume!r} is invalid: must be null, true, a run directory or the path of a checkpoint")
 
 
+@checked_groups("pedrl-train", CONFIG_DIR)
 @hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="train")
 def main(cfg: DictConfig) -> float:
     """Train; print a closing summary; return the final success rate (for sweepers)."""

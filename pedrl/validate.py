@@ -13,7 +13,7 @@ from typing import Any
 import hydra
 from omegaconf import DictConfig, ListConfig
 
-from pedrl.cli import hydra_output_dir, run_reporting_errors
+from pedrl.cli import checked_groups, hydra_output_dir, run_reporting_errors
 from pedrl.runtime import set_threads
 from pedrl.sim.validation import MAX_SEED, check_bool, check_choice, check_device, check_integer, check_number
 from pedrl.validation.runner import CONTROLLERS, validate
@@ -64,6 +64,7 @@ def run(cfg: DictConfig, *, run_dir: Path | None = None) -> dict[str, Any]:
     )
 
 
+@checked_groups("pedrl-validate", CONFIG_DIR, groups=())
 @hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="validate")
 def main(cfg: DictConfig) -> None:
     """Run the suite and print the verdicts; a bad value or file exits with code 2 and one line."""

@@ -29,10 +29,11 @@ import pedrl.evaluate
 import pedrl.plot
 import pedrl.sweep
 import pedrl.train
+import pedrl.validate
 from pedrl.algos.base import CURVE_COLUMNS
 from pedrl.train import CONFIG_DIR, train
 
-HYDRA_OWN = {".hydra", "train.log", "evaluate.log", "plot.log"}
+HYDRA_OWN = {".hydra", "train.log", "evaluate.log", "plot.log", "validate.log"}
 """What Hydra writes into a run folder before the job starts: nothing else may be there after a refusal."""
 
 
@@ -241,6 +242,22 @@ TRAIN_CASES: list[tuple[str, tuple[str, ...]]] = [
     ("env.collision_order=last", ("collision_order='last'", "random, door_first")),
     ("env.goal_depth=-1", ("goal_depth=-1", ">= 0")),
     ("algo.num_agents=100000", ("num_agents=100000", "cannot be placed")),
+    # ---- the scenario (conf/scenario/*.yaml)
+    ("scenario=mall", ("scenario='mall' is invalid", "must be one of bottleneck, corner")),
+    ("scenario.name=mall", ("scenario.name='mall' is invalid", "paper_room, bottleneck")),
+    ("scenario=corner algo.num_agents=20", ("num_agents=20", "cannot be placed in spawn area 0")),
+    ("scenario=bottleneck scenario.opening=-1", ("scenario.opening=-1", "> 0")),
+    ("scenario=bottleneck scenario.opening=20", ("scenario.opening=20", "at most room_width")),
+    ("scenario=four_exits scenario.closed_exits=[0,1,2,3]", ("closed_exits", "at least one exit must stay open")),
+    ("scenario=corridor scenario.exits=[[0,0,1,1]]", ("scenario.exits is set without scenario.geometry",)),
+    ("+scenario.doors=2", ("scenario.doors is not a setting of scenario 'paper_room'", "allowed: width")),
+    ("scenario=custom scenario.geometry={tmp}/none.wkt scenario.exits=[[0,0,1,0]]", ("none.wkt", "cannot read it")),
+    ("scenario=custom scenario.geometry={tmp}/bowtie.wkt scenario.exits=[[10,0,10,10]]", ("Self-intersection",)),
+    ("scenario=custom scenario.geometry={tmp}/square.wkt scenario.exits=[[5,5,6,5]]", ("on the boundary",)),
+    (
+        "scenario=custom scenario.geometry={tmp}/square.wkt scenario.exits=[[10,2,10,4]] scenario.spawn=[[8,8,12,12]]",
+        ("spawn area 0", "inside the walkable area"),
+    ),
     # ---- the quantizer (conf/vq/default.yaml)
     ("vq.num_prototypes=1", ("vq.num_prototypes=1", "integer >= 2")),
     ("vq.num_prototypes=many", ("vq.num_prototypes='many'", "integer >= 2")),
@@ -331,13 +348,20 @@ TRAIN_FAST = {
     "algo=it_vqql algo.trials_growth=1e300",
     "algo=in_vqql algo.stages=[1,2.7,4]",
     "algo=in_vqql algo.stages=5",
+    "scenario=mall",
+    "scenario=corner algo.num_agents=20",
+    "scenario=custom scenario.geometry={tmp}/bowtie.wkt scenario.exits=[[10,0,10,10]]",
+    "scenario=custom scenario.geometry={tmp}/square.wkt scenario.exits=[[5,5,6,5]]",
 }
 
 
 @pytest.mark.parametrize(("overrides", "fragments"), catalogue(TRAIN_CASES, TRAIN_FAST))
 def test_train_refuses(overrides, fragments, tmp_path, capsys):
     run_dir = tmp_path / "run"
-    outcome = run_hydra_main(pedrl.train, [*TRAIN_BASE, *overrides.split(), f"hydra.run.dir={run_dir}"], capsys)
+    (tmp_path / "bowtie.wkt").write_text("POLYGON ((0 0, 10 10, 10 0, 0 10, 0 0))")  # self-intersecting
+    (tmp_path / "square.wkt").write_text("POLYGON ((0 0, 10 0, 10 10, 0 10, 0 0))")
+    args = [*TRAIN_BASE, *overrides.format(tmp=tmp_path).split(), f"hydra.run.dir={run_dir}"]
+    outcome = run_hydra_main(pedrl.train, args, capsys)
     assert_refused(outcome, "pedrl-train", fragments)
     assert_nothing_computed(run_dir)
 
@@ -351,6 +375,9 @@ EVAL_CASES: list[tuple[str, tuple[str, ...]]] = [
     ("checkpoint={tmp}/absent.safetensors", ("checkpoint", "absent.safetensors")),
     ("checkpoint={tmp}/notes.safetensors", ("checkpoint", "notes.safetensors")),
     ("agents=[0]", ("agents=[0]", "integers >= 1")),
+    ("scenario=nowhere", ("scenario='nowhere' is invalid", "must be one of")),
+    ("scenario=corner agents=[20]", ("num_agents=20", "cannot be placed in spawn area 0")),
+    ("scenario=bottleneck scenario.opening=0", ("scenario.opening=0", "> 0")),
     ("agents=[]", ("agents=[]", "non-empty list")),
     ("agents=5", ("agents=5", "non-empty list")),
     ("agents=[2,2]", ("agents=[2, 2]", "appear once")),
@@ -385,7 +412,14 @@ EVAL_CASES: list[tuple[str, tuple[str, ...]]] = [
 ]
 
 
-EVAL_FAST = {"agents=[0]", "device=meta", "measurement.distance=1000", "density_map.tile_size=1e-6"}
+EVAL_FAST = {
+    "agents=[0]",
+    "device=meta",
+    "measurement.distance=1000",
+    "density_map.tile_size=1e-6",
+    "scenario=nowhere",
+    "scenario=corner agents=[20]",
+}
 
 
 @pytest.mark.parametrize(("overrides", "fragments"), catalogue(EVAL_CASES, EVAL_FAST))
@@ -548,6 +582,27 @@ def test_sweep_into_a_read_only_folder_names_the_path(tmp_path, capsys, monkeypa
 
 
 # ---------------------------------------------------------------------- the real console entry points
+# ---------------------------------------------------------------------- pedrl-validate
+VALIDATE_CASES: list[tuple[str, tuple[str, ...]]] = [
+    ("controller=both", ("checkpoint is missing", "controller=greedy")),
+    ("controller=smart", ("controller='smart' is invalid", "both, learned, greedy")),
+    ("controller=greedy epsilon=-1", ("epsilon=-1", "[0, 1]")),
+    ("controller=greedy tests=[lanes,queues]", ("tests='queues' is invalid", "rimea_1")),
+    ("controller=greedy tests=lanes", ("tests='lanes' is invalid", "non-empty list")),
+    ("controller=greedy seed=-1", ("seed=-1", "integer in")),
+    ("checkpoint={tmp}/absent.safetensors", ("absent.safetensors",)),
+]
+
+
+@pytest.mark.parametrize(("overrides", "fragments"), catalogue(VALIDATE_CASES, {"controller=both"}))
+def test_validate_refuses(overrides, fragments, tmp_path, capsys):
+    run_dir = tmp_path / "run"
+    args = [*overrides.format(tmp=tmp_path).split(), "quick=true", f"hydra.run.dir={run_dir}"]
+    outcome = run_hydra_main(pedrl.validate, args, capsys)
+    assert_refused(outcome, "pedrl-validate", fragments)
+    assert_nothing_computed(run_dir)
+
+
 def test_real_entry_points_behave_the_same(checkpoint, tmp_path):
     """One case of every command as a subprocess (``python -m``, as the console scripts run them)."""
     run = write_curve(tmp_path / "a_run" / "learning_curve.csv").parent
@@ -564,12 +619,14 @@ def test_real_entry_points_behave_the_same(checkpoint, tmp_path):
         ],
         "pedrl-plot": ["pedrl.plot", f"runs=[{run}]", f"hydra.run.dir={tmp_path / 'plot'}"],
         "pedrl-sweep": ["pedrl.sweep", str(tmp_path / "sweep.txt")],
+        "pedrl-validate": ["pedrl.validate", "scenario=corner", f"hydra.run.dir={tmp_path / 'validate'}"],
     }
     expected = {
         "pedrl-train": ("vq.chunk_size=-5 is invalid: must be an integer >= 1",),
         "pedrl-eval": ("density_map.tile_size=1e-06",),
         "pedrl-plot": ("learning_curve.csv", "not a CSV text file"),
         "pedrl-sweep": ("sweep.txt", "is a file"),
+        "pedrl-validate": ("scenario='corner' is invalid", "has no scenario group"),
     }
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     for program, command in commands.items():

@@ -117,9 +117,9 @@ def env_factory(env: Mapping[str, Any], scenario: Mapping[str, Any] | None = Non
     room = partial(ENV_CLASSES[env["_target_"]], geometry=geometry, **settings)
 
     def factory(*, num_replicas: int, num_agents: int, device: str | Any = "cpu") -> RoomEnv:
-        if isinstance(num_agents, int) and not isinstance(num_agents, bool) and num_agents > 0:
-            built.check_capacity(num_agents, radius)
-        return room(num_replicas=num_replicas, num_agents=num_agents, device=device)
+        built_room = room(num_replicas=num_replicas, num_agents=num_agents, device=device)  # validates every value
+        built.check_capacity(built_room.num_agents, radius)  # the spawn areas' exact free area (shapely)
+        return built_room
 
     factory.scenario = built  # type: ignore[attr-defined]
     return factory

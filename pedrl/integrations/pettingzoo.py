@@ -273,15 +273,25 @@ class PedestrianParallelEnv(ParallelEnv):
         return infos
 
 
-def parallel_env(*, render_mode: str | None = None, **room_kwargs: Any) -> PedestrianParallelEnv:
-    """Build ``RoomEnv(num_replicas=1, **room_kwargs)`` and wrap it in a :class:`PedestrianParallelEnv`.
+def parallel_env(
+    *, render_mode: str | None = None, scenario: str | dict[str, Any] | None = None, **room_kwargs: Any
+) -> PedestrianParallelEnv:
+    """Build ``RoomEnv(num_replicas=1, **room_kwargs)`` in ``scenario`` and wrap it in a :class:`PedestrianParallelEnv`.
 
     Args:
         render_mode: Only ``None``.
+        scenario: A scenario name of :data:`pedrl.scenarios.SCENARIOS` or a ``scenario`` config (``{"name": ...,
+            ...}``); ``None``: the paper's room of ``width``, ``length`` and ``door_width``.
         **room_kwargs: ``RoomEnv`` keywords (``num_agents``, ``width``, ``max_decisions``, ``device``...).
 
     Raises:
-        ValueError: For an invalid room keyword (``RoomEnv``'s one-line message) or ``num_replicas`` other than 1.
+        ValueError: For an invalid room keyword or scenario (one-line messages) or ``num_replicas`` other than 1.
     """
+    if scenario is not None:
+        from pedrl.scenarios import build_scenario
+
+        built = build_scenario({"name": scenario} if isinstance(scenario, str) else scenario, room=room_kwargs)
+        built.check_capacity(int(room_kwargs.get("num_agents", 20)), float(room_kwargs.get("agent_radius", 0.4)))
+        room_kwargs["geometry"] = built.geometry(goal_depth=float(room_kwargs.get("goal_depth", 0.0)))
     room = RoomEnv(**{"num_replicas": 1, **room_kwargs})
     return PedestrianParallelEnv(room, render_mode=render_mode)

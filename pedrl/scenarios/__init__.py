@@ -38,6 +38,7 @@ from shapely.geometry import LineString, Point, Polygon, box
 
 from pedrl.sim.env import MAX_DENSITY
 from pedrl.sim.geometry import Geometry, SpawnArea
+from pedrl.sim.validation import check_real
 
 SCENARIOS: Final = ("paper_room", "bottleneck", "corridor", "corner", "four_exits", "custom")
 """Names accepted by ``scenario.name``."""
@@ -124,9 +125,9 @@ class Scenario:
             if body > MAX_DENSITY * free:
                 most = int(MAX_DENSITY * free / (math.pi * agent_radius**2))
                 raise ValueError(
-                    f"num_agents={num_agents} is invalid: {count} bodies of radius {agent_radius} m do not fit in"
-                    f" spawn area {index} of scenario {self.name!r} ({spawn.area.area:.4g} m^2): at most {most} there"
-                    f" ({MAX_DENSITY:.0%} of its free area)"
+                    f"num_agents={num_agents} is invalid: {count} bodies of radius {agent_radius} m cannot be placed"
+                    f" in spawn area {index} of scenario {self.name!r} ({spawn.area.area:.4g} m^2): at most {most} fit"
+                    f" there ({MAX_DENSITY:.0%} of its free area)"
                 )
 
     def geometry(self, *, goal_depth: float = 0.0, device: str | torch.device = "cpu") -> Geometry:
@@ -169,6 +170,13 @@ class Scenario:
 
 def paper_room(*, width: float = 60.0, length: float = 100.0, door_width: float = 2.0) -> Scenario:
     """The paper's room: a door of ``door_width`` centred in the side ``y = length``; agents start anywhere."""
+    width = check_real("width", width, unit="m", positive=True)
+    length = check_real("length", length, unit="m", positive=True)
+    door_width = check_real("door_width", door_width, unit="m", positive=True)
+    if door_width > width:
+        raise ValueError(
+            f"door_width={door_width!r} is invalid: the door must fit in its wall, at most width={width!r} m"
+        )
     room = box(0.0, 0.0, width, length)
     door = LineString([(width / 2 + door_width / 2, length), (width / 2 - door_width / 2, length)])
     return Scenario("paper_room", room, (door,), (Spawn(room),))

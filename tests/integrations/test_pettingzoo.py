@@ -237,3 +237,12 @@ def test_import_pedrl_needs_no_pettingzoo_and_the_adapter_says_how_to_install_it
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, check=True)
     assert done.stdout.count("\n") == 1
     assert "pip install pedrl[pettingzoo]" in done.stdout
+
+
+@pytest.mark.parametrize("scenario", ["corridor", "corner", "four_exits", "bottleneck"])
+def test_parallel_api_in_every_scenario(scenario):
+    """The adapter drives any scenario's room (one replica), under PettingZoo's own API test."""
+    agents = 7 if scenario == "corner" else 10
+    env = parallel_env(scenario=scenario, num_agents=agents, max_decisions=20)
+    assert env.env.geometry.name == scenario
+    parallel_api_test(env, num_cycles=25)

@@ -141,7 +141,7 @@ def test_missing_wkt_file_names_the_path(tmp_path):
 
 def test_more_agents_than_fit_in_the_spawn_area_is_refused_before_any_room_is_built():
     factory = env_factory(ENV, {"name": "corner"})
-    with pytest.raises(ValueError, match=r"num_agents=20 is invalid: 20 bodies .* at most 7 there"):
+    with pytest.raises(ValueError, match=r"num_agents=20 is invalid: 20 bodies .* cannot be placed in spawn area 0"):
         factory(num_replicas=1, num_agents=20)
 
 
