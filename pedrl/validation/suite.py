@@ -81,7 +81,7 @@ class Budget:
 
     @property
     def fd_agents(self) -> tuple[int, ...]:
-        return (20, 40) if self.quick else (15, 30, 45, 60)
+        return (20, 40) if self.quick else (12, 24, 36, 48)
 
     @property
     def corridor_agents(self) -> int:
@@ -296,6 +296,14 @@ def rimea_1(make_room: RoomMaker, controller: Controller, invariants: Invariants
     )
 
 
+def narrowing_corridor(length: float = 30.0, width: float = 4.0) -> Scenario:
+    """RiMEA 4's corridor: ``length x width``, its far end narrowed to a 1.6 m exit; agents start in the first
+    ``length - 6`` m."""
+    walkable = box(0.0, 0.0, length, width)
+    exit_ = LineString([(length, width / 2 - 0.8), (length, width / 2 + 0.8)])
+    return Scenario("rimea_4", walkable, (exit_,), (Spawn(box(0.0, 0.0, length - 6.0, width), exit=0),))
+
+
 def weidmann(
     make_room: RoomMaker, controller: Controller, invariants: Invariants, budget: Budget
 ) -> tuple[TestResult, Figure]:
@@ -307,11 +315,10 @@ def weidmann(
     uses the curve rescaled to the model: its free speed (mean speed below 0.3 /m^2, else ``max_speed``) and its
     densest packing of bodies (``2 / (sqrt(3) d^2)``); passed when that RMS distance is at most 25 % of the free
     speed and speed does not rise with density. Both distances are reported."""
-    length, width = 30.0, 4.0
-    walkable = box(0.0, 0.0, length, width)
-    exit_ = LineString([(length, 1.2), (length, 2.8)])
-    scenario = Scenario("rimea_4", walkable, (exit_,), (Spawn(box(0.0, 0.0, 20.0, width), exit=0),))
-    area = box(length - 5.0, 0.0, length - 1.0, width)
+    scenario = narrowing_corridor()
+    walkable = scenario.walkable
+    length = walkable.bounds[2]
+    area = box(length - 5.0, 0.0, length - 1.0, walkable.bounds[3])
     densities, speeds = [], []
     for seed, count in enumerate(budget.fd_agents):
         env = make_room(scenario, num_agents=count, num_replicas=budget.replicas, max_decisions=budget.decisions)

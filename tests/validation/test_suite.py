@@ -149,3 +149,19 @@ def test_bad_validate_values_give_one_line_errors(tmp_path, override, message):
 def test_learned_controller_needs_a_checkpoint(tmp_path):
     with pytest.raises(ValueError, match="checkpoint is missing: controller=both needs one"):
         run(compose_config("validate", []), run_dir=tmp_path)
+
+
+@pytest.mark.parametrize("quick", [True, False])
+def test_every_budget_fits_its_scenario(quick):
+    """The crowds of the suite fit in their spawn areas at both budgets (a full run must not stop half-way)."""
+    from pedrl.scenarios import build_scenario
+    from pedrl.validation.suite import narrowing_corridor
+
+    budget = Budget(quick=quick)
+    radius = 0.4
+    narrowing_corridor().check_capacity(max(budget.fd_agents), radius)
+    for width in budget.widths:
+        build_scenario({"name": "bottleneck", "opening": width}).check_capacity(budget.bottleneck_agents, radius)
+    build_scenario({"name": "four_exits"}).check_capacity(budget.four_exits_agents, radius)
+    build_scenario({"name": "corridor"}).check_capacity(budget.corridor_agents, radius)
+    build_scenario({"name": "corner"}).check_capacity(7, radius)
