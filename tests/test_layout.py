@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 
 PACKAGE = Path(__file__).resolve().parent.parent / "pedrl"
-ENTRY_POINTS = ("pedrl.train", "pedrl.evaluate", "pedrl.plot", "pedrl.sweep")
-SIM_FORBIDDEN = ("hydra", "omegaconf", "pedrl.io")
+ENTRY_POINTS = ("pedrl.train", "pedrl.evaluate", "pedrl.validate", "pedrl.plot", "pedrl.sweep")
+SIM_FORBIDDEN = ("hydra", "omegaconf", "pedrl.io", "shapely", "pedrl.scenarios")
 """What pedrl/sim/ never imports: no config framework, and none of pedrl.io's file I/O (checkpoints, CSV, logs)."""
 
 
@@ -67,6 +67,7 @@ def test_entry_points_do_not_import_each_other(entry_point):
 
 
 @pytest.mark.parametrize("path", sorted((PACKAGE / "sim").rglob("*.py")), ids=lambda p: p.name)
-def test_sim_imports_neither_hydra_nor_omegaconf_nor_io(path):
+def test_sim_imports_neither_hydra_nor_omegaconf_nor_io_nor_shapely(path):
+    """The simulation is pure tensor code: polygons are built into tensors by pedrl.scenarios, which uses shapely."""
     forbidden = [name for name in sorted(imported_modules(path)) if within(name, SIM_FORBIDDEN)]
     assert not forbidden, f"{module_name(path)} imports {forbidden}"
