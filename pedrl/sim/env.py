@@ -312,6 +312,7 @@ class RoomEnv:
         self.active = torch.zeros(shape, dtype=torch.bool, device=self.device)
         self.exit_index = torch.zeros(shape, dtype=torch.int64, device=self.device)
         self.stage = torch.zeros(shape, dtype=torch.int64, device=self.device)
+        self._targets = torch.zeros(*shape, 2, device=self.device)
         self.decisions = torch.zeros(self.num_replicas, dtype=torch.int64, device=self.device)
         self._steps_taken = 0
         self._reset_at = torch.zeros(self.num_replicas, dtype=torch.int64)  # host: _steps_taken at each reset
@@ -343,8 +344,8 @@ class RoomEnv:
 
     def targets(self) -> torch.Tensor:
         """The point each agent aims at ``(R, N, 2)`` (m): its current waypoint, else its exit's goal point. The
-        reference line of the state and the progress reward run to it."""
-        return self._route_point(self.stage)
+        reference line of the state and the progress reward run to it. Set at reset and when routes advance."""
+        return self._targets
 
     def _route_point(self, stage: torch.Tensor) -> torch.Tensor:
         """Waypoint ``stage`` of each agent's route ``(R, N, 2)``, or its exit's goal point past the route's end."""
@@ -375,6 +376,7 @@ class RoomEnv:
             near = (offset * offset).sum(-1) < radius * radius
             arrived = (near | ((ahead >= 0) & (side.abs() < radius))) & (self.stage < self._route_length)
             self.stage = self.stage + arrived.to(torch.int64)
+        self._targets = self._route_point(self.stage)
 
     def _check_substeps(self) -> int:
         """Sub-steps per decision, at most :data:`MAX_SUBSTEPS`, else a one-line ``ValueError`` with the numbers."""
@@ -473,6 +475,7 @@ class RoomEnv:
         exits = torch.where(assigned >= 0, assigned, self.geometry.nearest_exits(self.positions))
         self.exit_index = torch.where(chosen, exits, self.exit_index)
         self.stage = torch.where(chosen, 0, self.stage)
+        self._targets = self._route_point(self.stage)
         self._advance_routes()
         self.decisions = torch.where(replicas, 0, self.decisions)
         self._reset_at[replicas.cpu()] = self._steps_taken
