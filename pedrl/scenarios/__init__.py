@@ -37,7 +37,7 @@ import torch
 from shapely.geometry import LineString, Point, Polygon, box
 
 from pedrl.sim.env import MAX_DENSITY
-from pedrl.sim.geometry import Geometry, SpawnArea
+from pedrl.sim.geometry import Geometry, SpawnArea, spawn_counts
 from pedrl.sim.validation import check_real
 
 SCENARIOS: Final = ("paper_room", "bottleneck", "corridor", "corner", "four_exits", "custom")
@@ -115,8 +115,6 @@ class Scenario:
         The bodies of a group may cover at most :data:`~pedrl.sim.env.MAX_DENSITY` of the part of its spawn area
         where a centre can lie (the area eroded by the radius, and clear of the walls).
         """
-        from pedrl.sim.geometry import spawn_counts
-
         counts = spawn_counts(num_agents, [spawn.weight for spawn in self.spawns])
         free_space = self.walkable.buffer(-agent_radius)
         for index, (spawn, count) in enumerate(zip(self.spawns, counts, strict=True)):

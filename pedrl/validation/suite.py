@@ -22,6 +22,7 @@ from shapely.geometry import LineString, box
 
 from pedrl.scenarios import LIDDLE_FLOWS, LIDDLE_WIDTHS, Scenario, Spawn, build_scenario
 from pedrl.sim import RoomEnv
+from pedrl.sim.geometry import distances_to_segments
 
 WEIDMANN: Final = {"v0": 1.34, "gamma": 1.913, "rho_max": 5.4}
 """Weidmann's speed-density relation, ``v = v0 (1 - exp(-gamma (1/rho - 1/rho_max)))`` (m/s, 1/m^2)."""
@@ -111,8 +112,6 @@ class Invariants:
         self.agent_steps += int(was_active.sum())
         if bool(active.any()):
             walls = env.geometry.walls[: env.geometry.num_walls].double()
-            from pedrl.sim.geometry import distances_to_segments
-
             clearance = distances_to_segments(positions, walls).amin(-1) - env.agent_radius
             self.min_wall_clearance = min(self.min_wall_clearance, float(clearance[active].min()))
             self.outside += int((~env.geometry.inside(env.positions) & active).sum())
