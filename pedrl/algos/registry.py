@@ -10,9 +10,7 @@ validate like any typed value; nothing is ever instantiated from a config node.
 from __future__ import annotations
 
 import inspect
-import math
 from collections.abc import Callable, Mapping
-from functools import partial
 from typing import Any, Final
 
 from pedrl.algos.base import Trainer, VQSettings
@@ -21,7 +19,6 @@ from pedrl.algos.it_vqql import ITVQQL
 from pedrl.algos.vqql import VQQL
 from pedrl.scenarios import build_scenario
 from pedrl.sim import RoomEnv
-from pedrl.sim.validation import check_number, check_real
 
 ENV_CLASSES: Final[dict[str, type[RoomEnv]]] = {"pedrl.sim.RoomEnv": RoomEnv, "pedrl.sim.env.RoomEnv": RoomEnv}
 """Allowed values of ``env._target_``."""
@@ -102,24 +99,18 @@ def _check_special_key(name: str, value: Any) -> None:
 def env_factory(env: Mapping[str, Any], scenario: Mapping[str, Any] | None = None) -> Callable[..., RoomEnv]:
     """The room of the ``env`` config in the ``scenario``: ``factory(num_replicas=, num_agents=, device=)`` builds it.
 
-    The scenario (``None``: the paper's room of the ``env`` keys) is built once, with shapely; each room then checks
-    that its agents fit in the spawn areas before it allocates anything.
+    The scenario (``None``: the paper's room of the ``env`` keys) is built once, with shapely; each room is
+    :meth:`pedrl.scenarios.Scenario.room`: validated, then its agents checked against the spawn areas.
 
     Raises:
         ValueError: one line, for a key the room does not take or a bad scenario (values are validated when the room
             is built).
     """
     settings = _settings("env", env, ENV_CLASSES, supplied=ENV_RUN_ARGUMENTS)
-    goal_depth = check_number("goal_depth", settings.get("goal_depth", 0.0), low=0.0, high=math.inf)
-    radius = check_real("agent_radius", settings.get("agent_radius", 0.4), unit="m", positive=True)
     built = build_scenario(scenario, room=settings)
-    geometry = built.geometry(goal_depth=goal_depth)
-    room = partial(ENV_CLASSES[env["_target_"]], geometry=geometry, **settings)
 
     def factory(*, num_replicas: int, num_agents: int, device: str | Any = "cpu") -> RoomEnv:
-        built_room = room(num_replicas=num_replicas, num_agents=num_agents, device=device)  # validates every value
-        built.check_capacity(built_room.num_agents, radius)  # the spawn areas' exact free area (shapely)
-        return built_room
+        return built.room(num_replicas=num_replicas, num_agents=num_agents, device=device, **settings)
 
     factory.scenario = built  # type: ignore[attr-defined]
     return factory

@@ -291,7 +291,7 @@ def parallel_env(
         from pedrl.scenarios import build_scenario
 
         built = build_scenario({"name": scenario} if isinstance(scenario, str) else scenario, room=room_kwargs)
-        built.check_capacity(int(room_kwargs.get("num_agents", 20)), float(room_kwargs.get("agent_radius", 0.4)))
-        room_kwargs["geometry"] = built.geometry(goal_depth=float(room_kwargs.get("goal_depth", 0.0)))
-    room = RoomEnv(**{"num_replicas": 1, **room_kwargs})
+        room = built.room(**{"num_replicas": 1, **room_kwargs})
+    else:
+        room = RoomEnv(**{"num_replicas": 1, **room_kwargs})
     return PedestrianParallelEnv(room, render_mode=render_mode)

@@ -36,9 +36,9 @@ import shapely
 import torch
 from shapely.geometry import LineString, Point, Polygon, box
 
-from pedrl.sim.env import MAX_DENSITY
+from pedrl.sim.env import MAX_DENSITY, RoomEnv
 from pedrl.sim.geometry import Geometry, SpawnArea, spawn_counts
-from pedrl.sim.validation import check_real
+from pedrl.sim.validation import check_number, check_real
 
 SCENARIOS: Final = ("paper_room", "bottleneck", "corridor", "corner", "four_exits", "custom")
 """Names accepted by ``scenario.name``."""
@@ -127,6 +127,18 @@ class Scenario:
                     f" in spawn area {index} of scenario {self.name!r} ({spawn.area.area:.4g} m^2): at most {most} fit"
                     f" there ({MAX_DENSITY:.0%} of its free area)"
                 )
+
+    def room(self, **room_kwargs: Any) -> RoomEnv:
+        """``RoomEnv(**room_kwargs)`` in this scenario: the room validates every value (its own estimate of the
+        spawn areas' room included), then :meth:`check_capacity` checks the agents against the exact free areas.
+
+        Raises:
+            ValueError: one line naming the bad value.
+        """
+        goal_depth = check_number("goal_depth", room_kwargs.get("goal_depth", 0.0), low=0.0, high=math.inf)
+        room = RoomEnv(**room_kwargs, geometry=self.geometry(goal_depth=goal_depth))
+        self.check_capacity(room.num_agents, room.agent_radius)
+        return room
 
     def geometry(self, *, goal_depth: float = 0.0, device: str | torch.device = "cpu") -> Geometry:
         """The simulation's :class:`~pedrl.sim.Geometry`: walls are the boundary minus the exits."""

@@ -25,15 +25,8 @@ def room_maker(env_settings: Mapping[str, Any], *, device: torch.device) -> Call
     settings = {key: value for key, value in env_settings.items() if key not in ("_target_", "max_decisions")}
 
     def make(scenario: Scenario, *, num_agents: int, num_replicas: int, max_decisions: int) -> RoomEnv:
-        scenario.check_capacity(num_agents, float(settings.get("agent_radius", 0.4)))
-        geometry = scenario.geometry(goal_depth=float(settings.get("goal_depth", 0.0)))
-        return RoomEnv(
-            **settings,
-            geometry=geometry,
-            num_agents=num_agents,
-            num_replicas=num_replicas,
-            max_decisions=max_decisions,
-            device=device,
+        return scenario.room(
+            **settings, num_agents=num_agents, num_replicas=num_replicas, max_decisions=max_decisions, device=device
         )
 
     return make
