@@ -209,6 +209,7 @@ class Geometry:
     _box_high: torch.Tensor = field(init=False, repr=False)
     _axis_aligned: bool = field(init=False, repr=False)
     _exit_tangents: torch.Tensor = field(init=False, repr=False)
+    _exit_spans: torch.Tensor = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         # For an axis-aligned wall the closest point to p is p clamped to the wall's bounding box (exact).
@@ -216,7 +217,9 @@ class Geometry:
         object.__setattr__(self, "_box_high", self.walls.amax(1))
         direction = self.walls[:, 1] - self.walls[:, 0]
         object.__setattr__(self, "_axis_aligned", bool(((direction == 0).any(-1)).all()))
-        object.__setattr__(self, "_exit_tangents", self.exits[:, 1] - self.exits[:, 0])
+        tangents = self.exits[:, 1] - self.exits[:, 0]
+        object.__setattr__(self, "_exit_tangents", tangents)
+        object.__setattr__(self, "_exit_spans", (tangents * tangents).sum(-1))
 
     @classmethod
     def build(
@@ -375,8 +378,7 @@ class Geometry:
         offset = points.unsqueeze(-2) - self.exits[:, 0]  # (..., E, 2)
         beyond = offset[..., X] * self.exit_normals[:, X] + offset[..., Y] * self.exit_normals[:, Y]
         along = offset[..., X] * self._exit_tangents[:, X] + offset[..., Y] * self._exit_tangents[:, Y]
-        span = (self._exit_tangents * self._exit_tangents).sum(-1)
-        return ((beyond >= 0) & (beyond < depth) & (along >= 0) & (along <= span)).any(-1)
+        return ((beyond >= 0) & (beyond < depth) & (along >= 0) & (along <= self._exit_spans)).any(-1)
 
     def nearest_exits(self, points: torch.Tensor) -> torch.Tensor:
         """Index of the exit whose goal point is nearest to each point ``(..., 2)``: ``(...)`` int64."""
