@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import torch
 
+from pedrl._numba import numba_available
+from pedrl.rl import kernels
+
 __all__ = ["td_update"]
 
 
@@ -18,6 +21,7 @@ def td_update(
     *,
     alpha: float,
     gamma: float,
+    compiled: bool | None = None,
 ) -> torch.Tensor:
     """One synchronous Q-learning step, in place on `q_values` (paper equation 1):
 
@@ -42,10 +46,14 @@ def td_update(
         valid: `(B,)` bool, False for entries to skip.
         alpha: learning rate `alpha` in `(0, 1]`.
         gamma: discount `gamma` in `[0, 1]`.
+        compiled: use the numba kernel (`pedrl.rl.kernels`: one pass, the same numbers to the bit, increments of
+            one entry added in batch order as `index_add_` adds them; None: on the CPU when numba is there).
 
     Returns:
         `(B,)` float32 TD errors `r + gamma max_a' Q(s', a') - Q(s, a)` (0 where not `valid`).
     """
+    if compiled if compiled is not None else (q_values.device.type == "cpu" and numba_available()):
+        return kernels.td_update(q_values, rows, actions, rewards, next_rows, terminal, valid, alpha=alpha, gamma=gamma)
     num_actions = q_values.shape[-1]
     flat = q_values.view(-1, num_actions)
     zero = torch.zeros((), dtype=rows.dtype, device=rows.device)

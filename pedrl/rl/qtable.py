@@ -11,6 +11,9 @@ from __future__ import annotations
 
 import torch
 
+from pedrl._numba import numba_available
+from pedrl.rl import kernels
+
 __all__ = ["NUM_ACTIONS", "epsilon_greedy", "greedy", "table_rows", "zeros_q_values"]
 
 #: Actions per decision: 9 speed changes x 9 turns (see docs/design.md).
@@ -80,7 +83,13 @@ def _greedy_from_rows(values: torch.Tensor, generator: torch.Generator | None) -
     return (running > pick[:, None].expand(-1, num_actions).contiguous()).byte().argmax(1)
 
 
-def greedy(q_values: torch.Tensor, rows: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
+def greedy(
+    q_values: torch.Tensor,
+    rows: torch.Tensor,
+    generator: torch.Generator | None = None,
+    *,
+    compiled: bool | None = None,
+) -> torch.Tensor:
     """Greedy actions `argmax_a Q(row, a)`, ties broken uniformly at random.
 
     Random tie-breaking matters while tables are still zero: a fixed choice (the lowest action) would send every
@@ -90,10 +99,15 @@ def greedy(q_values: torch.Tensor, rows: torch.Tensor, generator: torch.Generato
         q_values: `(R, A, K, U)` Q tables.
         rows: `(B,)` int64 flat rows (`table_rows`).
         generator: random source for ties (on `q_values.device`; None: torch's default).
+        compiled: use the numba kernel (`pedrl.rl.kernels`, the same actions for the same random numbers; None:
+            on the CPU when numba is there).
 
     Returns:
         `(B,)` int64 actions in `[0, U)`.
     """
+    if compiled if compiled is not None else (q_values.device.type == "cpu" and numba_available()):
+        uniform = torch.rand(rows.shape[0], generator=generator, device=q_values.device)
+        return kernels.greedy_from_rows(q_values, rows, uniform)
     # index_select: a plain row gather from a large table is several times slower on CPU
     return _greedy_from_rows(q_values.view(-1, q_values.shape[-1]).index_select(0, rows), generator)
 
@@ -103,6 +117,8 @@ def epsilon_greedy(
     rows: torch.Tensor,
     epsilon: float | torch.Tensor,
     generator: torch.Generator | None = None,
+    *,
+    compiled: bool | None = None,
 ) -> torch.Tensor:
     """Epsilon-greedy actions: uniformly random with probability `epsilon`, else greedy (random tie-breaking).
 
@@ -113,13 +129,14 @@ def epsilon_greedy(
         rows: `(B,)` int64 flat rows (`table_rows`).
         epsilon: exploration probability in `[0, 1]`, a float or a tensor broadcastable to `(B,)`.
         generator: random source (on `q_values.device`; None: torch's default).
+        compiled: see `greedy`.
 
     Returns:
         `(B,)` int64 actions in `[0, U)`.
     """
     num_actions = q_values.shape[-1]
     device = q_values.device
-    actions = greedy(q_values, rows, generator)
+    actions = greedy(q_values, rows, generator, compiled=compiled)
     explore = torch.rand(rows.shape[0], generator=generator, device=device) < epsilon
     random_actions = torch.randint(num_actions, (rows.shape[0],), generator=generator, device=device)
     return torch.where(explore, random_actions, actions)

@@ -24,7 +24,9 @@ from typing import Final
 
 import torch
 
+from pedrl._numba import numba_available
 from pedrl.sim.geometry import Geometry, X, Y, wrap_angle
+from pedrl.sim.kernels import sequential_substeps
 
 NUM_SPEED_CHANGES: Final = 9
 NUM_TURNS: Final = 9
@@ -325,6 +327,7 @@ def move_agents_sequential(
     num_substeps: int,
     priority: torch.Tensor,
     sync_free: bool = False,
+    compiled: bool | None = None,
 ) -> Movement:
     """Move every active agent through one decision with the paper's collision rule, resolved sequentially.
 
@@ -351,8 +354,10 @@ def move_agents_sequential(
 
     With ``sync_free`` (for CUDA) nothing is read back on the host: step 2 is skipped, every sub-step runs and
     every sub-step with a kept pair runs exactly ``N`` rounds, which leaves the fixed point unchanged; the
-    result is the same. Otherwise (CPU default) sub-steps stop once nobody moves and rounds once nothing
-    changes.
+    result is the same. Otherwise sub-steps stop once nobody moves and rounds once nothing changes.
+
+    On the CPU (with numba), steps 2 and 3 are instead the literal agent-by-agent loop, compiled
+    (:func:`pedrl.sim.kernels.sequential_substeps`): the same numbers, without hundreds of small operations.
 
     Args:
         positions: Positions at the start of the decision ``(R, N, 2)`` (m).
@@ -364,6 +369,7 @@ def move_agents_sequential(
         num_substeps: Number of sub-steps ``S``.
         priority: Order of action ``(R, N)`` float (lowest acts first); distinct values within a replica.
         sync_free: Bounded iterations with masks instead of convergence tests read on the host.
+        compiled: Use the compiled CPU kernel (None: on the CPU when numba is there and not ``sync_free``).
 
     Returns:
         The :class:`Movement` of the decision.
@@ -378,6 +384,18 @@ def move_agents_sequential(
     proposals = positions + step_scale * step  # (S, R, N, 2)
     walls = _touch_walls(proposals, geometry, agent_radius, exact_everywhere=sync_free)  # (S, R, N)
     passes_door = geometry.passes_exits(proposals, depth=step.norm(dim=-1) + PAIR_MARGIN)
+    if compiled if compiled is not None else (device.type == "cpu" and not sync_free and numba_available()):
+        moved_to, blocked, crashed_wall, reached = sequential_substeps(
+            positions=positions,
+            step=step,
+            going=going,
+            active=active,
+            walls=walls,
+            passes_door=passes_door,
+            priority=priority,
+            contact_sq=contact_sq,
+        )
+        return Movement(moved_to, blocked, crashed_wall, blocked & ~crashed_wall, reached)
 
     # pairs that can touch during the decision: swept discs overlap; [r, i, j]: i the mover, j the obstacle
     centre_x, centre_y, half_move = _swept_discs(positions, step * going.unsqueeze(-1), active, num_substeps)

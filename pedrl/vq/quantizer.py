@@ -14,11 +14,24 @@ from typing import Any, Literal
 import torch
 
 from pedrl.vq.kmeans import MIN_GROUP_SIZE, KMeansResult, Precision, PrototypeIndex, _block_argmin, kmeans
+from pedrl.vq.tree import TreeIndex, numba_available
 
 __all__ = ["ProcessQuantizers", "Quantizer", "UnionQuantizer"]
 
 #: Features whose standard deviation is below this are only centred (their std is stored as 1).
 MIN_STD = 1e-6
+#: With `precision="auto"` on the CPU, quantisers of at least this many prototypes encode with the k-d tree.
+TREE_MIN_PROTOTYPES = 256
+
+
+def _uses_tree(prototypes: torch.Tensor, precision: Precision) -> bool:
+    """Whether `encode` searches with a `pedrl.vq.tree.TreeIndex`: `"auto"`, on the CPU, with numba, K large."""
+    return (
+        precision == "auto"
+        and prototypes.device.type == "cpu"
+        and prototypes.shape[-2] >= TREE_MIN_PROTOTYPES
+        and numba_available()
+    )
 
 
 class Quantizer:
@@ -47,7 +60,10 @@ class Quantizer:
             mean: `(d,)` feature means.
             std: `(d,)` feature standard deviations, all > 0.
             prototypes: `(K, d)` prototypes in standardised space.
-            precision: nearest-prototype search method (exact either way; see `pedrl.vq.kmeans.PrototypeIndex`).
+            precision: nearest-prototype search method of `encode`, exact either way: `"auto"` is the k-d tree of
+                `pedrl.vq.tree` on the CPU (from `TREE_MIN_PROTOTYPES` prototypes on, when numba imports), else
+                the matrix search of `pedrl.vq.kmeans.PrototypeIndex` with its own `"auto"`; `"float32"` and
+                `"bfloat16"` name the matrix search's method. Methods can break float32 ties differently.
         """
         if prototypes.ndim != 2 or mean.shape != (prototypes.shape[1],) or std.shape != mean.shape:
             raise ValueError(
@@ -61,6 +77,7 @@ class Quantizer:
         self.prototypes = prototypes.to(torch.float32)
         self.precision = precision
         self._index = PrototypeIndex(self.prototypes, precision=precision)
+        self._tree: TreeIndex | None = None  # built at the first encode that uses it
 
     @property
     def num_prototypes(self) -> int:
@@ -154,6 +171,10 @@ class Quantizer:
         if states.shape[-1] != self.dim:
             raise ValueError(f"expected states (..., {self.dim}), got {tuple(states.shape)}")
         flat = self.standardise(states.reshape(-1, self.dim).to(torch.float32))
+        if chunk_size is None and _uses_tree(self.prototypes, self.precision):
+            if self._tree is None:
+                self._tree = TreeIndex(self.prototypes)
+            return self._tree.search(flat)[0].view(states.shape[:-1])
         index = self._index
         if chunk_size is not None:
             index = PrototypeIndex(self.prototypes, precision=self.precision, chunk_size=chunk_size)
@@ -408,11 +429,13 @@ class ProcessQuantizers:
             raise ValueError(f"every process's quantizer must have the same number of prototypes, got {sorted(sizes)}")
         self.parts = list(parts)
         self._stacked: tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor] | None = None
+        self._tree: TreeIndex | None = None  # one k-d tree per process, built at the first encode that uses it
         if all(isinstance(part, Quantizer) for part in parts) and len({part.dim for part in parts}) == 1:
             mean = torch.stack([part.mean for part in parts])  # (P, d)
             std = torch.stack([part.std for part in parts])
             prototypes = torch.stack([part.prototypes for part in parts])  # (P, K, d)
             self._stacked = (mean, std, prototypes, (prototypes * prototypes).sum(-1).unsqueeze(1))  # (P, 1, K)
+        self._use_tree = self._stacked is not None and all(_uses_tree(p.prototypes, p.precision) for p in parts)
 
     @property
     def num_processes(self) -> int:
@@ -448,9 +471,11 @@ class ProcessQuantizers:
             `(B,)` int64 ids in `[0, K)`.
         """
         rows = states.shape[0]
+        if process is None and rows % self.num_processes:
+            raise ValueError(f"{rows} rows cannot be split into {self.num_processes} processes")
+        if self._use_tree:
+            return self._encode_tree(states, process)
         if process is None:
-            if rows % self.num_processes:
-                raise ValueError(f"{rows} rows cannot be split into {self.num_processes} processes")
             if self._stacked is not None:
                 return self._encode_stacked(states.view(self.num_processes, -1, states.shape[-1])).reshape(-1)
             process = torch.arange(self.num_processes, device=states.device).repeat_interleave(
@@ -471,6 +496,17 @@ class ProcessQuantizers:
             else:
                 ids[selected] = part.encode(own)
         return ids
+
+    def _encode_tree(self, states: torch.Tensor, process: torch.Tensor | None) -> torch.Tensor:
+        """Ids of `(B, d)` states by the k-d trees of their processes (`process` None: the trainers' layout)."""
+        assert self._stacked is not None
+        mean, std, prototypes, _ = self._stacked
+        if self._tree is None:
+            self._tree = TreeIndex(prototypes)
+        if process is None:
+            process = torch.arange(self.num_processes).repeat_interleave(states.shape[0] // self.num_processes)
+        standardised = (states.to(torch.float32) - mean.index_select(0, process)) / std.index_select(0, process)
+        return self._tree.search(standardised, process)[0]
 
     def _encode_stacked(self, states: torch.Tensor) -> torch.Tensor:
         """Nearest prototypes of `(P, B, d)` states, one batched matrix product for all processes: `(P, B)`."""

@@ -162,3 +162,31 @@ def test_ties_are_broken_uniformly():
     counts = torch.bincount(four_way, minlength=NUM_ACTIONS)[tied].double()
     expected = four_way.numel() / 4
     assert float(((counts - expected) ** 2 / expected).sum()) < 16.3  # chi-square, 3 dof, p ~ 0.001
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_compiled_kernels_equal_the_torch_code_to_the_bit(seed):
+    """The numba kernels (the CPU default) give the same actions and tables as the torch code, with duplicates,
+    skipped and terminal entries, tied and NaN-free maxima, for the same generator."""
+    generator = torch.Generator().manual_seed(seed)
+    q_values = torch.randint(-3, 3, (2, 3, 5, NUM_ACTIONS), generator=generator).float() * 0.5  # many ties
+    q_values[0, 0, 0] = 0.0  # an all-tied row
+    num = 200
+    rows = torch.randint(0, 2 * 3 * 5, (num,), generator=generator)
+    rows[:40] = rows[0]  # duplicate rows, and below duplicate (row, action) entries
+    actions = torch.randint(0, NUM_ACTIONS, (num,), generator=generator)
+    actions[:20] = actions[0]
+    rewards = torch.randn(num, generator=generator)
+    next_rows = torch.randint(0, 2 * 3 * 5, (num,), generator=generator)
+    terminal = torch.rand(num, generator=generator) < 0.2
+    valid = torch.rand(num, generator=generator) < 0.8
+    results = {}
+    for compiled in (False, True):
+        tables = q_values.clone()
+        chosen = epsilon_greedy(tables, rows, 0.3, torch.Generator().manual_seed(seed), compiled=compiled)
+        td = td_update(
+            tables, rows, actions, rewards, next_rows, terminal, valid, alpha=0.35, gamma=0.91, compiled=compiled
+        )
+        results[compiled] = (chosen, td, tables)
+    for torch_value, compiled_value in zip(results[False], results[True], strict=True):
+        assert torch.equal(torch_value, compiled_value)

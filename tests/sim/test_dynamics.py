@@ -413,12 +413,14 @@ def test_move_agents_sequential_equals_the_literal_agent_by_agent_loop(seed, num
             num_substeps=env.num_substeps,
             priority=torch.rand(shape, generator=generator),
         )
-        fast = move_agents_sequential(**kwargs)
+        fast = move_agents_sequential(**kwargs, compiled=False)
         slow = reference_sequential_move(**kwargs)
         bounded = move_agents_sequential(**kwargs, sync_free=True)  # the CUDA path: fixed rounds, no host reads
+        compiled = move_agents_sequential(**kwargs, compiled=True)  # the CPU default: the numba kernel
         for field in ("positions", "blocked", "crashed_wall", "crashed_agent", "reached"):
             assert torch.equal(getattr(fast, field), getattr(slow, field)), field
             assert torch.equal(getattr(bounded, field), getattr(slow, field)), field
+            assert torch.equal(getattr(compiled, field), getattr(slow, field)), field
         # no two bodies in the room overlap afterwards
         inside = env.active & ~fast.reached
         gaps = fast.positions.unsqueeze(2) - fast.positions.unsqueeze(1)

@@ -1,0 +1,132 @@
+"""CPU kernels of the Q-table operations, compiled with numba.
+
+Each reproduces its torch function of `pedrl.rl` to the bit, with the same random numbers drawn by torch
+beforehand, so a seed gives the same run either way (the tests check it). On a CPU a decision's greedy choice or
+TD update is a dozen small torch operations; here it is one pass over the batch.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+import torch
+
+from pedrl._numba import numba as load_numba
+
+__all__ = ["greedy_from_rows", "td_update"]
+
+
+@functools.cache
+def _greedy():
+    numba = load_numba()
+
+    @numba.njit(cache=True, nogil=True)
+    def run(table, rows, uniform, actions):
+        num_actions = table.shape[1]
+        for b in range(rows.shape[0]):
+            row = rows[b]
+            best = table[row, 0]
+            for a in range(1, num_actions):
+                value = table[row, a]
+                if value > best or value != value:  # NaN wins, as in torch's amax
+                    best = value
+                    if value != value:
+                        break
+            count = 0
+            for a in range(num_actions):
+                count += table[row, a] == best
+            pick = np.int64(uniform[b] * np.float32(count))
+            pick = min(pick, count - 1)
+            chosen = 0  # no maximum (a NaN row): action 0, as torch's argmax of an all-False mask
+            for a in range(num_actions):
+                if table[row, a] == best:
+                    if pick == 0:
+                        chosen = a
+                        break
+                    pick -= 1
+            actions[b] = chosen
+
+    return run
+
+
+def greedy_from_rows(q_values: torch.Tensor, rows: torch.Tensor, uniform: torch.Tensor) -> torch.Tensor:
+    """Greedy actions of ``rows (B,)`` of the flat tables, the ``floor(uniform * c)``-th of ``c`` tied maxima."""
+    actions = torch.empty(rows.shape[0], dtype=torch.int64)
+    _greedy()(q_values.view(-1, q_values.shape[-1]).numpy(), rows.numpy(), uniform.numpy(), actions.numpy())
+    return actions
+
+
+@functools.cache
+def _td():
+    numba = load_numba()
+
+    @numba.njit(cache=True, nogil=True)
+    def run(table, rows, actions, rewards, next_rows, terminal, valid, alpha, gamma, td_error, entries, counts):
+        num, num_actions = rows.shape[0], table.shape[1]
+        flat = table.reshape(-1)
+        for b in range(num):
+            if not valid[b]:
+                td_error[b] = 0.0
+                entries[b] = -1
+                continue
+            next_value = np.float32(0.0)
+            if not terminal[b]:
+                row = next_rows[b]
+                next_value = table[row, 0]
+                for a in range(1, num_actions):
+                    value = table[row, a]
+                    if value > next_value or value != value:
+                        next_value = value
+            entries[b] = rows[b] * num_actions + actions[b]
+            td_error[b] = (rewards[b] + gamma * next_value) - flat[entries[b]]  # every error before any update
+        # increments averaged over the entries that hit the same (row, action), added in batch order
+        order = np.argsort(entries, kind="mergesort")
+        first = 0
+        while first < num:
+            last = first
+            while last + 1 < num and entries[order[last + 1]] == entries[order[first]]:
+                last += 1
+            for slot in range(first, last + 1):
+                counts[order[slot]] = last - first + 1
+            first = last + 1
+        for b in range(num):
+            scale = (np.float32(1.0) / np.float32(counts[b])) * alpha  # torch's `alpha / counts`: a reciprocal
+            if entries[b] < 0:  # a skipped entry adds 0 to entry 0, as torch's index_add_ does
+                flat[0] = flat[0] + np.float32(0.0) * scale
+            else:
+                flat[entries[b]] = flat[entries[b]] + td_error[b] * scale
+
+    return run
+
+
+def td_update(
+    q_values: torch.Tensor,
+    rows: torch.Tensor,
+    actions: torch.Tensor,
+    rewards: torch.Tensor,
+    next_rows: torch.Tensor,
+    terminal: torch.Tensor,
+    valid: torch.Tensor,
+    *,
+    alpha: float,
+    gamma: float,
+) -> torch.Tensor:
+    """:func:`pedrl.rl.td_update` on the CPU, compiled (same arguments, same result to the bit)."""
+    num = rows.shape[0]
+    td_error = torch.empty(num, dtype=torch.float32)
+    _td()(
+        q_values.view(-1, q_values.shape[-1]).numpy(),
+        rows.numpy(),
+        actions.numpy(),
+        rewards.to(torch.float32).numpy(),
+        next_rows.numpy(),
+        terminal.numpy(),
+        valid.numpy(),
+        np.float32(alpha),
+        np.float32(gamma),
+        td_error.numpy(),
+        np.empty(num, dtype=np.int64),
+        np.empty(num, dtype=np.int64),
+    )
+    return td_error
