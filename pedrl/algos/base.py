@@ -33,7 +33,7 @@ from tqdm.auto import tqdm
 from pedrl.algos.restore import RestoredState, check_stored_config, restore_state
 from pedrl.io import CheckpointError, CsvWriter, RunLogger, load_checkpoint, save_checkpoint
 from pedrl.io.files import remove_temporaries_in
-from pedrl.rl import LinearSchedule, epsilon_greedy, table_rows, td_update
+from pedrl.rl import LinearSchedule, epsilon_greedy, table_rows, td_update, zeros_q_values
 from pedrl.sim import RoomEnv
 from pedrl.sim.sensing import distance_indices, fill_void_neighbours, void_draws
 from pedrl.sim.validation import check_bool, check_choice, check_device, check_integer, check_memory, check_number
@@ -445,8 +445,11 @@ class Trainer:
                         phase, states, num_sensed, process, previous[0] if previous else None
                     )
                     # --- 3. new tables, learned from scratch (paper: no transfer between phases)
-                    q_values = torch.zeros(
-                        (self.processes, self.num_tables(phase), quantizer.num_prototypes, env.num_actions),
+                    q_values = zeros_q_values(
+                        self.processes,
+                        self.num_tables(phase),
+                        quantizer.num_prototypes,
+                        env.num_actions,
                         device=self.device,
                     )
                     summaries.append(

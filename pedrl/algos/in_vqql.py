@@ -9,6 +9,7 @@ import torch
 
 from pedrl.algos.base import Phase, Trainer
 from pedrl.algos.it_vqql import _budgets
+from pedrl.rl.qtable import empty_tables
 from pedrl.sim.sensing import feature_indices
 from pedrl.vq import UnionQuantizer
 
@@ -22,7 +23,8 @@ def replicate_tables(q_values: torch.Tensor, num_agents: int) -> torch.Tensor:
         ``(R, num_agents, K, U)``.
     """
     source = torch.arange(num_agents, device=q_values.device).remainder(q_values.shape[1])
-    return q_values.index_select(1, source)
+    shape = (q_values.shape[0], num_agents, *q_values.shape[2:])
+    return torch.index_select(q_values, 1, source, out=empty_tables(shape, q_values.device))
 
 
 class INVQQL(Trainer):

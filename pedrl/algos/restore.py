@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any, Final
 import torch
 
 from pedrl.io import Checkpoint, CheckpointError
+from pedrl.rl import in_huge_pages
 from pedrl.vq import ProcessQuantizers
 
 if TYPE_CHECKING:
@@ -100,7 +101,7 @@ def restore_state(trainer: Trainer, checkpoint: Checkpoint, *, continue_training
         trial=trial,
         phase_complete=trial == phase.trials,
         quantizer=quantizer,
-        q_values=q_values.to(trainer.device),
+        q_values=in_huge_pages(q_values.to(trainer.device)),
         rng_trainer=rng[0],
         rng_env=rng[1],
         summaries=list(meta.get("summaries", [])),

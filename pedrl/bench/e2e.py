@@ -12,8 +12,8 @@ K = 4096 prototypes; keys of the returned dict):
       temporary git worktree in a subprocess right before this code's, and ``e2e_speedup`` (this / that, per E).
 
 This file is also the driver that the baseline subprocess runs (``python e2e.py --rooms ...`` with the other
-tree's ``pedrl`` on ``PYTHONPATH``): everything below :func:`measure` uses only the trainer API that commit
-e228a3c already had (``VQQL``, ``gather``, ``fit_quantizer``, ``run_trial``).
+tree's ``pedrl`` on ``PYTHONPATH``): everything below :func:`measure` uses only the API that commit e228a3c
+already had (``VQQL``, ``gather``, ``fit_quantizer``, ``run_trial``, ``zeros_q_values``).
 """
 
 from __future__ import annotations
@@ -65,6 +65,7 @@ def matmul_peak(device: str = "cpu", *, size: int | None = None, repeats: int = 
 def measure(*, rooms: Sequence[int], trials: int, quick: bool, device: str) -> list[dict]:
     """Agent-decisions per second of the VQQL loop (``run_trial``) at R = 20, N = 20, for each E in ``rooms``."""
     from pedrl.algos import VQQL
+    from pedrl.rl import zeros_q_values
     from pedrl.sim import RoomEnv
 
     prototypes = QUICK_PROTOTYPES if quick else PROTOTYPES
@@ -87,7 +88,8 @@ def measure(*, rooms: Sequence[int], trials: int, quick: bool, device: str) -> l
         phase = trainer.phases()[0]
         states, num_sensed = trainer.gather(phase, env, None)[:2]
         quantizer, _ = trainer.fit_quantizer(phase, states, num_sensed, None)
-        q_values = torch.zeros((PROCESSES, AGENTS, quantizer.num_prototypes, env.num_actions), device=device)
+        # the tables as the trainers allocate them (this code: in huge pages on the CPU)
+        q_values = zeros_q_values(PROCESSES, AGENTS, quantizer.num_prototypes, env.num_actions, device=device)
         trainer.run_trial(env, quantizer, q_values, epsilon=0.4, learn=True)  # warm-up
         best_rate, best_seconds = 0.0, 0.0
         for _ in range(trials):

@@ -18,6 +18,44 @@ __all__ = ["greedy_from_rows", "td_update"]
 
 
 @functools.cache
+def _prefetch():
+    numba = load_numba()
+
+    @numba.njit(cache=True, nogil=True)
+    def prefetch(table, rows, actions, used, next_rows, next_used, sink):
+        """Check the used rows and actions against the table (numba does not), and load every cache line of those
+        rows, one independent load after another, so that the memory system fetches many at once (the work on a
+        row would otherwise wait for each of its lines in turn). Returns the first bad position, or -1."""
+        num_rows, num_actions = table.shape
+        total = np.float32(0.0)
+        for b in range(rows.shape[0]):
+            if used[b]:
+                if rows[b] < 0 or rows[b] >= num_rows or actions[b] < 0 or actions[b] >= num_actions:
+                    return b
+                for a in range(0, num_actions, 16):
+                    total += table[rows[b], a]
+        for b in range(next_rows.shape[0]):
+            if next_used[b]:
+                if next_rows[b] < 0 or next_rows[b] >= num_rows:
+                    return b
+                for a in range(0, num_actions, 16):
+                    total += table[next_rows[b], a]
+        sink[0] = total  # keeps the loads
+        return -1
+
+    return prefetch
+
+
+def _checked_prefetch(table, rows, actions, used, next_rows, next_used) -> None:
+    """:func:`_prefetch`, raising ``IndexError`` (as torch's gathers do) for a row or action out of range."""
+    bad = _prefetch()(table, rows, actions, used, next_rows, next_used, np.empty(1, np.float32))
+    if bad >= 0:
+        raise IndexError(
+            f"entry {bad}: row or action out of range for Q tables of {table.shape[0]} rows x {table.shape[1]} actions"
+        )
+
+
+@functools.cache
 def _greedy():
     numba = load_numba()
 
@@ -53,7 +91,12 @@ def _greedy():
 def greedy_from_rows(q_values: torch.Tensor, rows: torch.Tensor, uniform: torch.Tensor) -> torch.Tensor:
     """Greedy actions of ``rows (B,)`` of the flat tables, the ``floor(uniform * c)``-th of ``c`` tied maxima."""
     actions = torch.empty(rows.shape[0], dtype=torch.int64)
-    _greedy()(q_values.view(-1, q_values.shape[-1]).numpy(), rows.numpy(), uniform.numpy(), actions.numpy())
+    table = q_values.view(-1, q_values.shape[-1]).numpy()
+    num = rows.shape[0]
+    _checked_prefetch(
+        table, rows.numpy(), np.zeros(num, np.int64), np.ones(num, np.bool_), rows.numpy()[:0], np.zeros(0, np.bool_)
+    )
+    _greedy()(table, rows.numpy(), uniform.numpy(), actions.numpy())
     return actions
 
 
@@ -115,8 +158,11 @@ def td_update(
     """:func:`pedrl.rl.td_update` on the CPU, compiled (same arguments, same result to the bit)."""
     num = rows.shape[0]
     td_error = torch.empty(num, dtype=torch.float32)
+    table = q_values.view(-1, q_values.shape[-1]).numpy()
+    valid_np = valid.numpy()
+    _checked_prefetch(table, rows.numpy(), actions.numpy(), valid_np, next_rows.numpy(), valid_np & ~terminal.numpy())
     _td()(
-        q_values.view(-1, q_values.shape[-1]).numpy(),
+        table,
         rows.numpy(),
         actions.numpy(),
         rewards.to(torch.float32).numpy(),

@@ -9,15 +9,57 @@ rows, and nothing loops over agents.
 
 from __future__ import annotations
 
+import ctypes
+import sys
+
 import torch
 
 from pedrl._numba import numba_available
 from pedrl.rl import kernels
 
-__all__ = ["NUM_ACTIONS", "epsilon_greedy", "greedy", "table_rows", "zeros_q_values"]
+__all__ = ["NUM_ACTIONS", "epsilon_greedy", "greedy", "in_huge_pages", "table_rows", "zeros_q_values"]
 
 #: Actions per decision: 9 speed changes x 9 turns (see docs/design.md).
 NUM_ACTIONS = 81
+
+
+HUGE_PAGE = 2 << 20
+"""Bytes of a transparent huge page on x86-64 Linux."""
+_MADV_HUGEPAGE = 14
+
+
+def _advise_huge_pages(tensor: torch.Tensor) -> bool:
+    """Ask Linux to back ``tensor``'s memory (the whole 2 MiB pages inside it) with transparent huge pages.
+
+    Q tables are read and written at random rows: with 4 KiB pages nearly every access misses the TLB, and in a
+    virtual machine a miss walks two page tables. Measured on this project's 2-core VM, the greedy choice of 400
+    random rows of a 531 MiB table took 3.5 ms with 4 KiB pages and 0.18 ms with huge pages. Advice only: False
+    where it is not taken (other systems, THP off); nothing else changes.
+    """
+    start = (tensor.data_ptr() + HUGE_PAGE - 1) & ~(HUGE_PAGE - 1)
+    stop = (tensor.data_ptr() + tensor.numel() * tensor.element_size()) & ~(HUGE_PAGE - 1)
+    if not sys.platform.startswith("linux") or stop <= start:
+        return False
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        return libc.madvise(ctypes.c_void_p(start), ctypes.c_size_t(stop - start), _MADV_HUGEPAGE) == 0
+    except (OSError, AttributeError):  # pragma: no cover - no libc madvise
+        return False
+
+
+def empty_tables(shape: tuple[int, ...], device: torch.device | str) -> torch.Tensor:
+    """Uninitialised float32 Q tables; on the CPU advised into huge pages before any page is touched."""
+    tables = torch.empty(shape, dtype=torch.float32, device=device)
+    if tables.device.type == "cpu":
+        _advise_huge_pages(tables)
+    return tables
+
+
+def in_huge_pages(q_values: torch.Tensor) -> torch.Tensor:
+    """``q_values`` itself off the CPU, else a copy in memory advised into huge pages (for loaded tables)."""
+    if q_values.device.type != "cpu" or q_values.numel() * q_values.element_size() < 2 * HUGE_PAGE:
+        return q_values
+    return empty_tables(tuple(q_values.shape), q_values.device).copy_(q_values)
 
 
 def zeros_q_values(
@@ -28,7 +70,7 @@ def zeros_q_values(
     *,
     device: torch.device | str,
 ) -> torch.Tensor:
-    """Zero-initialised Q tables.
+    """Zero-initialised Q tables (on the CPU in huge pages, see `_advise_huge_pages`).
 
     Args:
         num_processes: `R`, independent learning processes.
@@ -40,7 +82,7 @@ def zeros_q_values(
     Returns:
         `(R, A, K, U)` float32 zeros.
     """
-    return torch.zeros((num_processes, num_tables, num_states, num_actions), dtype=torch.float32, device=device)
+    return empty_tables((num_processes, num_tables, num_states, num_actions), device).zero_()
 
 
 def table_rows(

@@ -379,23 +379,29 @@ def move_agents_sequential(
     contact_sq = 4.0 * agent_radius * agent_radius
     step = velocities * (decision_length / num_substeps)  # (R, N, 2)
     going = active & (step != 0).any(-1)  # still moving in this decision
+    depth = step.norm(dim=-1) + PAIR_MARGIN  # of the exit test: a centre moves less than this per sub-step
     step_scale = torch.arange(1, num_substeps + 1, device=device).to(dtype).view(-1, 1, 1, 1)  # (S, 1, 1, 1)
-    # p + k d, as in move_agents, so that moves without collisions agree to the bit between the two rules
-    proposals = positions + step_scale * step  # (S, R, N, 2)
-    walls = _touch_walls(proposals, geometry, agent_radius, exact_everywhere=sync_free)  # (S, R, N)
-    passes_door = geometry.passes_exits(proposals, depth=step.norm(dim=-1) + PAIR_MARGIN)
     if compiled if compiled is not None else (device.type == "cpu" and not sync_free and numba_available()):
+        walls = None
+        if not geometry._axis_aligned:  # the kernel tests axis-aligned walls itself
+            walls = _touch_walls(positions + step_scale * step, geometry, agent_radius, exact_everywhere=False)
         moved_to, blocked, crashed_wall, reached = sequential_substeps(
             positions=positions,
             step=step,
             going=going,
             active=active,
+            geometry=geometry,
+            agent_radius=agent_radius,
+            num_substeps=num_substeps,
             walls=walls,
-            passes_door=passes_door,
+            depth=depth,
             priority=priority,
-            contact_sq=contact_sq,
         )
         return Movement(moved_to, blocked, crashed_wall, blocked & ~crashed_wall, reached)
+    # p + k d, as in move_agents, so that moves without collisions agree to the bit between the two rules
+    proposals = positions + step_scale * step  # (S, R, N, 2)
+    walls = _touch_walls(proposals, geometry, agent_radius, exact_everywhere=sync_free)  # (S, R, N)
+    passes_door = geometry.passes_exits(proposals, depth=depth)
 
     # pairs that can touch during the decision: swept discs overlap; [r, i, j]: i the mover, j the obstacle
     centre_x, centre_y, half_move = _swept_discs(positions, step * going.unsqueeze(-1), active, num_substeps)

@@ -14,6 +14,7 @@ import numpy as np
 import torch
 
 from pedrl._numba import numba as load_numba
+from pedrl.sim.geometry import Geometry
 
 __all__ = ["sequential_substeps"]
 
@@ -22,9 +23,36 @@ __all__ = ["sequential_substeps"]
 def _sequential():
     numba = load_numba()
 
+    @numba.njit(cache=True, nogil=True, inline="always")
+    def touches_walls(x, y, low, high, radius_sq):
+        """`Geometry.touches_walls` of an axis-aligned geometry: clamp to each wall's box, nearest squared gap."""
+        nearest = np.float32(np.inf)
+        for s in range(low.shape[0]):
+            gap_x = min(max(x, low[s, 0]), high[s, 0]) - x
+            gap_y = min(max(y, low[s, 1]), high[s, 1]) - y
+            nearest = min(nearest, gap_x * gap_x + gap_y * gap_y)
+        return nearest < radius_sq
+
+    @numba.njit(cache=True, nogil=True, inline="always")
+    def passes_exits(x, y, depth, start, normal, tangent, span):
+        """`Geometry.passes_exits` of one point."""
+        for e in range(start.shape[0]):
+            offset_x = x - start[e, 0]
+            offset_y = y - start[e, 1]
+            beyond = offset_x * normal[e, 0] + offset_y * normal[e, 1]
+            along = offset_x * tangent[e, 0] + offset_y * tangent[e, 1]
+            if beyond >= 0 and beyond < depth and along >= 0 and along <= span[e]:
+                return True
+        return False
+
     @numba.njit(cache=True, nogil=True)
-    def run(positions, step, going, present, walls, passes, order, contact_sq, out, blocked, crashed_wall, reached):
-        num_substeps, num_replicas, num_agents = walls.shape
+    def run(
+        positions, step, going, present, depth, walls, low, high, radius_sq, start, normal, tangent, span,
+        order, contact_sq, out, blocked, crashed_wall, reached,
+    ):  # fmt: skip
+        num_replicas, num_agents = going.shape
+        num_substeps = walls.shape[0]
+        own_walls = low.shape[0] > 0  # axis-aligned walls: tested here, else ``walls`` holds the tests
         moved = np.zeros(num_agents, dtype=np.float32)  # sub-steps moved, per agent of the replica
         acted_moved = np.zeros(num_agents, dtype=np.bool_)  # moved in this sub-step (it acted already)
         passed = np.zeros(num_agents, dtype=np.bool_)
@@ -48,13 +76,13 @@ def _sequential():
                     i = order[r, rank]
                     if not going[r, i]:
                         continue
-                    if walls[k, r, i]:
+                    proposal_x = positions[r, i, 0] + scale * step[r, i, 0]
+                    proposal_y = positions[r, i, 1] + scale * step[r, i, 1]
+                    if touches_walls(proposal_x, proposal_y, low, high, radius_sq) if own_walls else walls[k, r, i]:
                         blocked[r, i] = True
                         crashed_wall[r, i] = True
                         going[r, i] = False
                         continue
-                    proposal_x = positions[r, i, 0] + scale * step[r, i, 0]
-                    proposal_y = positions[r, i, 1] + scale * step[r, i, 1]
                     hit = False
                     for j in range(num_agents):
                         if j == i or not present[r, j]:
@@ -75,7 +103,7 @@ def _sequential():
                         going[r, i] = False
                         continue
                     acted_moved[i] = True
-                    if passes[k, r, i]:
+                    if passes_exits(proposal_x, proposal_y, depth[r, i], start, normal, tangent, span):
                         reached[r, i] = True
                         passed[i] = True
                         going[r, i] = False
@@ -99,22 +127,30 @@ def sequential_substeps(
     step: torch.Tensor,
     going: torch.Tensor,
     active: torch.Tensor,
-    walls: torch.Tensor,
-    passes_door: torch.Tensor,
+    geometry: Geometry,
+    agent_radius: float,
+    num_substeps: int,
+    walls: torch.Tensor | None,
+    depth: torch.Tensor,
     priority: torch.Tensor,
-    contact_sq: float,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """The sub-steps of :func:`pedrl.sim.dynamics.move_agents_sequential`, agent by agent, compiled.
+
+    The float32 operations are torch's, in the same order: proposals ``p + k d``, the wall test of
+    :meth:`Geometry.touches_walls` (done here for axis-aligned walls; ``walls (S, R, N)`` bool holds it for the
+    others), :meth:`Geometry.passes_exits` with ``depth (R, N)``, and the contact test ``|gap|^2 < (2 r)^2``.
 
     Args:
         positions: ``(R, N, 2)`` float32 at the start of the decision.
         step: ``(R, N, 2)`` float32 move per sub-step.
         going: ``(R, N)`` bool, active agents with a non-zero step.
         active: ``(R, N)`` bool, agents in the room (bodies that collide).
-        walls: ``(S, R, N)`` bool, whether the proposal of each sub-step touches a wall.
-        passes_door: ``(S, R, N)`` bool, whether it is past an exit.
+        geometry: the room.
+        agent_radius: body radius (m).
+        num_substeps: ``S``.
+        walls: ``(S, R, N)`` bool wall tests of the proposals, needed only when some wall is not axis-aligned.
+        depth: ``(R, N)`` float32 depth of the exit test.
         priority: ``(R, N)`` order of action, lowest first.
-        contact_sq: squared contact distance (the comparison runs in float32, as torch's does).
 
     Returns:
         ``(positions, blocked, crashed_wall, reached)``.
@@ -124,13 +160,27 @@ def sequential_substeps(
     blocked = torch.zeros(shape, dtype=torch.bool)
     crashed_wall = torch.zeros(shape, dtype=torch.bool)
     reached = torch.zeros(shape, dtype=torch.bool)
+    if walls is None:
+        walls = torch.zeros((num_substeps, 1, 1), dtype=torch.bool)  # unused: the kernel tests the walls
+        low, high = geometry._box_low, geometry._box_high
+    else:
+        low = high = torch.zeros((0, 2))
+    radius_sq = agent_radius * agent_radius  # both products as torch's callers write them
+    contact_sq = 4.0 * agent_radius * agent_radius
     _sequential()(
         positions.contiguous().numpy(),
         step.contiguous().numpy(),
         going.numpy().copy(),
         active.numpy().copy(),
+        depth.contiguous().numpy(),
         walls.contiguous().numpy(),
-        passes_door.contiguous().numpy(),
+        low.contiguous().numpy(),
+        high.contiguous().numpy(),
+        np.float32(radius_sq),
+        geometry.exits[:, 0].contiguous().numpy(),
+        geometry.exit_normals.contiguous().numpy(),
+        geometry._exit_tangents.contiguous().numpy(),
+        geometry._exit_spans.contiguous().numpy(),
         priority.argsort(dim=1).numpy(),
         np.float32(contact_sq),
         out.numpy(),

@@ -7,10 +7,11 @@ exact nearest prototype is found after computing distances to a few dozen protot
 several times faster than the `(B, d) x (d, K)` product of the matrix search for the few hundred states a
 decision encodes.
 
-The answer is exact: boxes bound the distance from below (in float64), a subtree is skipped only when its bound
-exceeds the best distance found, and distances are float64 sums of squares of float32 differences, ties to the
-lowest prototype index. So the id is the argmin of float64 distances, whatever the tree; the float32 matrix
-search and this one can only disagree between prototypes whose float32 distances tie within rounding.
+The answer is exact: boxes bound the distance from below, a subtree is skipped only when its bound exceeds the
+best distance found (with a margin for rounding), and a distance is the float32 sum of the squared differences
+taken column after column (columns in the order of decreasing variance), ties to the lowest prototype index. So
+the id is the argmin of those distances, whatever the tree; the float32 matrix search and this one can only
+disagree between prototypes whose distances tie within float32 rounding.
 
 `TreeIndex` holds one tree per prototype set (`T` sets of `K` prototypes, one per learning process); a search
 names each point's set.
@@ -19,7 +20,6 @@ names each point's set.
 from __future__ import annotations
 
 import functools
-import math
 
 import numpy as np
 import torch
@@ -31,8 +31,11 @@ __all__ = ["LEAF_SIZE", "TreeIndex", "numba_available"]
 
 LEAF_SIZE = 8
 """Prototypes per leaf (the kernel computes a leaf's 8 distances in vector lanes)."""
-_FAR = 1e30
+_FAR = 1e18
 """Coordinates of the dummy prototypes that pad leaves to ``LEAF_SIZE``."""
+_BOUND_SHRINK = 1.0 - 1e-5
+"""Box bounds are shrunk by this factor before pruning: a bound summed in another order than a distance may
+exceed it by a few float32 roundings."""
 _STACK = 128
 """Depth-first stack of the search: two entries per level; a tree of K prototypes has about log2(K / 8) levels."""
 
@@ -113,17 +116,18 @@ def _kernel():
 
         Full indices, no array views: a view costs two atomic reference-count updates in numba.
         """
-        a0 = 0.0
-        a1 = 0.0
+        a0 = np.float32(0.0)
+        a1 = np.float32(0.0)
+        zero = np.float32(0.0)
         head = low.shape[2]
         for c in range(0, head - 1, 2):  # branch-free: mispredicted branches cost more than arithmetic
-            g0 = max(max(low[t, node, c] - point[c], point[c] - high[t, node, c]), 0.0)
-            g1 = max(max(low[t, node, c + 1] - point[c + 1], point[c + 1] - high[t, node, c + 1]), 0.0)
+            g0 = max(max(low[t, node, c] - point[c], point[c] - high[t, node, c]), zero)
+            g1 = max(max(low[t, node, c + 1] - point[c + 1], point[c + 1] - high[t, node, c + 1]), zero)
             a0 += g0 * g0
             a1 += g1 * g1
         if head % 2:
             c = head - 1
-            g0 = max(max(low[t, node, c] - point[c], point[c] - high[t, node, c]), 0.0)
+            g0 = max(max(low[t, node, c] - point[c], point[c] - high[t, node, c]), zero)
             a0 += g0 * g0
         return a0 + a1
 
@@ -133,25 +137,27 @@ def _kernel():
     ):
         dim = points.shape[1]
         nodes = np.empty(_STACK, dtype=np.int64)
-        point = np.empty(dim, dtype=np.float64)
-        sums = np.empty(LEAF_SIZE, dtype=np.float64)
+        point = np.empty(dim, dtype=np.float32)
+        sums = np.empty(LEAF_SIZE, dtype=np.float32)
+        zero = np.float32(0.0)
+        shrink = np.float32(_BOUND_SHRINK)
         for row in range(points.shape[0]):
             t = tree[row]
             for c in range(dim):
                 point[c] = points[row, columns[t, c]]
-            best = math.inf
+            best = np.float32(np.inf)
             best_id = ids_of.shape[1] * LEAF_SIZE
             nodes[0] = 0
             top = 1
             while top > 0:
                 top -= 1
                 node = nodes[top]
-                if node and box_distance(point, low, high, t, node) > best:
+                if node and box_distance(point, low, high, t, node) * shrink > best:
                     continue
                 first_child = left[node]
                 if first_child < 0:  # a leaf: LEAF_SIZE distances at once, one lane per prototype
                     leaf = leaf_of[node]
-                    s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = 0.0
+                    s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = zero
                     for c in range(dim):
                         value = point[c]  # the leaf is (d, 8): eight lanes packed into vectors
                         g0 = value - prototypes[t, leaf, c, 0]
@@ -227,12 +233,12 @@ class TreeIndex:
         split = [np.argmax(high[inner] - low[inner], axis=1) for *_, low, high in trees]
         head = max([int(columns.max()) + 1 for columns in split if columns.size] + [1])
         self._split_dim = np.zeros((self.num_sets, len(start)), dtype=np.int64)
-        self._split_value = np.zeros((self.num_sets, len(start)))
+        self._split_value = np.zeros((self.num_sets, len(start)), dtype=np.float32)
         for index, (*_, low, _high) in enumerate(trees):
             self._split_dim[index, inner] = split[index]
             self._split_value[index, inner] = low[self._right[inner], split[index]]
-        self._low = np.ascontiguousarray(np.stack([tree[5] for tree in trees])[:, :, :head])
-        self._high = np.ascontiguousarray(np.stack([tree[6] for tree in trees])[:, :, :head])
+        self._low = np.ascontiguousarray(np.stack([tree[5] for tree in trees])[:, :, :head], dtype=np.float32)
+        self._high = np.ascontiguousarray(np.stack([tree[6] for tree in trees])[:, :, :head], dtype=np.float32)
         # leaves as (d, LEAF_SIZE) blocks, padded with far-away dummies (id K, never the nearest)
         leaves = np.flatnonzero(~inner)
         self._leaf_of = np.full(len(start), -1, dtype=np.int64)
@@ -240,7 +246,7 @@ class TreeIndex:
         slots = start[leaves, None] + np.arange(LEAF_SIZE)  # (L, LEAF_SIZE)
         real = slots < end[leaves, None]
         self._ids = np.empty((self.num_sets, len(leaves), LEAF_SIZE), dtype=np.int64)
-        self._prototypes = np.empty((self.num_sets, len(leaves), self.dim, LEAF_SIZE))
+        self._prototypes = np.empty((self.num_sets, len(leaves), self.dim, LEAF_SIZE), dtype=np.float32)
         for index, (order, *_) in enumerate(trees):
             ids = np.where(real, order[np.minimum(slots, self.num_prototypes - 1)], self.num_prototypes)
             self._ids[index] = ids
@@ -266,7 +272,7 @@ class TreeIndex:
         elif sets.shape != (num,) or (num and not (int(sets.min()) >= 0 and int(sets.max()) < self.num_sets)):
             raise ValueError(f"sets must be ({num},) ints in [0, {self.num_sets}), got {sets}")
         ids = np.empty(num, dtype=np.int64)
-        sq_dist = np.empty(num, dtype=np.float64)
+        sq_dist = np.empty(num, dtype=np.float32)
         _kernel()(
             np.ascontiguousarray(points.detach().to(torch.float32).numpy()),
             np.ascontiguousarray(sets.numpy(), dtype=np.int64),
@@ -283,4 +289,4 @@ class TreeIndex:
             ids,
             sq_dist,
         )
-        return torch.from_numpy(ids), torch.from_numpy(sq_dist.astype(np.float32))
+        return torch.from_numpy(ids), torch.from_numpy(sq_dist)

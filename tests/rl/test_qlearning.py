@@ -190,3 +190,20 @@ def test_compiled_kernels_equal_the_torch_code_to_the_bit(seed):
         results[compiled] = (chosen, td, tables)
     for torch_value, compiled_value in zip(results[False], results[True], strict=True):
         assert torch.equal(torch_value, compiled_value)
+
+
+def test_compiled_kernels_refuse_rows_out_of_range_and_ignore_skipped_entries():
+    q_values = zeros_q_values(1, 1, 4, device="cpu")
+    with pytest.raises(IndexError, match="entry 1: row or action out of range"):
+        greedy(q_values, torch.tensor([0, 4]), compiled=True)
+    rows, actions = torch.tensor([0, 99]), torch.tensor([3, 999])  # entry 1 is skipped: anything goes
+    td = td_update(
+        q_values, rows, actions, torch.ones(2), torch.tensor([1, -5]), torch.tensor([False, False]),
+        torch.tensor([True, False]), alpha=0.5, gamma=0.9, compiled=True,
+    )  # fmt: skip
+    assert td.tolist() == [1.0, 0.0] and q_values[0, 0, 0, 3] == 0.5
+    with pytest.raises(IndexError, match="out of range"):
+        td_update(
+            q_values, rows, actions, torch.ones(2), torch.tensor([1, -5]), torch.tensor([False, False]),
+            torch.tensor([True, True]), alpha=0.5, gamma=0.9, compiled=True,
+        )  # fmt: skip
