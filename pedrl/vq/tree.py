@@ -29,8 +29,9 @@ from pedrl._numba import numba_available
 
 __all__ = ["LEAF_SIZE", "TreeIndex", "numba_available"]
 
-LEAF_SIZE = 8
-"""Prototypes per leaf (the kernel computes a leaf's 8 distances in vector lanes)."""
+LEAF_SIZE = 16
+"""Prototypes per leaf, whose distances the kernel computes in vector lanes, 8 at a time (measured per state:
+1.35 us with leaves of 8, 0.97 us with 16, 0.89 us with 32)."""
 _FAR = 1e18
 """Coordinates of the dummy prototypes that pad leaves to ``LEAF_SIZE``."""
 _BOUND_SHRINK = 1.0 - 1e-5
@@ -131,6 +132,38 @@ def _kernel():
             a0 += g0 * g0
         return a0 + a1
 
+    @numba.njit(cache=True, nogil=True, inline="always")
+    def eight_distances(point, prototypes, t, leaf, first, sums):
+        """Squared distances from ``point`` to prototypes ``first .. first + 7`` of a leaf, into ``sums``: eight
+        independent chains over the columns, which the SLP vectorizer packs into one vector."""
+        s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = np.float32(0.0)
+        for c in range(point.shape[0]):
+            value = point[c]
+            g0 = value - prototypes[t, leaf, c, first]
+            g1 = value - prototypes[t, leaf, c, first + 1]
+            g2 = value - prototypes[t, leaf, c, first + 2]
+            g3 = value - prototypes[t, leaf, c, first + 3]
+            g4 = value - prototypes[t, leaf, c, first + 4]
+            g5 = value - prototypes[t, leaf, c, first + 5]
+            g6 = value - prototypes[t, leaf, c, first + 6]
+            g7 = value - prototypes[t, leaf, c, first + 7]
+            s0 += g0 * g0
+            s1 += g1 * g1
+            s2 += g2 * g2
+            s3 += g3 * g3
+            s4 += g4 * g4
+            s5 += g5 * g5
+            s6 += g6 * g6
+            s7 += g7 * g7
+        sums[first] = s0
+        sums[first + 1] = s1
+        sums[first + 2] = s2
+        sums[first + 3] = s3
+        sums[first + 4] = s4
+        sums[first + 5] = s5
+        sums[first + 6] = s6
+        sums[first + 7] = s7
+
     @numba.njit(cache=True, nogil=True)
     def search(
         points, tree, columns, prototypes, ids_of, leaf_of, left, right, split_dim, split_value, low, high, ids, sq_dist
@@ -139,7 +172,6 @@ def _kernel():
         nodes = np.empty(_STACK, dtype=np.int64)
         point = np.empty(dim, dtype=np.float32)
         sums = np.empty(LEAF_SIZE, dtype=np.float32)
-        zero = np.float32(0.0)
         shrink = np.float32(_BOUND_SHRINK)
         for row in range(points.shape[0]):
             t = tree[row]
@@ -155,35 +187,10 @@ def _kernel():
                 if node and box_distance(point, low, high, t, node) * shrink > best:
                     continue
                 first_child = left[node]
-                if first_child < 0:  # a leaf: LEAF_SIZE distances at once, one lane per prototype
+                if first_child < 0:  # a leaf: its distances 8 at a time, one vector lane per prototype
                     leaf = leaf_of[node]
-                    s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = zero
-                    for c in range(dim):
-                        value = point[c]  # the leaf is (d, 8): eight lanes packed into vectors
-                        g0 = value - prototypes[t, leaf, c, 0]
-                        g1 = value - prototypes[t, leaf, c, 1]
-                        g2 = value - prototypes[t, leaf, c, 2]
-                        g3 = value - prototypes[t, leaf, c, 3]
-                        g4 = value - prototypes[t, leaf, c, 4]
-                        g5 = value - prototypes[t, leaf, c, 5]
-                        g6 = value - prototypes[t, leaf, c, 6]
-                        g7 = value - prototypes[t, leaf, c, 7]
-                        s0 += g0 * g0
-                        s1 += g1 * g1
-                        s2 += g2 * g2
-                        s3 += g3 * g3
-                        s4 += g4 * g4
-                        s5 += g5 * g5
-                        s6 += g6 * g6
-                        s7 += g7 * g7
-                    sums[0] = s0
-                    sums[1] = s1
-                    sums[2] = s2
-                    sums[3] = s3
-                    sums[4] = s4
-                    sums[5] = s5
-                    sums[6] = s6
-                    sums[7] = s7
+                    for first in range(0, LEAF_SIZE, 8):
+                        eight_distances(point, prototypes, t, leaf, first, sums)
                     for j in range(LEAF_SIZE):
                         index = ids_of[t, leaf, j]
                         if sums[j] < best or (sums[j] == best and index < best_id):
