@@ -22,8 +22,8 @@ KERNELS = {
     "greedy": rl_kernels._greedy,
     "TD update": rl_kernels._td,
     "row prefetch": rl_kernels._prefetch,
-    "tree search": tree._kernel,
-    "tree construction": tree._builder,
+    "tree search": tree._search,
+    "tree construction": tree._build_tree,
 }
 
 
@@ -52,10 +52,10 @@ def run_trials(num_agents: int, prototypes: int, rooms_per_process: int) -> None
 
 def test_each_kernel_is_compiled_once_for_trials_of_any_size():
     run_trials(num_agents=6, prototypes=256, rooms_per_process=1)
-    first = {name: len(kernel().signatures) for name, kernel in KERNELS.items()}
+    first = {name: len(kernel.signatures) for name, kernel in KERNELS.items()}
     assert first == dict.fromkeys(KERNELS, 1), first  # every kernel ran, with one signature
     run_trials(num_agents=9, prototypes=300, rooms_per_process=2)
-    assert {name: len(kernel().signatures) for name, kernel in KERNELS.items()} == first
+    assert {name: len(kernel.signatures) for name, kernel in KERNELS.items()} == first
 
 
 def test_numba_can_be_switched_off_for_the_torch_code(tmp_path):

@@ -7,8 +7,6 @@ TD update is a dozen small torch operations; here it is one pass over the batch.
 
 from __future__ import annotations
 
-import functools
-
 import numpy as np
 import torch
 
@@ -16,76 +14,66 @@ from pedrl._numba import numba as load_numba
 
 __all__ = ["greedy_from_rows", "td_update"]
 
+numba = load_numba()
 
-@functools.cache
-def _prefetch():
-    numba = load_numba()
 
-    @numba.njit(cache=True, nogil=True)
-    def prefetch(table, rows, actions, used, next_rows, next_used, sink):
-        """Check the used rows and actions against the table (numba does not), and load every cache line of those
-        rows, one independent load after another, so that the memory system fetches many at once (the work on a
-        row would otherwise wait for each of its lines in turn). Returns the first bad position, or -1."""
-        num_rows, num_actions = table.shape
-        total = np.float32(0.0)
-        for b in range(rows.shape[0]):
-            if used[b]:
-                if rows[b] < 0 or rows[b] >= num_rows or actions[b] < 0 or actions[b] >= num_actions:
-                    return b
-                for a in range(0, num_actions, 16):
-                    total += table[rows[b], a]
-        for b in range(next_rows.shape[0]):
-            if next_used[b]:
-                if next_rows[b] < 0 or next_rows[b] >= num_rows:
-                    return b
-                for a in range(0, num_actions, 16):
-                    total += table[next_rows[b], a]
-        sink[0] = total  # keeps the loads
-        return -1
-
-    return prefetch
+@numba.njit(cache=True, nogil=True)
+def _prefetch(table, rows, actions, used, next_rows, next_used, sink):
+    """Check the used rows and actions against the table (numba does not), and load every cache line of those
+    rows, one independent load after another, so that the memory system fetches many at once (the work on a
+    row would otherwise wait for each of its lines in turn). Returns the first bad position, or -1."""
+    num_rows, num_actions = table.shape
+    total = np.float32(0.0)
+    for b in range(rows.shape[0]):
+        if used[b]:
+            if rows[b] < 0 or rows[b] >= num_rows or actions[b] < 0 or actions[b] >= num_actions:
+                return b
+            for a in range(0, num_actions, 16):
+                total += table[rows[b], a]
+    for b in range(next_rows.shape[0]):
+        if next_used[b]:
+            if next_rows[b] < 0 or next_rows[b] >= num_rows:
+                return b
+            for a in range(0, num_actions, 16):
+                total += table[next_rows[b], a]
+    sink[0] = total  # keeps the loads
+    return -1
 
 
 def _checked_prefetch(table, rows, actions, used, next_rows, next_used) -> None:
     """:func:`_prefetch`, raising ``IndexError`` (as torch's gathers do) for a row or action out of range."""
-    bad = _prefetch()(table, rows, actions, used, next_rows, next_used, np.empty(1, np.float32))
+    bad = _prefetch(table, rows, actions, used, next_rows, next_used, np.empty(1, np.float32))
     if bad >= 0:
         raise IndexError(
             f"entry {bad}: row or action out of range for Q tables of {table.shape[0]} rows x {table.shape[1]} actions"
         )
 
 
-@functools.cache
-def _greedy():
-    numba = load_numba()
-
-    @numba.njit(cache=True, nogil=True)
-    def run(table, rows, uniform, actions):
-        num_actions = table.shape[1]
-        for b in range(rows.shape[0]):
-            row = rows[b]
-            best = table[row, 0]
-            for a in range(1, num_actions):
-                value = table[row, a]
-                if value > best or value != value:  # NaN wins, as in torch's amax
-                    best = value
-                    if value != value:
-                        break
-            count = 0
-            for a in range(num_actions):
-                count += table[row, a] == best
-            pick = np.int64(uniform[b] * np.float32(count))
-            pick = min(pick, count - 1)
-            chosen = 0  # no maximum (a NaN row): action 0, as torch's argmax of an all-False mask
-            for a in range(num_actions):
-                if table[row, a] == best:
-                    if pick == 0:
-                        chosen = a
-                        break
-                    pick -= 1
-            actions[b] = chosen
-
-    return run
+@numba.njit(cache=True, nogil=True)
+def _greedy(table, rows, uniform, actions):
+    num_actions = table.shape[1]
+    for b in range(rows.shape[0]):
+        row = rows[b]
+        best = table[row, 0]
+        for a in range(1, num_actions):
+            value = table[row, a]
+            if value > best or value != value:  # NaN wins, as in torch's amax
+                best = value
+                if value != value:
+                    break
+        count = 0
+        for a in range(num_actions):
+            count += table[row, a] == best
+        pick = np.int64(uniform[b] * np.float32(count))
+        pick = min(pick, count - 1)
+        chosen = 0  # no maximum (a NaN row): action 0, as torch's argmax of an all-False mask
+        for a in range(num_actions):
+            if table[row, a] == best:
+                if pick == 0:
+                    chosen = a
+                    break
+                pick -= 1
+        actions[b] = chosen
 
 
 def greedy_from_rows(q_values: torch.Tensor, rows: torch.Tensor, uniform: torch.Tensor) -> torch.Tensor:
@@ -96,51 +84,45 @@ def greedy_from_rows(q_values: torch.Tensor, rows: torch.Tensor, uniform: torch.
     _checked_prefetch(
         table, rows.numpy(), np.zeros(num, np.int64), np.ones(num, np.bool_), rows.numpy()[:0], np.zeros(0, np.bool_)
     )
-    _greedy()(table, rows.numpy(), uniform.numpy(), actions.numpy())
+    _greedy(table, rows.numpy(), uniform.numpy(), actions.numpy())
     return actions
 
 
-@functools.cache
-def _td():
-    numba = load_numba()
-
-    @numba.njit(cache=True, nogil=True)
-    def run(table, rows, actions, rewards, next_rows, terminal, valid, alpha, gamma, td_error, entries, counts):
-        num, num_actions = rows.shape[0], table.shape[1]
-        flat = table.reshape(-1)
-        for b in range(num):
-            if not valid[b]:
-                td_error[b] = 0.0
-                entries[b] = -1
-                continue
-            next_value = np.float32(0.0)
-            if not terminal[b]:
-                row = next_rows[b]
-                next_value = table[row, 0]
-                for a in range(1, num_actions):
-                    value = table[row, a]
-                    if value > next_value or value != value:
-                        next_value = value
-            entries[b] = rows[b] * num_actions + actions[b]
-            td_error[b] = (rewards[b] + gamma * next_value) - flat[entries[b]]  # every error before any update
-        # increments averaged over the entries that hit the same (row, action), added in batch order
-        order = np.argsort(entries, kind="mergesort")
-        first = 0
-        while first < num:
-            last = first
-            while last + 1 < num and entries[order[last + 1]] == entries[order[first]]:
-                last += 1
-            for slot in range(first, last + 1):
-                counts[order[slot]] = last - first + 1
-            first = last + 1
-        for b in range(num):
-            scale = (np.float32(1.0) / np.float32(counts[b])) * alpha  # torch's `alpha / counts`: a reciprocal
-            if entries[b] < 0:  # a skipped entry adds 0 to entry 0, as torch's index_add_ does
-                flat[0] = flat[0] + np.float32(0.0) * scale
-            else:
-                flat[entries[b]] = flat[entries[b]] + td_error[b] * scale
-
-    return run
+@numba.njit(cache=True, nogil=True)
+def _td(table, rows, actions, rewards, next_rows, terminal, valid, alpha, gamma, td_error, entries, counts):
+    num, num_actions = rows.shape[0], table.shape[1]
+    flat = table.reshape(-1)
+    for b in range(num):
+        if not valid[b]:
+            td_error[b] = 0.0
+            entries[b] = -1
+            continue
+        next_value = np.float32(0.0)
+        if not terminal[b]:
+            row = next_rows[b]
+            next_value = table[row, 0]
+            for a in range(1, num_actions):
+                value = table[row, a]
+                if value > next_value or value != value:
+                    next_value = value
+        entries[b] = rows[b] * num_actions + actions[b]
+        td_error[b] = (rewards[b] + gamma * next_value) - flat[entries[b]]  # every error before any update
+    # increments averaged over the entries that hit the same (row, action), added in batch order
+    order = np.argsort(entries, kind="mergesort")
+    first = 0
+    while first < num:
+        last = first
+        while last + 1 < num and entries[order[last + 1]] == entries[order[first]]:
+            last += 1
+        for slot in range(first, last + 1):
+            counts[order[slot]] = last - first + 1
+        first = last + 1
+    for b in range(num):
+        scale = (np.float32(1.0) / np.float32(counts[b])) * alpha  # torch's `alpha / counts`: a reciprocal
+        if entries[b] < 0:  # a skipped entry adds 0 to entry 0, as torch's index_add_ does
+            flat[0] = flat[0] + np.float32(0.0) * scale
+        else:
+            flat[entries[b]] = flat[entries[b]] + td_error[b] * scale
 
 
 def td_update(
@@ -161,7 +143,7 @@ def td_update(
     table = q_values.view(-1, q_values.shape[-1]).numpy()
     valid_np = valid.numpy()
     _checked_prefetch(table, rows.numpy(), actions.numpy(), valid_np, next_rows.numpy(), valid_np & ~terminal.numpy())
-    _td()(
+    _td(
         table,
         rows.numpy(),
         actions.numpy(),

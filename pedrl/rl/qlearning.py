@@ -5,7 +5,6 @@ from __future__ import annotations
 import torch
 
 from pedrl._numba import numba_available
-from pedrl.rl import kernels
 
 __all__ = ["td_update"]
 
@@ -53,7 +52,11 @@ def td_update(
         `(B,)` float32 TD errors `r + gamma max_a' Q(s', a') - Q(s, a)` (0 where not `valid`).
     """
     if compiled if compiled is not None else (q_values.device.type == "cpu" and numba_available()):
-        return kernels.td_update(q_values, rows, actions, rewards, next_rows, terminal, valid, alpha=alpha, gamma=gamma)
+        from pedrl.rl.kernels import td_update as compiled_td_update  # imports numba: only where it is used
+
+        return compiled_td_update(
+            q_values, rows, actions, rewards, next_rows, terminal, valid, alpha=alpha, gamma=gamma
+        )
     num_actions = q_values.shape[-1]
     flat = q_values.view(-1, num_actions)
     zero = torch.zeros((), dtype=rows.dtype, device=rows.device)

@@ -15,7 +15,6 @@ import sys
 import torch
 
 from pedrl._numba import numba_available
-from pedrl.rl import kernels
 
 __all__ = ["NUM_ACTIONS", "epsilon_greedy", "greedy", "in_huge_pages", "table_rows", "zeros_q_values"]
 
@@ -148,8 +147,10 @@ def greedy(
         `(B,)` int64 actions in `[0, U)`.
     """
     if compiled if compiled is not None else (q_values.device.type == "cpu" and numba_available()):
+        from pedrl.rl.kernels import greedy_from_rows  # imports numba: only where it is used
+
         uniform = torch.rand(rows.shape[0], generator=generator, device=q_values.device)
-        return kernels.greedy_from_rows(q_values, rows, uniform)
+        return greedy_from_rows(q_values, rows, uniform)
     # index_select: a plain row gather from a large table is several times slower on CPU
     return _greedy_from_rows(q_values.view(-1, q_values.shape[-1]).index_select(0, rows), generator)
 

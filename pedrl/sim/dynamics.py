@@ -26,7 +26,6 @@ import torch
 
 from pedrl._numba import numba_available
 from pedrl.sim.geometry import Geometry, X, Y, wrap_angle
-from pedrl.sim.kernels import sequential_substeps
 
 NUM_SPEED_CHANGES: Final = 9
 NUM_TURNS: Final = 9
@@ -382,6 +381,8 @@ def move_agents_sequential(
     depth = step.norm(dim=-1) + PAIR_MARGIN  # of the exit test: a centre moves less than this per sub-step
     step_scale = torch.arange(1, num_substeps + 1, device=device).to(dtype).view(-1, 1, 1, 1)  # (S, 1, 1, 1)
     if compiled if compiled is not None else (device.type == "cpu" and not sync_free and numba_available()):
+        from pedrl.sim.kernels import sequential_substeps  # imports numba: only where it is used
+
         walls = None
         if not geometry._axis_aligned:  # the kernel tests axis-aligned walls itself
             walls = _touch_walls(positions + step_scale * step, geometry, agent_radius, exact_everywhere=False)

@@ -13,8 +13,8 @@ from typing import Any, Literal
 
 import torch
 
+from pedrl._numba import numba_available
 from pedrl.vq.kmeans import MIN_GROUP_SIZE, KMeansResult, Precision, PrototypeIndex, _block_argmin, kmeans
-from pedrl.vq.tree import TreeIndex, numba_available
 
 __all__ = ["ProcessQuantizers", "Quantizer", "UnionQuantizer"]
 
@@ -77,7 +77,7 @@ class Quantizer:
         self.prototypes = prototypes.to(torch.float32)
         self.precision = precision
         self._index = PrototypeIndex(self.prototypes, precision=precision)
-        self._tree: TreeIndex | None = None  # built at the first encode that uses it
+        self._tree: Any = None  # built at the first encode that uses it
 
     @property
     def num_prototypes(self) -> int:
@@ -173,6 +173,8 @@ class Quantizer:
         flat = self.standardise(states.reshape(-1, self.dim).to(torch.float32))
         if chunk_size is None and _uses_tree(self.prototypes, self.precision):
             if self._tree is None:
+                from pedrl.vq.tree import TreeIndex  # imports numba: only where it is used
+
                 self._tree = TreeIndex(self.prototypes)
             return self._tree.search(flat)[0].view(states.shape[:-1])
         index = self._index
@@ -429,7 +431,7 @@ class ProcessQuantizers:
             raise ValueError(f"every process's quantizer must have the same number of prototypes, got {sorted(sizes)}")
         self.parts = list(parts)
         self._stacked: tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor] | None = None
-        self._tree: TreeIndex | None = None  # one k-d tree per process, built at the first encode that uses it
+        self._tree: Any = None  # one k-d tree per process, built at the first encode that uses it
         if all(isinstance(part, Quantizer) for part in parts) and len({part.dim for part in parts}) == 1:
             mean = torch.stack([part.mean for part in parts])  # (P, d)
             std = torch.stack([part.std for part in parts])
@@ -502,6 +504,8 @@ class ProcessQuantizers:
         assert self._stacked is not None
         mean, std, prototypes, _ = self._stacked
         if self._tree is None:
+            from pedrl.vq.tree import TreeIndex
+
             self._tree = TreeIndex(prototypes)
         if process is None:
             process = torch.arange(self.num_processes).repeat_interleave(states.shape[0] // self.num_processes)

@@ -19,15 +19,14 @@ names each point's set.
 
 from __future__ import annotations
 
-import functools
-
 import numpy as np
 import torch
 
 from pedrl._numba import numba as load_numba
-from pedrl._numba import numba_available
 
-__all__ = ["LEAF_SIZE", "TreeIndex", "numba_available"]
+__all__ = ["LEAF_SIZE", "TreeIndex"]
+
+numba = load_numba()  # with the SLP vectorizer, which packs a leaf's distances into vectors
 
 LEAF_SIZE = 16
 """Prototypes per leaf, whose distances the kernel computes in vector lanes, 8 at a time (measured per state:
@@ -38,7 +37,7 @@ _BOUND_SHRINK = 1.0 - 1e-5
 """Box bounds are shrunk by this factor before pruning: a bound summed in another order than a distance may
 exceed it by a few float32 roundings."""
 _STACK = 128
-"""Depth-first stack of the search: two entries per level; a tree of K prototypes has about log2(K / 8) levels."""
+"""Depth-first stack of the search: two entries per level; a tree of K prototypes has about log2(K / 16) levels."""
 
 
 def _build(points: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -49,165 +48,153 @@ def _build(points: np.ndarray) -> tuple[np.ndarray, ...]:
     at a leaf) and its box ``low/high (n, d)``. The node count and ranges depend only on ``K``, so trees of equally
     many prototypes stack.
     """
-    return _builder()(np.ascontiguousarray(points, dtype=np.float64), LEAF_SIZE)
+    return _build_tree(np.ascontiguousarray(points, dtype=np.float64), LEAF_SIZE)
 
 
-@functools.cache
-def _builder():
-    """The compiled tree construction."""
-    numba = load_numba()
+@numba.njit(cache=True, nogil=True)
+def _build_tree(points, leaf_size):
+    num, dim = points.shape
+    capacity = 2 * num + 1
+    order = np.arange(num)
+    start = np.empty(capacity, dtype=np.int64)
+    end = np.empty(capacity, dtype=np.int64)
+    left = np.full(capacity, -1, dtype=np.int64)
+    right = np.full(capacity, -1, dtype=np.int64)
+    low = np.empty((capacity, dim))
+    high = np.empty((capacity, dim))
+    pending = np.empty((capacity, 4), dtype=np.int64)  # first, stop, parent, side (0 left, 1 right)
+    pending[0] = (0, num, -1, 0)
+    top = 1
+    count = 0
+    while top > 0:
+        top -= 1
+        first, stop, parent, side = pending[top]
+        index = count
+        count += 1
+        if parent >= 0:
+            if side == 0:
+                left[parent] = index
+            else:
+                right[parent] = index
+        start[index] = first
+        end[index] = stop
+        for c in range(dim):
+            low[index, c] = np.inf
+            high[index, c] = -np.inf
+        for slot in range(first, stop):
+            for c in range(dim):
+                value = points[order[slot], c]
+                low[index, c] = min(low[index, c], value)
+                high[index, c] = max(high[index, c], value)
+        if stop - first > leaf_size:
+            split = np.argmax(high[index] - low[index])
+            members = order[first:stop].copy()
+            local = np.argsort(points[members, split], kind="mergesort")
+            order[first:stop] = members[local]
+            middle = first + (stop - first) // 2
+            pending[top] = (middle, stop, index, 1)  # popped after the left child's whole subtree
+            pending[top + 1] = (first, middle, index, 0)
+            top += 2
+    return order, start[:count], end[:count], left[:count], right[:count], low[:count], high[:count]
 
-    @numba.njit(cache=True, nogil=True)
-    def build(points, leaf_size):
-        num, dim = points.shape
-        capacity = 2 * num + 1
-        order = np.arange(num)
-        start = np.empty(capacity, dtype=np.int64)
-        end = np.empty(capacity, dtype=np.int64)
-        left = np.full(capacity, -1, dtype=np.int64)
-        right = np.full(capacity, -1, dtype=np.int64)
-        low = np.empty((capacity, dim))
-        high = np.empty((capacity, dim))
-        pending = np.empty((capacity, 4), dtype=np.int64)  # first, stop, parent, side (0 left, 1 right)
-        pending[0] = (0, num, -1, 0)
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _box_distance(point, low, high, t, node):
+    """Squared distance from ``point`` to the box of ``node`` over its leading columns (a lower bound).
+
+    Full indices, no array views: a view costs two atomic reference-count updates in numba.
+    """
+    a0 = np.float32(0.0)
+    a1 = np.float32(0.0)
+    zero = np.float32(0.0)
+    head = low.shape[2]
+    for c in range(0, head - 1, 2):  # branch-free: mispredicted branches cost more than arithmetic
+        g0 = max(max(low[t, node, c] - point[c], point[c] - high[t, node, c]), zero)
+        g1 = max(max(low[t, node, c + 1] - point[c + 1], point[c + 1] - high[t, node, c + 1]), zero)
+        a0 += g0 * g0
+        a1 += g1 * g1
+    if head % 2:
+        c = head - 1
+        g0 = max(max(low[t, node, c] - point[c], point[c] - high[t, node, c]), zero)
+        a0 += g0 * g0
+    return a0 + a1
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _eight_distances(point, prototypes, t, leaf, first, sums):
+    """Squared distances from ``point`` to prototypes ``first .. first + 7`` of a leaf, into ``sums``: eight
+    independent chains over the columns, which the SLP vectorizer packs into one vector."""
+    s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = np.float32(0.0)
+    for c in range(point.shape[0]):
+        value = point[c]
+        g0 = value - prototypes[t, leaf, c, first]
+        g1 = value - prototypes[t, leaf, c, first + 1]
+        g2 = value - prototypes[t, leaf, c, first + 2]
+        g3 = value - prototypes[t, leaf, c, first + 3]
+        g4 = value - prototypes[t, leaf, c, first + 4]
+        g5 = value - prototypes[t, leaf, c, first + 5]
+        g6 = value - prototypes[t, leaf, c, first + 6]
+        g7 = value - prototypes[t, leaf, c, first + 7]
+        s0 += g0 * g0
+        s1 += g1 * g1
+        s2 += g2 * g2
+        s3 += g3 * g3
+        s4 += g4 * g4
+        s5 += g5 * g5
+        s6 += g6 * g6
+        s7 += g7 * g7
+    sums[first] = s0
+    sums[first + 1] = s1
+    sums[first + 2] = s2
+    sums[first + 3] = s3
+    sums[first + 4] = s4
+    sums[first + 5] = s5
+    sums[first + 6] = s6
+    sums[first + 7] = s7
+
+
+@numba.njit(cache=True, nogil=True)
+def _search(
+    points, tree, columns, prototypes, ids_of, leaf_of, left, right, split_dim, split_value, low, high, ids, sq_dist
+):
+    dim = points.shape[1]
+    nodes = np.empty(_STACK, dtype=np.int64)
+    point = np.empty(dim, dtype=np.float32)
+    sums = np.empty(LEAF_SIZE, dtype=np.float32)
+    shrink = np.float32(_BOUND_SHRINK)
+    for row in range(points.shape[0]):
+        t = tree[row]
+        for c in range(dim):
+            point[c] = points[row, columns[t, c]]
+        best = np.float32(np.inf)
+        best_id = ids_of.shape[1] * LEAF_SIZE
+        nodes[0] = 0
         top = 1
-        count = 0
         while top > 0:
             top -= 1
-            first, stop, parent, side = pending[top]
-            index = count
-            count += 1
-            if parent >= 0:
-                if side == 0:
-                    left[parent] = index
-                else:
-                    right[parent] = index
-            start[index] = first
-            end[index] = stop
-            for c in range(dim):
-                low[index, c] = np.inf
-                high[index, c] = -np.inf
-            for slot in range(first, stop):
-                for c in range(dim):
-                    value = points[order[slot], c]
-                    low[index, c] = min(low[index, c], value)
-                    high[index, c] = max(high[index, c], value)
-            if stop - first > leaf_size:
-                split = np.argmax(high[index] - low[index])
-                members = order[first:stop].copy()
-                local = np.argsort(points[members, split], kind="mergesort")
-                order[first:stop] = members[local]
-                middle = first + (stop - first) // 2
-                pending[top] = (middle, stop, index, 1)  # popped after the left child's whole subtree
-                pending[top + 1] = (first, middle, index, 0)
-                top += 2
-        return order, start[:count], end[:count], left[:count], right[:count], low[:count], high[:count]
-
-    return build
-
-
-@functools.cache
-def _kernel():
-    """The compiled search (numba's on-disk cache keeps it across runs)."""
-    numba = load_numba()  # with the SLP vectorizer, which packs a leaf's eight distances into vectors
-
-    @numba.njit(cache=True, nogil=True, inline="always")
-    def box_distance(point, low, high, t, node):
-        """Squared distance from ``point`` to the box of ``node`` over its leading columns (a lower bound).
-
-        Full indices, no array views: a view costs two atomic reference-count updates in numba.
-        """
-        a0 = np.float32(0.0)
-        a1 = np.float32(0.0)
-        zero = np.float32(0.0)
-        head = low.shape[2]
-        for c in range(0, head - 1, 2):  # branch-free: mispredicted branches cost more than arithmetic
-            g0 = max(max(low[t, node, c] - point[c], point[c] - high[t, node, c]), zero)
-            g1 = max(max(low[t, node, c + 1] - point[c + 1], point[c + 1] - high[t, node, c + 1]), zero)
-            a0 += g0 * g0
-            a1 += g1 * g1
-        if head % 2:
-            c = head - 1
-            g0 = max(max(low[t, node, c] - point[c], point[c] - high[t, node, c]), zero)
-            a0 += g0 * g0
-        return a0 + a1
-
-    @numba.njit(cache=True, nogil=True, inline="always")
-    def eight_distances(point, prototypes, t, leaf, first, sums):
-        """Squared distances from ``point`` to prototypes ``first .. first + 7`` of a leaf, into ``sums``: eight
-        independent chains over the columns, which the SLP vectorizer packs into one vector."""
-        s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = np.float32(0.0)
-        for c in range(point.shape[0]):
-            value = point[c]
-            g0 = value - prototypes[t, leaf, c, first]
-            g1 = value - prototypes[t, leaf, c, first + 1]
-            g2 = value - prototypes[t, leaf, c, first + 2]
-            g3 = value - prototypes[t, leaf, c, first + 3]
-            g4 = value - prototypes[t, leaf, c, first + 4]
-            g5 = value - prototypes[t, leaf, c, first + 5]
-            g6 = value - prototypes[t, leaf, c, first + 6]
-            g7 = value - prototypes[t, leaf, c, first + 7]
-            s0 += g0 * g0
-            s1 += g1 * g1
-            s2 += g2 * g2
-            s3 += g3 * g3
-            s4 += g4 * g4
-            s5 += g5 * g5
-            s6 += g6 * g6
-            s7 += g7 * g7
-        sums[first] = s0
-        sums[first + 1] = s1
-        sums[first + 2] = s2
-        sums[first + 3] = s3
-        sums[first + 4] = s4
-        sums[first + 5] = s5
-        sums[first + 6] = s6
-        sums[first + 7] = s7
-
-    @numba.njit(cache=True, nogil=True)
-    def search(
-        points, tree, columns, prototypes, ids_of, leaf_of, left, right, split_dim, split_value, low, high, ids, sq_dist
-    ):
-        dim = points.shape[1]
-        nodes = np.empty(_STACK, dtype=np.int64)
-        point = np.empty(dim, dtype=np.float32)
-        sums = np.empty(LEAF_SIZE, dtype=np.float32)
-        shrink = np.float32(_BOUND_SHRINK)
-        for row in range(points.shape[0]):
-            t = tree[row]
-            for c in range(dim):
-                point[c] = points[row, columns[t, c]]
-            best = np.float32(np.inf)
-            best_id = ids_of.shape[1] * LEAF_SIZE
-            nodes[0] = 0
-            top = 1
-            while top > 0:
-                top -= 1
-                node = nodes[top]
-                if node and box_distance(point, low, high, t, node) * shrink > best:
-                    continue
-                first_child = left[node]
-                if first_child < 0:  # a leaf: its distances 8 at a time, one vector lane per prototype
-                    leaf = leaf_of[node]
-                    for first in range(0, LEAF_SIZE, 8):
-                        eight_distances(point, prototypes, t, leaf, first, sums)
-                    for j in range(LEAF_SIZE):
-                        index = ids_of[t, leaf, j]
-                        if sums[j] < best or (sums[j] == best and index < best_id):
-                            best = sums[j]
-                            best_id = index
-                    continue
-                second_child = right[node]
-                # the child on the point's side of the split plane first; bounds are computed when popped
-                if point[split_dim[t, node]] >= split_value[t, node]:
-                    first_child, second_child = second_child, first_child
-                nodes[top] = second_child
-                nodes[top + 1] = first_child
-                top += 2
-            ids[row] = best_id if best_id < ids_of.shape[1] * LEAF_SIZE else 0  # a NaN point: id 0
-            sq_dist[row] = best
-
-    return search
+            node = nodes[top]
+            if node and _box_distance(point, low, high, t, node) * shrink > best:
+                continue
+            first_child = left[node]
+            if first_child < 0:  # a leaf: its distances 8 at a time, one vector lane per prototype
+                leaf = leaf_of[node]
+                for first in range(0, LEAF_SIZE, 8):
+                    _eight_distances(point, prototypes, t, leaf, first, sums)
+                for j in range(LEAF_SIZE):
+                    index = ids_of[t, leaf, j]
+                    if sums[j] < best or (sums[j] == best and index < best_id):
+                        best = sums[j]
+                        best_id = index
+                continue
+            second_child = right[node]
+            # the child on the point's side of the split plane first; bounds are computed when popped
+            if point[split_dim[t, node]] >= split_value[t, node]:
+                first_child, second_child = second_child, first_child
+            nodes[top] = second_child
+            nodes[top + 1] = first_child
+            top += 2
+        ids[row] = best_id if best_id < ids_of.shape[1] * LEAF_SIZE else 0  # a NaN point: id 0
+        sq_dist[row] = best
 
 
 class TreeIndex:
@@ -223,8 +210,6 @@ class TreeIndex:
     """
 
     def __init__(self, prototypes: torch.Tensor) -> None:
-        if not numba_available():  # pragma: no cover - numba is a dependency
-            raise RuntimeError("the tree search needs numba (pip install numba)")
         if prototypes.device.type != "cpu":
             raise ValueError(f"the tree search runs on the CPU, got prototypes on {prototypes.device}")
         sets = prototypes.unsqueeze(0) if prototypes.ndim == 2 else prototypes
@@ -280,7 +265,7 @@ class TreeIndex:
             raise ValueError(f"sets must be ({num},) ints in [0, {self.num_sets}), got {sets}")
         ids = np.empty(num, dtype=np.int64)
         sq_dist = np.empty(num, dtype=np.float32)
-        _kernel()(
+        _search(
             np.ascontiguousarray(points.detach().to(torch.float32).numpy()),
             np.ascontiguousarray(sets.numpy(), dtype=np.int64),
             self._columns,
