@@ -1,8 +1,10 @@
-"""numba, for the CPU kernels of the simulation (`pedrl.sim.kernels`) and the quantizer (`pedrl.vq.tree`).
+"""numba, for the CPU kernels of the simulation (`pedrl.sim.kernels`), the Q tables (`pedrl.rl.kernels`) and the
+quantizer (`pedrl.vq.tree`).
 
-numba compiles a kernel at its first call (a few seconds) and keeps it in its on-disk cache (``__pycache__``
-next to the module, or ``NUMBA_CACHE_DIR``), so later processes load it in milliseconds. The torch code stays the
-reference and the path on other devices: the kernels return the same numbers (the simulation's to the bit).
+numba compiles a kernel at its first call (about 13 s for all of them on a 2-core CPU) and keeps it in its on-disk
+cache (``__pycache__`` next to the module, or ``NUMBA_CACHE_DIR``), so later processes load them in under a second.
+The torch code stays the reference and the path on other devices: the kernels return its numbers to the bit (the
+tree search the exact argmin, which can order float32 ties differently from the matrix search).
 """
 
 from __future__ import annotations
@@ -10,8 +12,12 @@ from __future__ import annotations
 import functools
 import os
 from types import ModuleType
+from typing import TYPE_CHECKING
 
-__all__ = ["numba", "numba_available"]
+if TYPE_CHECKING:
+    import torch
+
+__all__ = ["numba", "numba_available", "use_kernels"]
 
 DISABLE_VARIABLE = "PEDRL_NO_NUMBA"
 """Set it (to anything but empty or ``0``) to run the torch code on the CPU too."""
@@ -27,6 +33,13 @@ def numba_available() -> bool:
     except ImportError:  # pragma: no cover - numba is a dependency
         return False
     return True
+
+
+def use_kernels(device: torch.device, compiled: bool | None = None) -> bool:
+    """Whether to run a numba kernel: ``compiled`` when given, else on the CPU when numba is available."""
+    if compiled is not None:
+        return compiled
+    return device.type == "cpu" and numba_available()
 
 
 def numba() -> ModuleType:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import torch
 
-from pedrl._numba import numba_available
+from pedrl._numba import use_kernels
 
 __all__ = ["td_update"]
 
@@ -51,7 +51,7 @@ def td_update(
     Returns:
         `(B,)` float32 TD errors `r + gamma max_a' Q(s', a') - Q(s, a)` (0 where not `valid`).
     """
-    if compiled if compiled is not None else (q_values.device.type == "cpu" and numba_available()):
+    if use_kernels(q_values.device, compiled):
         from pedrl.rl.kernels import td_update as compiled_td_update  # imports numba: only where it is used
 
         return compiled_td_update(

@@ -14,7 +14,7 @@ import sys
 
 import torch
 
-from pedrl._numba import numba_available
+from pedrl._numba import use_kernels
 
 __all__ = ["NUM_ACTIONS", "epsilon_greedy", "greedy", "in_huge_pages", "table_rows", "zeros_q_values"]
 
@@ -146,7 +146,7 @@ def greedy(
     Returns:
         `(B,)` int64 actions in `[0, U)`.
     """
-    if compiled if compiled is not None else (q_values.device.type == "cpu" and numba_available()):
+    if use_kernels(q_values.device, compiled):
         from pedrl.rl.kernels import greedy_from_rows  # imports numba: only where it is used
 
         uniform = torch.rand(rows.shape[0], generator=generator, device=q_values.device)

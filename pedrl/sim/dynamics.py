@@ -24,7 +24,7 @@ from typing import Final
 
 import torch
 
-from pedrl._numba import numba_available
+from pedrl._numba import use_kernels
 from pedrl.sim.geometry import Geometry, X, Y, wrap_angle
 
 NUM_SPEED_CHANGES: Final = 9
@@ -380,7 +380,7 @@ def move_agents_sequential(
     going = active & (step != 0).any(-1)  # still moving in this decision
     depth = step.norm(dim=-1) + PAIR_MARGIN  # of the exit test: a centre moves less than this per sub-step
     step_scale = torch.arange(1, num_substeps + 1, device=device).to(dtype).view(-1, 1, 1, 1)  # (S, 1, 1, 1)
-    if compiled if compiled is not None else (device.type == "cpu" and not sync_free and numba_available()):
+    if use_kernels(device, False if sync_free and compiled is None else compiled):
         from pedrl.sim.kernels import sequential_substeps  # imports numba: only where it is used
 
         walls = None

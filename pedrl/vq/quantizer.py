@@ -13,7 +13,7 @@ from typing import Any, Literal
 
 import torch
 
-from pedrl._numba import numba_available
+from pedrl._numba import use_kernels
 from pedrl.vq.kmeans import MIN_GROUP_SIZE, KMeansResult, Precision, PrototypeIndex, _block_argmin, kmeans
 
 __all__ = ["ProcessQuantizers", "Quantizer", "UnionQuantizer"]
@@ -26,12 +26,7 @@ TREE_MIN_PROTOTYPES = 256
 
 def _uses_tree(prototypes: torch.Tensor, precision: Precision) -> bool:
     """Whether `encode` searches with a `pedrl.vq.tree.TreeIndex`: `"auto"`, on the CPU, with numba, K large."""
-    return (
-        precision == "auto"
-        and prototypes.device.type == "cpu"
-        and prototypes.shape[-2] >= TREE_MIN_PROTOTYPES
-        and numba_available()
-    )
+    return precision == "auto" and prototypes.shape[-2] >= TREE_MIN_PROTOTYPES and use_kernels(prototypes.device)
 
 
 class Quantizer:

@@ -201,9 +201,10 @@ class TreeIndex:
     """Exact nearest-prototype search over ``T`` fixed sets of ``K`` prototypes ``(T, K, d)`` (CPU, numba).
 
     Each set's columns are reordered by decreasing variance, so that the box bounds need only the leading columns
-    (up to the last one some node splits on). Leaves hold 8 prototypes as a ``(d, 8)`` block (padded with far-away
-    dummies), whose 8 distances are computed at once. A search visits nodes depth first, the child on the point's
-    side of the split first, and skips a node whose box lies farther than the best distance found.
+    (up to the last one some node splits on). Leaves hold ``LEAF_SIZE`` prototypes as a ``(d, LEAF_SIZE)`` block
+    (padded with far-away dummies), whose distances are computed 8 at a time in vector lanes. A search visits nodes
+    depth first, the child on the point's side of the split first, and skips a node whose box lies farther than
+    the best distance found.
 
     Args:
         prototypes: ``(K, d)`` (one set) or ``(T, K, d)`` float32 on the CPU.
