@@ -129,6 +129,19 @@ def reference_sequential_move(
     )
 
 
+def motion(env: RoomEnv, velocities: torch.Tensor) -> dict:
+    """The arguments of ``move_agents`` for the room's current state and ``velocities``."""
+    return dict(
+        positions=env.positions,
+        velocities=velocities,
+        active=env.active,
+        geometry=env.geometry,
+        agent_radius=env.agent_radius,
+        decision_length=env.decision_length,
+        num_substeps=env.num_substeps,
+    )
+
+
 # ---------------------------------------------------------------- actions
 
 
@@ -253,15 +266,7 @@ def test_move_agents_equals_the_literal_substep_rule(seed, num_replicas, num_age
         goal_x, goal_y = env.geometry.exit_goals[0].tolist()
         to_door = torch.atan2(goal_y - env.positions[..., 1], goal_x - env.positions[..., 0])
         headings = torch.where(torch.rand(shape, generator=generator) < 0.3, to_door, headings)
-        kwargs = dict(
-            positions=env.positions,
-            velocities=velocities_from(speeds=speeds, headings=headings),
-            active=env.active,
-            geometry=env.geometry,
-            agent_radius=env.agent_radius,
-            decision_length=env.decision_length,
-            num_substeps=env.num_substeps,
-        )
+        kwargs = motion(env, velocities_from(speeds=speeds, headings=headings))
         fast = move_agents(**kwargs)
         slow = reference_move(**kwargs)
         assert torch.equal(fast.positions, slow.positions)
@@ -306,15 +311,7 @@ def test_dense_rooms_match_the_reference_and_exercise_every_event():
         goal_x, goal_y = env.geometry.exit_goals[0].tolist()
         headings = torch.atan2(goal_y - env.positions[..., 1], goal_x - env.positions[..., 0])
         headings = headings + 0.6 * torch.randn(3, 12, generator=generator)
-        kwargs = dict(
-            positions=env.positions,
-            velocities=velocities_from(speeds=speeds, headings=headings),
-            active=env.active,
-            geometry=env.geometry,
-            agent_radius=env.agent_radius,
-            decision_length=env.decision_length,
-            num_substeps=env.num_substeps,
-        )
+        kwargs = motion(env, velocities_from(speeds=speeds, headings=headings))
         fast = move_agents(**kwargs)
         slow = reference_move(**kwargs)
         assert torch.equal(fast.positions, slow.positions)
@@ -403,16 +400,8 @@ def test_move_agents_sequential_equals_the_literal_agent_by_agent_loop(seed, num
         goal_x, goal_y = env.geometry.exit_goals[0].tolist()
         to_door = torch.atan2(goal_y - env.positions[..., 1], goal_x - env.positions[..., 0])
         headings = to_door + 0.8 * torch.randn(shape, generator=generator)
-        kwargs = dict(
-            positions=env.positions,
-            velocities=velocities_from(speeds=speeds, headings=headings),
-            active=env.active,
-            geometry=env.geometry,
-            agent_radius=env.agent_radius,
-            decision_length=env.decision_length,
-            num_substeps=env.num_substeps,
-            priority=torch.rand(shape, generator=generator),
-        )
+        kwargs = motion(env, velocities_from(speeds=speeds, headings=headings))
+        kwargs["priority"] = torch.rand(shape, generator=generator)
         fast = move_agents_sequential(**kwargs, compiled=False)
         slow = reference_sequential_move(**kwargs)
         bounded = move_agents_sequential(**kwargs, sync_free=True)  # the CUDA path: fixed rounds, no host reads
@@ -448,19 +437,9 @@ def test_compiled_rule_equals_the_torch_rule_with_slanted_walls_and_two_exits(se
     for _ in range(12):
         targets = env.targets()
         to_exit = torch.atan2(targets[..., 1] - env.positions[..., 1], targets[..., 0] - env.positions[..., 0])
-        kwargs = dict(
-            positions=env.positions,
-            velocities=velocities_from(
-                speeds=torch.full(shape, env.max_speed),
-                headings=to_exit + 0.6 * torch.randn(shape, generator=generator),
-            ),
-            active=env.active,
-            geometry=env.geometry,
-            agent_radius=env.agent_radius,
-            decision_length=env.decision_length,
-            num_substeps=env.num_substeps,
-            priority=torch.rand(shape, generator=generator),
-        )
+        headings = to_exit + 0.6 * torch.randn(shape, generator=generator)
+        kwargs = motion(env, velocities_from(speeds=torch.full(shape, env.max_speed), headings=headings))
+        kwargs["priority"] = torch.rand(shape, generator=generator)
         eager = move_agents_sequential(**kwargs, compiled=False)
         compiled = move_agents_sequential(**kwargs, compiled=True)
         for field in ("positions", "blocked", "crashed_wall", "crashed_agent", "reached"):
