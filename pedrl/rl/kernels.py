@@ -49,18 +49,36 @@ def _checked_prefetch(table, rows, actions, used, next_rows, next_used) -> None:
         )
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _row_max(table, row):
+    """``table[row].amax()`` as torch computes it (NaN if any value is NaN): four running maxima without branches
+    (a max is exact, so their order changes nothing), and a NaN flag."""
+    m0 = m1 = m2 = m3 = np.float32(-np.inf)
+    nan = False
+    num_actions = table.shape[1]
+    a = 0
+    while a + 4 <= num_actions:
+        v0, v1, v2, v3 = table[row, a], table[row, a + 1], table[row, a + 2], table[row, a + 3]
+        m0 = max(m0, v0)
+        m1 = max(m1, v1)
+        m2 = max(m2, v2)
+        m3 = max(m3, v3)
+        nan |= (v0 != v0) | (v1 != v1) | (v2 != v2) | (v3 != v3)
+        a += 4
+    while a < num_actions:
+        v0 = table[row, a]
+        m0 = max(m0, v0)
+        nan |= v0 != v0
+        a += 1
+    return np.float32(np.nan) if nan else max(max(m0, m1), max(m2, m3))
+
+
 @numba.njit(cache=True, nogil=True)
 def _greedy(table, rows, uniform, actions):
     num_actions = table.shape[1]
     for b in range(rows.shape[0]):
         row = rows[b]
-        best = table[row, 0]
-        for a in range(1, num_actions):
-            value = table[row, a]
-            if value > best or value != value:  # NaN wins, as in torch's amax
-                best = value
-                if value != value:
-                    break
+        best = _row_max(table, row)
         count = 0
         for a in range(num_actions):
             count += table[row, a] == best
@@ -97,26 +115,30 @@ def _td(table, rows, actions, rewards, next_rows, terminal, valid, alpha, gamma,
             td_error[b] = 0.0
             entries[b] = -1
             continue
-        next_value = np.float32(0.0)
-        if not terminal[b]:
-            row = next_rows[b]
-            next_value = table[row, 0]
-            for a in range(1, num_actions):
-                value = table[row, a]
-                if value > next_value or value != value:
-                    next_value = value
+        next_value = np.float32(0.0) if terminal[b] else _row_max(table, next_rows[b])
         entries[b] = rows[b] * num_actions + actions[b]
         td_error[b] = (rewards[b] + gamma * next_value) - flat[entries[b]]  # every error before any update
-    # increments averaged over the entries that hit the same (row, action), added in batch order
-    order = np.argsort(entries, kind="mergesort")
-    first = 0
-    while first < num:
-        last = first
-        while last + 1 < num and entries[order[last + 1]] == entries[order[first]]:
-            last += 1
-        for slot in range(first, last + 1):
-            counts[order[slot]] = last - first + 1
-        first = last + 1
+    # increments averaged over the entries that hit the same (row, action), added in batch order; the entries are
+    # counted in an open-addressing hash table (a sort cost more than the rest of the update)
+    bits = 1
+    while (1 << bits) < 2 * num:
+        bits += 1
+    keys = np.full(1 << bits, -1, dtype=np.int64)
+    tally = np.zeros(1 << bits, dtype=np.int64)
+    mask = (1 << bits) - 1
+    for b in range(num):
+        if entries[b] < 0:  # skipped: adds 0 below, whatever its count
+            counts[b] = 1
+            continue
+        slot = np.int64((np.uint64(entries[b]) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(64 - bits))
+        while keys[slot] != -1 and keys[slot] != entries[b]:
+            slot = (slot + 1) & mask
+        keys[slot] = entries[b]
+        tally[slot] += 1
+        counts[b] = slot
+    for b in range(num):
+        if entries[b] >= 0:
+            counts[b] = tally[counts[b]]
     for b in range(num):
         scale = (np.float32(1.0) / np.float32(counts[b])) * alpha  # torch's `alpha / counts`: a reciprocal
         if entries[b] < 0:  # a skipped entry adds 0 to entry 0, as torch's index_add_ does
