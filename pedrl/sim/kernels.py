@@ -157,7 +157,7 @@ def sequential_substeps(
     crashed_wall = torch.zeros(shape, dtype=torch.bool)
     reached = torch.zeros(shape, dtype=torch.bool)
     if walls is None:
-        walls = torch.zeros((num_substeps, 1, 1), dtype=torch.bool)  # unused: the kernel tests the walls
+        walls = torch.zeros((num_substeps, *shape), dtype=torch.bool)  # the kernel tests the walls (if any)
         low, high = geometry._box_low, geometry._box_high
     else:
         low = high = torch.zeros((0, 2))
