@@ -107,9 +107,11 @@ def greedy_from_rows(q_values: torch.Tensor, rows: torch.Tensor, uniform: torch.
 
 
 @numba.njit(cache=True, nogil=True)
-def _td(table, rows, actions, rewards, next_rows, terminal, valid, alpha, gamma, td_error, entries, counts):
+def _td(table, rows, actions, rewards, next_rows, terminal, valid, alpha, gamma, td_error):
     num, num_actions = rows.shape[0], table.shape[1]
     flat = table.reshape(-1)
+    entries = np.empty(num, dtype=np.int64)  # flat (row, action) index, -1 where skipped
+    counts = np.empty(num, dtype=np.int64)  # entries hitting the same (row, action)
     for b in range(num):
         if not valid[b]:
             td_error[b] = 0.0
@@ -126,19 +128,18 @@ def _td(table, rows, actions, rewards, next_rows, terminal, valid, alpha, gamma,
     keys = np.full(1 << bits, -1, dtype=np.int64)
     tally = np.zeros(1 << bits, dtype=np.int64)
     mask = (1 << bits) - 1
+    slots = np.zeros(num, dtype=np.int64)
     for b in range(num):
-        if entries[b] < 0:  # skipped: adds 0 below, whatever its count
-            counts[b] = 1
+        if entries[b] < 0:
             continue
         slot = np.int64((np.uint64(entries[b]) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(64 - bits))
         while keys[slot] != -1 and keys[slot] != entries[b]:
             slot = (slot + 1) & mask
         keys[slot] = entries[b]
         tally[slot] += 1
-        counts[b] = slot
+        slots[b] = slot
     for b in range(num):
-        if entries[b] >= 0:
-            counts[b] = tally[counts[b]]
+        counts[b] = tally[slots[b]] if entries[b] >= 0 else 1  # a skipped entry adds 0 below, whatever its count
     for b in range(num):
         scale = (np.float32(1.0) / np.float32(counts[b])) * alpha  # torch's `alpha / counts`: a reciprocal
         if entries[b] < 0:  # a skipped entry adds 0 to entry 0, as torch's index_add_ does
@@ -163,20 +164,19 @@ def td_update(
     num = rows.shape[0]
     td_error = torch.empty(num, dtype=torch.float32)
     table = q_values.view(-1, q_values.shape[-1]).numpy()
-    valid_np = valid.numpy()
-    _checked_prefetch(table, rows.numpy(), actions.numpy(), valid_np, next_rows.numpy(), valid_np & ~terminal.numpy())
+    rows, actions, next_rows = rows.numpy(), actions.numpy(), next_rows.numpy()
+    terminal, valid = terminal.numpy(), valid.numpy()
+    _checked_prefetch(table, rows, actions, valid, next_rows, valid & ~terminal)
     _td(
         table,
-        rows.numpy(),
-        actions.numpy(),
+        rows,
+        actions,
         rewards.to(torch.float32).numpy(),
-        next_rows.numpy(),
-        terminal.numpy(),
-        valid.numpy(),
+        next_rows,
+        terminal,
+        valid,
         np.float32(alpha),
         np.float32(gamma),
         td_error.numpy(),
-        np.empty(num, dtype=np.int64),
-        np.empty(num, dtype=np.int64),
     )
     return td_error

@@ -29,6 +29,13 @@ def _uses_tree(prototypes: torch.Tensor, precision: Precision) -> bool:
     return precision == "auto" and prototypes.shape[-2] >= TREE_MIN_PROTOTYPES and use_kernels(prototypes.device)
 
 
+def _tree(prototypes: torch.Tensor) -> Any:
+    """A `pedrl.vq.tree.TreeIndex` over `(K, d)` or `(T, K, d)` prototypes (the import loads numba)."""
+    from pedrl.vq.tree import TreeIndex
+
+    return TreeIndex(prototypes)
+
+
 class Quantizer:
     """Standardise, then map to the nearest of `K` prototypes.
 
@@ -168,9 +175,7 @@ class Quantizer:
         flat = self.standardise(states.reshape(-1, self.dim).to(torch.float32))
         if chunk_size is None and _uses_tree(self.prototypes, self.precision):
             if self._tree is None:
-                from pedrl.vq.tree import TreeIndex  # imports numba: only where it is used
-
-                self._tree = TreeIndex(self.prototypes)
+                self._tree = _tree(self.prototypes)
             return self._tree.search(flat)[0].view(states.shape[:-1])
         index = self._index
         if chunk_size is not None:
@@ -471,13 +476,11 @@ class ProcessQuantizers:
         if process is None and rows % self.num_processes:
             raise ValueError(f"{rows} rows cannot be split into {self.num_processes} processes")
         if self._use_tree:
-            return self._encode_tree(states, process)
+            return self._encode_tree(states, self._layout(rows, states.device) if process is None else process)
         if process is None:
             if self._stacked is not None:
                 return self._encode_stacked(states.view(self.num_processes, -1, states.shape[-1])).reshape(-1)
-            process = torch.arange(self.num_processes, device=states.device).repeat_interleave(
-                rows // self.num_processes
-            )
+            process = self._layout(rows, states.device)
         elif self._stacked is not None:
             return self._encode_grouped(states, process)
         ids = torch.empty(rows, dtype=torch.int64, device=states.device)
@@ -494,16 +497,16 @@ class ProcessQuantizers:
                 ids[selected] = part.encode(own)
         return ids
 
-    def _encode_tree(self, states: torch.Tensor, process: torch.Tensor | None) -> torch.Tensor:
-        """Ids of `(B, d)` states by the k-d trees of their processes (`process` None: the trainers' layout)."""
+    def _layout(self, rows: int, device: torch.device) -> torch.Tensor:
+        """The trainers' layout: `rows / P` consecutive rows per process, `(rows,)` process ids."""
+        return torch.arange(self.num_processes, device=device).repeat_interleave(rows // self.num_processes)
+
+    def _encode_tree(self, states: torch.Tensor, process: torch.Tensor) -> torch.Tensor:
+        """Ids of `(B, d)` states of processes `(B,)` by the k-d trees of those processes."""
         assert self._stacked is not None
         mean, std, prototypes, _ = self._stacked
         if self._tree is None:
-            from pedrl.vq.tree import TreeIndex
-
-            self._tree = TreeIndex(prototypes)
-        if process is None:
-            process = torch.arange(self.num_processes).repeat_interleave(states.shape[0] // self.num_processes)
+            self._tree = _tree(prototypes)
         standardised = (states.to(torch.float32) - mean.index_select(0, process)) / std.index_select(0, process)
         return self._tree.search(standardised, process)[0]
 
