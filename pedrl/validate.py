@@ -1,4 +1,4 @@
-"""``pedrl-validate``: the validation suite on a learned checkpoint and on the greedy reference.
+"""``pedrl-validate``: the validation suite on a learned checkpoint, the greedy reference and JuPedSim.
 
 ``main`` is a thin ``@hydra.main`` wrapper: it checks the values, reloads the checkpoint with
 :func:`pedrl.evaluation.load_policy` and runs :func:`pedrl.validation.runner.validate`, whose reports are described in
@@ -16,15 +16,16 @@ from omegaconf import DictConfig, ListConfig
 from pedrl.cli import checked_groups, hydra_output_dir, run_reporting_errors
 from pedrl.runtime import set_threads
 from pedrl.sim.validation import MAX_SEED, check_bool, check_choice, check_device, check_integer, check_number
-from pedrl.validation.runner import CONTROLLERS, validate
-from pedrl.validation.suite import TESTS
+from pedrl.validation.report import pass_count
+from pedrl.validation.runner import CHOICES, columns, validate
+from pedrl.validation.suite import TEST_NAMES
 
 CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
 
 
 def run(cfg: DictConfig, *, run_dir: Path | None = None) -> dict[str, Any]:
     """Check ``cfg``, reload the checkpoint and run the suite; returns the rows per controller."""
-    controller = check_choice("controller", cfg.get("controller"), CONTROLLERS)
+    controller = check_choice("controller", cfg.get("controller"), tuple(CHOICES))
     epsilon = check_number("epsilon", cfg.get("epsilon"), low=0.0, high=1.0)
     quick = check_bool("quick", cfg.get("quick"))
     seed = check_integer("seed", cfg.get("seed"), minimum=0, maximum=MAX_SEED)
@@ -32,16 +33,24 @@ def run(cfg: DictConfig, *, run_dir: Path | None = None) -> dict[str, Any]:
     tensorboard = check_bool("tensorboard", cfg.get("tensorboard"))
     if cfg.get("threads") is not None:
         check_integer("threads", cfg.get("threads"), minimum=1)
+    radius = cfg.get("radius")
+    if radius is not None:
+        radius = check_number("radius", radius, low=0.05, high=1.0)
     tests = cfg.get("tests")
     if tests is not None:
         if not isinstance(tests, list | ListConfig) or not tests:
-            raise ValueError(f"tests={tests!r} is invalid: must be null or a non-empty list of {', '.join(TESTS)}")
+            raise ValueError(f"tests={tests!r} is invalid: must be null or a non-empty list of {', '.join(TEST_NAMES)}")
         for test in tests:
-            check_choice("tests", test, TESTS)
+            check_choice("tests", test, TEST_NAMES)
+        if set(tests) == {"invariants"}:
+            raise ValueError("tests=[invariants] is invalid: the invariants row checks the runs of the other tests")
         tests = list(tests)
     checkpoint = cfg.get("checkpoint")
-    if checkpoint is None and controller != "greedy":
-        raise ValueError(f"checkpoint is missing: controller={controller} needs one (or use controller=greedy)")
+    if checkpoint is None and "learned" in columns(controller):
+        raise ValueError(
+            f"checkpoint is missing: controller={controller} needs one (or use controller=references, greedy or jupedsim)"
+        )
+    jupedsim = jupedsim_model(cfg.get("jupedsim")) if "jupedsim" in columns(controller) else None
     set_threads(cfg.get("threads"))
     learned = None
     if checkpoint is not None:
@@ -49,6 +58,12 @@ def run(cfg: DictConfig, *, run_dir: Path | None = None) -> dict[str, Any]:
 
         policy = load_policy(checkpoint, controller="learned", epsilon=epsilon, device=device, max_decisions=None)
         learned = (policy.controller, policy.env_settings)
+        own = float(policy.env_settings.get("agent_radius", 0.4))
+        if radius is not None and radius != own:
+            raise ValueError(
+                f"radius={radius!r} is invalid with a checkpoint: every test runs at the checkpoint's own body radius,"
+                f" {own:g} m (leave radius null)"
+            )
     return validate(
         run_dir=run_dir or hydra_output_dir(),
         learned=learned,
@@ -58,10 +73,24 @@ def run(cfg: DictConfig, *, run_dir: Path | None = None) -> dict[str, Any]:
         tests=tests,
         seed=seed,
         device=device,
+        radius=radius,
+        jupedsim=jupedsim,
         tensorboard=tensorboard,
         meta={"checkpoint": None if checkpoint is None else str(checkpoint)},
         progress=lambda step: print(f"pedrl-validate: {step}", flush=True),
     )
+
+
+def jupedsim_model(settings: Any) -> Any:
+    """The :class:`~pedrl.integrations.jupedsim.JuPedSimModel` of the ``jupedsim`` settings, after checking that
+    JuPedSim is installed; one-line errors. The suite gives it the run's body radius."""
+    import importlib.util
+
+    from pedrl.integrations.jupedsim import INSTALL_HINT, model_from_settings
+
+    if importlib.util.find_spec("jupedsim") is None:
+        raise ValueError(f"the jupedsim column is invalid here: {INSTALL_HINT} (or choose controller=both)")
+    return model_from_settings(settings)
 
 
 @checked_groups("pedrl-validate", CONFIG_DIR, groups=())
@@ -69,12 +98,13 @@ def run(cfg: DictConfig, *, run_dir: Path | None = None) -> dict[str, Any]:
 def main(cfg: DictConfig) -> None:
     """Run the suite and print the verdicts; a bad value or file exits with code 2 and one line."""
     results = run_reporting_errors("pedrl-validate", lambda: run(cfg))
+    if cfg.get("quick"):
+        print("quick: not a verdict")
     for controller, rows in results.items():
-        passed = sum(row.passed for row in rows)
-        print(f"{controller}: {passed}/{len(rows)} passed")
+        print(f"{controller}: {pass_count(rows)} passed")
         for row in rows:
-            value = "n/a" if row.value is None else f"{row.value:.3g}"
-            print(f"  {'pass' if row.passed else 'FAIL'}  {row.test}: {value} {row.unit}")
+            value = row.reference if not row.applicable else ("n/a" if row.value is None else f"{row.value:.3g}")
+            print(f"  {row.status:4}  {row.test}: {value} {row.unit}")
     print(f"reports: {hydra_output_dir()}/validation.md, validation.json")
 
 

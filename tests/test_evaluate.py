@@ -14,7 +14,7 @@ from omegaconf import open_dict
 
 from pedrl.algos.controllers import GreedyDoorController, LearnedController
 from pedrl.analysis import RoomGeometry, read_pedpy_trajectory
-from pedrl.evaluation import SCALING_COLUMNS, evaluate
+from pedrl.evaluation import SCALING_COLUMNS, evaluate, print_table
 from pedrl.io import CheckpointError, read_csv
 from pedrl.train import train
 
@@ -202,6 +202,49 @@ def test_greedy_baseline_runs_on_the_same_scenarios(checkpoints, tmp_path):
     assert [r["agents"] for r in greedy] == [r["agents"] for r in learned]
 
 
+def test_jupedsim_runs_on_the_same_scenes_and_reports_the_table(checkpoints, tmp_path, capsys):
+    pytest.importorskip("jupedsim")
+    common = ("agents=[5]", "trials=1", "animation.enabled=false", "tensorboard=false")
+    evaluate(eval_config(checkpoints["vqql"], "controller=greedy", *common), run_dir=tmp_path / "greedy")
+    rows = evaluate(eval_config(checkpoints["vqql"], "controller=jupedsim", *common), run_dir=tmp_path / "jupedsim")
+
+    (row,) = rows
+    assert row["agents"] == 5 and row["trials"] == PROCESSES  # one trial per process, as the other controllers
+    assert 0.0 <= row["fails_pct"] <= 100.0 and row["fails_std"] >= 0.0
+    assert 0.5 < row["mean_speed"] <= 1.2 + 1e-6  # JuPedSim's default desired speed
+    assert 0.0 <= row["stuck_pct"] <= row["fails_pct"] + 1e-9
+    if row["evacuated_trials"]:
+        assert 0.0 < row["evacuation_time_s"] <= 15.0  # debug=default: 15 decisions of 1 s
+    assert np.isnan(row["crashes_per_agent"])  # n/a: JuPedSim has no blocked moves
+    assert json.loads((tmp_path / "jupedsim" / "scaling.json").read_text())[0]["crashes_per_agent"] is None
+    for trial in ("trial_000.txt", "trial_001.txt"):
+        a = read_pedpy_trajectory(tmp_path / "greedy" / "trajectories" / "agents_5" / trial)
+        b = read_pedpy_trajectory(tmp_path / "jupedsim" / "trajectories" / "agents_5" / trial)
+        assert np.allclose(a[2][a[1] == 0], b[2][b[1] == 0])  # frame 0: the same initial positions
+        assert b[3] == 1.0  # one frame per decision
+    assert (tmp_path / "jupedsim" / "fundamental_diagram.png").exists()
+    print_table(rows, "jupedsim")
+    assert "n/a" in capsys.readouterr().out
+
+
+def test_jupedsim_refuses_a_decision_that_is_no_whole_number_of_its_steps(checkpoints, tmp_path):
+    pytest.importorskip("jupedsim")
+    with pytest.raises(ValueError) as error:
+        evaluate(eval_config(checkpoints["vqql"], "controller=jupedsim", "jupedsim.dt=0.03"), run_dir=tmp_path)
+    assert "jupedsim.dt=0.03 is invalid" in str(error.value) and "\n" not in str(error.value)
+    assert not (tmp_path / "scaling.csv").exists()  # nothing ran
+
+
+def test_jupedsim_without_jupedsim_fails_with_one_line(checkpoints, tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "jupedsim", None)  # not importable
+    with pytest.raises(ValueError) as error:
+        evaluate(eval_config(checkpoints["vqql"], "controller=jupedsim"), run_dir=tmp_path)
+    assert (
+        str(error.value)
+        == "controller=jupedsim is invalid here: jupedsim is not installed: pip install 'pedrl[jupedsim]'"
+    )
+
+
 # ---------------------------------------------------------------------- controllers
 def test_learned_controller_replicates_tables_over_extra_agents():
     processes, tables, states = 2, 3, 4
@@ -290,6 +333,8 @@ def test_bad_checkpoint_fails_with_one_line_on_the_command_line(case, tmp_path):
         ("agents=[0]", "agents=[0] is invalid"),
         ("agents=[]", "agents=[] is invalid"),
         ("controller=foo", "controller='foo' is invalid"),
+        ("jupedsim.model=foo", "jupedsim.model='foo' is invalid"),
+        ("jupedsim.desired_speed=0", "jupedsim.desired_speed=0 is invalid"),
         ("epsilon=2", "epsilon=2 is invalid"),
         ("trials=0", "trials=0 is invalid"),
         ("density_map.tile_size=0", "density_map.tile_size=0 is invalid"),

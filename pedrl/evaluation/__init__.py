@@ -7,10 +7,14 @@ Tables 4 and 5).
 - :mod:`pedrl.evaluation.report`: the figures and files of a run and the console table (:func:`print_table`).
 - :mod:`pedrl.evaluation.config`: the eval config: its validation and :func:`evaluate`, which turns a validated
   config into the engine's plain arguments. ``pedrl/evaluate.py`` is the ``@hydra.main`` wrapper around it.
+- :mod:`pedrl.evaluation.jupedsim`: ``controller=jupedsim``, JuPedSim on the same scenes
+  (:class:`JuPedSimReference`, a :class:`Recorder`).
 
 The checkpoint's stored training config rebuilds its room, its trainer (which knows how observations are
 quantized) and its quantizer; its tables ``q_values (P, A, K, U)`` drive the agents (``controller=learned``), or the
-non-learned :class:`~pedrl.algos.controllers.GreedyDoorController` does (``controller=greedy``). For every agent
+non-learned :class:`~pedrl.algos.controllers.GreedyDoorController` does (``controller=greedy``), or JuPedSim's
+collision-free speed model simulates the same initial scenes in the same area with the same body radius and trial
+length (``controller=jupedsim``, settings ``jupedsim.*``; :mod:`pedrl.evaluation.jupedsim`). For every agent
 count of ``agents`` it simulates ``trials`` trials with the tables of every one of the P learning processes
 (``trials * P`` simulated trials, numbered ``run = trial * P + process``); agent ``n`` acts with table ``n mod A``.
 Initial positions depend only on ``seed`` and the agent count, so both controllers face the same scenarios.
@@ -28,7 +32,8 @@ Outputs, under the run directory:
   was shorter than ``STUCK_PATH = 0.4`` m (one body radius): frozen, not merely slow;
   ``door_flow`` (persons/s): mean over trials with at least two distinct passing times of
   ``(n - 1) / (t_last - t_first)``, n agents passing the door between the first and the last passing time;
-  ``crashes_per_agent``: decisions in which an agent hit a wall or another agent, per agent and trial;
+  ``crashes_per_agent``: decisions in which an agent hit a wall or another agent, per agent and trial (NaN, n/a,
+  for ``controller=jupedsim``: JuPedSim's models have no blocked move);
   ``trials``: simulated trials (``trials * P``).
 - ``fundamental_diagram.csv`` (``agents, trial, frame, density, speed, flow``) and ``fundamental_diagram.png``:
   Gaussian local density (1/m^2), local speed (m/s) and flow (1/(m s)) of equations 2-5, radius
@@ -55,6 +60,7 @@ from pedrl.evaluation.engine import (
     BatchRecord,
     EvalSettings,
     Policy,
+    Recorder,
     ScalingStats,
     build_rooms,
     evaluate_policy,
@@ -64,6 +70,7 @@ from pedrl.evaluation.engine import (
     simulate_agent_count,
     stuck_agents,
 )
+from pedrl.evaluation.jupedsim import JuPedSimReference
 from pedrl.evaluation.report import (
     FUNDAMENTAL_COLUMNS,
     print_table,
@@ -82,7 +89,9 @@ __all__ = [
     "STUCK_WINDOW",
     "BatchRecord",
     "EvalSettings",
+    "JuPedSimReference",
     "Policy",
+    "Recorder",
     "ScalingStats",
     "build_rooms",
     "check_against_room",

@@ -7,6 +7,7 @@ the checkpoint's room is known. :func:`evaluate` then hands plain values (:class
 
 from __future__ import annotations
 
+import importlib.util
 import math
 from pathlib import Path
 from typing import Any, Final
@@ -18,6 +19,7 @@ from pedrl.analysis.trajectories import Geometry
 from pedrl.cli import hydra_output_dir
 from pedrl.evaluation.engine import (
     EvalSettings,
+    Recorder,
     _first_line,
     build_rooms,
     evaluate_policy,
@@ -25,6 +27,7 @@ from pedrl.evaluation.engine import (
     measurement_point,
     room_geometry,
 )
+from pedrl.integrations.jupedsim import INSTALL_HINT, JuPedSimModel, model_from_settings
 from pedrl.runtime import set_threads
 from pedrl.sim import RoomEnv
 from pedrl.sim.validation import (
@@ -37,7 +40,7 @@ from pedrl.sim.validation import (
     check_number,
 )
 
-CONTROLLERS: Final = ("learned", "greedy")
+CONTROLLERS: Final = ("learned", "greedy", "jupedsim")
 DENSITY_MAP_BYTES_PER_TILE: Final = 40
 """Bytes per density-map tile in the memory estimate: the int64 counts, numpy's float64 histogram and the sum."""
 RECORD_BYTES_PER_AGENT_FRAME: Final = 80
@@ -67,11 +70,15 @@ def evaluate(cfg: DictConfig, *, run_dir: str | Path | None = None) -> list[dict
         device=device,
         max_decisions=cfg.max_decisions,
         scenario=_scenario(cfg),
+        jupedsim=jupedsim_model(cfg),
     )
     trials_per_batch = min(int(cfg.trials_per_batch), int(cfg.trials))
     envs = build_rooms(policy, list(cfg.agents), trials_per_batch=trials_per_batch, device=device)
     geometry = room_geometry(envs, policy.env_factory.scenario)
     check_against_room(cfg, geometry, envs)
+    if isinstance(policy.controller, Recorder):
+        for env in envs.values():
+            policy.controller.check(env)
 
     # ---- the evaluation, from plain values
     settings = settings_from_config(cfg)
@@ -82,6 +89,12 @@ def _scenario(cfg: DictConfig) -> dict[str, Any] | None:
     """The ``scenario`` asked for (``scenario=<name>`` on the command line), else ``None``: the checkpoint's own."""
     scenario = cfg.get("scenario")
     return None if scenario is None else OmegaConf.to_container(scenario, resolve=True)
+
+
+def jupedsim_model(cfg: DictConfig) -> JuPedSimModel:
+    """The JuPedSim model of the ``jupedsim`` settings (validated); ``controller=jupedsim`` runs it."""
+    settings = cfg.get("jupedsim")
+    return model_from_settings(None if settings is None else OmegaConf.to_container(settings, resolve=True))
 
 
 def settings_from_config(cfg: DictConfig) -> EvalSettings:
@@ -129,6 +142,9 @@ def _validate_values(cfg: DictConfig) -> None:
     check_integer("trials", cfg.get("trials"), minimum=1)
     check_integer("trials_per_batch", cfg.get("trials_per_batch"), minimum=1)
     check_choice("controller", cfg.get("controller"), CONTROLLERS)
+    jupedsim_model(cfg)
+    if cfg.controller == "jupedsim" and importlib.util.find_spec("jupedsim") is None:
+        raise ValueError(f"controller=jupedsim is invalid here: {INSTALL_HINT}")
     check_number("epsilon", cfg.get("epsilon"), low=0.0, high=1.0)
     if cfg.get("max_decisions") is not None:
         check_integer("max_decisions", cfg.max_decisions, minimum=1)

@@ -14,7 +14,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from functools import partial
 from pathlib import Path
-from typing import Any, Final
+from typing import Any, Final, Protocol, runtime_checkable
 
 import numpy as np
 import torch
@@ -35,6 +35,7 @@ from pedrl.analysis import (
 )
 from pedrl.analysis.trajectories import Geometry
 from pedrl.evaluation.report import write_density_map, write_fundamental_diagram, write_scaling_json
+from pedrl.integrations.jupedsim import JuPedSimModel
 from pedrl.io import CheckpointError, CsvWriter, RunLogger, load_checkpoint
 from pedrl.scenarios import Scenario
 from pedrl.sim import RoomEnv
@@ -64,12 +65,26 @@ CONTROLLER_SEED_STRIDE: Final = 1013
 
 
 # ---------------------------------------------------------------------- what is evaluated
+@runtime_checkable
+class Recorder(Protocol):
+    """Simulates whole trials itself in place of a controller that acts in the room decision by decision: another
+    simulator on the room's initial scenes (:class:`pedrl.evaluation.jupedsim.JuPedSimReference`)."""
+
+    def check(self, env: RoomEnv) -> None:
+        """One-line ``ValueError`` if it cannot simulate the trials of ``env`` (before any compute)."""
+        ...
+
+    def record(self, env: RoomEnv) -> BatchRecord:
+        """Reset ``env`` (its generator draws the scenes) and record one trial from every replica's scene."""
+        ...
+
+
 @dataclass
 class Policy:
     """A checkpoint made ready to simulate.
 
     Attributes:
-        controller: what chooses the actions.
+        controller: what chooses the actions, or a :class:`Recorder` that simulates the trials itself.
         env_factory: ``env_factory(num_replicas=, num_agents=, device=)`` builds the checkpoint's room, in its
             scenario or the one asked for; ``env_factory.scenario`` is that :class:`~pedrl.scenarios.Scenario`.
         env_settings: the checkpoint's ``env`` config (bodies, speeds, sensing, rewards), plain values.
@@ -78,7 +93,7 @@ class Policy:
         algo: the algorithm that wrote the checkpoint.
     """
 
-    controller: Controller
+    controller: Controller | Recorder
     env_factory: Any
     env_settings: dict[str, Any]
     processes: int
@@ -94,6 +109,7 @@ def load_policy(
     device: torch.device,
     max_decisions: int | None,
     scenario: dict[str, Any] | None = None,
+    jupedsim: JuPedSimModel | None = None,
 ) -> Policy:
     """Reload a checkpoint written by ``pedrl-train``: its room, quantizer and tables.
 
@@ -102,6 +118,8 @@ def load_policy(
     trainers, anywhere) is refused before anything is built. Every tensor is checked against that config
     (:func:`pedrl.algos.restore.restore_state`), whichever the controller. The rooms are built in ``scenario`` (a
     ``scenario`` config), else in the checkpoint's own (the paper's room for checkpoints that predate scenarios).
+    ``controller`` is ``learned``, ``greedy`` or ``jupedsim`` (JuPedSim's ``jupedsim`` model, default
+    :class:`~pedrl.integrations.jupedsim.JuPedSimModel`'s, with the room's body radius).
 
     Raises:
         CheckpointError: one line, for a missing, foreign, corrupt or crafted file, or one whose trainer cannot
@@ -131,6 +149,11 @@ def load_policy(
     if controller == "greedy":
         greedy = GreedyDoorController(epsilon=epsilon, generator=torch.Generator(device=device))
         return Policy(greedy, factory, saved["env"], processes, tables, trainer.name)
+    if controller == "jupedsim":
+        from pedrl.evaluation.jupedsim import JuPedSimReference  # imported here: it builds on BatchRecord, below
+
+        reference = JuPedSimReference(factory.scenario, jupedsim if jupedsim is not None else JuPedSimModel())
+        return Policy(reference, factory, saved["env"], processes, tables, trainer.name)
     learned = LearnedController(
         q_values=q_values,
         encode=partial(trainer.encode_observations, quantizer),
@@ -152,7 +175,8 @@ class BatchRecord:
         active: ``(R, T, N)`` bool, the agent is in frame t (it took decision t; every agent in frame 0).
         reached: ``(R, N)`` bool, the agent passed the door.
         exit_time: ``(R, N)`` time (s) at which it passed the door, NaN if it did not.
-        crashes: ``(R, N)`` decisions in which it hit a wall or another agent.
+        crashes: ``(R, N)`` decisions in which it hit a wall or another agent; NaN where the simulator has no such
+            event (``controller=jupedsim``).
         speed_sum: ``(R,)`` sum over agents and decisions taken of the speed after the decision (m/s).
         speed_sq_sum: ``(R,)`` the same sum of squared speeds (m^2/s^2).
         speed_count: ``(R,)`` decisions taken (agent-decisions).
@@ -298,7 +322,7 @@ class EvalSettings:
         trials: trials per learning process and agent count.
         seed: seeds the rooms and the controller of every agent count (``ENV_SEED_STRIDE``,
             ``CONTROLLER_SEED_STRIDE``) and the samples drawn in the fundamental-diagram figure.
-        controller: the controller's name (``learned`` or ``greedy``), for the titles.
+        controller: the controller's name (``learned``, ``greedy`` or ``jupedsim``), for the titles.
         radius: Gaussian radius (m) of the local density (``measurement.radius``).
         distance: distance (m) of the measurement point in front of the door centre (``measurement.distance``).
         min_density: frames below this local density (1/m^2) give no diagram sample (``measurement.min_density``).
@@ -449,7 +473,10 @@ def simulate_agent_count(
     folder = run_dir / "trajectories" / f"agents_{env.num_agents}"
     framerate = env.decisions_per_second
     for first_run in range(0, total_runs, runs_per_batch):
-        record = record_batch(env, policy.controller)
+        if isinstance(policy.controller, Recorder):
+            record = policy.controller.record(env)
+        else:
+            record = record_batch(env, policy.controller)
         keep = min(runs_per_batch, total_runs - first_run)
         stats.add(record, keep)
         runs = [record.trajectories(i, geometry, framerate) for i in range(keep)]

@@ -158,6 +158,14 @@ def print_table(rows: list[dict[str, Any]], label: str) -> None:
         print(
             f"  {r['agents']:>6} | {r['fails_pct']:6.2f} ({r['fails_std']:5.2f}) | "
             f"{r['mean_speed']:7.2f} ({r['speed_std']:4.2f}) | {evacuation:>21} | {r['stuck_pct']:7.1f} | "
-            f"{r['door_flow']:13.3f} | "
-            f"{r['crashes_per_agent']:13.2f}"
+            f"{_number(r['door_flow'], '13.3f')} | "
+            f"{_number(r['crashes_per_agent'], '13.2f')}"
         )
+    if any(math.isnan(r["crashes_per_agent"]) for r in rows):
+        print("  crashes/agent n/a: a crash is a move the room's collision rule blocks; JuPedSim has no such event")
+
+
+def _number(value: float, spec: str) -> str:
+    """``value`` formatted with ``spec``, or ``n/a`` (as wide) for NaN: nothing measured."""
+    width = int(spec.split(".")[0])
+    return f"{'n/a':>{width}}" if math.isnan(value) else f"{value:{spec}}"

@@ -254,15 +254,26 @@ def corner(*, width: float = 2.0, leg: float = 12.0, spawn_length: float = 10.0)
 
 
 def four_exits(
-    *, width: float = 30.0, length: float = 20.0, exit_width: float = 1.0, closed_exits: Sequence[int] = ()
+    *,
+    width: float = 30.0,
+    length: float = 20.0,
+    exit_width: float = 1.0,
+    closed_exits: Sequence[int] = (),
+    margin: float = 1.0,
+    spawn_margin: float = 0.0,
 ) -> Scenario:
-    """RiMEA test 9: a room ``width x length`` with four exits of ``exit_width``, two near the ends of each long side
-    (0: bottom left, 1: bottom right, 2: top left, 3: top right); ``closed_exits`` become walls."""
-    _positive(width=width, length=length, exit_width=exit_width)
+    """RiMEA test 9: a room ``width x length`` with four exits of ``exit_width``, two in each long side, ``margin`` m
+    from the short sides (0: bottom left, 1: bottom right, 2: top left, 3: top right); ``closed_exits`` become walls.
+    Agents start anywhere at least ``spawn_margin`` m from the walls (RiMEA 9: doors 4 m from the side walls,
+    persons 2 m from every wall)."""
+    _positive(width=width, length=length, exit_width=exit_width, margin=margin)
     room = box(0.0, 0.0, width, length)
-    margin = 1.0
     if 2 * (margin + exit_width) > width:
         raise ValueError(f"scenario.exit_width={exit_width!r} is invalid: two exits must fit in each long side")
+    if not 0.0 <= spawn_margin < min(width, length) / 2:
+        raise ValueError(
+            f"scenario.spawn_margin={spawn_margin!r} is invalid: must be in [0, {min(width, length) / 2:g}) m"
+        )
     exits = [
         LineString([(margin + exit_width, 0.0), (margin, 0.0)]),
         LineString([(width - margin, 0.0), (width - margin - exit_width, 0.0)]),
@@ -273,7 +284,8 @@ def four_exits(
     if len(closed) == 4:
         raise ValueError("scenario.closed_exits=[0, 1, 2, 3] is invalid: at least one exit must stay open")
     open_exits = tuple(exit_ for index, exit_ in enumerate(exits) if index not in closed)
-    return Scenario("four_exits", room, open_exits, (Spawn(room),))
+    spawn = box(spawn_margin, spawn_margin, width - spawn_margin, length - spawn_margin)
+    return Scenario("four_exits", room, open_exits, (Spawn(spawn),))
 
 
 def custom(

@@ -1,5 +1,6 @@
-"""The validation suite of ``pedrl-validate``: RiMEA tests, Weidmann, Liddle's bottleneck flows, lanes, invariants."""
+"""The validation suite of ``pedrl-validate``: RiMEA tests 1, 4, 6 and 9, Liddle's bottleneck flows, lanes."""
 
-from pedrl.validation.suite import TESTS, Budget, Invariants, TestResult, run_suite
+from pedrl.validation.measures import InvariantTally, Recording
+from pedrl.validation.suite import TEST_NAMES, TESTS, Budget, TestResult, run_suite
 
-__all__ = ["TESTS", "Budget", "Invariants", "TestResult", "run_suite"]
+__all__ = ["TESTS", "TEST_NAMES", "Budget", "InvariantTally", "Recording", "TestResult", "run_suite"]

@@ -9,6 +9,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from matplotlib.figure import Figure
 
 from pedrl.io.files import replace_atomically
@@ -26,7 +27,11 @@ def write_reports(
     """Write ``validation.json`` (every row of every controller), ``validation.md`` (one column per controller) and
     ``figures/<controller>_<name>.png`` (plus TensorBoard images under ``tb/`` when ``tensorboard``)."""
     run_dir.mkdir(parents=True, exist_ok=True)
-    rows = [{"controller": name, **_plain(asdict(row))} for name, rows_ in results.items() for row in rows_]
+    rows = [
+        {"controller": name, "status": row.status, **_plain(asdict(row))}
+        for name, rows_ in results.items()
+        for row in rows_
+    ]
     document = {**meta, "tests": rows}
     paths = {"json": run_dir / "validation.json", "md": run_dir / "validation.md"}
     text = json.dumps(document, indent=2, allow_nan=False) + "\n"
@@ -54,10 +59,13 @@ def write_reports(
 
 
 def markdown(results: Mapping[str, Sequence[TestResult]], *, meta: Mapping[str, Any]) -> str:
-    """The report as a Markdown table: one row per test, measured value and verdict per controller."""
+    """The report as a Markdown table: one row per test, measured value and verdict per controller; the pass count
+    leaves out the invariants (a sanity row) and the tests not applicable at the run's body size."""
     controllers = list(results)
     lines = ["# pedrl validation", ""]
-    lines += [f"- {key}: {value}" for key, value in meta.items()]
+    if meta.get("quick"):
+        lines += ["**quick: not a verdict** (every run shrunk for a smoke test)", ""]
+    lines += [f"- {key}: {_format(value)}" for key, value in meta.items()]
     lines += ["", "| test | " + " | ".join(controllers) + " | reference | source |"]
     lines.append("|---" * (len(controllers) + 3) + "|")
     by_test: dict[str, dict[str, TestResult]] = {}
@@ -65,24 +73,33 @@ def markdown(results: Mapping[str, Sequence[TestResult]], *, meta: Mapping[str, 
         for row in rows:
             by_test.setdefault(row.test, {})[controller] = row
     for test, cells in by_test.items():
-        first = next(iter(cells.values()))
+        first = next((row for row in cells.values() if row.applicable), next(iter(cells.values())))
         measured = [_cell(cells.get(controller)) for controller in controllers]
         lines.append(f"| {test} | " + " | ".join(measured) + f" | {first.reference} | {first.source} |")
-    passed = {c: sum(row.passed for row in rows) for c, rows in results.items()}
-    lines += ["", "Passed: " + ", ".join(f"{c} {passed[c]}/{len(results[c])}" for c in controllers), ""]
+    lines += ["", "Passed: " + ", ".join(f"{c} {pass_count(results[c])}" for c in controllers), ""]
     lines += ["## Details", ""]
     for controller, rows in results.items():
         for row in rows:
             details = ", ".join(f"{key} {_format(value)}" for key, value in row.details.items())
-            lines.append(f"- **{controller}, {row.test}**: {details}")
+            lines.append(f"- **{controller}, {row.test}**: {row.note or details}")
     return "\n".join(lines) + "\n"
+
+
+def pass_count(rows: Sequence[TestResult]) -> str:
+    """``"2/5 (1 not applicable)"``: passed over counted applicable tests."""
+    counted = [row for row in rows if row.counted]
+    applicable = [row for row in counted if row.applicable]
+    text = f"{sum(row.passed for row in applicable)}/{len(applicable)}"
+    missing = len(counted) - len(applicable)
+    return text + (f" ({missing} not applicable)" if missing else "")
 
 
 def _cell(row: TestResult | None) -> str:
     if row is None:
         return "not run"
-    verdict = "pass" if row.passed else "FAIL"
-    return f"{_format(row.value)} {row.unit}: **{verdict}**"
+    if not row.applicable:
+        return f"{row.reference}: **n/a**"
+    return f"{_format(row.value)} {row.unit}: **{row.status}**"
 
 
 def _format(value: Any) -> str:
@@ -98,7 +115,9 @@ def _format(value: Any) -> str:
 
 
 def _plain(value: Any) -> Any:
-    """JSON-safe: infinities and NaN become ``None``."""
+    """JSON-safe: numpy scalars become Python ones, infinities and NaN ``None``."""
+    if isinstance(value, np.generic):
+        value = value.item()
     if isinstance(value, float) and not math.isfinite(value):
         return None
     if isinstance(value, dict):

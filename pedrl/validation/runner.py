@@ -4,32 +4,35 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any, Final
 
 import torch
 
 from pedrl.algos.controllers import GreedyDoorController
-from pedrl.scenarios import Scenario
-from pedrl.sim import RoomEnv
+from pedrl.validation.crowds import JuPedSimCrowd, PedrlCrowd
 from pedrl.validation.report import write_reports
-from pedrl.validation.suite import TESTS, Budget, TestResult, run_suite
+from pedrl.validation.suite import TEST_NAMES, Budget, TestResult, run_suite
 
-CONTROLLERS: Final = ("both", "learned", "greedy")
-"""Values of ``controller``: the learned checkpoint and the greedy reference side by side, or one of them."""
+CONTROLLERS: Final = ("learned", "greedy", "jupedsim")
+"""The crowds a report can hold, in column order."""
+CHOICES: Final = {
+    "all": CONTROLLERS,
+    "both": ("learned", "greedy"),
+    "references": ("greedy", "jupedsim"),
+    "learned": ("learned",),
+    "greedy": ("greedy",),
+    "jupedsim": ("jupedsim",),
+}
+"""Values of ``controller`` and the columns each runs."""
+DEFAULT_RADIUS: Final = 0.2
+"""Body radius (m) of a run without a checkpoint: JuPedSim's default, a pedestrian's shoulder radius."""
 
 
-def room_maker(env_settings: Mapping[str, Any], *, device: torch.device) -> Callable[..., RoomEnv]:
-    """``make(scenario, num_agents=, num_replicas=, max_decisions=)``: a room of the ``env`` settings (a checkpoint's,
-    or the defaults) in ``scenario``, after checking that the agents fit in its spawn areas."""
-    settings = {key: value for key, value in env_settings.items() if key not in ("_target_", "max_decisions")}
-
-    def make(scenario: Scenario, *, num_agents: int, num_replicas: int, max_decisions: int) -> RoomEnv:
-        return scenario.room(
-            **settings, num_agents=num_agents, num_replicas=num_replicas, max_decisions=max_decisions, device=device
-        )
-
-    return make
+def columns(controller: str) -> tuple[str, ...]:
+    """The controllers ``controller`` names (one of :data:`CHOICES`)."""
+    return CHOICES[controller]
 
 
 def validate(
@@ -42,43 +45,58 @@ def validate(
     tests: Sequence[str] | None,
     seed: int,
     device: torch.device,
+    radius: float | None = None,
+    jupedsim: Any = None,
     tensorboard: bool = True,
     meta: Mapping[str, Any] | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> dict[str, list[TestResult]]:
     """Run the suite with the learned controller (``learned``: the controller and its checkpoint's ``env``
-    settings) and/or the greedy reference, and write ``validation.json``, ``validation.md`` and the figures.
+    settings), the greedy reference and JuPedSim (``jupedsim``: a :class:`~pedrl.integrations.jupedsim.JuPedSimModel`)
+    as ``controller`` names them, and write ``validation.json``, ``validation.md`` and the figures.
 
-    The greedy reference runs in the checkpoint's room settings when there is one (same bodies, speeds, sensing),
-    else in the defaults of :class:`~pedrl.sim.RoomEnv`.
+    Every column runs at one body radius: the checkpoint's, else ``radius`` (default :data:`DEFAULT_RADIUS`). The
+    greedy reference runs in the checkpoint's room settings when there is one (same bodies, speeds, sensing), else in
+    the defaults of :class:`~pedrl.sim.RoomEnv`; JuPedSim starts from the positions the same rooms give.
     """
     budget = Budget(quick=quick)
-    chosen: dict[str, tuple[Any, Mapping[str, Any]]] = {}
-    env_settings = learned[1] if learned is not None else {}
-    if controller in ("both", "learned") and learned is not None:
-        chosen["learned"] = learned
-    if controller in ("both", "greedy"):
-        generator = torch.Generator(device=device).manual_seed(seed)
-        chosen["greedy"] = (GreedyDoorController(epsilon=epsilon, generator=generator), env_settings)
+    env_settings = dict(learned[1]) if learned is not None else {}
+    if learned is None:
+        env_settings["agent_radius"] = radius if radius is not None else DEFAULT_RADIUS
+    crowds: dict[str, Any] = {}
+    for name in columns(controller):
+        if name == "learned" and learned is not None:
+            crowds[name] = PedrlCrowd(learned[0], env_settings, device)
+        elif name == "greedy":
+            generator = torch.Generator(device=device).manual_seed(seed)
+            crowds[name] = PedrlCrowd(GreedyDoorController(epsilon=epsilon, generator=generator), env_settings, device)
+        elif name == "jupedsim":
+            placement = PedrlCrowd(None, env_settings, device)
+            crowds[name] = JuPedSimCrowd(replace(jupedsim, radius=placement.radius), placement)
     results: dict[str, list[TestResult]] = {}
     figures: dict[str, dict[str, Any]] = {}
-    started = time.perf_counter()
-    for name, (policy, settings) in chosen.items():
+    timings: dict[str, float] = {}
+    for name, crowd in crowds.items():
         torch.manual_seed(seed)
-        if hasattr(policy, "generator"):
-            policy.generator.manual_seed(seed)
+        generator = getattr(crowd.controller, "generator", None) if isinstance(crowd, PedrlCrowd) else None
+        if generator is not None:
+            generator.manual_seed(seed)
         report = None if progress is None else (lambda test, name=name: progress(f"{name}: {test}"))
-        results[name], figures[name] = run_suite(
-            room_maker(settings, device=device), policy, budget=budget, only=tests, progress=report
-        )
+        started = time.perf_counter()
+        results[name], figures[name] = run_suite(crowd, budget=budget, only=tests, progress=report)
+        timings[name] = round(time.perf_counter() - started, 1)
     document = {
         **(meta or {}),
-        "controllers": list(chosen),
+        "verdict": not quick,
+        "controllers": list(crowds),
+        "radius_m": next(iter(crowds.values())).radius if crowds else None,
         "quick": quick,
         "epsilon": epsilon,
         "seed": seed,
-        "tests_run": list(tests or TESTS),
-        "wall_time_s": round(time.perf_counter() - started, 1),
+        "tests_run": list(tests or TEST_NAMES),
+        "wall_time_s": timings,
     }
+    if "jupedsim" in crowds:
+        document["jupedsim"] = asdict(crowds["jupedsim"].model)
     write_reports(run_dir, results, figures, meta=document, tensorboard=tensorboard)
     return results

@@ -1,0 +1,537 @@
+"""JuPedSim, the field's reference simulator, on a pedrl scenario: the same area, agents and start positions.
+
+Usage::
+
+    from pedrl.integrations.jupedsim import JuPedSimModel, simulate
+    from pedrl.scenarios import build_scenario
+
+    scenario = build_scenario({"name": "corner"})
+    run = simulate(
+        scenario,
+        positions=[[1.0, 1.0], [3.0, 1.0]],  # (N, 2) m
+        exit_index=[0, 0],  # (N,)
+        waypoints=[[(11.0, 1.0)], [(11.0, 1.0)]],  # per agent, may be empty
+        model=JuPedSimModel(desired_speed=1.33),
+        max_time=60.0,
+        frame_rate=1.0,
+    )
+    run.positions  # (T + 1, N, 2) m, frame 0 the start
+
+How the scenario maps onto JuPedSim:
+
+- Area: JuPedSim removes an agent once its centre is inside an exit stage, a polygon. Each of our exits (a segment
+  on the boundary) gets an apron outside it, :data:`EXIT_APRON_DEPTH` m deep and as wide as the exit; the walkable
+  area grows by the aprons, and the aprons are the exit stages. So an agent leaves when its centre crosses its
+  exit's segment, as in our simulation (:func:`walkable_with_aprons`).
+- Routes: each agent walks to its exit (``exit_index``) through its waypoints first: JuPedSim waypoint stages that
+  count as reached within the scenario's ``waypoint_radius``, joined by fixed transitions into one journey per
+  distinct route. JuPedSim finds the way to each stage through the area itself (its routing engine). Unlike our
+  simulation, where an agent leaves through any exit it passes, a JuPedSim agent leaves through its own exit only.
+- Models: the collision-free speed model (Tordeux, Chraibi, Seyfried 2016) or the social force model (Helbing,
+  Farkas, Vicsek 2000), with JuPedSim's own defaults except the values of :class:`JuPedSimModel`.
+
+JuPedSim is optional (``pip install 'pedrl[jupedsim]'``): it is imported when :func:`simulate` runs, so importing
+this module needs only shapely and numpy.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, fields
+from typing import Any, Final
+
+import numpy as np
+import shapely
+from numpy.typing import ArrayLike, NDArray
+from shapely.geometry import Polygon
+
+from pedrl.scenarios import Scenario
+from pedrl.sim import RoomEnv
+from pedrl.sim.validation import check_choice, check_real
+
+__all__ = [
+    "EXIT_APRON_DEPTH",
+    "INSTALL_HINT",
+    "MODELS",
+    "JuPedSimModel",
+    "JuPedSimRun",
+    "Scene",
+    "model_from_settings",
+    "room_scene",
+    "simulate",
+    "walkable_with_aprons",
+]
+
+MODELS: Final = ("collision_free_speed", "social_force")
+"""Operational models :func:`simulate` runs (JuPedSim's ``CollisionFreeSpeedModel`` and ``SocialForceModel``)."""
+EXIT_APRON_DEPTH: Final = 1.0
+"""Depth (m) of the apron outside each exit: JuPedSim's exit stage, a polygon the agent's centre enters, and the
+agents' target (its centre). 0.5 m is too shallow for the social force model: the repulsion of the apron's far end,
+``A exp((r - d) / B)``, balances the driving force ``m v0 / tau`` about 0.6 m from it for a body of 0.4 m, and held
+such bodies just before the exit line."""
+INSTALL_HINT: Final = "jupedsim is not installed: pip install 'pedrl[jupedsim]'"
+ROUTE_CHECK_PERIOD: Final = 0.1
+"""Simulated time (s) between two checks of the agents past their waypoint (``pass_waypoints``): 0.12 m of walking at
+JuPedSim's default speed, and a tenth of the Python work of a check after every step."""
+STEP_TOLERANCE: Final = 1e-6
+"""Relative tolerance of ``1 / (frame_rate * dt)`` being a whole number of JuPedSim steps per frame."""
+
+
+# ---------------------------------------------------------------------- the model
+@dataclass(frozen=True)
+class JuPedSimModel:
+    """The JuPedSim model and the parameters pedrl sets; every other parameter keeps JuPedSim's default.
+
+    The defaults are JuPedSim 1.4's (``CollisionFreeSpeedModelAgentParameters``, ``Simulation``); its model-level
+    parameters stay at their defaults too (collision-free speed: neighbour repulsion strength 8, range 0.1 m, wall
+    repulsion strength 5, range 0.02 m; social force: body force 120000 kg/s^2, friction 240000 kg/(m s), mass
+    80 kg, reaction time 0.5 s, A = 2000 N, B = 0.08 m).
+
+    Attributes:
+        model: ``collision_free_speed`` or ``social_force`` (:data:`MODELS`).
+        desired_speed: v0, the free walking speed (m/s); JuPedSim's collision-free speed default 1.2 (its social
+            force default is 0.8; both models get this value). RiMEA test 1 uses 1.33.
+        time_gap: T, the time gap (s) of the collision-free speed model (its default 1.0); the social force model
+            ignores it.
+        radius: body radius (m); JuPedSim's collision-free speed default 0.2. Pass the body size of the run compared.
+        dt: JuPedSim's time step (s); its default 0.01.
+
+    Raises:
+        ValueError: one line naming the bad value.
+    """
+
+    model: str = "collision_free_speed"
+    desired_speed: float = 1.2
+    time_gap: float = 1.0
+    radius: float = 0.2
+    dt: float = 0.01
+
+    def __post_init__(self) -> None:
+        check_choice("model", self.model, MODELS)
+        for name, unit in (("desired_speed", "m/s"), ("time_gap", "s"), ("radius", "m"), ("dt", "s")):
+            check_real(name, getattr(self, name), unit=unit, positive=True)
+
+
+def model_from_settings(settings: Mapping[str, Any] | None, *, prefix: str = "jupedsim") -> JuPedSimModel:
+    """The :class:`JuPedSimModel` of a config section (its keys are the model's fields; missing ones keep their
+    defaults).
+
+    Raises:
+        ValueError: one line naming ``<prefix>.<key>``, for an unknown key or a bad value.
+    """
+    allowed = [item.name for item in fields(JuPedSimModel)]
+    values = dict(settings or {})
+    for key in values:
+        if key not in allowed:
+            raise ValueError(f"{prefix}.{key} is not a setting of the JuPedSim model: allowed: {', '.join(allowed)}")
+    try:
+        return JuPedSimModel(**values)
+    except ValueError as err:
+        raise ValueError(f"{prefix}.{err}") from None
+
+
+# ---------------------------------------------------------------------- the run
+@dataclass(frozen=True)
+class JuPedSimRun:
+    """Trajectories of one JuPedSim run, sampled every ``1 / frame_rate`` s of simulated time.
+
+    Attributes:
+        positions: ``(T + 1, N, 2)`` float64 agent centres (m); frame 0 is the start. From the frame at which an agent
+            left on, its row holds the point where it left: its centre past its exit's segment, in the apron (at
+            most one JuPedSim step further than the first step past it).
+        active: ``(T + 1, N)`` bool, the agent is still in the area at frame t.
+        left_at: ``(N,)`` int64, the first frame at which the agent is out (its centre past its exit), -1 if never.
+        exit_time: ``(N,)`` float64, the simulated time (s) at which the agent was at the point where it left: the
+            first JuPedSim step after which its centre was past its exit's segment, or the next; NaN if never.
+        frame_rate: frames per second of simulated time (1/s).
+    """
+
+    positions: NDArray[np.float64]
+    active: NDArray[np.bool_]
+    left_at: NDArray[np.int64]
+    exit_time: NDArray[np.float64]
+    frame_rate: float
+
+    @property
+    def num_frames(self) -> int:
+        """T + 1, the frames recorded (frame 0 included)."""
+        return self.positions.shape[0]
+
+    @property
+    def num_agents(self) -> int:
+        """N."""
+        return self.positions.shape[1]
+
+    @property
+    def left(self) -> NDArray[np.bool_]:
+        """``(N,)`` bool, the agent left the area during the run."""
+        return self.left_at >= 0
+
+    def velocities(self) -> NDArray[np.float64]:
+        """``(T + 1, N, 2)`` mean velocity (m/s) over the interval that ends at frame t; 0 at frame 0.
+
+        It is the displacement over the time the agent moved in the interval: ``1 / frame_rate``, or for the frame
+        at which it left, the time from the previous frame to its ``exit_time``. Zero once it left.
+        """
+        displacement = np.diff(self.positions, axis=0, prepend=self.positions[:1])  # (T + 1, N, 2)
+        frames = np.arange(self.num_frames, dtype=np.float64)[:, None]  # (T + 1, 1)
+        period = 1.0 / self.frame_rate
+        exit_time = np.where(self.left, self.exit_time, math.inf)[None, :]  # (1, N)
+        moved = np.clip(np.minimum(frames * period, exit_time) - (frames - 1.0) * period, 0.0, period)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            velocities = np.where(moved[..., None] > 0.0, displacement / moved[..., None], 0.0)
+        velocities[0] = 0.0
+        return velocities
+
+
+# ---------------------------------------------------------------------- the start, from our room
+@dataclass(frozen=True)
+class Scene:
+    """The start of a run: where each agent stands, the exit it walks to and the waypoints it passes first.
+
+    Attributes:
+        positions: ``(N, 2)`` float64 centres (m).
+        exit_index: ``(N,)`` int64, the exit of the scenario each agent walks to.
+        waypoints: per agent, the points ``(x, y)`` (m) of its route still ahead, in order (may be empty).
+    """
+
+    positions: NDArray[np.float64]
+    exit_index: NDArray[np.int64]
+    waypoints: tuple[tuple[tuple[float, float], ...], ...]
+
+
+def room_scene(room: RoomEnv, *, replica: int = 0) -> Scene:
+    """The scene of replica ``replica`` of ``room`` as it stands (after ``room.reset(...)``): its agents' positions,
+    exits and the waypoints of their groups' routes not yet reached (the room skips those reached at the start)."""
+    if not 0 <= replica < room.num_replicas:
+        raise ValueError(f"replica={replica!r} is invalid: must be in [0, {room.num_replicas})")
+    routes = [
+        tuple((float(x), float(y)) for x, y in spawn.waypoints.cpu().tolist())
+        for spawn, count in zip(room.geometry.spawns, room.spawn_counts, strict=True)
+        for _ in range(count)
+    ]  # agents are numbered group by group
+    stage = room.stage[replica].cpu().tolist()
+    return Scene(
+        positions=room.positions[replica].cpu().double().numpy(),
+        exit_index=room.exit_index[replica].cpu().numpy().astype(np.int64),
+        waypoints=tuple(route[step:] for route, step in zip(routes, stage, strict=True)),
+    )
+
+
+# ---------------------------------------------------------------------- geometry
+def walkable_with_aprons(scenario: Scenario, *, depth: float = EXIT_APRON_DEPTH) -> tuple[Polygon, tuple[Polygon, ...]]:
+    """The walkable area grown by an apron outside every exit, and the aprons (one per exit, in order).
+
+    An apron is the rectangle of the exit's segment and ``depth`` m outwards; it must not overlap the walkable area.
+
+    Raises:
+        ValueError: one line, for an exit without ``depth`` m of free space outside it.
+    """
+    depth = check_real("depth", depth, unit="m", positive=True)
+    walkable = scenario.walkable
+    aprons = []
+    for index, exit_ in enumerate(scenario.exits):
+        (x1, y1), (x2, y2) = list(exit_.coords)[:2]
+        length = math.hypot(x2 - x1, y2 - y1)
+        normal = np.array([y2 - y1, x1 - x2]) / length * depth
+        candidates = [
+            Polygon(
+                [
+                    (x1, y1),
+                    (x2, y2),
+                    (x2 + sign * normal[0], y2 + sign * normal[1]),
+                    (x1 + sign * normal[0], y1 + sign * normal[1]),
+                ]
+            )
+            for sign in (1.0, -1.0)
+        ]
+        apron = min(candidates, key=lambda polygon: polygon.intersection(walkable).area)
+        if apron.intersection(walkable).area > 1e-9 * apron.area:
+            raise ValueError(
+                f"exit {index} of scenario {scenario.name!r} is invalid for JuPedSim: it needs {depth:g} m of free"
+                " space outside it for its exit apron"
+            )
+        aprons.append(apron)
+    area = shapely.union_all([walkable, *aprons])
+    if not isinstance(area, Polygon):
+        raise ValueError(
+            f"scenario {scenario.name!r} is invalid for JuPedSim: its area and exit aprons do not form one polygon"
+        )
+    return area, tuple(aprons)
+
+
+# ---------------------------------------------------------------------- the simulation
+def simulate(
+    scenario: Scenario,
+    *,
+    positions: ArrayLike,
+    exit_index: ArrayLike,
+    waypoints: Sequence[Sequence[tuple[float, float]]],
+    model: JuPedSimModel | None = None,
+    max_time: float,
+    frame_rate: float,
+    pass_waypoints: bool = True,
+) -> JuPedSimRun:
+    """Run JuPedSim in ``scenario`` from the given start until every agent left or ``max_time`` passed.
+
+    Args:
+        scenario: the area and its exits (its spawn areas are not used: ``positions`` place the agents).
+        positions: ``(N, 2)`` start centres (m), inside the walkable area.
+        exit_index: ``(N,)`` int, the exit of ``scenario.exits`` each agent walks to.
+        waypoints: per agent, the points ``(x, y)`` (m) it passes first, in order (may be empty); reached within
+            ``scenario.waypoint_radius``.
+        model: the JuPedSim model and parameters (default :class:`JuPedSimModel`'s).
+        max_time: simulated time (s) after which the run stops.
+        frame_rate: frames per second of simulated time (1/s); ``1 / (frame_rate * model.dt)`` must be a whole number.
+        pass_waypoints: also count a waypoint as reached once the agent is past it, as our simulation does: beyond
+            the line through it across the direction to the next point of its route, less than ``waypoint_radius``
+            to the side (checked every :data:`ROUTE_CHECK_PERIOD` s). False: JuPedSim's waypoint stages alone,
+            reached within ``waypoint_radius`` only; in a crowd, agents pushed past a waypoint then turn back to it
+            and jam.
+
+    Returns:
+        The trajectories, ``T = floor(max_time * frame_rate)`` frames after the start, fewer when everyone left.
+
+    Raises:
+        ModuleNotFoundError: jupedsim is not installed.
+        ValueError: one line, for a bad value (before any step is simulated).
+    """
+    jps = _import_jupedsim()
+    model = model if model is not None else JuPedSimModel()
+
+    # ---- validation: every check before any compute
+    if not isinstance(model, JuPedSimModel):
+        raise ValueError(f"model={model!r} is invalid: must be a JuPedSimModel")
+    starts = _points("positions", positions)
+    count = starts.shape[0]
+    exits = _exit_indices(exit_index, count, len(scenario.exits))
+    if not hasattr(waypoints, "__len__") or len(waypoints) != count:
+        given = f"{len(waypoints)} routes" if hasattr(waypoints, "__len__") else repr(waypoints)[:60]
+        raise ValueError(f"waypoints holds {given}: must hold one route (a list of points) per agent, {count}")
+    routes = [
+        tuple(map(tuple, _points(f"waypoints[{i}]", route, empty=True).tolist())) for i, route in enumerate(waypoints)
+    ]
+    max_time = check_real("max_time", max_time, unit="s", positive=True)
+    frame_rate = check_real("frame_rate", frame_rate, unit="1/s", positive=True)
+    steps_per_frame = _steps_per_frame(frame_rate, model.dt)
+    area, aprons = walkable_with_aprons(scenario)
+    _check_inside("positions", starts, scenario.walkable)
+    for index, route in enumerate(routes):
+        _check_inside(f"waypoints[{index}]", np.asarray(route).reshape(-1, 2), scenario.walkable)
+    num_frames = int(math.floor(max_time * frame_rate * (1.0 + STEP_TOLERANCE)))
+    if num_frames < 1:
+        raise ValueError(
+            f"max_time={max_time!r} is invalid: shorter than one frame (1 / frame_rate = {1 / frame_rate:g} s)"
+        )
+    route_check_steps = max(1, round(ROUTE_CHECK_PERIOD / model.dt))
+
+    # ---- the JuPedSim scene: area, exit stages, one journey per distinct route, the agents
+    operational = jps.CollisionFreeSpeedModel() if model.model == "collision_free_speed" else jps.SocialForceModel()
+    try:
+        simulation = jps.Simulation(model=operational, geometry=area, dt=model.dt)
+        exit_stages = [simulation.add_exit_stage(apron) for apron in aprons]
+    except RuntimeError as err:
+        raise ValueError(f"scenario {scenario.name!r} is invalid for JuPedSim: {_first_line(err)}") from None
+    waypoint_stages: dict[tuple[float, float], int] = {}
+    journeys: dict[tuple[tuple[tuple[float, float], ...], int], _Journey] = {}
+    agents: dict[int, tuple[int, _Journey]] = {}  # JuPedSim id -> (agent index, its journey)
+    for index in range(count):
+        key = (routes[index], int(exits[index]))
+        if key not in journeys:
+            journeys[key] = _add_journey(jps, simulation, scenario, key, exit_stages, waypoint_stages)
+        journey = journeys[key]
+        parameters = _agent_parameters(jps, model, starts[index], journey.id, journey.stages[0])
+        try:
+            agents[simulation.add_agent(parameters)] = (index, journey)
+        except RuntimeError as err:  # e.g. too close to a wall or another agent for the model
+            raise ValueError(
+                f"positions[{index}]={starts[index].tolist()} is invalid: JuPedSim refuses it ({_first_line(err)})"
+            ) from None
+    routing = {agent_id: journey for agent_id, (_, journey) in agents.items() if journey.lines}
+
+    # ---- the run, frame by frame
+    frames = np.empty((num_frames + 1, count, 2))
+    frames[0] = starts
+    current = starts.copy()
+    left_at = np.full(count, -1, dtype=np.int64)
+    exit_time = np.full(count, math.nan)
+
+    def collect_departures(frame: int) -> None:
+        """Agents out after the step just simulated, in frame ``frame``. JuPedSim tests its exit stages with the
+        positions of the step before: an agent listed now (still readable, gone at the next step) was first past its
+        exit after the previous step."""
+        for agent_id in simulation.removed_agents():
+            index = agents[agent_id][0]
+            step = simulation.iteration_count() - 1
+            left_at[index] = -(-step // steps_per_frame)  # the frame whose interval holds that step
+            if left_at[index] < frame:  # that step ended the previous frame, which holds the point where it left
+                current[index] = frames[left_at[index], index]
+                exit_time[index] = step * model.dt
+            else:  # one step further, still in the apron
+                current[index] = simulation.agent(agent_id).position
+                exit_time[index] = (step + 1) * model.dt
+
+    recorded = num_frames
+    for frame in range(1, num_frames + 1):
+        for _ in range(steps_per_frame):
+            simulation.iterate()
+            collect_departures(frame)
+            if pass_waypoints and routing and simulation.iteration_count() % route_check_steps == 0:
+                _pass_waypoints(simulation, routing, scenario.waypoint_radius)
+        for agent in simulation.agents():
+            index = agents[agent.id][0]
+            if left_at[index] < 0:
+                current[index] = agent.position
+        frames[frame] = current
+        if bool((left_at >= 0).all()):
+            recorded = int(left_at.max())
+            break
+    else:  # one more step tells who was out after the last one
+        simulation.iterate()
+        collect_departures(num_frames + 1)
+    frames = frames[: recorded + 1]
+    steps = np.arange(recorded + 1)[:, None]
+    active = (left_at < 0)[None, :] | (steps < left_at[None, :])
+    return JuPedSimRun(positions=frames, active=active, left_at=left_at, exit_time=exit_time, frame_rate=frame_rate)
+
+
+# ---------------------------------------------------------------------- journeys
+@dataclass(frozen=True)
+class _Journey:
+    """A JuPedSim journey: its id, its stages (waypoints, then the exit) and, for each waypoint stage, the line
+    past which it counts as reached: the waypoint ``(x, y)`` and the unit direction ``(dx, dy)`` from it to the next
+    point of the route (the exit's centre after the last waypoint), as plain floats."""
+
+    id: int
+    stages: tuple[int, ...]
+    lines: tuple[tuple[float, float, float, float], ...]
+
+    def next_stage(self, stage: int, position: tuple[float, float], radius: float) -> int | None:
+        """The stage after ``stage`` if ``position`` is past the waypoint of ``stage`` (beyond its line, less than
+        ``radius`` to the side), else None."""
+        step = self.stages.index(stage)
+        if step >= len(self.lines):
+            return None
+        x, y, dx, dy = self.lines[step]
+        ahead = (position[0] - x) * dx + (position[1] - y) * dy
+        side = (position[0] - x) * dy - (position[1] - y) * dx
+        return self.stages[step + 1] if ahead >= 0.0 and abs(side) < radius else None
+
+
+def _add_journey(
+    jps: Any,
+    simulation: Any,
+    scenario: Scenario,
+    route: tuple[tuple[tuple[float, float], ...], int],
+    exit_stages: list[int],
+    waypoint_stages: dict[tuple[float, float], int],
+) -> _Journey:
+    """The journey of the route ``(waypoints, exit)``: waypoint stages joined by fixed transitions to the exit."""
+    points, exit_ = route
+    for point in points:
+        if point not in waypoint_stages:
+            waypoint_stages[point] = simulation.add_waypoint_stage(point, scenario.waypoint_radius)
+    stages = [waypoint_stages[point] for point in points] + [exit_stages[exit_]]
+    description = jps.JourneyDescription(stages)
+    for stage, following in zip(stages[:-1], stages[1:], strict=True):
+        description.set_transition_for_stage(stage, jps.Transition.create_fixed_transition(following))
+    centre = tuple(scenario.exits[exit_].interpolate(0.5, normalized=True).coords[0])
+    lines = []
+    for (x, y), (x_next, y_next) in zip(points, (*points, centre)[1:], strict=True):
+        length = max(math.hypot(x_next - x, y_next - y), 1e-9)
+        lines.append((x, y, (x_next - x) / length, (y_next - y) / length))
+    return _Journey(id=simulation.add_journey(description), stages=tuple(stages), lines=tuple(lines))
+
+
+def _pass_waypoints(simulation: Any, routing: dict[int, _Journey], radius: float) -> None:
+    """Send every agent of ``routing`` that is past its waypoint on to the next stage, as our simulation does
+    (``RoomEnv._advance_routes``); agents that aim at their exit leave ``routing``."""
+    for agent_id, journey in list(routing.items()):
+        agent = simulation.agent(agent_id)
+        stage = agent.stage_id
+        following = journey.next_stage(stage, agent.position, radius)
+        if following is not None:
+            simulation.switch_agent_journey(agent_id, journey.id, following)
+            stage = following
+        if stage == journey.stages[-1]:
+            del routing[agent_id]
+
+
+# ---------------------------------------------------------------------- helpers
+def _import_jupedsim() -> Any:
+    try:
+        import jupedsim
+    except ImportError as error:
+        raise ModuleNotFoundError(INSTALL_HINT, name="jupedsim") from error
+    return jupedsim
+
+
+def _agent_parameters(jps: Any, model: JuPedSimModel, position: np.ndarray, journey: int, stage: int) -> Any:
+    common = {
+        "position": (float(position[0]), float(position[1])),
+        "desired_speed": model.desired_speed,
+        "radius": model.radius,
+        "journey_id": journey,
+        "stage_id": stage,
+    }
+    if model.model == "collision_free_speed":
+        return jps.CollisionFreeSpeedModelAgentParameters(time_gap=model.time_gap, **common)
+    return jps.SocialForceModelAgentParameters(**common)
+
+
+def _points(name: str, value: Any, *, empty: bool = False) -> np.ndarray:
+    """``value`` as finite ``(M, 2)`` float64 coordinates (M >= 1 unless ``empty``), else a one-line error."""
+    try:
+        points = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        points = np.zeros((0, 3))
+    if empty and points.size == 0:
+        return points.reshape(0, 2)
+    if points.ndim != 2 or points.shape[0] < 1 or points.shape[1] != 2 or not np.isfinite(points).all():
+        shape = "(M, 2)" if empty else "(N, 2) with N >= 1"
+        raise ValueError(f"{name} is invalid: must be finite coordinates (m) of shape {shape}, got {_describe(value)}")
+    return points
+
+
+def _exit_indices(value: Any, count: int, num_exits: int) -> np.ndarray:
+    indices = np.asarray(value)
+    if indices.shape != (count,) or not np.issubdtype(indices.dtype, np.integer):
+        raise ValueError(f"exit_index is invalid: must be {count} integers (one per agent), got {_describe(value)}")
+    if ((indices < 0) | (indices >= num_exits)).any():
+        bad = int(indices[(indices < 0) | (indices >= num_exits)][0])
+        raise ValueError(f"exit_index holds {bad}: every index must be in [0, {num_exits}) (the scenario's exits)")
+    return indices.astype(np.int64)
+
+
+def _steps_per_frame(frame_rate: float, dt: float) -> int:
+    steps = 1.0 / (frame_rate * dt)
+    whole = round(steps)
+    if whole < 1 or abs(steps - whole) > STEP_TOLERANCE * steps:
+        raise ValueError(
+            f"frame_rate={frame_rate!r} is invalid: 1 / (frame_rate * dt) must be a whole number of JuPedSim steps"
+            f" of dt={dt!r} s, got {steps:g}"
+        )
+    return whole
+
+
+def _check_inside(name: str, points: np.ndarray, walkable: Polygon) -> None:
+    if points.size == 0:
+        return
+    inside = shapely.contains_xy(walkable, points[:, 0], points[:, 1])
+    if not inside.all():
+        index = int(np.flatnonzero(~inside)[0])
+        x_min, y_min, x_max, y_max = walkable.bounds
+        raise ValueError(
+            f"{name}[{index}]={points[index].tolist()} is invalid: it must lie inside the walkable area"
+            f" [{x_min:g}, {y_min:g}] x [{x_max:g}, {y_max:g}]"
+        )
+
+
+def _describe(value: Any) -> str:
+    shape = getattr(value, "shape", None)
+    return f"shape {tuple(shape)}" if shape is not None else repr(value)[:60]
+
+
+def _first_line(err: BaseException) -> str:
+    return (str(err).strip().splitlines() or [type(err).__name__])[0]

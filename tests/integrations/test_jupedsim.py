@@ -1,0 +1,165 @@
+"""JuPedSim on pedrl scenarios: RiMEA 1's travel time, agents stay in the area, waypoints, the room's scenes, errors."""
+
+import math
+import sys
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import shapely
+from shapely.geometry import LineString, box
+
+pytest.importorskip("jupedsim")
+
+from pedrl.integrations.jupedsim import (  # noqa: E402
+    EXIT_APRON_DEPTH,
+    INSTALL_HINT,
+    JuPedSimModel,
+    model_from_settings,
+    room_scene,
+    simulate,
+    walkable_with_aprons,
+)
+from pedrl.scenarios import Scenario, Spawn, build_scenario  # noqa: E402
+
+CORRIDOR = Scenario(
+    "rimea_1", box(0.0, 0.0, 40.0, 2.0), (LineString([(40.0, 0.0), (40.0, 2.0)]),), (Spawn(box(0, 0, 2, 2)),)
+)
+"""RiMEA test 1: a 40 m x 2 m corridor, its exit the far end x = 40."""
+
+
+def one_agent(scenario=CORRIDOR, **overrides):
+    arguments = {
+        "positions": [[0.5, 1.0]],
+        "exit_index": [0],
+        "waypoints": [[]],
+        "model": JuPedSimModel(desired_speed=1.33),
+        "max_time": 60.0,
+        "frame_rate": 1.0,
+    }
+    return simulate(scenario, **(arguments | overrides))
+
+
+@pytest.mark.parametrize("model", ["collision_free_speed", "social_force"])
+def test_one_agent_walks_the_rimea_1_corridor_in_about_30_s(model):
+    run = one_agent(model=JuPedSimModel(model=model, desired_speed=1.33))
+    # 39.5 m at 1.33 m/s: 29.7 s; the social force model first accelerates (reaction time 0.5 s)
+    assert 29.0 <= run.exit_time[0] <= 31.0
+    assert run.left_at[0] == math.ceil(run.exit_time[0] - 1e-9)
+    assert run.positions.shape == (run.left_at[0] + 1, 1, 2)  # stops once everyone left
+    assert run.active[: run.left_at[0], 0].all() and not run.active[run.left_at[0], 0]
+    assert run.positions[-1, 0, 0] >= 40.0  # the point where it left: past the exit line, in the apron
+    assert np.allclose(run.positions[0], [[0.5, 1.0]])
+    speeds = np.linalg.norm(run.velocities()[:, 0], axis=-1)
+    assert speeds[0] == 0.0 and speeds[10:-1] == pytest.approx(1.33, abs=0.01)
+    assert speeds[-1] == pytest.approx(1.33, abs=0.05)  # over the part of the last interval before it left
+
+
+def test_a_run_stops_at_max_time_with_everyone_still_inside():
+    run = one_agent(max_time=10.0, frame_rate=2.0)
+    assert run.positions.shape == (21, 1, 2) and run.active.all()
+    assert run.left_at.tolist() == [-1] and np.isnan(run.exit_time).all()
+    assert run.positions[-1, 0, 0] == pytest.approx(0.5 + 1.33 * 10.0, abs=0.02)
+
+
+def test_nobody_is_ever_outside_the_walkable_area():
+    scenario = build_scenario({"name": "four_exits", "width": 12.0, "length": 8.0})
+    room = scenario.room(num_agents=60, agent_radius=0.2, max_decisions=60)
+    room.reset(seed=3)
+    scene = room_scene(room)
+    run = simulate(
+        scenario,
+        positions=scene.positions,
+        exit_index=scene.exit_index,
+        waypoints=scene.waypoints,
+        model=JuPedSimModel(radius=0.2),
+        max_time=60.0,
+        frame_rate=10.0,
+    )
+    assert run.left.all()  # everyone out through one of the four exits
+    inside = shapely.contains_xy(scenario.walkable.buffer(1e-9), run.positions[..., 0], run.positions[..., 1])
+    assert inside[run.active].all()
+    area, aprons = walkable_with_aprons(scenario)
+    for agent in range(run.num_agents):  # each left where its centre crossed its own exit
+        point = run.positions[-1, agent]
+        assert aprons[scene.exit_index[agent]].buffer(1e-9).covers(shapely.Point(point))
+    assert area.area == pytest.approx(scenario.walkable.area + 4 * 1.0 * EXIT_APRON_DEPTH)  # four 1 m exits
+
+
+def test_agents_routed_through_a_waypoint_pass_near_it():
+    detour = replace(build_scenario({"name": "corner"}), waypoint_radius=0.3)  # RiMEA 6's corridor turning left
+    starts = [[1.0, 0.5], [3.0, 0.5], [5.0, 0.5]]
+    waypoint = (8.0, 0.4)  # off the agents' shortest way, from y = 0.5 to the inner corner (10, 2)
+    kwargs = {"positions": starts, "exit_index": [0, 0, 0], "max_time": 60.0, "frame_rate": 10.0}
+    routed = simulate(detour, waypoints=[[waypoint]] * 3, **kwargs)
+    direct = simulate(detour, waypoints=[[]] * 3, **kwargs)
+    for run in (routed, direct):
+        assert run.left.all() and (run.positions[-1, :, 1] >= 12.0).all()  # out at the top of the second leg
+    nearest = np.linalg.norm(routed.positions - np.array(waypoint), axis=-1).min(axis=0)  # (N,) m
+    assert (nearest < 0.3 + 0.2).all()  # within the radius, give or take one frame's walk
+    assert (np.linalg.norm(direct.positions - np.array(waypoint), axis=-1).min(axis=0) > 0.8).all()
+
+
+def test_the_room_scene_is_the_rooms_start():
+    scenario = build_scenario({"name": "bottleneck"})
+    room = scenario.room(num_agents=6, agent_radius=0.2, num_replicas=2, max_decisions=10)
+    room.reset(seed=0)
+    scene = room_scene(room, replica=1)
+    assert np.array_equal(scene.positions, room.positions[1].double().numpy())
+    assert scene.exit_index.tolist() == [0] * 6
+    assert all(len(route) == 2 for route in scene.waypoints)  # the bottleneck's two waypoints, none reached yet
+    run = simulate(
+        scenario,
+        positions=scene.positions,
+        exit_index=scene.exit_index,
+        waypoints=scene.waypoints,
+        max_time=40.0,
+        frame_rate=1.0,
+    )
+    assert run.left.all()
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        ({"positions": [[-1.0, 1.0]]}, "positions[0]=[-1.0, 1.0] is invalid: it must lie inside the walkable area"),
+        ({"positions": [[0.5, 0.1]]}, "positions[0]=[0.5, 0.1] is invalid: JuPedSim refuses it"),  # on the wall
+        ({"positions": [[1.0, 2.0, 3.0]]}, "positions is invalid: must be finite coordinates"),
+        ({"exit_index": [1]}, "exit_index holds 1: every index must be in [0, 1)"),
+        ({"exit_index": [0.0]}, "exit_index is invalid"),
+        ({"waypoints": []}, "waypoints holds 0 routes: must hold one route (a list of points) per agent, 1"),
+        ({"waypoints": None}, "waypoints holds None"),
+        ({"max_time": 0.5}, "max_time=0.5 is invalid: shorter than one frame"),
+        ({"waypoints": [[(50.0, 1.0)]]}, "waypoints[0][0]=[50.0, 1.0] is invalid"),
+        ({"max_time": 0.0}, "max_time=0.0 is invalid"),
+        ({"frame_rate": 3.0}, "frame_rate=3.0 is invalid: 1 / (frame_rate * dt) must be a whole number"),
+        ({"model": "jupedsim"}, "model='jupedsim' is invalid: must be a JuPedSimModel"),
+    ],
+)
+def test_bad_input_fails_with_one_line(overrides, message):
+    with pytest.raises(ValueError) as error:
+        one_agent(**overrides)
+    assert message in str(error.value) and "\n" not in str(error.value)
+
+
+@pytest.mark.parametrize(
+    ("settings", "message"),
+    [
+        ({"model": "magic"}, "jupedsim.model='magic' is invalid: must be one of collision_free_speed, social_force"),
+        ({"desired_speed": 0}, "jupedsim.desired_speed=0 is invalid"),
+        ({"dt": -0.01}, "jupedsim.dt=-0.01 is invalid"),
+        ({"speed": 1.0}, "jupedsim.speed is not a setting of the JuPedSim model"),
+    ],
+)
+def test_bad_model_settings_fail_with_one_line(settings, message):
+    with pytest.raises(ValueError) as error:
+        model_from_settings(settings)
+    assert message in str(error.value) and "\n" not in str(error.value)
+    assert model_from_settings({"desired_speed": 1.34}) == JuPedSimModel(desired_speed=1.34)
+
+
+def test_without_jupedsim_the_error_names_the_extra(monkeypatch):
+    monkeypatch.setitem(sys.modules, "jupedsim", None)  # import jupedsim now fails
+    with pytest.raises(ModuleNotFoundError) as error:
+        one_agent()
+    assert str(error.value) == INSTALL_HINT == "jupedsim is not installed: pip install 'pedrl[jupedsim]'"
