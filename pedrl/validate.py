@@ -48,7 +48,8 @@ def run(cfg: DictConfig, *, run_dir: Path | None = None) -> dict[str, Any]:
     checkpoint = cfg.get("checkpoint")
     if checkpoint is None and "learned" in columns(controller):
         raise ValueError(
-            f"checkpoint is missing: controller={controller} needs one (or use controller=references, greedy or jupedsim)"
+            f"checkpoint is missing: controller={controller} needs one (or use controller=references, greedy or"
+            " jupedsim)"
         )
     jupedsim = jupedsim_model(cfg.get("jupedsim")) if "jupedsim" in columns(controller) else None
     set_threads(cfg.get("threads"))
