@@ -584,8 +584,8 @@ def test_sweep_into_a_read_only_folder_names_the_path(tmp_path, capsys, monkeypa
 # ---------------------------------------------------------------------- the real console entry points
 # ---------------------------------------------------------------------- pedrl-validate
 VALIDATE_CASES: list[tuple[str, tuple[str, ...]]] = [
-    ("controller=both", ("checkpoint is missing", "controller=greedy")),
-    ("controller=smart", ("controller='smart' is invalid", "both, learned, greedy")),
+    ("controller=both", ("checkpoint is missing", "controller=references")),
+    ("controller=smart", ("controller='smart' is invalid", "all, both, references, learned, greedy, jupedsim")),
     ("controller=greedy epsilon=-1", ("epsilon=-1", "[0, 1]")),
     ("controller=greedy tests=[lanes,queues]", ("tests='queues' is invalid", "rimea_1")),
     ("controller=greedy tests=lanes", ("tests='lanes' is invalid", "non-empty list")),

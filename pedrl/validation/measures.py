@@ -245,10 +245,11 @@ class InvariantTally:
 
     @property
     def passed(self) -> bool:
-        """All invariants held (a slack of 1e-4 m covers float32 rounding)."""
+        """All invariants held over at least one recorded agent-frame (a slack of 1e-4 m covers float32 rounding)."""
         tolerance = 1e-4
         return (
-            self.min_gap >= -tolerance
+            self.agent_frames > 0
+            and self.min_gap >= -tolerance
             and self.min_wall_clearance >= -tolerance
             and self.outside == 0
             and self.max_step_ratio <= 1 + 1e-4

@@ -362,3 +362,12 @@ def test_jupedsim_column_passes_rimea_1_and_6_at_its_defaults(tmp_path):
     assert rows["RiMEA 6: around a corner"].passed
     document = json.loads((tmp_path / "validation.json").read_text())
     assert document["jupedsim"]["radius"] == 0.2 and document["jupedsim"]["desired_speed"] == 1.2
+
+
+def test_invariants_row_fails_when_nothing_was_simulated():
+    """At 0.4 m RiMEA 6 is not applicable: a run of it alone simulates nothing, and the sanity row must not pass."""
+    from pedrl.validation.suite import run_suite
+
+    crowd = PedrlCrowd(GreedyDoorController(), {"agent_radius": 0.4})
+    rows, _ = run_suite(crowd, budget=Budget(quick=True), only=["rimea_6", "invariants"])
+    assert [row.status for row in rows] == ["n/a", "FAIL"] and rows[1].details["agent_frames"] == 0
