@@ -235,6 +235,14 @@ def lattice(density: float, *, radius: float, x_range: tuple[float, float], widt
     return centres + np.random.default_rng(seed).uniform(-jitter, jitter, centres.shape)
 
 
+def rimea_4_corridor(length: float = 150.0) -> Scenario:
+    """RiMEA 4's corridor, ``length x 4 m``, open at its far end; long, so that the room's placement check (which
+    counts the whole corridor as the start area) admits the densest lattice."""
+    walkable = box(0.0, 0.0, length, RIMEA_4_WIDTH)
+    exit_ = LineString([(length, 0.0), (length, RIMEA_4_WIDTH)])
+    return Scenario("rimea_4", walkable, (exit_,), (Spawn(walkable, exit=0),))
+
+
 def rimea_4(context: Context) -> tuple[TestResult, Figure]:
     """RiMEA test 4: speed against density. A 4 m wide corridor is filled over its first 40 m at densities 0.5 to
     4 /m^2 (Weidmann's scale) with agents at rest; free speed 1.34 m/s (set for the test). PedPy measures Voronoi
@@ -244,11 +252,8 @@ def rimea_4(context: Context) -> tuple[TestResult, Figure]:
     divided by :func:`~pedrl.validation.measures.density_scale`: the curve's shape is kept, its jam density moved to
     the bodies' densest packing. Verdict: :func:`judge_rimea_4`."""
     radius, scale = context.crowd.radius, density_scale(context.crowd.radius)
-    length = 100.0
-    walkable = box(0.0, 0.0, length, RIMEA_4_WIDTH)
-    scenario = Scenario(
-        "rimea_4", walkable, (LineString([(length, 0.0), (length, RIMEA_4_WIDTH)]),), (Spawn(walkable, exit=0),)
-    )
+    scenario = rimea_4_corridor()
+    walkable = scenario.walkable
     area = box(RIMEA_4_AREA[0], 0.0, RIMEA_4_AREA[1], RIMEA_4_WIDTH)
     densities, speeds = [], []
     for index, target in enumerate(context.budget.rimea_4_densities):

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 from hydra import compose, initialize_config_dir
 from omegaconf import open_dict
 from shapely.geometry import LineString
@@ -371,3 +372,17 @@ def test_invariants_row_fails_when_nothing_was_simulated():
     crowd = PedrlCrowd(GreedyDoorController(), {"agent_radius": 0.4})
     rows, _ = run_suite(crowd, budget=Budget(quick=True), only=["rimea_6", "invariants"])
     assert [row.status for row in rows] == ["n/a", "FAIL"] and rows[1].details["agent_frames"] == 0
+
+
+@pytest.mark.parametrize("radius", [0.2, 0.25, 0.4])
+def test_rimea_4_places_its_densest_crowd_at_any_body_size(radius):
+    """The densest lattice of RiMEA 4 (6 /m^2 in Weidmann's scale) fits its room at the paper's bodies and at
+    pedestrian ones: the test never stops half-way."""
+    from pedrl.validation.suite import RIMEA_4_FILL, RIMEA_4_WIDTH, rimea_4_corridor
+
+    densest = max(Budget().rimea_4_densities) * density_scale(radius)
+    start = lattice(densest, radius=radius, x_range=RIMEA_4_FILL, width=RIMEA_4_WIDTH, seed=0)[None]
+    crowd = PedrlCrowd(None, {"agent_radius": radius})
+    env = crowd.room(rimea_4_corridor(), num_agents=start.shape[1], replicas=1, max_time=1.0, placed=True)
+    env.reset(seed=0, options={"positions": torch.as_tensor(start, dtype=torch.float32)})
+    assert env.num_agents > 200
