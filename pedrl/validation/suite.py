@@ -398,8 +398,8 @@ def judge_rimea_9(four_open: np.ndarray, two_closed: np.ndarray) -> TestResult:
     left in both and the evacuation time (the last person out) with two exits is 1.6 to 2.4 times that with four."""
     evacuated = {label: float(np.isfinite(t).mean()) for label, t in (("four", four_open), ("two", two_closed))}
     everyone = all(share == 1.0 for share in evacuated.values())
-    t_four = float(np.nanmax(four_open)) if np.isfinite(four_open).any() else None
-    t_two = float(np.nanmax(two_closed)) if np.isfinite(two_closed).any() else None
+    t_four = float(np.max(four_open)) if evacuated["four"] == 1.0 else None  # the last person out, if all left
+    t_two = float(np.max(two_closed)) if evacuated["two"] == 1.0 else None
     ratio = t_two / t_four if everyone and t_four and t_two else None
     low, high = RIMEA_9_RATIO
     return TestResult(
