@@ -3,6 +3,8 @@ quantizer (`pedrl.vq.tree`).
 
 numba compiles a kernel at its first call (about 13 s for all of them on a 2-core CPU) and keeps it in its on-disk
 cache (``__pycache__`` next to the module, or ``NUMBA_CACHE_DIR``), so later processes load them in under a second.
+Kernels are declared with :func:`cached_njit`, whose cache heals itself: a kernel whose cache files cannot be read
+(truncated, garbage) is recompiled into a fresh cache with a one-line warning, instead of failing every run.
 The torch code stays the reference and the path on other devices: the kernels return its numbers to the bit (the
 tree search the exact argmin, which can order float32 ties differently from the matrix search).
 """
@@ -11,13 +13,16 @@ from __future__ import annotations
 
 import functools
 import os
+from collections.abc import Callable
 from types import ModuleType
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
+
+from pedrl.notices import warn
 
 if TYPE_CHECKING:
     import torch
 
-__all__ = ["numba", "numba_available", "use_kernels"]
+__all__ = ["cached_njit", "numba", "numba_available", "use_kernels"]
 
 DISABLE_VARIABLE = "PEDRL_NO_NUMBA"
 """Set it (to anything but empty or ``0``) to run the torch code on the CPU too."""
@@ -49,3 +54,46 @@ def numba() -> ModuleType:
 
     module.config.SLP_VECTORIZE = 1
     return module
+
+
+def cached_njit(**options: Any) -> Callable[[Callable[..., Any]], Any]:
+    """``numba.njit(cache=True, **options)`` of :func:`numba` (SLP vectorizer on), with an on-disk cache that heals
+    itself.
+
+    numba reads a kernel's cache (an index ``<module>.<kernel>-<line>.pyXY.nbi`` and data files ``...nbc``) at the
+    kernel's first call with new argument types, and fails there, on every run, when a file is corrupt (an
+    ``UnpicklingError`` after a full disk or an interrupted copy). Here that failure empties the kernel's index
+    (numba's own ``flush``), so the kernel is compiled again and its cache rewritten, and says so in one line. Where
+    the cache cannot be rewritten, the kernel is compiled without it for this process.
+    """
+
+    def decorate(function: Callable[..., Any]) -> Any:
+        dispatcher = numba().njit(cache=True, **options)(function)
+        dispatcher._cache = _healing_cache_class()(dispatcher.py_func)  # numba has no public hook for its cache
+        return dispatcher
+
+    return decorate
+
+
+@functools.cache
+def _healing_cache_class() -> type:
+    """numba's ``FunctionCache`` with a ``load_overload`` that recovers from unreadable cache files."""
+    from numba.core.caching import FunctionCache
+
+    class HealingCache(FunctionCache):
+        def load_overload(self, sig: Any, target_context: Any) -> Any:
+            try:
+                return super().load_overload(sig, target_context)
+            except Exception as err:  # whatever a corrupt file raises: pickle, EOF, type errors
+                kernel = f"{self._py_func.__module__}.{self._py_func.__qualname__}"
+                reason = f"{type(err).__name__}: {err}".splitlines()[0]
+                try:
+                    self.flush()  # an empty index: the old data files are no longer read, and get overwritten
+                    outcome = "recompiled into a fresh cache"
+                except OSError:
+                    self.disable()
+                    outcome = "recompiled without a cache (the cache folder cannot be written)"
+                warn(f"numba's cache of {kernel} in {self.cache_path!r} could not be read ({reason}); {outcome}")
+                return None
+
+    return HealingCache

@@ -16,22 +16,27 @@ from omegaconf import DictConfig, OmegaConf
 
 from pedrl.algos import Trainer
 from pedrl.algos.registry import check_names_no_code, env_factory, trainer_class, vq_settings
+from pedrl.scenarios import inline_geometry
 from pedrl.sim.validation import MAX_SEED, check_integer
 
 
-def build_trainer(cfg: DictConfig, run_dir: str | Path) -> Trainer:
+def build_trainer(cfg: DictConfig, run_dir: str | Path, *, files: bool = True) -> Trainer:
     """Build the trainer of ``cfg.algo`` with the room of ``cfg.env``; validates every value first.
 
     Only the known room and trainer classes are built (:mod:`pedrl.algos.registry`): a config names no code, so
     a ``_target_`` other than theirs, anywhere, is refused, and nothing is instantiated from a config node.
+    A custom room's WKT file (``scenario.geometry``) is read once, here, and the run config, which every checkpoint
+    stores, holds its WKT text instead of the path. ``files=False`` (a config read from a checkpoint) opens no file.
     """
     _check_top_level(cfg)
     config = OmegaConf.to_container(cfg, resolve=True)
     check_names_no_code(config)
+    if isinstance(config.get("scenario"), dict):
+        config["scenario"] = inline_geometry(config["scenario"], files=files)
     trainer, settings = trainer_class(config["algo"])
     return trainer(
         **settings,
-        env=env_factory(config["env"], config.get("scenario")),
+        env=env_factory(config["env"], config.get("scenario"), files=files),
         vq=vq_settings(config["vq"]),
         processes=config["processes"],
         rooms_per_process=config["rooms_per_process"],

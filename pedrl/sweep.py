@@ -73,7 +73,9 @@ def summarise_sweep(
         mean and standard deviation over the job's learning processes; ``wall_time_s`` in seconds).
 
     Raises:
-        ValueError: ``sweep_dir`` is not a directory, holds no finished job, or a job lacks ``parameter``.
+        ValueError: ``sweep_dir`` is not a directory, holds no finished job, a job lacks ``parameter``, or jobs
+            differ in which keys they override (beyond ``parameter`` and the pooled ``seed``): they come from
+            different sweeps, and their series could not be named.
     """
     sweep_dir = Path(sweep_dir)
     if sweep_dir.exists() and not sweep_dir.is_dir():
@@ -87,6 +89,7 @@ def summarise_sweep(
         )
     job_overrides = {job: _read_overrides(job) for job in jobs}
     varying = _varying_keys(job_overrides.values())
+    _check_series_keys(job_overrides, [k for k in varying if k != parameter and k not in POOLED_OVERRIDES])
     rows = [_job_row(job, job_overrides[job], varying, parameter) for job in jobs]
     rows.sort(key=lambda row: (row["series"], _sort_value(row["value"]), row["job"]))
     if write:
@@ -290,6 +293,25 @@ def _load_yaml(path: Path) -> Any:
     except (UnicodeDecodeError, YAMLError, OmegaConfBaseException) as err:
         reason = (str(err).strip().splitlines() or [type(err).__name__])[0]
         raise ValueError(f"{str(path)!r} is not a config written by Hydra ({reason})") from None
+
+
+def _check_series_keys(job_overrides: dict[Path, dict[str, str]], keys: Sequence[str]) -> None:
+    """Refuse, in one line naming the key and the jobs without it, jobs that do not all override ``keys`` (the keys
+    that name a series): ``algo`` in some jobs and not in others means jobs of different sweeps in one folder."""
+    for key in keys:
+        lacking = [job.name for job, overrides in job_overrides.items() if key not in overrides]
+        if lacking:
+            having = [job.name for job, overrides in job_overrides.items() if key in overrides]
+            raise ValueError(
+                f"override {key!r} is set in job{'s' if len(having) > 1 else ''} {_some(having)} but not in "
+                f"job{'s' if len(lacking) > 1 else ''} {_some(lacking)}: every job of a sweep overrides the same keys;"
+                " summarise the jobs of one --multirun (or move the others to another folder)"
+            )
+
+
+def _some(names: Sequence[str], shown: int = 5) -> str:
+    """``0, 1, 2`` or, for many names, ``0, 1, 2, 3, 4, ... (12 in all)``."""
+    return ", ".join(names[:shown]) + (f", ... ({len(names)} in all)" if len(names) > shown else "")
 
 
 def _varying_keys(all_overrides: Any) -> list[str]:

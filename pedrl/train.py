@@ -11,12 +11,21 @@ from typing import Any
 
 import hydra
 import torch
+from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
 from pedrl.algos import Trainer, TrainResult
-from pedrl.cli import checked_groups, hydra_output_dir, run_reporting_errors
+from pedrl.cli import (
+    checked_groups,
+    describe_os_error,
+    fail,
+    hydra_output_dir,
+    output_dir_problem,
+    run_reporting_errors,
+)
 from pedrl.io import CheckpointError
 from pedrl.io.files import replace_atomically
+from pedrl.io.lock import RunFolderInUseError, run_folder_lock
 from pedrl.runtime import build_trainer, launcher_threads, set_threads
 
 CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
@@ -26,7 +35,9 @@ def train(cfg: DictConfig, *, run_dir: str | Path | None = None) -> TrainResult:
     """Train as configured and write every output under ``run_dir`` (default: Hydra's output dir).
 
     Outputs: ``learning_curve.csv``, ``learning_curve.png``, ``summary.json``, ``tb/`` (TensorBoard events) and
-    ``checkpoints/iter_XXXX.safetensors`` + ``checkpoints/last.safetensors``.
+    ``checkpoints/iter_XXXX.safetensors`` + ``checkpoints/last.safetensors``. The run holds the folder's lock
+    (:mod:`pedrl.io.lock`) from before its first computation to its last output: while it runs, a second ``train``
+    into the same folder (or a resume of it) raises :class:`pedrl.io.lock.RunFolderInUseError`.
     """
     run_dir = Path(run_dir) if run_dir is not None else hydra_output_dir()
     resume_from = _resume_path(cfg.get("resume"), run_dir)
@@ -35,14 +46,15 @@ def train(cfg: DictConfig, *, run_dir: str | Path | None = None) -> TrainResult:
     trainer = build_trainer(cfg, run_dir)
     set_threads(cfg.get("threads") if cfg.get("threads") is not None else launcher_threads())
     torch.manual_seed(int(cfg.seed))
-    result = trainer.fit(resume_from=resume_from)
-    summary_path = result.run_dir / "summary.json"
-    if result.finished_before and summary_path.is_file():
-        # a finished run: its summary and figures stay as they are
-        result.final = result.final or _stored_final(summary_path)
-        print(f"pedrl-train: {str(result.run_dir)!r} had already finished; its outputs are kept", flush=True)
-        return result
-    _write_outputs(result, trainer)
+    with run_folder_lock(run_dir):  # one run per folder: a second one (or a resume) is refused in one line
+        result = trainer.fit(resume_from=resume_from)
+        summary_path = result.run_dir / "summary.json"
+        if result.finished_before and summary_path.is_file():
+            # a finished run: its summary and figures stay as they are
+            result.final = result.final or _stored_final(summary_path)
+            print(f"pedrl-train: {str(result.run_dir)!r} had already finished; its outputs are kept", flush=True)
+            return result
+        _write_outputs(result, trainer)
     return result
 
 
@@ -118,6 +130,25 @@ def _resume_path(resume: Any, run_dir: Path) -> Path | None:
             return last
         return path
     raise ValueError(f"resume={resume!r} is invalid: must be null, true, a run directory or the path of a checkpoint")
+
+
+class RunFolderCheck(Callback):
+    """Hydra callback of ``pedrl-train`` (``conf/train.yaml``): before Hydra writes into the run folder (``.hydra/``,
+    the job log), refuse in one line (exit code 2) a folder whose lock another run holds, so that a second run does
+    not overwrite what the first one recorded. It only tries the lock: :func:`train` holds it for the run."""
+
+    def on_run_start(self, config: DictConfig, **kwargs: Any) -> None:
+        directory = Path(str(config.hydra.run.dir))
+        problem = output_dir_problem(directory)  # a file, or not writable: the one line of OutputDirCheck
+        if problem:
+            fail("pedrl-train", problem)
+        try:
+            with run_folder_lock(directory):
+                pass
+        except RunFolderInUseError as err:
+            fail("pedrl-train", str(err))
+        except OSError as err:
+            fail("pedrl-train", describe_os_error(err))
 
 
 @checked_groups("pedrl-train", CONFIG_DIR)

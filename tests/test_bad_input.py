@@ -269,6 +269,7 @@ TRAIN_CASES: list[tuple[str, tuple[str, ...]]] = [
     ("vq.tolerance=small", ("vq.tolerance='small'", ">= 0")),
     ("vq.max_states=0", ("vq.max_states=0", "integer >= 1")),
     ("vq.max_states=10", ("vq.max_states=10", "at least vq.num_prototypes=32")),
+    ("vq.num_prototypes=4096", ("vq.num_prototypes=4096", "gathers at most 1200 states per process", "gather_trials")),
     ("vq.init=foo", ("vq.init='foo'", "kmeans++, random")),
     ("vq.init=3", ("vq.init=3", "kmeans++, random")),
     ("vq.chunk_size=-5", ("vq.chunk_size=-5 is invalid: must be an integer >= 1",)),
@@ -637,3 +638,177 @@ def test_real_entry_points_behave_the_same(checkpoint, tmp_path):
         assert_refused(Outcome(done.returncode, lines, done.stderr), program, expected[program])
     for folder in ("train", "eval", "plot"):
         assert_nothing_computed(tmp_path / folder)
+
+
+# ---------------------------------------------------------------------- issue 20: Hydra's own failures, sweeps, seeds
+ALL_PROGRAMS = {**PROGRAMS, "pedrl-validate": pedrl.validate}
+
+
+def _any_program_args(program: str, tmp_path: Path, checkpoint: Path) -> list[str]:
+    """A command line of ``program`` that would run (in seconds) if nothing else were wrong."""
+    if program == "pedrl-validate":
+        return ["controller=greedy", "quick=true"]
+    return _program_args(program, tmp_path, checkpoint)
+
+
+UNKNOWN_KEY_CASES: list[tuple[str, str, tuple[str, ...]]] = [
+    ("pedrl-train", "env.widht=5", ("env.widht is not a key of the config", "did you mean env.width?", "+env.widht=")),
+    ("pedrl-train", "foo=1", ("foo is not a key of the config", "top-level keys are", "seed", "+foo=")),
+    ("pedrl-train", "num_prototypes=64", ("num_prototypes is not a key", "did you mean vq.num_prototypes?")),
+    ("pedrl-train", "envv.width=5", ("envv is not a key of the config", "did you mean env?", "+envv.width=")),
+    ("pedrl-train", "seed.x=1", ("seed.x is not a key of the config", "seed is a value")),
+    ("pedrl-train", "env.speed_ratios.x=1", ("'env.speed_ratios.x=1' cannot be applied",)),
+    ("pedrl-train", "foo=[1,", ("'foo=[1,' is not a valid override", "key=value")),
+    ("pedrl-train", "hydra.run.dirr=x", ("hydra.run.dirr is not a key", "did you mean hydra.run.dir?")),
+    ("pedrl-eval", "trails=3", ("trails is not a key of the config", "did you mean trials?", "+trails=")),
+    ("pedrl-plot", "ouptut=x.png", ("ouptut is not a key of the config", "did you mean output?")),
+    ("pedrl-validate", "seeed=1", ("seeed is not a key of the config", "did you mean seed?")),
+]
+
+
+@pytest.mark.parametrize(("program", "override", "fragments"), UNKNOWN_KEY_CASES, ids=lambda case: str(case))
+def test_unknown_key_is_one_line(program, override, fragments, tmp_path, checkpoint, capsys):
+    """Hydra printed six lines and exited with 1; now one line naming the key and the nearest one, exit 2."""
+    run_dir = tmp_path / "run"
+    args = [*_any_program_args(program, tmp_path, checkpoint), override, f"hydra.run.dir={run_dir}"]
+    hydra_full_error = os.environ.get("HYDRA_FULL_ERROR")
+    outcome = run_hydra_main(ALL_PROGRAMS[program], args, capsys)
+    assert_refused(outcome, program, fragments)
+    assert not run_dir.exists()
+    assert os.environ.get("HYDRA_FULL_ERROR") == hydra_full_error  # the entry point's setting does not leak
+
+
+def test_unknown_key_in_a_sweep_is_one_line(tmp_path, capsys):
+    sweep_dir = tmp_path / "sweep"
+    args = ["--multirun", *TRAIN_BASE, "seed=0,1", "env.widht=3,4", f"hydra.sweep.dir={sweep_dir}"]
+    outcome = run_hydra_main(pedrl.train, args, capsys)
+    assert_refused(outcome, "pedrl-train", ("env.widht is not a key", "did you mean env.width?"))
+
+
+def test_new_keys_and_hydra_keys_still_work(tmp_path, capsys):
+    """``+key=value`` adds a key and a valid ``hydra.*`` override is Hydra's: the check refuses neither."""
+    args = ["--cfg", "job", *TRAIN_BASE, "+note=hello", "hydra.job.chdir=false", f"hydra.run.dir={tmp_path / 'r'}"]
+    capsys.readouterr()
+    saved = sys.argv
+    sys.argv = ["pedrl.train.py", *args]
+    try:
+        pedrl.train.main()
+    finally:
+        sys.argv = saved
+        GlobalHydra.instance().clear()
+    captured = capsys.readouterr()
+    assert "note: hello" in captured.out, captured.err
+    assert "error" not in captured.err
+
+
+def _full_disk(run_dir: Path, tmp_path: Path, read_only_dir: Path) -> tuple[list[str], tuple[str, ...]]:
+    """``.hydra/config.yaml`` is a link to ``/dev/full``: every write to it fails with ENOSPC, as on a full disk."""
+    if not Path("/dev/full").exists():
+        pytest.skip("no /dev/full on this machine")
+    (run_dir / ".hydra").mkdir(parents=True)
+    (run_dir / ".hydra" / "config.yaml").symlink_to("/dev/full")
+    return [], (f"cannot write in {str(run_dir)!r}", "No space left on device")
+
+
+def _read_only_hydra_folder(run_dir: Path, tmp_path: Path, read_only_dir: Path) -> tuple[list[str], tuple[str, ...]]:
+    """Hydra's files go to a folder nobody may write in (EACCES, or EPERM under /sys for root)."""
+    target = read_only_dir / "hydra_files"
+    return [f"hydra.output_subdir={target}"], (f"cannot use {str(target)!r}",)
+
+
+def _hydra_folder_below_a_file(run_dir: Path, tmp_path: Path, read_only_dir: Path) -> tuple[list[str], tuple[str, ...]]:
+    (tmp_path / "a_file").write_text("keep me")
+    target = tmp_path / "a_file" / "hydra_files"
+    return [f"hydra.output_subdir={target}"], (f"cannot use {str(target)!r}", "Not a directory")
+
+
+@pytest.mark.parametrize("program", list(ALL_PROGRAMS))
+@pytest.mark.parametrize("damage", [_full_disk, _read_only_hydra_folder, _hydra_folder_below_a_file])
+def test_hydra_files_that_cannot_be_written_are_one_line(program, damage, tmp_path, read_only_dir, checkpoint, capsys):
+    """Hydra writes ``.hydra/*.yaml`` before the job starts: a full disk or an unwritable folder there gave its
+    traceback; now one line naming the path, exit 2, and the job does not start."""
+    run_dir = tmp_path / "run"
+    extra, fragments = damage(run_dir, tmp_path, read_only_dir)
+    args = [*_any_program_args(program, tmp_path, checkpoint), *extra, f"hydra.run.dir={run_dir}"]
+    before = os.listdir(read_only_dir)
+    outcome = run_hydra_main(ALL_PROGRAMS[program], args, capsys)
+    assert_refused(outcome, program, fragments)
+    assert_nothing_computed(run_dir)
+    assert os.listdir(read_only_dir) == before
+
+
+def test_full_disk_in_a_real_subprocess(tmp_path):
+    """The console script as a user runs it: an unknown key and a full disk, one line each."""
+    run_dir = tmp_path / "run"
+    _full_disk(run_dir, tmp_path, tmp_path)
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    commands = [
+        ("env.widht=5", ("env.widht is not a key of the config", "did you mean env.width?")),
+        ("seed=0", (f"cannot write in {str(run_dir)!r}", "No space left on device")),
+    ]
+    for override, fragments in commands:
+        done = subprocess.run(
+            [sys.executable, "-m", "pedrl.train", *TRAIN_BASE, override, f"hydra.run.dir={run_dir}"],
+            capture_output=True,
+            text=True,
+            timeout=300,
+            env=env,
+            check=False,
+        )
+        lines = [line for line in done.stderr.splitlines() if line.strip()]
+        assert_refused(Outcome(done.returncode, lines, done.stderr), "pedrl-train", fragments)
+
+
+def test_sweep_of_jobs_with_different_override_keys_names_the_key(tmp_path, capsys):
+    """Jobs of two sweeps in one folder (``algo`` overridden in one, not in the other) gave a KeyError blamed on a
+    summary.json; now one line naming the key and the jobs that lack it."""
+    make_job(tmp_path, "0")
+    make_job(tmp_path, "1")
+    make_job(tmp_path, "2")
+    for name in ("0", "2"):
+        OmegaConf.save(
+            OmegaConf.create(["vq.num_prototypes=512", "algo=it_vqql"]), tmp_path / name / ".hydra" / "overrides.yaml"
+        )
+    for args in ([str(tmp_path)], [str(tmp_path), "--parameter", "vq.num_prototypes"]):
+        outcome = run_sweep_main(args, capsys)
+        assert_refused(outcome, "pedrl-sweep", ("override 'algo'", "set in jobs 0, 2", "not in job 1"))
+        assert not (tmp_path / pedrl.sweep.SUMMARY_CSV).exists()
+
+
+@pytest.mark.parametrize("seed", [1.5, 2**70, True, -1, "3", 2**64])
+def test_room_reset_refuses_a_seed_that_is_not_an_integer_in_range(seed):
+    """``reset(seed=1.5)`` truncated to 1 and ``reset(seed=2**70)`` overflowed with a traceback."""
+    from pedrl.sim import RoomEnv
+
+    env = RoomEnv(num_replicas=1, num_agents=2, width=10.0, length=10.0)
+    with pytest.raises(ValueError, match=r"^seed=.* is invalid: must be an integer in \[0, 18446744073709551615\]"):
+        env.reset(seed=seed)
+    env.reset(seed=2**64 - 1)  # the widest a torch generator takes: derived seeds (seed * 10007 + phase) fit
+
+
+SEED_CASES: list[tuple[str, str, tuple[str, ...]]] = [
+    ("pedrl-train", "seed=1.5", ("seed=1.5 is invalid", "integer in [0, 4294967295]")),
+    ("pedrl-train", "seed=true", ("seed=True is invalid", "integer in [0, 4294967295]")),
+    ("pedrl-train", "seed=1180591620717411303424", ("seed=1180591620717411303424", "integer in [0, 4294967295]")),
+    ("pedrl-eval", "seed=1.5", ("seed=1.5 is invalid", "integer in [0, 4294967295]")),
+    ("pedrl-eval", "seed=true", ("seed=True is invalid", "integer in [0, 4294967295]")),
+    ("pedrl-validate", "seed=1.5", ("seed=1.5 is invalid", "integer in [0, 4294967295]")),
+    ("pedrl-validate", "seed=4294967296", ("seed=4294967296 is invalid", "integer in [0, 4294967295]")),
+]
+
+
+@pytest.mark.parametrize(("program", "override", "fragments"), SEED_CASES, ids=lambda case: str(case))
+def test_every_command_checks_its_seed(program, override, fragments, tmp_path, checkpoint, capsys):
+    run_dir = tmp_path / "run"
+    args = [*_any_program_args(program, tmp_path, checkpoint), override, f"hydra.run.dir={run_dir}"]
+    outcome = run_hydra_main(ALL_PROGRAMS[program], args, capsys)
+    assert_refused(outcome, program, fragments)
+    assert_nothing_computed(run_dir)
+
+
+@pytest.mark.parametrize("program", ["pedrl-eval", "pedrl-plot", "pedrl-validate"])
+def test_run_folder_that_cannot_be_resolved_is_one_line(program, tmp_path, checkpoint, capsys):
+    """``hydra.run.dir=${oops}``: Hydra turned the callback's error into a five-line warning, then a traceback."""
+    args = [*_any_program_args(program, tmp_path, checkpoint), "hydra.run.dir=" + str(tmp_path) + "/${oops}"]
+    outcome = run_hydra_main(ALL_PROGRAMS[program], args, capsys)
+    assert_refused(outcome, program, ("hydra.run.dir is invalid", "Interpolation key 'oops' not found"))

@@ -22,6 +22,7 @@ import json
 import math
 import sys
 import time
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -33,6 +34,7 @@ from tqdm.auto import tqdm
 from pedrl.algos.restore import RestoredState, check_stored_config, restore_state
 from pedrl.io import CheckpointError, CsvWriter, RunLogger, load_checkpoint, save_checkpoint
 from pedrl.io.files import remove_temporaries_in
+from pedrl.notices import warn
 from pedrl.rl import LinearSchedule, epsilon_greedy, table_rows, td_update, zeros_q_values
 from pedrl.sim import RoomEnv
 from pedrl.sim.sensing import distance_indices, fill_void_neighbours, void_draws
@@ -54,6 +56,8 @@ KMEANS_COPIES = 4
 """Copies of the states one k-means fit holds: subsampled, standardised, weighted, and their nearest distances."""
 KMEANS_INITS = ("kmeans++", "random")
 """Values of ``vq.init``: k-means++ seeding or K random states (see :func:`pedrl.vq.kmeans`)."""
+_KMEANS_SHRINK = "k-means: the data has only"
+"""Start of k-means' own warning when it keeps fewer prototypes; the trainers say it once, in their words."""
 CURVE_METRICS = ("success_rate", "episodic_return", "crashes_agent", "crashes_wall", "mean_speed", "td_error")
 DEVICE_CHECK_EVERY = 8
 """Decisions between two reads of "is any room still occupied" by the trial loop on a GPU (each read waits)."""
@@ -291,6 +295,7 @@ class Trainer:
             advice="lower processes, rooms_per_process, vq.num_prototypes, vq.max_states, the agents, "
             "algo.gather_trials or env.max_decisions",
         )
+        self._check_gathering_yield()
 
     # ------------------------------------------------------------------ what subclasses define
     def phases(self) -> list[Phase]:
@@ -298,18 +303,29 @@ class Trainer:
         raise NotImplementedError
 
     def fit_quantizer(
-        self, phase: Phase, states: torch.Tensor, num_sensed: torch.Tensor, previous: Any | None
+        self,
+        phase: Phase,
+        states: torch.Tensor,
+        num_sensed: torch.Tensor,
+        previous: Any | None,
+        num_prototypes: int | None = None,
     ) -> tuple[Any, float]:
         """Fit this phase's quantizer on gathered ``states (M, F)`` with ``num_sensed (M,)`` neighbours.
 
-        ``previous`` is the previous phase's quantizer (None in the first phase). The default fits one
-        :class:`pedrl.vq.Quantizer` over the full states (VQQL, IT-VQQL).
+        ``previous`` is the previous phase's quantizer (None in the first phase). ``num_prototypes`` is the number
+        of prototypes the fit adds (None: ``vq.num_prototypes``; k-means keeps fewer when the states hold fewer
+        distinct ones). The default fits one :class:`pedrl.vq.Quantizer` over the full states (VQQL, IT-VQQL).
 
         Returns:
             The quantizer (anything with ``encode``, ``num_prototypes`` and ``state_dict``) and the final
             distortion (mean squared distance to the nearest prototype, standardised units).
         """
-        return self.fit_plain_quantizer(states)
+        return self.fit_plain_quantizer(states, num_prototypes=num_prototypes)
+
+    def kept_prototypes(self, previous: Any | None) -> int:
+        """Prototypes of the previous phase's quantizer ``previous`` that this phase's quantizer keeps besides those
+        its fit adds: none by default (each phase fits a new quantizer); IN-VQQL's union keeps them all."""
+        return 0
 
     def encode(
         self, quantizer: Any, obs: torch.Tensor, num_sensed: torch.Tensor, process: torch.Tensor | None = None
@@ -608,22 +624,82 @@ class Trainer:
         """This phase's quantizer: one :class:`pedrl.vq.ProcessQuantizers` part per learning process, each fitted
         on the states its own rooms visited (``vq.per_process``, default), or one shared by all processes.
 
-        Each fit sees at most ``vq.max_states`` states (a uniform random subset). Returns the quantizer and the
-        mean distortion of its parts.
+        Each fit sees at most ``vq.max_states`` states (a uniform random subset). When the states of some process
+        hold fewer distinct states than ``vq.num_prototypes``, k-means keeps fewer prototypes there, and every
+        process is fitted again with that smallest count (the processes' Q tables stack, so they share K), with a
+        one-line warning and no error. Returns the quantizer and the mean distortion of its parts.
         """
-        if not self.vq.per_process:
-            return self.fit_quantizer(phase, *self._subsample(states, num_sensed), previous)
-        parts, distortions = [], []
-        for index in range(self.processes):
-            mine = process == index
-            part, distortion = self.fit_quantizer(
-                phase,
-                *self._subsample(states[mine], num_sensed[mine]),
-                previous.parts[index] if previous is not None else None,
-            )
-            parts.append(part)
-            distortions.append(distortion)
+        kept = self.kept_prototypes(previous)
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message=_KMEANS_SHRINK, category=UserWarning)  # said once below
+            if not self.vq.per_process:
+                quantizer, distortion = self.fit_quantizer(phase, *self._subsample(states, num_sensed), previous)
+                self._report_shrink(phase, quantizer.num_prototypes - kept, None)
+                return quantizer, distortion
+            parts, distortions = [], []
+            for index in range(self.processes):
+                mine = process == index
+                part, distortion = self.fit_quantizer(
+                    phase,
+                    *self._subsample(states[mine], num_sensed[mine]),
+                    previous.parts[index] if previous is not None else None,
+                )
+                parts.append(part)
+                distortions.append(distortion)
+            sizes = [part.num_prototypes for part in parts]
+            smallest = min(sizes)
+            for index, size in enumerate(sizes):
+                if size > smallest:
+                    mine = process == index
+                    parts[index], distortions[index] = self.fit_quantizer(
+                        phase,
+                        *self._subsample(states[mine], num_sensed[mine]),
+                        previous.parts[index] if previous is not None else None,
+                        num_prototypes=smallest - kept,
+                    )
+        self._report_shrink(phase, smallest - kept, sizes.index(smallest))
         return ProcessQuantizers(parts), sum(distortions) / len(distortions)
+
+    def _report_shrink(self, phase: Phase, fitted: int, process: int | None) -> None:
+        """One line when the quantizer of ``phase`` got ``fitted < vq.num_prototypes`` prototypes, because the
+        states gathered by ``process`` (None: by all, for a shared quantizer) hold no more distinct ones."""
+        wanted = self.vq.num_prototypes
+        if fitted >= wanted:
+            return
+        whose = "the gathered states" if process is None else f"the states gathered by process {process}"
+        every = "the quantizer" if process is None else "every process's quantizer"
+        warn(
+            f"phase {phase.index} ({_agents(phase.num_agents)}): {whose} hold only {fitted} distinct states for "
+            f"vq.num_prototypes={wanted}; {every} uses K = {fitted} in this phase (raise algo.gather_trials "
+            f"to keep {wanted})"
+        )
+
+    def _check_gathering_yield(self) -> None:
+        """Refuse, before any compute, a ``vq.num_prototypes`` that no gathering can reach: k-means needs a distinct
+        state per prototype, and a phase records at most ``gather_trials x E x N x max_decisions`` states per
+        process (``R`` times that for a shared quantizer). Fewer distinct states than that (agents leave the room
+        early) only shrink K, with a warning (:meth:`fit_quantizers`)."""
+        for phase in self.phases():
+            env = self._env(phase.num_agents)
+            factors = {
+                "algo.gather_trials": phase.gather_trials,
+                "rooms_per_process": self.rooms_per_process,
+                "agents": phase.num_agents,
+                "env.max_decisions": env.max_decisions,
+            }
+            if not self.vq.per_process:
+                factors = {"processes": self.processes, **factors}
+            most = math.prod(factors.values())
+            if most < self.vq.num_prototypes:
+                scope = "for the shared quantizer" if not self.vq.per_process else "per process"
+                product = " x ".join(
+                    _agents(value) if key == "agents" else f"{key}={value}" for key, value in factors.items()
+                )
+                raise ValueError(
+                    f"vq.num_prototypes={self.vq.num_prototypes} is invalid: phase {phase.index} gathers at most "
+                    f"{most} states {scope} ({product}) and k-means needs one per prototype: must be at most "
+                    f"{most}, or raise algo.gather_trials"
+                )
 
     def _subsample(self, states: torch.Tensor, num_sensed: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         if states.shape[0] <= self.vq.max_states:
@@ -756,15 +832,16 @@ class Trainer:
         return [float(w) for w in weights]
 
     def fit_plain_quantizer(
-        self, states: torch.Tensor, feature_index: torch.Tensor | None = None
+        self, states: torch.Tensor, feature_index: torch.Tensor | None = None, *, num_prototypes: int | None = None
     ) -> tuple[Quantizer, float]:
         """Fit one :class:`pedrl.vq.Quantizer` on ``states (M, F)`` with the ``vq`` settings.
 
-        ``feature_index`` names the features of ``states`` when they are a projection of the full state.
+        ``feature_index`` names the features of ``states`` when they are a projection of the full state;
+        ``num_prototypes`` is K (None: ``vq.num_prototypes``).
         """
         quantizer, result = Quantizer.fit(
             states,
-            self.vq.num_prototypes,
+            self.vq.num_prototypes if num_prototypes is None else num_prototypes,
             generator=self.generator,
             max_iterations=self.vq.max_iterations,
             tolerance=self.vq.tolerance,
@@ -914,6 +991,11 @@ class Trainer:
 
 
 # ---------------------------------------------------------------------- small pure helpers
+def _agents(count: int) -> str:
+    """``1 agent``, ``20 agents``."""
+    return f"{count} agent" if count == 1 else f"{count} agents"
+
+
 def _interactive() -> bool:
     """True when stderr is a terminal, where a progress bar redraws in place (in a log file it would not)."""
     return sys.stderr.isatty()
@@ -950,8 +1032,14 @@ def _config_mismatch(saved: Mapping[str, Any], current: Mapping[str, Any], prefi
             if found:
                 return found
         elif a != b:
-            return f"{prefix}{key} was {json.dumps(a)} there and is {json.dumps(b)} here"
+            return f"{prefix}{key} was {_short_json(a)} there and is {_short_json(b)} here"
     return ""
+
+
+def _short_json(value: Any, limit: int = 80) -> str:
+    """``value`` as JSON, cut to ``limit`` characters: a room's WKT text may run to megabytes."""
+    text = json.dumps(value)
+    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
 
 
 def _final_figures(stats: TrialStats) -> dict[str, float]:

@@ -96,20 +96,27 @@ class INVQQL(Trainer):
         return min(num_agents - 1, self._env(num_agents).num_neighbours)
 
     def fit_quantizer(
-        self, phase: Phase, states: torch.Tensor, num_sensed: torch.Tensor, previous: Any | None
+        self,
+        phase: Phase,
+        states: torch.Tensor,
+        num_sensed: torch.Tensor,
+        previous: Any | None,
+        num_prototypes: int | None = None,
     ) -> tuple[Any, float]:
+        """The previous union and a new part fitted on the stage's full states (those with ``min(m - 1, k)``
+        neighbours: every agent's first state of a trial is one). Fewer distinct full states than K shrink the new
+        part's K (see :meth:`Trainer.fit_quantizers`)."""
         env = self._env(phase.num_agents)
         n = self.sensed_neighbours(phase.num_agents)
         index = feature_indices(n, env.num_neighbours, env.num_walls).to(self.device)
         full = states[num_sensed == n][:, index]
-        if full.shape[0] < self.vq.num_prototypes:
-            raise ValueError(
-                f"stage {phase.index} ({phase.num_agents} agents) gathered {full.shape[0]} states with {n} "
-                f"neighbours, fewer than vq.num_prototypes={self.vq.num_prototypes}: raise gather_trials"
-            )
-        quantizer, distortion = self.fit_plain_quantizer(full, index)
+        quantizer, distortion = self.fit_plain_quantizer(full, index, num_prototypes=num_prototypes)
         union = previous if previous is not None else UnionQuantizer()
         return union.unite(n, index, quantizer), distortion
+
+    def kept_prototypes(self, previous: Any | None) -> int:
+        """The union keeps every prototype of the previous stages."""
+        return 0 if previous is None else previous.num_prototypes
 
     def encode(
         self, quantizer: Any, obs: torch.Tensor, num_sensed: torch.Tensor, process: torch.Tensor | None = None

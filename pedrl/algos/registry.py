@@ -96,18 +96,21 @@ def _check_special_key(name: str, value: Any) -> None:
         raise ValueError(f"{name}={value!r} is invalid: must be one of {', '.join(known)}")
 
 
-def env_factory(env: Mapping[str, Any], scenario: Mapping[str, Any] | None = None) -> Callable[..., RoomEnv]:
+def env_factory(
+    env: Mapping[str, Any], scenario: Mapping[str, Any] | None = None, *, files: bool = True
+) -> Callable[..., RoomEnv]:
     """The room of the ``env`` config in the ``scenario``: ``factory(num_replicas=, num_agents=, device=)`` builds it.
 
     The scenario (``None``: the paper's room of the ``env`` keys) is built once, with shapely; each room is
     :meth:`pedrl.scenarios.Scenario.room`: validated, then its agents checked against the spawn areas.
+    ``files=False`` (a config stored in a checkpoint) opens no file: its ``scenario.geometry`` must be WKT text.
 
     Raises:
         ValueError: one line, for a key the room does not take or a bad scenario (values are validated when the room
             is built).
     """
     settings = _settings("env", env, ENV_CLASSES, supplied=ENV_RUN_ARGUMENTS)
-    built = build_scenario(scenario, room=settings)
+    built = build_scenario(scenario, room=settings, files=files)
 
     def factory(*, num_replicas: int, num_agents: int, device: str | Any = "cpu") -> RoomEnv:
         return built.room(num_replicas=num_replicas, num_agents=num_agents, device=device, **settings)

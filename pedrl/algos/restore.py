@@ -9,15 +9,21 @@ the key, what it is and what is allowed (:class:`pedrl.io.CheckpointError`).
 
 from __future__ import annotations
 
+import copy
 import math
+import os
+import shlex
 from dataclasses import dataclass, field
 from numbers import Real
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final
 
 import torch
 
-from pedrl.io import Checkpoint, CheckpointError
+from pedrl.io import Checkpoint, CheckpointError, load_checkpoint, save_checkpoint
 from pedrl.rl import in_huge_pages
+from pedrl.scenarios import MAX_WKT_BYTES, build_scenario, check_scenario_sizes, geometry_file, inline_geometry
+from pedrl.sim.validation import shown
 from pedrl.vq import ProcessQuantizers
 
 if TYPE_CHECKING:
@@ -33,6 +39,12 @@ QUANTIZER_DTYPES: Final = {
     "num_sensed": torch.int64,
 }
 """dtype of every quantizer tensor, by the last part of its name (``process000/part3.prototypes``)."""
+MAX_CONFIG_DEPTH: Final = 16
+"""Deepest nesting of a stored config (a run's config is 4 deep: ``scenario.exits[0][1]``)."""
+MAX_CONFIG_STRING: Final = 4096
+"""Longest string (or key) of a stored config, bar ``scenario.geometry``, the room's WKT text (10 MB)."""
+MAX_CONFIG_VALUES: Final = 100_000
+"""Most values (mappings, lists and leaves) of a stored config."""
 
 
 @dataclass(frozen=True)
@@ -114,6 +126,11 @@ def restore_state(trainer: Trainer, checkpoint: Checkpoint, *, continue_training
 def check_stored_config(checkpoint: Checkpoint) -> dict[str, Any]:
     """The training config stored in ``checkpoint``, refused if it is not a mapping of plain values or names code.
 
+    It is bounded before anything walks it (:data:`MAX_CONFIG_DEPTH`, :data:`MAX_CONFIG_STRING`,
+    :data:`MAX_CONFIG_VALUES`, and the scenario's exits and spawn areas), and it must hold its room: a
+    ``scenario.geometry`` that names a WKT file (checkpoints written before rooms were stored) is refused with the
+    command that re-exports the checkpoint, since pedrl opens no file a checkpoint names.
+
     Raises:
         CheckpointError: one line naming the file and the bad key.
     """
@@ -124,10 +141,80 @@ def check_stored_config(checkpoint: Checkpoint) -> dict[str, Any]:
     if not isinstance(config, dict) or not all(isinstance(config.get(key), dict) for key in ("env", "algo")):
         raise CheckpointError(f"{where} holds no training config (a mapping with env and algo) to rebuild its run")
     try:
-        check_names_no_code(config, stored=True)
+        check_scenario_sizes(config.get("scenario"))  # counts only: first, for the clearest line
+        _check_config_size(config)
+        wkt_file = geometry_file(config.get("scenario"))
+        if wkt_file is None:
+            check_names_no_code(config, stored=True)
     except ValueError as err:
         raise CheckpointError(f"{where} holds a config that is refused: {err}") from None
+    if wkt_file is not None:
+        raise CheckpointError(
+            f"{where} names its room's WKT file (scenario.geometry={shown(wkt_file)}) instead of holding the room,"
+            " and pedrl opens no file a checkpoint names: re-export it with `python -m pedrl.embed"
+            f" {shlex.quote(str(checkpoint.path))} ROOM.wkt` (ROOM.wkt: the file it was trained on)"
+        )
     return config
+
+
+def _check_config_size(config: dict[str, Any]) -> None:
+    """Refuse a stored config nested too deep, too large or holding too long a string, walking it without
+    recursion (a 600-deep list must give one line, not a RecursionError)."""
+    stack: list[tuple[Any, str, int]] = [(config, "", 0)]
+    count = 0
+    while stack:
+        node, path, depth = stack.pop()
+        count += 1
+        if count > MAX_CONFIG_VALUES:
+            raise ValueError(f"it holds more than {MAX_CONFIG_VALUES} values")
+        if depth > MAX_CONFIG_DEPTH:
+            raise ValueError(f"{_cut(path)} is nested deeper than {MAX_CONFIG_DEPTH} levels")
+        if isinstance(node, dict):
+            for key, value in node.items():
+                if isinstance(key, str) and len(key) > MAX_CONFIG_STRING:
+                    raise ValueError(f"config key {shown(key)} is invalid: at most {MAX_CONFIG_STRING} characters")
+                stack.append((value, f"{path}.{key}" if path else str(key), depth + 1))
+        elif isinstance(node, list):
+            stack.extend((value, f"{path}[{index}]", depth + 1) for index, value in enumerate(node))
+        elif isinstance(node, str):
+            most = MAX_WKT_BYTES if path == "scenario.geometry" else MAX_CONFIG_STRING
+            if len(node) > most:
+                raise ValueError(f"{_cut(path)}={shown(node)} is invalid: at most {most} characters")
+
+
+def _cut(path: str) -> str:
+    return path if len(path) <= 120 else path[:120] + "..."
+
+
+def embed_geometry(path: str | os.PathLike, wkt: str | os.PathLike, *, output: str | os.PathLike | None = None) -> Path:
+    """Re-export a checkpoint that names its room's WKT file (``scenario.geometry``, written before rooms were
+    stored) with that room's WKT text in its stored config; ``python -m pedrl.embed`` runs it.
+
+    ``wkt`` is read once, under the bounds of :func:`pedrl.scenarios.read_wkt`, and the stored exits and spawn areas
+    must fit its polygon. Tensors and every other value are kept; the file is written atomically, to ``output``
+    (default: in place).
+
+    Raises:
+        CheckpointError: one line, for a checkpoint that names no WKT file, a bad WKT file, or a room its stored
+            exits do not fit.
+    """
+    source = load_checkpoint(path)
+    where = f"checkpoint {str(source.path)!r}"
+    config = copy.deepcopy(source.metadata.get("config"))
+    scenario = config.get("scenario") if isinstance(config, dict) else None
+    if geometry_file(scenario) is None:
+        raise CheckpointError(f"{where} names no WKT file (scenario.geometry): there is nothing to re-export")
+    try:
+        scenario = inline_geometry({**scenario, "geometry": str(wkt)})
+        build_scenario(scenario, files=False)  # the stored exits and spawn areas must fit the polygon
+    except ValueError as err:
+        raise CheckpointError(f"cannot re-export {where}: {err}") from None
+    config["scenario"] = scenario
+    header = ("format", "format_version", "pedrl_version")  # written anew by save_checkpoint
+    metadata = {key: value for key, value in source.metadata.items() if key not in header} | {"config": config}
+    destination = Path(output) if output is not None else source.path
+    check_stored_config(Checkpoint(tensors=source.tensors, metadata=metadata, path=destination))
+    return save_checkpoint(destination, tensors=source.tensors, metadata=metadata)
 
 
 # ---------------------------------------------------------------------- metadata

@@ -136,13 +136,15 @@ def load_policy(
     saved["device"] = str(device)
     if max_decisions is not None:
         saved["env"]["max_decisions"] = max_decisions
-    try:
-        trainer = build_trainer(OmegaConf.create(saved), run_dir=Path(path).parent)
-        factory = env_factory(saved["env"], scenario if scenario is not None else saved.get("scenario"))
+    try:  # the checkpoint's own config opens no file: its room is stored in it
+        trainer = build_trainer(OmegaConf.create(saved), run_dir=Path(path).parent, files=False)
+        factory = None if scenario is not None else env_factory(saved["env"], saved.get("scenario"), files=False)
     except (ValueError, OmegaConfBaseException, KeyError, TypeError) as err:
         raise CheckpointError(
             f"checkpoint {str(path)!r} holds a config this pedrl refuses ({_first_line(err)})"
         ) from None
+    if scenario is not None:  # the user's scenario: one line naming its bad key, and a WKT file it names is read
+        factory = env_factory(saved["env"], scenario)
     state = restore_state(trainer, checkpoint, continue_training=False)
     q_values, quantizer = state.q_values, state.quantizer
     processes, tables = q_values.shape[0], q_values.shape[1]

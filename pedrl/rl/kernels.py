@@ -10,14 +10,12 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from pedrl._numba import numba as load_numba
+from pedrl._numba import cached_njit
 
 __all__ = ["greedy_from_rows", "td_update"]
 
-numba = load_numba()
 
-
-@numba.njit(cache=True, nogil=True)
+@cached_njit(nogil=True)
 def _prefetch(table, rows, actions, used, next_rows, next_used, sink):
     """Check the used rows and actions against the table (numba does not), and load every cache line of those
     rows, one independent load after another, so that the memory system fetches many at once (the work on a
@@ -49,7 +47,7 @@ def _checked_prefetch(table, rows, actions, used, next_rows, next_used) -> None:
         )
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@cached_njit(nogil=True, inline="always")
 def _row_max(table, row):
     """``table[row].amax()`` as torch computes it (NaN if any value is NaN): four running maxima without branches
     (a max is exact, so their order changes nothing), and a NaN flag."""
@@ -73,7 +71,7 @@ def _row_max(table, row):
     return np.float32(np.nan) if nan else max(max(m0, m1), max(m2, m3))
 
 
-@numba.njit(cache=True, nogil=True)
+@cached_njit(nogil=True)
 def _greedy(table, rows, uniform, actions):
     num_actions = table.shape[1]
     for b in range(rows.shape[0]):
@@ -106,7 +104,7 @@ def greedy_from_rows(q_values: torch.Tensor, rows: torch.Tensor, uniform: torch.
     return actions
 
 
-@numba.njit(cache=True, nogil=True)
+@cached_njit(nogil=True)
 def _td(table, rows, actions, rewards, next_rows, terminal, valid, alpha, gamma, td_error):
     num, num_actions = rows.shape[0], table.shape[1]
     flat = table.reshape(-1)

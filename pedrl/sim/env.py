@@ -48,6 +48,10 @@ PLACEMENT_TOLERANCE: Final = 1e-4
 COLLISION_ORDERS: Final = ("random", "door_first")
 """Orders of action of the sequential collision rule (see ``RoomEnv``)."""
 OPTION_KEYS: Final = ("positions", "headings", "speeds", "replicas")
+MAX_RESET_SEED: Final = 2**64 - 1
+"""Largest ``reset(seed=...)``: a torch generator's seed is 64 bits. Wider than the command line's ``seed``
+(``MAX_SEED``, 2^32 - 1), because trainers and evaluation reseed rooms with derived seeds such as
+``seed * 10007 + phase``."""
 MAX_SUBSTEPS: Final = 1000
 """Most sub-steps per decision (``max_speed / decisions_per_second / substep_length``, 7 by default): the sequential
 collision rule loops over them, so ``max_speed=1e5`` (250 000 sub-steps) hung and ``1e9`` tried to allocate 20 GB."""
@@ -422,7 +426,8 @@ class RoomEnv:
         """Start a new trial in every replica, or in those selected by ``options["replicas"]``.
 
         Args:
-            seed: Reseeds the generator first; the same seed (and actions) gives the same trajectories.
+            seed: Reseeds the generator first; the same seed (and actions) gives the same trajectories. An integer
+                in ``[0, MAX_RESET_SEED]`` (not a float, not a bool).
             options: Optional hand placement, each for all ``(R, N)`` agents (rows of replicas not reset are
                 ignored): ``positions (R, N, 2)`` (m; inside the room, clear of walls and of each other),
                 ``headings (R, N)`` (rad; default uniform), ``speeds (R, N)`` (m/s; default 0), and
@@ -432,11 +437,12 @@ class RoomEnv:
             ``obs (R, N, F)`` float32 and ``info`` (the keys of :meth:`step`, with no crash or arrival).
 
         Raises:
-            ValueError: For an unknown option or a badly shaped or invalid value.
+            ValueError: For a seed that is not an integer in range, an unknown option or a badly shaped or invalid
+                value.
             PlacementError: If random placement fails (too many agents for the room).
         """
         if seed is not None:
-            self.generator.manual_seed(int(seed))
+            self.generator.manual_seed(check_integer("seed", seed, minimum=0, maximum=MAX_RESET_SEED))
         options = dict(options or {})
         unknown = sorted(set(options) - set(OPTION_KEYS))
         if unknown:

@@ -11,15 +11,13 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from pedrl._numba import numba as load_numba
+from pedrl._numba import cached_njit
 from pedrl.sim.geometry import Geometry
 
 __all__ = ["sequential_substeps"]
 
-numba = load_numba()
 
-
-@numba.njit(cache=True, nogil=True, inline="always")
+@cached_njit(nogil=True, inline="always")
 def _touches_walls(x, y, low, high, radius_sq):
     """`Geometry.touches_walls` of an axis-aligned geometry: clamp to each wall's box, nearest squared gap."""
     nearest = np.float32(np.inf)
@@ -30,7 +28,7 @@ def _touches_walls(x, y, low, high, radius_sq):
     return nearest < radius_sq
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@cached_njit(nogil=True, inline="always")
 def _passes_exits(x, y, depth, start, normal, tangent, span):
     """`Geometry.passes_exits` of one point."""
     for e in range(start.shape[0]):
@@ -43,7 +41,7 @@ def _passes_exits(x, y, depth, start, normal, tangent, span):
     return False
 
 
-@numba.njit(cache=True, nogil=True)
+@cached_njit(nogil=True)
 def _sequential(
     positions, step, going, present, depth, walls, low, high, radius_sq, start, normal, tangent, span,
     order, contact_sq, out, blocked, crashed_wall, reached,

@@ -75,6 +75,20 @@ def check_bool(name: str, value: Any) -> bool:
     return value
 
 
+def shown(value: Any, *, limit: int = 80) -> str:
+    """``repr(value)`` cut to ``limit`` characters, with the full length, so that a message stays one short line
+    whatever a config or a file holds (a 1 MB path, a whole WKT polygon)."""
+    try:
+        text = repr(value)
+    except RecursionError:
+        return f"<a {type(value).__name__} nested too deep to show>"
+    if len(text) <= limit:
+        return text
+    if isinstance(value, list | tuple | dict):
+        return f"{text[:limit]}... ({len(value)} items)"
+    return f"{text[:limit]}... ({len(value) if isinstance(value, str | bytes) else len(text)} characters)"
+
+
 def check_device(value: Any) -> torch.device:
     """``value`` as a usable CPU or CUDA torch device, else a one-line ``ValueError``."""
     try:

@@ -22,11 +22,9 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from pedrl._numba import numba as load_numba
+from pedrl._numba import cached_njit
 
 __all__ = ["LEAF_SIZE", "TreeIndex"]
-
-numba = load_numba()  # with the SLP vectorizer, which packs a leaf's distances into vectors
 
 LEAF_SIZE = 16
 """Prototypes per leaf, whose distances the kernel computes in vector lanes, 8 at a time (measured per state:
@@ -51,7 +49,7 @@ def _build(points: np.ndarray) -> tuple[np.ndarray, ...]:
     return _build_tree(np.ascontiguousarray(points, dtype=np.float64), LEAF_SIZE)
 
 
-@numba.njit(cache=True, nogil=True)
+@cached_njit(nogil=True)
 def _build_tree(points, leaf_size):
     num, dim = points.shape
     capacity = 2 * num + 1
@@ -98,7 +96,7 @@ def _build_tree(points, leaf_size):
     return order, start[:count], end[:count], left[:count], right[:count], low[:count], high[:count]
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@cached_njit(nogil=True, inline="always")
 def _box_distance(point, low, high, t, node):
     """Squared distance from ``point`` to the box of ``node`` over its leading columns (a lower bound).
 
@@ -120,7 +118,7 @@ def _box_distance(point, low, high, t, node):
     return a0 + a1
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@cached_njit(nogil=True, inline="always")
 def _eight_distances(point, prototypes, t, leaf, first, sums):
     """Squared distances from ``point`` to prototypes ``first .. first + 7`` of a leaf, into ``sums``: eight
     independent chains over the columns, which the SLP vectorizer packs into one vector."""
@@ -153,7 +151,7 @@ def _eight_distances(point, prototypes, t, leaf, first, sums):
     sums[first + 7] = s7
 
 
-@numba.njit(cache=True, nogil=True)
+@cached_njit(nogil=True)
 def _search(
     points, tree, columns, prototypes, ids_of, leaf_of, left, right, split_dim, split_value, low, high, ids, sq_dist
 ):

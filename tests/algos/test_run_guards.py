@@ -1,10 +1,15 @@
 """What a training run does when it goes wrong or is watched from a log file: it stops with one line when learning
-turns inf or NaN, and prints one line per phase instead of a progress bar when stderr is not a terminal."""
+turns inf or NaN, refuses before compute a K that gathering cannot reach and shrinks K with one line when the states
+hold fewer distinct ones, and prints one line per phase instead of a progress bar when stderr is not a terminal."""
+
+import warnings
 
 import pytest
 from omegaconf import open_dict
 
 import pedrl.sim.env
+from pedrl.io import load_checkpoint
+from pedrl.notices import PedrlWarning, warn
 from pedrl.train import train
 
 
@@ -31,3 +36,62 @@ def test_without_a_terminal_the_progress_bar_is_one_line_per_phase(train_config,
     assert len(phase_lines) == 2, captured.out
     assert phase_lines[0].startswith("it_vqql phase 1/2 (20 agents): 10 trials in ")
     assert ", success " in phase_lines[1]
+
+
+# ---------------------------------------------------------------------- K against the gathered states (issue 20)
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        (
+            ("vq.num_prototypes=4096",),
+            "vq.num_prototypes=4096 is invalid: phase 1 gathers at most 1200 states per process (algo.gather_trials=2 "
+            "x rooms_per_process=1 x 20 agents x env.max_decisions=30) and k-means needs one per prototype: must be "
+            "at most 1200, or raise algo.gather_trials",
+        ),
+        (
+            ("vq.num_prototypes=4096", "vq.per_process=false"),
+            "at most 2400 states for the shared quantizer (processes=2",
+        ),
+        (
+            ("algo=in_vqql", "vq.num_prototypes=61"),
+            "phase 1 gathers at most 60 states per process (algo.gather_trials=2",
+        ),
+    ],
+)
+def test_a_k_that_gathering_cannot_reach_is_refused_before_compute(train_config, tmp_path, overrides, message):
+    with pytest.raises(ValueError) as error:
+        train(train_config("logger=none", *overrides), run_dir=tmp_path)
+    assert message in str(error.value) and "\n" not in str(error.value)
+    assert not any(tmp_path.iterdir()), "nothing is computed or written"
+
+
+@pytest.mark.parametrize(
+    ("overrides", "every"),
+    [
+        (("algo=vqql", "vq.num_prototypes=1200"), "every process's quantizer uses K = "),  # 2 x 20 agents x 30
+        (("algo=in_vqql", "vq.num_prototypes=60"), "every process's quantizer uses K = "),  # stage 1: 2 x 1 x 30
+        (("algo=vqql", "vq.num_prototypes=2400", "vq.per_process=false"), "the quantizer uses K = "),
+    ],
+)
+def test_fewer_distinct_states_than_k_shrink_k_with_one_line(train_config, tmp_path, overrides, every):
+    """Agents that reach the door stop adding states: K shrinks to what the states hold, the same K in every process
+    (their tables stack), with a single one-line warning, and the run goes on (it used to fail after gathering)."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = train(train_config("logger=none", "algo.trials=2", *overrides), run_dir=tmp_path)
+    shrinks = [w for w in caught if issubclass(w.category, UserWarning) and "distinct" in str(w.message)]
+    assert [w.category for w in shrinks] == [PedrlWarning], [str(w.message) for w in shrinks]
+    message = str(shrinks[0].message)
+    assert message.startswith("phase 1 (") and every in message and "\n" not in message
+    fitted = int(message.split("uses K = ")[1].split()[0])
+    assert fitted < int(overrides[1].split("=")[1])
+    assert result.phases[0]["prototypes"] == fitted
+    tensors = load_checkpoint(tmp_path / "checkpoints" / "iter_0001.safetensors").tensors
+    assert tensors["q_values"].shape[2] == fitted
+
+
+def test_a_shrink_warning_prints_as_one_line():
+    with pytest.warns(PedrlWarning, match="^K shrank$"):
+        warn("K shrank\nsecond line")  # the first line only; installs the one-line format
+    assert warnings.formatwarning("K shrank", PedrlWarning, __file__, 1) == "pedrl: warning: K shrank\n"
+    assert "UserWarning" in warnings.formatwarning("other", UserWarning, __file__, 1)  # others keep Python's format

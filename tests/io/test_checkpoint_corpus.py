@@ -156,6 +156,27 @@ def _deeply_nested_metadata(tensors, metadata, canary):
     return struct.pack("<Q", len(encoded)) + encoded + b"\0" * 4
 
 
+def _scenario(**values):
+    """Set keys of the stored ``scenario`` (a value that is a function gets the canary's path)."""
+
+    def make(tensors, metadata, canary):
+        stored = metadata["config"]["scenario"]
+        stored.update({key: value(canary) if callable(value) else value for key, value in values.items()})
+
+    return make
+
+
+def _nested_list(depth):
+    node = [1.0]
+    for _ in range(depth):
+        node = [node]
+    return node
+
+
+SQUARE = "POLYGON ((0 0, 10 0, 10 10, 0 10, 0 0))"
+UTM_SQUARE = "POLYGON ((500000 5400000, 500010 5400000, 500010 5400010, 500000 5400010, 500000 5400000))"
+
+
 def _first_table(tensors, metadata, canary):
     q_values = tensors["q_values"]
     tensors["q_values"] = q_values.clone()
@@ -247,6 +268,33 @@ CORPUS = {
     "unknown tensor": (_set_tensor("payload", lambda s: torch.zeros(3)), "payload is unknown"),
     "float generator state": (_set_tensor("rng/trainer", lambda s: s.float()), "rng/trainer is torch.float32"),
     "no generator state": (_drop("rng/env"), "rng/env is missing"),
+    # the stored scenario (issue 20): the checkpoint holds its room, opens no file it names, and is bounded
+    "stored room names a file": (
+        _scenario(geometry=str, exits=[[10, 2, 10, 4]]),
+        "names its room's WKT file .* re-export it with `python -m pedrl.embed",
+    ),
+    "stored room names /dev/zero": (_scenario(geometry="/dev/zero", exits=[[10, 2, 10, 4]]), "names its room's WKT"),
+    "stored room names a 1 MB path": (
+        _scenario(geometry="/tmp/" + "a" * 10**6, exits=[[10, 2, 10, 4]]),
+        "1000005 characters\\)\\) instead of holding the room",
+    ),
+    "100000 stored exits": (
+        _scenario(geometry=SQUARE, exits=[[10, 2, 10, 4]] * 10**5),
+        "scenario.exits holds 100000 entries: at most 1000",
+    ),
+    "600-deep stored list": (
+        _scenario(geometry=SQUARE, exits=_nested_list(600)),
+        "scenario.exits\\[0\\].* is nested deeper than 16 levels",
+    ),
+    "stored polygon of 100000 vertices": (
+        _scenario(geometry="POLYGON ((0 0, " + "1 1, " * 10**5 + "0 0))", exits=[[10, 2, 10, 4]]),
+        "100002 vertices, at most 10000",
+    ),
+    "stored room far from the origin": (
+        _scenario(geometry=UTM_SQUARE, exits=[[500010, 5400002, 500010, 5400004]]),
+        "float32 positions are 0.5 m apart",
+    ),
+    "stored scenario name of 10000 characters": (_scenario(name="x" * 10_000), "at most 4096 characters"),
 }
 UNION_CORPUS = {
     "union part with other features": (
@@ -276,7 +324,7 @@ def _assert_refused_everywhere(path: Path, cfg, tmp_path: Path, canary: Path, me
     with pytest.raises(CheckpointError, match=message) as info:
         load_policy(path, controller="learned", epsilon=0.0, device=torch.device("cpu"), max_decisions=None)
     text = str(info.value)
-    assert "\n" not in text and str(path) in text
+    assert "\n" not in text and str(path) in text and len(text) < 1000, text[:2000]
     with pytest.raises(CheckpointError) as info:
         load_policy(path, controller="greedy", epsilon=0.0, device=torch.device("cpu"), max_decisions=None)
     run_dir = tmp_path / "resumed"
