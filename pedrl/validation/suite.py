@@ -35,7 +35,7 @@ from pedrl.validation.measures import (
     weidmann_speed,
 )
 
-RIMEA_SOURCE: Final = "RiMEA guideline 4.0"
+RIMEA_SOURCE: Final = "RiMEA guideline 3.0"
 WEIDMANN_SOURCE: Final = "Weidmann (1993), RiMEA test 4: v0 = 1.34 m/s, gamma = 1.913, rho_max = 5.4 /m^2"
 LIDDLE_SOURCE: Final = "Liddle et al. (2011), 0.9-2.5 m wide bottlenecks"
 LANES_SOURCE: Final = "Rex and Löwen (2007); Feliciani and Nishinari (2016)"
