@@ -11,16 +11,15 @@ from typing import Any
 
 import hydra
 import torch
-from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
 from pedrl.algos import Trainer, TrainResult
 from pedrl.cli import (
+    OutputDirCheck,
     checked_groups,
     describe_os_error,
     fail,
     hydra_output_dir,
-    output_dir_problem,
     run_reporting_errors,
 )
 from pedrl.io import CheckpointError
@@ -132,16 +131,15 @@ def _resume_path(resume: Any, run_dir: Path) -> Path | None:
     raise ValueError(f"resume={resume!r} is invalid: must be null, true, a run directory or the path of a checkpoint")
 
 
-class RunFolderCheck(Callback):
+class RunFolderCheck(OutputDirCheck):
     """Hydra callback of ``pedrl-train`` (``conf/train.yaml``): before Hydra writes into the run folder (``.hydra/``,
-    the job log), refuse in one line (exit code 2) a folder whose lock another run holds, so that a second run does
-    not overwrite what the first one recorded. It only tries the lock: :func:`train` holds it for the run."""
+    the job log), refuse in one line (exit code 2) a folder that cannot hold a run (:class:`~pedrl.cli.OutputDirCheck`)
+    or whose lock another run holds, so that a second run does not overwrite what the first one recorded. It only
+    tries the lock: :func:`train` holds it for the run."""
 
     def on_run_start(self, config: DictConfig, **kwargs: Any) -> None:
-        directory = Path(str(config.hydra.run.dir))
-        problem = output_dir_problem(directory)  # a file, or not writable: the one line of OutputDirCheck
-        if problem:
-            fail("pedrl-train", problem)
+        super().on_run_start(config, **kwargs)  # hydra.run.dir resolved and writable, else one line
+        directory = OutputDirCheck.folder
         try:
             with run_folder_lock(directory):
                 pass

@@ -806,7 +806,7 @@ def test_every_command_checks_its_seed(program, override, fragments, tmp_path, c
     assert_nothing_computed(run_dir)
 
 
-@pytest.mark.parametrize("program", ["pedrl-eval", "pedrl-plot", "pedrl-validate"])
+@pytest.mark.parametrize("program", ["pedrl-train", "pedrl-eval", "pedrl-plot", "pedrl-validate"])
 def test_run_folder_that_cannot_be_resolved_is_one_line(program, tmp_path, checkpoint, capsys):
     """``hydra.run.dir=${oops}``: Hydra turned the callback's error into a five-line warning, then a traceback."""
     args = [*_any_program_args(program, tmp_path, checkpoint), "hydra.run.dir=" + str(tmp_path) + "/${oops}"]
