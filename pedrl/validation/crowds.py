@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Protocol
 
 import numpy as np
@@ -160,8 +160,6 @@ class JuPedSimCrowd:
         positions: np.ndarray | None = None,
         headings: np.ndarray | None = None,
     ) -> Recording:
-        from dataclasses import replace
-
         from pedrl.integrations.jupedsim import room_scene, simulate
 
         model = self.model if max_speed is None else replace(self.model, desired_speed=max_speed)
