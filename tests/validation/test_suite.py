@@ -386,3 +386,14 @@ def test_rimea_4_places_its_densest_crowd_at_any_body_size(radius):
     env = crowd.room(rimea_4_corridor(), num_agents=start.shape[1], replicas=1, max_time=1.0, placed=True)
     env.reset(seed=0, options={"positions": torch.as_tensor(start, dtype=torch.float32)})
     assert env.num_agents > 200
+
+
+def test_the_jupedsim_column_without_jupedsim_is_one_line(tmp_path, monkeypatch):
+    import importlib.util
+
+    find_spec = importlib.util.find_spec
+    missing = lambda name, *args: None if name == "jupedsim" else find_spec(name, *args)  # noqa: E731
+    monkeypatch.setattr(importlib.util, "find_spec", missing)
+    with pytest.raises(ValueError, match=r"jupedsim is not installed: pip install 'pedrl\[jupedsim\]'") as err:
+        run(compose_config("validate", ["controller=references"]), run_dir=tmp_path)
+    assert "\n" not in str(err.value) and not (tmp_path / "validation.json").exists()
