@@ -1015,7 +1015,7 @@ def _rows_before(global_trial: int) -> Callable[[Mapping[str, str]], bool]:
     return keep
 
 
-_NEWER_KEYS = {"env.compile_sensing": False}
+_NEWER_KEYS = {"env.compile_sensing": False, "env.contact": "stop", "env.time_gap": 1.0}
 """Keys added after checkpoints were first written, with the value the runs of older checkpoints had."""
 
 

@@ -15,6 +15,7 @@ import torch
 
 from pedrl.sim.dynamics import (
     COLLISION_RULES,
+    CONTACT_MODELS,
     DEFAULT_SPEED_RATIOS,
     DEFAULT_TURN_RATIOS,
     NOOP_INDEX,
@@ -24,6 +25,7 @@ from pedrl.sim.dynamics import (
     count_substeps,
     move_agents,
     move_agents_sequential,
+    move_agents_sliding,
     velocities_from,
 )
 from pedrl.sim.geometry import NUM_WALLS, Geometry, X, Y, inside_polygon, spawn_counts, wrap_angle
@@ -150,6 +152,8 @@ class RoomEnv:
         goal_depth: float = 0.0,
         reward_progress: float = 1.0,
         compile_sensing: bool = False,
+        contact: str = "stop",
+        time_gap: float = 1.0,
         geometry: Geometry | None = None,
     ) -> None:
         """Validate the configuration and allocate the state (call :meth:`reset` before :meth:`step`).
@@ -194,6 +198,23 @@ class RoomEnv:
                 percent of a learning decision, for 10 to 30 s of compilation per process, and the features differ
                 from the eager ones in the last bits (1e-6), so seeded runs are reproducible only with the same
                 setting.
+            contact: What a move that would enter another body or a wall does (``CONTACT_MODELS``).
+                ``"stop"`` (default, the paper's reading): the mover stops for the rest of the decision, by
+                ``collision_rule``. ``"slide"``: it keeps the part of its move tangent to the contact for the rest of
+                the decision and stops only if even that would enter something
+                (:func:`~pedrl.sim.dynamics.move_agents_sliding`). ``"headway"``: the collision-free speed rule
+                (Tordeux, Chraibi & Seyfried 2016, as JuPedSim's ``CollisionFreeSpeedModel``): the action sets the
+                heading and the wanted speed ``v``, and the speed walked is ``min(v, max(0, (s - 2 r) / time_gap))``
+                with ``s`` the distance to the nearest body ahead within the corridor of half-width ``2 r``
+                (:func:`~pedrl.sim.dynamics.headway_factors`, recomputed every sub-step); walls are slid along and
+                ``slide`` stays the safety net against bodies. With ``slide`` and ``headway`` the movers act in
+                ``collision_order`` and the speed after the step is the distance actually walked per second.
+                A contact (``info["crashed_agent"]``, ``crashed_wall``, the crash rewards) is a decision in which
+                another body (a wall) cut the agent's move: with ``stop`` the agent was stopped by it; with
+                ``slide`` its move was deflected or stopped by it; with ``headway`` the same, for the headway-limited
+                move (slowing down for a body ahead is no contact). A wall contact takes precedence: an agent is
+                never flagged for both.
+            time_gap: ``T`` of the ``headway`` rule (s, ``> 0``; 1 s as JuPedSim's default); unused otherwise.
             geometry: Any walkable area (``pedrl.scenarios`` builds one from polygons); ``None`` is the paper's
                 room of ``width``, ``length`` and ``door_width`` (:meth:`Geometry.rectangle`), which are then
                 ignored except as the extent of the area. Its ``goal_depth`` is the geometry's own.
@@ -261,6 +282,13 @@ class RoomEnv:
                 )
         self.collision_rule = check_choice("collision_rule", collision_rule, COLLISION_RULES)
         self.collision_order = check_choice("collision_order", collision_order, COLLISION_ORDERS)
+        self.contact = check_choice("contact", contact, CONTACT_MODELS)
+        if self.contact != "stop" and self.collision_rule != "sequential":
+            raise ValueError(
+                f"collision_rule={collision_rule!r} is invalid with contact={contact!r}: the slide and headway rules"
+                " resolve movers in turn (collision_rule: sequential; it applies to contact=stop only)"
+            )
+        self.time_gap = check_real("time_gap", time_gap, unit="s", positive=True)
         self.goal_depth = check_real("goal_depth", goal_depth, unit="m")
         if self.goal_depth < 0:
             raise ValueError(f"goal_depth={goal_depth!r} is invalid: must be a finite number >= 0 (m)")
@@ -550,12 +578,21 @@ class RoomEnv:
             priority = torch.rand(self.active.shape, generator=self.generator, device=self.device)
             if self.collision_order == "door_first":  # metres dominate, the uniform draw breaks ties
                 priority = self._goal_distance(self.positions, targets) + priority * 1e-3
-            # off the CPU: fixed rounds with masks, so that a decision never waits for the host (same result)
-            movement = move_agents_sequential(**motion, priority=priority, sync_free=self.device.type != "cpu")
+        if self.contact != "stop":
+            time_gap = self.time_gap if self.contact == "headway" else None
+            movement = move_agents_sliding(**motion, priority=priority, time_gap=time_gap)
+            # the speed is the distance actually walked; the heading stays the commanded one
+            walked = torch.linalg.vector_norm(movement.positions - self.positions, dim=-1) / self.decision_length
+            speeds = torch.where(acting, walked.clamp_max(self.max_speed), speeds)
+            velocities = velocities_from(speeds=speeds, headings=headings)
         else:
-            movement = move_agents(**motion)
-        speeds = torch.where(movement.blocked, 0.0, speeds)
-        velocities = torch.where(movement.blocked.unsqueeze(-1), 0.0, velocities)
+            if self.collision_rule == "sequential":
+                # off the CPU: fixed rounds with masks, so that a decision never waits for the host (same result)
+                movement = move_agents_sequential(**motion, priority=priority, sync_free=self.device.type != "cpu")
+            else:
+                movement = move_agents(**motion)
+            speeds = torch.where(movement.blocked, 0.0, speeds)
+            velocities = torch.where(movement.blocked.unsqueeze(-1), 0.0, velocities)
 
         progress = self._goal_distance(self.positions, targets) - self._goal_distance(movement.positions, targets)
 

@@ -19,8 +19,9 @@ class RewardTable:
 
     Attributes:
         goal: Reaching the door.
-        crash_wall: Being blocked by a wall during the decision.
-        crash_agent: Being blocked by another body (and not by a wall) during the decision.
+        crash_wall: A wall contact during the decision: a wall cut the agent's move (stopped it under the ``stop``
+            contact model, deflected or stopped it under ``slide`` and ``headway``; see ``RoomEnv``'s ``contact``).
+        crash_agent: A body contact (and no wall contact) during the decision: another body cut the agent's move.
         default: Anything else.
     """
 
@@ -46,8 +47,8 @@ def compute_rewards(
     Args:
         table: The reward values.
         reached: Agents that reached the door ``(R, N)`` bool.
-        crashed_wall: Agents blocked by a wall ``(R, N)`` bool.
-        crashed_agent: Agents blocked by an agent ``(R, N)`` bool.
+        crashed_wall: Agents whose move a wall cut ``(R, N)`` bool.
+        crashed_agent: Agents whose move another body cut, and no wall ``(R, N)`` bool.
         acting: Agents active during the decision ``(R, N)`` bool.
 
     Returns:
