@@ -407,6 +407,15 @@ class Trainer:
         """True when ``phase`` keeps the previous phase's quantizer and tables instead of starting afresh."""
         return False
 
+    def initial_q_values(
+        self, phase: Phase, quantizer: Any, previous: tuple[Any, torch.Tensor] | None, num_actions: int
+    ) -> torch.Tensor:
+        """The tables ``(P, A, K, U)`` a phase that fitted ``quantizer`` starts learning from: zeros (the paper: no
+        transfer between phases)."""
+        return zeros_q_values(
+            self.processes, self.num_tables(phase), quantizer.num_prototypes, num_actions, device=self.device
+        )
+
     def gather_tables(self, phase: Phase, previous: tuple[Any, torch.Tensor] | None):
         """The (quantizer, q_values) followed while gathering phase ``phase``'s states, or None (random walk)."""
         return previous
@@ -460,14 +469,8 @@ class Trainer:
                     quantizer, distortion = self.fit_quantizers(
                         phase, states, num_sensed, process, previous[0] if previous else None
                     )
-                    # --- 3. new tables, learned from scratch (paper: no transfer between phases)
-                    q_values = zeros_q_values(
-                        self.processes,
-                        self.num_tables(phase),
-                        quantizer.num_prototypes,
-                        env.num_actions,
-                        device=self.device,
-                    )
+                    # --- 3. new tables: from scratch (the paper), or the algorithm's start (IT-VQQL's value transfer)
+                    q_values = self.initial_q_values(phase, quantizer, previous, env.num_actions)
                     summaries.append(
                         {
                             "phase": phase.index,
@@ -1015,7 +1018,7 @@ def _rows_before(global_trial: int) -> Callable[[Mapping[str, str]], bool]:
     return keep
 
 
-_NEWER_KEYS = {"env.compile_sensing": False, "env.contact": "stop", "env.time_gap": 1.0}
+_NEWER_KEYS = {"env.compile_sensing": False, "env.contact": "stop", "env.time_gap": 1.0, "algo.value_transfer": False}
 """Keys added after checkpoints were first written, with the value the runs of older checkpoints had."""
 
 

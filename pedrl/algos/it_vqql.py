@@ -6,8 +6,11 @@ import math
 from collections.abc import Sequence
 from typing import Any
 
+import torch
+
 from pedrl.algos.base import MAX_TRIALS, Phase, Trainer
-from pedrl.sim.validation import check_integer, check_number
+from pedrl.sim.validation import check_bool, check_integer, check_number
+from pedrl.vq import ProcessQuantizers
 
 
 class ITVQQL(Trainer):
@@ -28,6 +31,10 @@ class ITVQQL(Trainer):
             trials (budgets grow per iteration, as in Figure 4).
         gather_trials: trials recorded per iteration for the quantizer.
         gather_epsilon: exploration while gathering from iteration 2 on.
+        value_transfer: start each iteration's tables from the previous iteration's instead of zeros (the paper's
+            footnote 1): row ``k`` of a new table is the old table's row at the old prototype nearest to new
+            prototype ``k`` (the old quantizer's encoding of the new prototype, decoded to features), table ``a``
+            taking old table ``a mod A_old``; one quantizer per process maps process by process.
         **common: the keyword arguments of :class:`pedrl.algos.base.Trainer` (``void_features`` defaults to
             ``"random"`` here).
     """
@@ -43,6 +50,7 @@ class ITVQQL(Trainer):
         trials_growth: float = 1.0,
         gather_trials: int = 5,
         gather_epsilon: float = 0.07,
+        value_transfer: bool = False,
         **common: Any,
     ) -> None:
         self.iterations = iterations
@@ -51,6 +59,7 @@ class ITVQQL(Trainer):
         self.trial_budgets = _budgets("trials", trials, iterations, trials_growth)
         self.gather_trials = gather_trials
         self.gather_epsilon = gather_epsilon
+        self.value_transfer = check_bool("value_transfer", value_transfer)
         common.setdefault("void_features", "random")
         super().__init__(**common)
 
@@ -65,6 +74,26 @@ class ITVQQL(Trainer):
             )
             for i, (agents, budget) in enumerate(zip(self.agents_per_iteration, self.trial_budgets, strict=True))
         ]
+
+    def initial_q_values(
+        self, phase: Phase, quantizer: Any, previous: tuple[Any, torch.Tensor] | None, num_actions: int
+    ) -> torch.Tensor:
+        """Zeros, or with ``value_transfer`` the previous iteration's rows at the nearest old prototypes."""
+        q_values = super().initial_q_values(phase, quantizer, previous, num_actions)
+        if not self.value_transfer or previous is None:
+            return q_values
+        old_quantizer, old_q_values = previous
+        old_tables = torch.arange(q_values.shape[1], device=q_values.device) % old_q_values.shape[1]
+        for process in range(q_values.shape[0]):
+            new, old = _process_part(quantizer, process), _process_part(old_quantizer, process)
+            nearest = old.encode(new.decode(torch.arange(new.num_prototypes, device=new.device)))  # (K,)
+            q_values[process] = old_q_values[process][old_tables][:, nearest]
+        return q_values
+
+
+def _process_part(quantizer: Any, process: int) -> Any:
+    """The quantizer that encodes process ``process``'s states: its own part, or the shared quantizer."""
+    return quantizer.parts[process] if isinstance(quantizer, ProcessQuantizers) else quantizer
 
 
 def _budgets(name: str, trials: int | Sequence[int], count: int, growth: float) -> list[int]:
