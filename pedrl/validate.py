@@ -85,11 +85,9 @@ def run(cfg: DictConfig, *, run_dir: Path | None = None) -> dict[str, Any]:
 def jupedsim_model(settings: Any) -> Any:
     """The :class:`~pedrl.integrations.jupedsim.JuPedSimModel` of the ``jupedsim`` settings, after checking that
     JuPedSim is installed; one-line errors. The suite gives it the run's body radius."""
-    import importlib.util
+    from pedrl.integrations.jupedsim import INSTALL_HINT, installed, model_from_settings
 
-    from pedrl.integrations.jupedsim import INSTALL_HINT, model_from_settings
-
-    if importlib.util.find_spec("jupedsim") is None:
+    if not installed():
         raise ValueError(f"the jupedsim column is invalid here: {INSTALL_HINT} (or choose controller=both)")
     return model_from_settings(settings)
 

@@ -7,7 +7,6 @@ the checkpoint's room is known. :func:`evaluate` then hands plain values (:class
 
 from __future__ import annotations
 
-import importlib.util
 import math
 from pathlib import Path
 from typing import Any, Final
@@ -27,7 +26,7 @@ from pedrl.evaluation.engine import (
     measurement_point,
     room_geometry,
 )
-from pedrl.integrations.jupedsim import INSTALL_HINT, JuPedSimModel, model_from_settings
+from pedrl.integrations.jupedsim import INSTALL_HINT, JuPedSimModel, installed, model_from_settings
 from pedrl.runtime import set_threads
 from pedrl.sim import RoomEnv
 from pedrl.sim.validation import (
@@ -143,7 +142,7 @@ def _validate_values(cfg: DictConfig) -> None:
     check_integer("trials_per_batch", cfg.get("trials_per_batch"), minimum=1)
     check_choice("controller", cfg.get("controller"), CONTROLLERS)
     jupedsim_model(cfg)
-    if cfg.controller == "jupedsim" and importlib.util.find_spec("jupedsim") is None:
+    if cfg.controller == "jupedsim" and not installed():
         raise ValueError(f"controller=jupedsim is invalid here: {INSTALL_HINT}")
     check_number("epsilon", cfg.get("epsilon"), low=0.0, high=1.0)
     if cfg.get("max_decisions") is not None:

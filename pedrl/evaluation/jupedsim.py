@@ -23,7 +23,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from pedrl.evaluation.engine import BatchRecord
-from pedrl.integrations.jupedsim import JuPedSimModel, JuPedSimRun, room_scene, simulate, walkable_with_aprons
+from pedrl.integrations.jupedsim import JuPedSimModel, JuPedSimRun, pad_frames, simulate_room, walkable_with_aprons
 from pedrl.scenarios import Scenario
 from pedrl.sim import RoomEnv
 
@@ -55,21 +55,10 @@ class JuPedSimReference:
         """Reset ``env`` (its generator draws the scenes) and simulate every replica's scene with JuPedSim."""
         env.reset()
         model = replace(self.model, radius=env.agent_radius)
-        runs = []
-        for replica in range(env.num_replicas):
-            scene = room_scene(env, replica=replica)
-            runs.append(
-                simulate(
-                    self.scenario,
-                    positions=scene.positions,
-                    exit_index=scene.exit_index,
-                    waypoints=scene.waypoints,
-                    model=model,
-                    max_time=env.max_decisions * env.decision_length,
-                    frame_rate=env.decisions_per_second,
-                )
-            )
-        return batch_record(runs)
+        max_time = env.max_decisions * env.decision_length
+        return batch_record(
+            simulate_room(self.scenario, env, model=model, max_time=max_time, frame_rate=env.decisions_per_second)
+        )
 
 
 def batch_record(runs: list[JuPedSimRun]) -> BatchRecord:
@@ -80,8 +69,8 @@ def batch_record(runs: list[JuPedSimRun]) -> BatchRecord:
     positions, velocities, active, speeds = [], [], [], []
     for run in runs:
         in_frame = (~run.left)[None, :] | (frames <= run.left_at[None, :])  # (T, N): in the area at frame t - 1
-        velocity = _pad(run.velocities(), length, fill=0.0)
-        positions.append(_pad(run.positions, length))
+        velocity = pad_frames(run.velocities(), length, fill=0.0)
+        positions.append(pad_frames(run.positions, length))
         velocities.append(velocity)
         active.append(in_frame)
         speeds.append(np.where(in_frame[1:], np.linalg.norm(velocity[1:], axis=-1), 0.0))  # (T - 1, N) m/s
@@ -98,12 +87,3 @@ def batch_record(runs: list[JuPedSimRun]) -> BatchRecord:
         speed_sq_sum=(speed * speed).sum(axis=(1, 2)),
         speed_count=counted.sum(axis=(1, 2)),
     )
-
-
-def _pad(values: np.ndarray, length: int, fill: float | None = None) -> np.ndarray:
-    """``values (T, ...)`` extended to ``length`` frames with ``fill`` (None: its last frame)."""
-    missing = length - values.shape[0]
-    if missing <= 0:
-        return values
-    tail = np.repeat(values[-1:], missing, axis=0) if fill is None else np.full((missing, *values.shape[1:]), fill)
-    return np.concatenate([values, tail])

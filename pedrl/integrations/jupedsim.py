@@ -57,9 +57,12 @@ __all__ = [
     "JuPedSimModel",
     "JuPedSimRun",
     "Scene",
+    "installed",
     "model_from_settings",
+    "pad_frames",
     "room_scene",
     "simulate",
+    "simulate_room",
     "walkable_with_aprons",
 ]
 
@@ -459,6 +462,45 @@ def _pass_waypoints(simulation: Any, routing: dict[int, _Journey], radius: float
 
 
 # ---------------------------------------------------------------------- helpers
+def simulate_room(
+    scenario: Scenario, room: RoomEnv, *, model: JuPedSimModel, max_time: float, frame_rate: float
+) -> list[JuPedSimRun]:
+    """:func:`simulate` from the scene of every replica of ``room`` as it stands (after ``room.reset(...)``), one
+    replica after another (``scenario``: the one the room was built in)."""
+    runs = []
+    for replica in range(room.num_replicas):
+        scene = room_scene(room, replica=replica)
+        runs.append(
+            simulate(
+                scenario,
+                positions=scene.positions,
+                exit_index=scene.exit_index,
+                waypoints=scene.waypoints,
+                model=model,
+                max_time=max_time,
+                frame_rate=frame_rate,
+            )
+        )
+    return runs
+
+
+def pad_frames(values: np.ndarray, length: int, fill: Any = None) -> np.ndarray:
+    """``values (T, ...)`` extended to ``length`` frames with ``fill`` (``None``: its last frame), so that runs that
+    ended at different times stack."""
+    missing = length - values.shape[0]
+    if missing <= 0:
+        return values
+    tail = np.repeat(values[-1:], missing, axis=0) if fill is None else np.full((missing, *values.shape[1:]), fill)
+    return np.concatenate([values, tail])
+
+
+def installed() -> bool:
+    """Whether JuPedSim can be imported (checked without importing it)."""
+    import importlib.util
+
+    return importlib.util.find_spec("jupedsim") is not None
+
+
 def _import_jupedsim() -> Any:
     try:
         import jupedsim

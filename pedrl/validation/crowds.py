@@ -16,6 +16,7 @@ from typing import Any, Protocol
 import numpy as np
 import torch
 
+from pedrl.integrations.jupedsim import pad_frames, simulate_room
 from pedrl.scenarios import Scenario
 from pedrl.sim import RoomEnv
 from pedrl.validation.measures import Recording
@@ -90,6 +91,34 @@ class PedrlCrowd:
             return RoomEnv(**room, geometry=scenario.geometry(goal_depth=float(settings.get("goal_depth", 0.0))))
         return scenario.room(**room)
 
+    def start(
+        self,
+        scenario: Scenario,
+        *,
+        num_agents: int,
+        replicas: int,
+        max_time: float,
+        seed: int,
+        max_speed: float | None = None,
+        positions: np.ndarray | None = None,
+        headings: np.ndarray | None = None,
+    ) -> tuple[RoomEnv, tuple[torch.Tensor, dict[str, Any]]]:
+        """The room of a run, reset for ``seed`` with the hand placement (if any); and ``reset``'s ``(obs, info)``."""
+        env = self.room(
+            scenario,
+            num_agents=num_agents,
+            replicas=replicas,
+            max_time=max_time,
+            max_speed=max_speed,
+            placed=positions is not None,
+        )
+        options = None
+        if positions is not None:
+            options = {"positions": torch.as_tensor(positions, dtype=torch.float32)}
+            if headings is not None:
+                options["headings"] = torch.as_tensor(headings, dtype=torch.float32)
+        return env, env.reset(seed=seed, options=options)
+
     def simulate(
         self,
         scenario: Scenario,
@@ -102,15 +131,16 @@ class PedrlCrowd:
         positions: np.ndarray | None = None,
         headings: np.ndarray | None = None,
     ) -> Recording:
-        env = self.room(
+        env, (obs, info) = self.start(
             scenario,
             num_agents=num_agents,
             replicas=replicas,
             max_time=max_time,
+            seed=seed,
             max_speed=max_speed,
-            placed=positions is not None,
+            positions=positions,
+            headings=headings,
         )
-        obs, info = env.reset(seed=seed, options=_options(positions, headings))
         frames, active = [env.positions.clone()], [env.active.clone()]
         left_at = torch.full(env.active.shape, -1, dtype=torch.int64, device=env.device)
         decision = 0
@@ -160,52 +190,23 @@ class JuPedSimCrowd:
         positions: np.ndarray | None = None,
         headings: np.ndarray | None = None,
     ) -> Recording:
-        from pedrl.integrations.jupedsim import room_scene, simulate
-
         model = self.model if max_speed is None else replace(self.model, desired_speed=max_speed)
-        env = self.placement.room(
-            scenario, num_agents=num_agents, replicas=replicas, max_time=max_time, placed=positions is not None
+        env, _ = self.placement.start(
+            scenario,
+            num_agents=num_agents,
+            replicas=replicas,
+            max_time=max_time,
+            seed=seed,
+            positions=positions,
+            headings=headings,
         )
-        env.reset(seed=seed, options=_options(positions, headings))
-        runs = []
-        for replica in range(replicas):
-            scene = room_scene(env, replica=replica)
-            runs.append(
-                simulate(
-                    scenario,
-                    positions=scene.positions,
-                    exit_index=scene.exit_index,
-                    waypoints=scene.waypoints,
-                    model=model,
-                    max_time=max_time,
-                    frame_rate=self.frame_rate,
-                )
-            )
+        runs = simulate_room(scenario, env, model=model, max_time=max_time, frame_rate=self.frame_rate)
         length = max(run.positions.shape[0] for run in runs)
         return Recording(
-            positions=np.stack([_pad(run.positions, length) for run in runs], axis=1),
-            active=np.stack([_pad(run.active, length, fill=False) for run in runs], axis=1),
+            positions=np.stack([pad_frames(run.positions, length) for run in runs], axis=1),
+            active=np.stack([pad_frames(run.active, length, fill=False) for run in runs], axis=1),
             left_at=np.stack([run.left_at for run in runs]),
             frame_rate=self.frame_rate,
             radius=model.radius,
             max_speed=model.desired_speed,
         )
-
-
-def _options(positions: np.ndarray | None, headings: np.ndarray | None) -> dict[str, torch.Tensor] | None:
-    """The room's ``reset`` options of a hand placement."""
-    if positions is None:
-        return None
-    options = {"positions": torch.as_tensor(positions, dtype=torch.float32)}
-    if headings is not None:
-        options["headings"] = torch.as_tensor(headings, dtype=torch.float32)
-    return options
-
-
-def _pad(values: np.ndarray, length: int, fill: Any = None) -> np.ndarray:
-    """``values (T, ...)`` extended to ``length`` frames with ``fill`` (default: its last frame)."""
-    missing = length - values.shape[0]
-    if missing <= 0:
-        return values
-    tail = np.repeat(values[-1:], missing, axis=0) if fill is None else np.full((missing, *values.shape[1:]), fill)
-    return np.concatenate([values, tail])

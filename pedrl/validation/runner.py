@@ -68,8 +68,8 @@ def validate(
         if name == "learned" and learned is not None:
             crowds[name] = PedrlCrowd(learned[0], env_settings, device)
         elif name == "greedy":
-            generator = torch.Generator(device=device).manual_seed(seed)
-            crowds[name] = PedrlCrowd(GreedyDoorController(epsilon=epsilon, generator=generator), env_settings, device)
+            greedy = GreedyDoorController(epsilon=epsilon, generator=torch.Generator(device=device))  # seeded below
+            crowds[name] = PedrlCrowd(greedy, env_settings, device)
         elif name == "jupedsim":
             placement = PedrlCrowd(None, env_settings, device)
             crowds[name] = JuPedSimCrowd(replace(jupedsim, radius=placement.radius), placement)
