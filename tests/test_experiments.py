@@ -29,7 +29,8 @@ def quiet(cfg):
 
 
 def test_the_expected_experiments_exist():
-    assert {"quick_vqql", "quick_it", "quick_in", "paper_vqql", "paper_it", "paper_in", "k_sweep"} <= set(EXPERIMENTS)
+    expected = {"main", "quick_vqql", "quick_it", "quick_in", "paper_vqql", "paper_it", "paper_in", "tuned_it", "tuned_in"}
+    assert expected | {"k_sweep"} <= set(EXPERIMENTS)
 
 
 @pytest.mark.parametrize("name", EXPERIMENTS)
@@ -43,33 +44,45 @@ def test_every_experiment_composes_and_builds_a_trainer(name, compose, tmp_path)
     assert trainer.name == NAMES[cfg.algo._target_]
 
 
-# ---------------------------------------------------------------------- the paper's scale and Table 3
+# ---------------------------------------------------------------------- the paper, literally
 @pytest.mark.parametrize("name", sorted(PAPER))
-def test_paper_experiments_have_the_papers_setting(name, compose, tmp_path):
+def test_paper_experiments_are_the_paper_literally(name, compose, tmp_path):
+    """Tables 2 and 3, the stop rule, plain standardisation of raw distances, 20 independent processes of one room
+    and one table per learning agent: only the trial budget may differ from the paper."""
     cfg = compose("train", [f"experiment={name}"])
     target, alpha = PAPER[name]
     assert cfg.algo._target_ == f"pedrl.algos.{target}"
     # Table 3 (VQQL: alpha = 0.25, section 5.1)
     assert (cfg.algo.gamma, cfg.algo.epsilon_start, cfg.algo.alpha) == (0.91, 0.4, alpha)
     assert cfg.env.decisions_per_second == 1.0
-    # Table 2 and sections 2 and 5: the room, the senses, the trial length, R = 20 processes, K = 4096
+    # sections 2 and 5: the room, the body, the senses, the trial length
     assert (cfg.env.width, cfg.env.length, cfg.env.door_width, cfg.env.max_decisions) == (60.0, 100.0, 2.0, 200)
-    assert (cfg.env.num_neighbours, cfg.env.num_walls) == (7, 2)
-    assert (cfg.env.reward_goal, cfg.env.reward_crash_wall) == (100.0, -15.0)
-    # reward_crash_agent (Table 2: -4), reward_default and reward_progress are documented choices
-    assert cfg.env.reward_crash_agent in (-4.0, -1.0)
-    if name == "paper_vqql":
-        assert (cfg.processes, cfg.rooms_per_process) == (20, 1)
-    assert cfg.vq.num_prototypes == 4096
+    assert (cfg.env.agent_radius, cfg.env.num_neighbours, cfg.env.num_walls) == (0.4, 7, 2)
+    # Table 2, and nothing else paid: no progress reward, no time cost
+    rewards = (cfg.env.reward_goal, cfg.env.reward_crash_wall, cfg.env.reward_crash_agent, cfg.env.reward_default)
+    assert rewards == (100.0, -15.0, -4.0, 0.0)
+    assert cfg.env.reward_progress == 0.0
+    # a body that would enter another stops; movers in a random order
+    assert (cfg.env.contact, cfg.env.collision_rule, cfg.env.collision_order) == ("stop", "sequential", "random")
+    # plain standardisation of the raw features (section 5.1), K = 4096 per learning process
+    assert (cfg.vq.distance_transform, cfg.vq.weight_own, cfg.vq.weight_neighbours, cfg.vq.weight_walls) == (
+        "none",
+        1.0,
+        1.0,
+        1.0,
+    )
+    assert (cfg.vq.num_prototypes, cfg.vq.per_process) == (4096, True)
+    # 20 independent learning processes of one room, one table per learning agent
+    assert (cfg.processes, cfg.rooms_per_process, cfg.algo.tables) == (20, 1, "agent")
     phases = build_trainer(cfg, tmp_path).phases()
     assert phases[0].gather_epsilon == 1.0  # the first phase gathers from a random walk
     if name == "paper_vqql":
         assert [p.num_agents for p in phases] == [20] * len(phases)
         assert sum(p.trials for p in phases) == cfg.algo.trials
     if name == "paper_it":
-        assert [p.num_agents for p in phases] == [20] * len(phases) and len(phases) >= 2  # an hour's budget
+        assert [p.num_agents for p in phases] == [20] * len(phases) and len(phases) >= 2
         assert [p.gather_epsilon for p in phases[1:]] == [0.07] * (len(phases) - 1)
-        assert cfg.algo.void_features == "random"
+        assert cfg.algo.void_features == "random"  # section 5.1
     if name == "paper_in":
         assert [p.num_agents for p in phases] == [1, 2, 3, 4, 5, 6, 7, 8, 10, 20]
         assert [p.gather_epsilon for p in phases[1:]] == [0.07] * 9
@@ -77,10 +90,29 @@ def test_paper_experiments_have_the_papers_setting(name, compose, tmp_path):
         assert budgets == sorted(budgets)  # trials grow with the number of agents
 
 
-def test_paper_experiments_document_their_wall_time():
+def test_paper_experiments_state_their_budget():
     for name in PAPER:
         text = (Path(CONFIG_DIR) / "experiment" / f"{name}.yaml").read_text()
-        assert "extrapolated from a measured partial run" in text, name
+        assert "Budget:" in text and "extrapolated from a measured partial run" in text, name
+
+
+@pytest.mark.parametrize("name", ["tuned_it", "tuned_in"])
+def test_tuned_experiments_keep_the_papers_room_and_table_3(name, compose):
+    cfg = compose("train", [f"experiment={name}"])
+    assert (cfg.env.width, cfg.env.length, cfg.env.door_width, cfg.env.max_decisions) == (60.0, 100.0, 2.0, 200)
+    assert (cfg.algo.gamma, cfg.algo.epsilon_start, cfg.algo.alpha) == (0.91, 0.4, 0.35)
+    assert cfg.vq.num_prototypes == 4096
+
+
+@pytest.mark.parametrize("name", EXPERIMENTS)
+def test_no_preset_pays_a_contact_better_than_a_free_step(name, compose):
+    """Table 2's priority, "the prevention of collisions is the main task": a decision in which another body or a
+    wall cut the agent's move pays less than a free decision with the same progress (the progress reward is paid
+    on both alike)."""
+    env = compose("train", [f"experiment={name}"]).env
+    assert env.reward_crash_agent < env.reward_default, (env.reward_crash_agent, env.reward_default)
+    assert env.reward_crash_wall < env.reward_default, (env.reward_crash_wall, env.reward_default)
+    assert env.reward_goal > env.reward_default
 
 
 def test_k_sweep_is_a_multirun_over_the_papers_k_values():
