@@ -2,6 +2,7 @@
 
 from pedrl.sim.dynamics import (
     DEFAULT_SPEED_RATIOS,
+    COARSE_TURN_RATIOS,
     DEFAULT_TURN_RATIOS,
     NOOP_ACTION,
     NUM_ACTIONS,
@@ -26,6 +27,7 @@ from pedrl.sim.sensing import (
 
 __all__ = [
     "DEFAULT_SPEED_RATIOS",
+    "COARSE_TURN_RATIOS",
     "DEFAULT_TURN_RATIOS",
     "NOOP_ACTION",
     "NUM_ACTIONS",

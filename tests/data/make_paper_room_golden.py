@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from pedrl.sim import RoomEnv
+from pedrl.sim import COARSE_TURN_RATIOS, RoomEnv
 
 CASES = {
     # name: (room kwargs, decisions)
@@ -29,7 +29,7 @@ CASES = {
 
 def simulate(kwargs: dict, decisions: int, seed: int = 7) -> dict[str, np.ndarray]:
     """Features, positions, rewards, reached and crash flags of a seeded run under seeded random actions."""
-    env = RoomEnv(**kwargs)
+    env = RoomEnv(**{"turn_ratios": COARSE_TURN_RATIOS, **kwargs})  # the action set the golden runs were recorded with
     actions = torch.Generator().manual_seed(seed + 1)
     obs, _ = env.reset(seed=seed)
     record = {"features": [obs], "positions": [env.positions], "reward": [], "reached": [], "crashed": []}
