@@ -436,6 +436,7 @@ def evaluate_policy(
             print(
                 f"  {agents:>4} agents: fails {row['fails_pct']:5.1f} ± {row['fails_std']:4.1f} %, "
                 f"speed {row['mean_speed']:.2f} ± {row['speed_std']:.2f} m/s, stuck {row['stuck_pct']:.1f} %, "
+                f"contacts {row['crashes_per_agent']:.1f} per agent, door flow {row['door_flow']:.2f} /s, "
                 f"evacuated {row['evacuated_pct']:.0f} % of trials "
                 f"({time.perf_counter() - tic:.1f} s)",
                 flush=True,
