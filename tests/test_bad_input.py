@@ -240,7 +240,7 @@ TRAIN_CASES: list[tuple[str, tuple[str, ...]]] = [
     ("env.substep_length=1e-9", ("substep_length=1e-09", "sub-steps", "at most 1000")),
     ("env.collision_rule=both", ("collision_rule='both'", "sequential, simultaneous")),
     ("env.collision_order=last", ("collision_order='last'", "random, door_first")),
-    ("env.contact=bounce", ("contact='bounce'", "stop, slide, headway")),
+    ("env.contact=bounce", ("contact='bounce'", "stop, slide, headway, yield")),
     ("env.time_gap=0", ("time_gap=0", "> 0")),
     ("env.contact=headway env.collision_rule=simultaneous", ("collision_rule='simultaneous'", "contact='headway'")),
     ("env.goal_depth=-1", ("goal_depth=-1", ">= 0")),

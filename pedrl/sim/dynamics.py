@@ -564,13 +564,16 @@ def _walk_to_walls(
 
 # ---------------------------------------------------------------------------------------------------- contact models
 
-CONTACT_MODELS: Final = ("stop", "slide", "headway")
+CONTACT_MODELS: Final = ("stop", "slide", "headway", "yield")
 """What a body does when its move would enter another body or a wall (``RoomEnv(contact=...)``).
 
 ``stop``: it stops for the rest of the decision (:func:`move_agents_sequential` or :func:`move_agents`, the paper's
 reading). ``slide``: it keeps the part of its move tangent to the contact (:func:`move_agents_sliding`).
 ``headway``: the collision-free speed rule (Tordeux, Chraibi & Seyfried 2016) sets the speed walked from the nearest
-body ahead, and ``slide`` is the safety net (:func:`move_agents_sliding` with a ``time_gap``).
+body ahead, and ``slide`` is the safety net (:func:`move_agents_sliding` with a ``time_gap``). ``yield``: ``headway``
+with a right of way: only the bodies that act before the mover in the order of the sequential rule (with
+``collision_order=door_first``, those nearer the goal) slow it; it slides past the others (``yield_to_earlier``).
+Two bodies converging on a door then never hold each other up: the one nearer goes, the other keeps its gap.
 """
 
 
@@ -581,7 +584,13 @@ def _sqrt(values: torch.Tensor) -> torch.Tensor:
 
 
 def headway_factors(
-    *, positions: torch.Tensor, velocities: torch.Tensor, present: torch.Tensor, agent_radius: float, time_gap: float
+    *,
+    positions: torch.Tensor,
+    velocities: torch.Tensor,
+    present: torch.Tensor,
+    agent_radius: float,
+    time_gap: float,
+    rank: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Share of its wanted speed each agent walks under the collision-free speed rule.
 
@@ -596,6 +605,8 @@ def headway_factors(
         present: Bodies in the room ``(R, N)`` bool; only they slow others.
         agent_radius: Body radius ``r`` (m).
         time_gap: ``T`` (s).
+        rank: ``None``, or each agent's place ``(R, N)`` int64 in the order of action: then only bodies of a lower
+            rank (acting before) count for the spacing (the ``yield`` rule's right of way).
 
     Returns:
         ``min(|v|, max(0, s / T)) / |v|`` ``(R, N)`` float32 in ``[0, 1]``; 1 where ``|v| = 0``.
@@ -613,6 +624,8 @@ def headway_factors(
     ahead = ox * ex.unsqueeze(2) + oy * ey.unsqueeze(2)
     side = (ox * ey.unsqueeze(2) - oy * ex.unsqueeze(2)).abs()
     corridor = (ahead >= 0) & (side <= diameter) & present.unsqueeze(1) & ~_eye(num_agents, positions.device)
+    if rank is not None:
+        corridor &= rank.unsqueeze(1) < rank.unsqueeze(2)  # [r, i, j]: j acts before i
     spacing = torch.where(corridor, _sqrt(ox * ox + oy * oy) - diameter, torch.inf).amin(-1)  # (R, N)
     walked = torch.minimum(wanted, (spacing / time_gap).clamp_min(0.0))
     return torch.where(moving, walked / torch.where(moving, wanted, 1.0), 1.0)
@@ -663,9 +676,11 @@ def move_agents_sliding(
     num_substeps: int,
     priority: torch.Tensor,
     time_gap: float | None = None,
+    yield_to_earlier: bool = False,
     compiled: bool | None = None,
 ) -> Movement:
-    """Move every active agent through one decision with the ``slide`` contact model (``headway`` with ``time_gap``).
+    """Move every active agent through one decision with the ``slide`` contact model (``headway`` with ``time_gap``,
+    ``yield`` with ``yield_to_earlier`` too).
 
     The sub-steps run in turn; within each the movers act one after another in the order of ``priority`` (lowest
     first), each from where it stands: its proposal is ``c + v * f * dt`` (``dt`` the sub-step, ``f`` 1, or the
@@ -699,6 +714,7 @@ def move_agents_sliding(
         num_substeps: Number of sub-steps ``S``.
         priority: Order of action ``(R, N)`` float (lowest acts first).
         time_gap: ``T`` (s) of the collision-free speed rule, or ``None`` for plain ``slide``.
+        yield_to_earlier: With ``time_gap``, only bodies that act before the mover (lower ``priority``) slow it.
         compiled: Use the compiled CPU kernel (None: on the CPU when numba is there).
 
     Returns:
@@ -724,6 +740,7 @@ def move_agents_sliding(
             num_substeps=num_substeps,
             order=order,
             time_gap=time_gap,
+            yield_to_earlier=yield_to_earlier,
         )
     num_replicas, num_agents = active.shape
     substep_length = decision_length / num_substeps
@@ -757,7 +774,12 @@ def move_agents_sliding(
             factor = torch.ones_like(current[..., X])
         else:
             factor = headway_factors(
-                positions=current, velocities=wanted, present=present, agent_radius=agent_radius, time_gap=time_gap
+                positions=current,
+                velocities=wanted,
+                present=present,
+                agent_radius=agent_radius,
+                time_gap=time_gap,
+                rank=order.argsort(dim=1) if yield_to_earlier else None,
             )
         for rank in range(num_agents):
             mover_index = order[:, rank]  # (R,)

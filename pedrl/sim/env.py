@@ -207,14 +207,18 @@ class RoomEnv:
                 heading and the wanted speed ``v``, and the speed walked is ``min(v, max(0, (s - 2 r) / time_gap))``
                 with ``s`` the distance to the nearest body ahead within the corridor of half-width ``2 r``
                 (:func:`~pedrl.sim.dynamics.headway_factors`, recomputed every sub-step); walls are slid along and
-                ``slide`` stays the safety net against bodies. With ``slide`` and ``headway`` the movers act in
-                ``collision_order`` and the speed after the step is the distance actually walked per second.
+                ``slide`` stays the safety net against bodies. ``"yield"``: ``headway`` with a right of way: only
+                bodies that act before the mover in ``collision_order`` (with ``door_first``, those nearer the goal)
+                slow it, and it slides past the others, so two bodies converging on a door never hold each other
+                up. With ``slide``, ``headway`` and ``yield`` the movers act in ``collision_order`` and the speed
+                after the step is the distance actually walked per second.
                 A contact (``info["crashed_agent"]``, ``crashed_wall``, the crash rewards) is a decision in which
                 another body (a wall) cut the agent's move: with ``stop`` the agent was stopped by it; with
-                ``slide`` its move was deflected or stopped by it; with ``headway`` the same, for the headway-limited
-                move (slowing down for a body ahead is no contact). A wall contact takes precedence: an agent is
+                ``slide`` its move was deflected or stopped by it; with ``headway`` and ``yield`` the same, for the
+                headway-limited move (slowing down for a body ahead is no contact). A wall contact takes precedence: an agent is
                 never flagged for both.
-            time_gap: ``T`` of the ``headway`` rule (s, ``> 0``; 1 s as JuPedSim's default); unused otherwise.
+            time_gap: ``T`` of the ``headway`` and ``yield`` rules (s, ``> 0``; 1 s as JuPedSim's default); unused
+                otherwise.
             geometry: Any walkable area (``pedrl.scenarios`` builds one from polygons); ``None`` is the paper's
                 room of ``width``, ``length`` and ``door_width`` (:meth:`Geometry.rectangle`), which are then
                 ignored except as the extent of the area. Its ``goal_depth`` is the geometry's own.
@@ -579,8 +583,10 @@ class RoomEnv:
             if self.collision_order == "door_first":  # metres dominate, the uniform draw breaks ties
                 priority = self._goal_distance(self.positions, targets) + priority * 1e-3
         if self.contact != "stop":
-            time_gap = self.time_gap if self.contact == "headway" else None
-            movement = move_agents_sliding(**motion, priority=priority, time_gap=time_gap)
+            time_gap = self.time_gap if self.contact in ("headway", "yield") else None
+            movement = move_agents_sliding(
+                **motion, priority=priority, time_gap=time_gap, yield_to_earlier=self.contact == "yield"
+            )
             # the speed is the distance actually walked; the heading stays the commanded one
             walked = torch.linalg.vector_norm(movement.positions - self.positions, dim=-1) / self.decision_length
             speeds = torch.where(acting, walked.clamp_max(self.max_speed), speeds)

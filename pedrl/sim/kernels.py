@@ -224,8 +224,8 @@ def _nearest_body(x, y, mover, current, present_row):
 @cached_njit(nogil=True)
 def _sliding(
     positions, velocities, going, present, order, starts, directions, inverse, exit_start, exit_normal,
-    exit_tangent, exit_span, radius_sq, contact_sq, substep_length, num_substeps, headway, time_gap, diameter,
-    margin, out, blocked, cut_wall, cut_body, reached,
+    exit_tangent, exit_span, radius_sq, contact_sq, substep_length, num_substeps, headway, yield_order, time_gap,
+    diameter, margin, out, blocked, cut_wall, cut_body, reached,
 ):  # fmt: skip
     num_replicas, num_agents = going.shape
     zero = np.float32(0.0)
@@ -233,7 +233,10 @@ def _sliding(
     wanted = np.empty((num_agents, 2), dtype=np.float32)
     current = np.empty((num_agents, 2), dtype=np.float32)
     factor = np.empty(num_agents, dtype=np.float32)
+    rank_of = np.empty(num_agents, dtype=np.int64)
     for r in range(num_replicas):
+        for k in range(num_agents):
+            rank_of[order[r, k]] = k
         for i in range(num_agents):
             current[i, 0] = positions[r, i, 0]
             current[i, 1] = positions[r, i, 1]
@@ -256,7 +259,7 @@ def _sliding(
                 ey = wanted[i, 1] / speed
                 spacing = np.float32(np.inf)
                 for j in range(num_agents):
-                    if j == i or not present[r, j]:
+                    if j == i or not present[r, j] or (yield_order and rank_of[j] > rank_of[i]):
                         continue
                     ox = current[j, 0] - current[i, 0]
                     oy = current[j, 1] - current[i, 1]
@@ -342,6 +345,7 @@ def sliding_substeps(
     num_substeps: int,
     order: torch.Tensor,
     time_gap: float | None,
+    yield_to_earlier: bool = False,
 ) -> Movement:
     """:func:`pedrl.sim.dynamics.move_agents_sliding`, agent by agent, compiled (same float32 operations, same order).
 
@@ -358,6 +362,7 @@ def sliding_substeps(
         num_substeps: ``S``.
         order: ``(R, N)`` int64, the agents in their order of action.
         time_gap: ``T`` (s) of the headway rule, or ``None`` for ``slide``.
+        yield_to_earlier: the ``yield`` rule: only bodies earlier in ``order`` slow a mover.
 
     Returns:
         The :class:`~pedrl.sim.dynamics.Movement` of the decision.
@@ -387,6 +392,7 @@ def sliding_substeps(
         np.float32(substep_length),
         num_substeps,
         time_gap is not None,
+        yield_to_earlier,
         np.float32(1.0 if time_gap is None else time_gap),
         np.float32(2.0 * agent_radius),
         np.float32(PAIR_MARGIN),

@@ -1,4 +1,4 @@
-"""The contact models of the room (``env.contact``): slide and headway, their CPU kernel against the torch reference,
+"""The contact models of the room (``env.contact``): slide, headway and yield, their CPU kernel against the torch reference,
 their invariants on random scenes and in every scenario, and the behaviour each adds over ``stop``."""
 
 import math
@@ -18,7 +18,7 @@ from pedrl.sim.dynamics import NUM_ACTIONS, NUM_TURNS, move_agents_sliding
 from pedrl.sim.geometry import distances_to_segments
 
 TOLERANCE = 1e-4  # m, as tests/sim/test_properties.py (docs/design.md invariants)
-RULES = ("slide", "headway")
+RULES = ("slide", "headway", "yield")
 ACCELERATE = 8 * NUM_TURNS + 4  # full speed up, no turn
 NOOP = 4 * NUM_TURNS + 4
 BUILT_IN = [name for name in SCENARIOS if name != "custom"]
@@ -57,8 +57,8 @@ def test_stop_is_the_default_contact_model():
 @pytest.mark.parametrize(
     ("kwargs", "fragments"),
     [
-        ({"contact": "bounce"}, ("contact='bounce'", "stop, slide, headway")),
-        ({"contact": None}, ("contact=None", "stop, slide, headway")),
+        ({"contact": "bounce"}, ("contact='bounce'", "stop, slide, headway, yield")),
+        ({"contact": None}, ("contact=None", "stop, slide, headway, yield")),
         ({"time_gap": 0.0}, ("time_gap=0.0", "> 0")),
         ({"time_gap": -1.0}, ("time_gap=-1.0", "> 0")),
         ({"time_gap": math.nan}, ("time_gap=nan",)),
@@ -115,7 +115,8 @@ def test_kernel_equals_the_torch_reference_to_the_bit(seed, num_agents, room, sp
         decision_length=env.decision_length,
         num_substeps=env.num_substeps,
         priority=priority,
-        time_gap=1.0 if rule == "headway" else None,
+        time_gap=None if rule == "slide" else 1.0,
+        yield_to_earlier=rule == "yield",
     )
     compiled = move_agents_sliding(**kwargs, compiled=True)
     reference = move_agents_sliding(**kwargs, compiled=False)
@@ -229,9 +230,11 @@ def test_slide_and_headway_get_a_body_past_a_door_post(rule):
     assert got_out and contacts >= 1
 
 
-def follow_run(contact: str) -> tuple[list[float], int]:
+def follow_run(contact: str, order: str = "random") -> tuple[list[float], int]:
     """A leader walking at 1 m/s and a follower 3 m behind it that always wants full speed: (gaps, body contacts)."""
-    env = RoomEnv(num_agents=2, width=6.0, length=60.0, door_width=2.0, max_decisions=40, contact=contact)
+    env = RoomEnv(
+        num_agents=2, width=6.0, length=60.0, door_width=2.0, max_decisions=40, contact=contact, collision_order=order
+    )
     up = math.pi / 2
     env.reset(seed=0, options={"positions": [[[3.0, 5.0], [3.0, 2.0]]], "headings": [[up, up]], "speeds": [[1.0, 2.5]]})
     gaps, contacts = [], 0
@@ -247,7 +250,45 @@ def test_stop_lets_a_follower_bump_into_a_slower_leader():
     assert contacts > 5
 
 
-def test_headway_keeps_a_follower_about_v_times_t_behind_a_slower_leader():
-    gaps, contacts = follow_run("headway")
+@pytest.mark.parametrize(("rule", "order"), [("headway", "random"), ("yield", "door_first")])
+def test_headway_keeps_a_follower_about_v_times_t_behind_a_slower_leader(rule, order):
+    gaps, contacts = follow_run(rule, order)
     assert contacts == 0 and min(gaps) > 0.5
     assert all(abs(gap - 1.0 * 1.0) < 0.2 for gap in gaps[10:]), gaps  # v T = 1 m/s * 1 s
+
+
+def test_yield_follows_the_order_of_action():
+    """The follower acts before the leader in a door-last order: under yield it owes the leader no gap."""
+    env_order = "door_first"
+    _, contacts = follow_run("yield", env_order)
+    assert contacts == 0
+    with mock.patch.object(RoomEnv, "_goal_distance", lambda self, positions, targets: positions[..., 1]):
+        _, reversed_contacts = follow_run("yield", env_order)  # the one farther from the door now goes first
+    assert reversed_contacts > 5
+
+
+def greedy_crowd_run(rule: str) -> tuple[float, float]:
+    """100 greedy walkers (10 % random actions) in the paper's room: (share out in 200 decisions, contacts per
+    agent)."""
+    env = RoomEnv(num_replicas=4, num_agents=100, contact=rule, collision_order="door_first")
+    controller = GreedyDoorController(epsilon=0.1, generator=torch.Generator().manual_seed(0))
+    obs, info = env.reset(seed=3)
+    out = torch.zeros(env.num_replicas, env.num_agents, dtype=torch.bool)
+    contacts = 0.0
+    for _ in range(env.max_decisions):
+        obs, _, terminated, _, info = env.step(controller.act(env, obs, info))
+        out |= terminated
+        contacts += info["crashed_agent"].float().mean().item()
+    return out.float().mean().item(), contacts
+
+
+@needs_numba
+def test_yield_lets_a_greedy_crowd_through_a_door_where_headway_jams():
+    """Walkers converging on a door each stand in the other's corridor: under headway (as JuPedSim's rule, without
+    its steering away from neighbours) they hold each other up; with the right of way of yield the crowd leaves, and
+    with far fewer contacts than under slide."""
+    jammed, _ = greedy_crowd_run("headway")
+    flowing, yield_contacts = greedy_crowd_run("yield")
+    _, slide_contacts = greedy_crowd_run("slide")
+    assert jammed < 0.5 and flowing == 1.0, (jammed, flowing)
+    assert yield_contacts < 2 and slide_contacts > 10 * yield_contacts, (yield_contacts, slide_contacts)
