@@ -97,7 +97,7 @@ def test_replicated_evaluation_writes_every_output(algo, checkpoints, tmp_path):
         assert row["trials"] == 2 * PROCESSES == int(written["trials"])
         assert 0.0 <= row["fails_pct"] <= 100.0 and row["fails_std"] >= 0.0
         assert 0.0 <= row["mean_speed"] <= 2.5 and row["speed_std"] >= 0.0
-        assert row["crashes_per_agent"] >= 0.0
+        assert row["crashes_per_agent"] >= 0.0 and row["wall_crashes_per_agent"] >= 0.0
         assert 0 <= row["evacuated_trials"] <= row["trials"]
         if row["evacuated_trials"]:
             assert 0.0 < row["evacuation_time_s"] <= 15.0  # debug=default: 15 decisions of 1 s
@@ -215,7 +215,7 @@ def test_jupedsim_runs_on_the_same_scenes_and_reports_the_table(checkpoints, tmp
     assert 0.0 <= row["stuck_pct"] <= row["fails_pct"] + 1e-9
     if row["evacuated_trials"]:
         assert 0.0 < row["evacuation_time_s"] <= 15.0  # debug=default: 15 decisions of 1 s
-    assert np.isnan(row["crashes_per_agent"])  # n/a: JuPedSim has no blocked moves
+    assert np.isnan(row["crashes_per_agent"]) and np.isnan(row["wall_crashes_per_agent"])  # n/a: no cut moves
     assert json.loads((tmp_path / "jupedsim" / "scaling.json").read_text())[0]["crashes_per_agent"] is None
     for trial in ("trial_000.txt", "trial_001.txt"):
         a = read_pedpy_trajectory(tmp_path / "greedy" / "trajectories" / "agents_5" / trial)
@@ -379,3 +379,28 @@ def test_evaluation_reports_stuck_agents_and_evacuated_trials(checkpoints, tmp_p
     for row in rows:
         assert 0.0 <= row["stuck_pct"] <= row["fails_pct"] + 1e-9  # a stuck agent is one that failed
         assert row["evacuated_pct"] == pytest.approx(100.0 * row["evacuated_trials"] / row["trials"])
+
+
+def test_contacts_count_bodies_and_walls_apart():
+    """A lone walker running straight at full speed in a small room hits walls and never a body; two walkers put
+    face to face hit each other: each lands in its own column."""
+    from pedrl.evaluation.engine import record_batch
+    from pedrl.sim import RoomEnv
+
+    class Straight:
+        def act(self, env, obs, info):
+            return torch.full(env.active.shape, 8 * 9 + 4)  # full speed up, no turn
+
+    alone = RoomEnv(num_replicas=8, num_agents=1, width=4.0, length=4.0, door_width=1.0, max_decisions=10)
+    record = record_batch(alone, Straight())
+    assert record.crashes.sum() == 0 and record.wall_crashes.sum() > 0
+
+    pair = RoomEnv(num_replicas=1, num_agents=2, width=10.0, length=10.0, max_decisions=3)
+    pair.reset(seed=0)
+    east, west = 0.0, float(np.pi)
+    options = {"positions": [[[3.0, 5.0], [5.0, 5.0]]], "headings": [[east, west]], "speeds": [[2.5, 2.5]]}
+    with pytest.MonkeyPatch.context() as patch:
+        original = pair.reset
+        patch.setattr(pair, "reset", lambda **kwargs: original(seed=0, options=options))
+        record = record_batch(pair, Straight())
+    assert record.crashes[0].min() >= 1 and record.wall_crashes.sum() == 0

@@ -32,8 +32,9 @@ Outputs, under the run directory:
   was shorter than ``STUCK_PATH = 0.4`` m (one body radius): frozen, not merely slow;
   ``door_flow`` (persons/s): mean over trials with at least two distinct passing times of
   ``(n - 1) / (t_last - t_first)``, n agents passing the door between the first and the last passing time;
-  ``crashes_per_agent``: decisions in which an agent hit a wall or another agent, per agent and trial (NaN, n/a,
-  for ``controller=jupedsim``: JuPedSim's models have no blocked move);
+  ``crashes_per_agent``: contacts per agent and trial, decisions in which another body cut the agent's move
+  (``info["crashed_agent"]``; see ``RoomEnv``'s ``contact``); ``wall_crashes_per_agent``: the same for walls,
+  counted apart (both NaN, n/a, for ``controller=jupedsim``: JuPedSim's models have no cut move);
   ``trials``: simulated trials (``trials * P``).
 - ``fundamental_diagram.csv`` (``agents, trial, frame, density, speed, flow``) and ``fundamental_diagram.png``:
   Gaussian local density (1/m^2), local speed (m/s) and flow (1/(m s)) of equations 2-5, radius

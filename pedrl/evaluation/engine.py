@@ -52,6 +52,7 @@ SCALING_COLUMNS: Final = (
     "stuck_pct",
     "door_flow",
     "crashes_per_agent",
+    "wall_crashes_per_agent",
     "trials",
 )
 STUCK_WINDOW: Final = 20
@@ -177,8 +178,10 @@ class BatchRecord:
         active: ``(R, T, N)`` bool, the agent is in frame t (it took decision t; every agent in frame 0).
         reached: ``(R, N)`` bool, the agent passed the door.
         exit_time: ``(R, N)`` time (s) at which it passed the door, NaN if it did not.
-        crashes: ``(R, N)`` decisions in which it hit a wall or another agent; NaN where the simulator has no such
-            event (``controller=jupedsim``).
+        crashes: ``(R, N)`` contacts with bodies: decisions in which another body cut its move (``crashed_agent``);
+            NaN where the simulator has no such event (``controller=jupedsim``).
+        wall_crashes: ``(R, N)`` decisions in which a wall cut its move (``crashed_wall``), counted apart; NaN as
+            ``crashes``.
         speed_sum: ``(R,)`` sum over agents and decisions taken of the speed after the decision (m/s).
         speed_sq_sum: ``(R,)`` the same sum of squared speeds (m^2/s^2).
         speed_count: ``(R,)`` decisions taken (agent-decisions).
@@ -190,6 +193,7 @@ class BatchRecord:
     reached: np.ndarray
     exit_time: np.ndarray
     crashes: np.ndarray
+    wall_crashes: np.ndarray
     speed_sum: np.ndarray
     speed_sq_sum: np.ndarray
     speed_count: np.ndarray
@@ -213,6 +217,7 @@ def record_batch(env: RoomEnv, controller: Controller) -> BatchRecord:
     reached = torch.zeros(shape, dtype=torch.bool, device=device)
     exit_time = torch.full(shape, float("nan"), device=device)
     crashes = torch.zeros(shape, dtype=torch.int64, device=device)
+    wall_crashes = torch.zeros(shape, dtype=torch.int64, device=device)
     speed_sum = torch.zeros(shape, dtype=torch.float64, device=device)
     speed_sq_sum = torch.zeros(shape, dtype=torch.float64, device=device)
     speed_count = torch.zeros(shape, dtype=torch.int64, device=device)
@@ -224,7 +229,8 @@ def record_batch(env: RoomEnv, controller: Controller) -> BatchRecord:
         decision += 1
         reached |= info["reached"]
         exit_time = torch.where(info["reached"], decision * env.decision_length, exit_time)
-        crashes += (info["crashed_agent"] | info["crashed_wall"]).to(torch.int64)
+        crashes += info["crashed_agent"].to(torch.int64)
+        wall_crashes += info["crashed_wall"].to(torch.int64)
         speed = torch.where(acting, info["speed"].double(), 0.0)
         speed_sum += speed
         speed_sq_sum += speed * speed
@@ -239,6 +245,7 @@ def record_batch(env: RoomEnv, controller: Controller) -> BatchRecord:
         reached=reached.cpu().numpy(),
         exit_time=exit_time.cpu().numpy(),
         crashes=crashes.cpu().numpy(),
+        wall_crashes=wall_crashes.cpu().numpy(),
         speed_sum=speed_sum.sum(1).cpu().numpy(),
         speed_sq_sum=speed_sq_sum.sum(1).cpu().numpy(),
         speed_count=speed_count.sum(1).cpu().numpy(),
@@ -254,6 +261,7 @@ class ScalingStats:
     evacuation_times: list[float] = field(default_factory=list)
     door_flows: list[float] = field(default_factory=list)
     crashes_per_agent: list[float] = field(default_factory=list)
+    wall_crashes_per_agent: list[float] = field(default_factory=list)
     stuck_pct: list[float] = field(default_factory=list)
     speed_sum: float = 0.0
     speed_sq_sum: float = 0.0
@@ -265,6 +273,7 @@ class ScalingStats:
         num_agents = reached.shape[1]
         self.fails_pct.extend((100.0 * (1.0 - reached.mean(axis=1))).tolist())
         self.crashes_per_agent.extend((record.crashes[:keep].sum(axis=1) / num_agents).tolist())
+        self.wall_crashes_per_agent.extend((record.wall_crashes[:keep].sum(axis=1) / num_agents).tolist())
         self.stuck_pct.extend((100.0 * stuck_agents(record.positions[:keep], reached).mean(axis=1)).tolist())
         self.speed_sum += float(record.speed_sum[:keep].sum())
         self.speed_sq_sum += float(record.speed_sq_sum[:keep].sum())
@@ -294,6 +303,7 @@ class ScalingStats:
             "stuck_pct": float(np.mean(self.stuck_pct)),
             "door_flow": float(np.mean(self.door_flows)) if self.door_flows else math.nan,
             "crashes_per_agent": float(np.mean(self.crashes_per_agent)),
+            "wall_crashes_per_agent": float(np.mean(self.wall_crashes_per_agent)),
             "trials": len(self.fails_pct),
         }
 
@@ -436,7 +446,8 @@ def evaluate_policy(
             print(
                 f"  {agents:>4} agents: fails {row['fails_pct']:5.1f} ± {row['fails_std']:4.1f} %, "
                 f"speed {row['mean_speed']:.2f} ± {row['speed_std']:.2f} m/s, stuck {row['stuck_pct']:.1f} %, "
-                f"contacts {row['crashes_per_agent']:.1f} per agent, door flow {row['door_flow']:.2f} /s, "
+                f"contacts {row['crashes_per_agent']:.1f} per agent (walls {row['wall_crashes_per_agent']:.1f}), "
+                f"door flow {row['door_flow']:.2f} /s, "
                 f"evacuated {row['evacuated_pct']:.0f} % of trials "
                 f"({time.perf_counter() - tic:.1f} s)",
                 flush=True,

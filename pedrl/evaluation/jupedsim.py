@@ -83,6 +83,7 @@ def batch_record(runs: list[JuPedSimRun]) -> BatchRecord:
         reached=np.stack([run.left for run in runs]),
         exit_time=np.stack([np.where(run.left, run.left_at / run.frame_rate, math.nan) for run in runs]),
         crashes=np.full((len(runs), runs[0].num_agents), math.nan),
+        wall_crashes=np.full((len(runs), runs[0].num_agents), math.nan),
         speed_sum=speed.sum(axis=(1, 2)),
         speed_sq_sum=(speed * speed).sum(axis=(1, 2)),
         speed_count=counted.sum(axis=(1, 2)),

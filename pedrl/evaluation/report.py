@@ -150,7 +150,7 @@ def print_table(rows: list[dict[str, Any]], label: str) -> None:
     """Tables 4/5 (and the extra columns) on the console."""
     header = (
         f"{'agents':>6} | {'fails % (std)':>14} | {'speed m/s (std)':>15} | {'evacuation s (trials)':>21} | "
-        f"{'stuck %':>7} | {'door flow 1/s':>13} | {'contacts/agent':>14}"
+        f"{'stuck %':>7} | {'door flow 1/s':>13} | {'contacts/agent':>14} | {'wall contacts':>13}"
     )
     print(f"\n  {label}\n  {header}\n  {'-' * len(header)}")
     for r in rows:
@@ -159,10 +159,10 @@ def print_table(rows: list[dict[str, Any]], label: str) -> None:
             f"  {r['agents']:>6} | {r['fails_pct']:6.2f} ({r['fails_std']:5.2f}) | "
             f"{r['mean_speed']:7.2f} ({r['speed_std']:4.2f}) | {evacuation:>21} | {r['stuck_pct']:7.1f} | "
             f"{_number(r['door_flow'], '13.3f')} | "
-            f"{_number(r['crashes_per_agent'], '14.2f')}"
+            f"{_number(r['crashes_per_agent'], '14.2f')} | {_number(r['wall_crashes_per_agent'], '13.2f')}"
         )
     if any(math.isnan(r["crashes_per_agent"]) for r in rows):
-        print("  contacts/agent n/a: a contact is a move the room's contact rule cut; JuPedSim has no such event")
+        print("  contacts n/a: a contact is a move the room's contact rule cut; JuPedSim has no such event")
 
 
 def _number(value: float, spec: str) -> str:
