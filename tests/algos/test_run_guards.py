@@ -75,12 +75,15 @@ def test_a_k_that_gathering_cannot_reach_is_refused_before_compute(train_config,
 )
 def test_fewer_distinct_states_than_k_shrink_k_with_one_line(train_config, tmp_path, overrides, every):
     """Agents that reach the door stop adding states: K shrinks to what the states hold, the same K in every process
-    (their tables stack), with a single one-line warning, and the run goes on (it used to fail after gathering)."""
+    (their tables stack), with one one-line warning per phase that shrinks, and the run goes on (it used to fail
+    after gathering)."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         result = train(train_config("logger=none", "algo.trials=2", *overrides), run_dir=tmp_path)
     shrinks = [w for w in caught if issubclass(w.category, UserWarning) and "distinct" in str(w.message)]
-    assert [w.category for w in shrinks] == [PedrlWarning], [str(w.message) for w in shrinks]
+    assert shrinks and all(w.category is PedrlWarning for w in shrinks), [str(w.message) for w in shrinks]
+    phases = [str(w.message).split(" (")[0] for w in shrinks]
+    assert len(set(phases)) == len(phases), phases  # at most one line per phase
     message = str(shrinks[0].message)
     assert message.startswith("phase 1 (") and every in message and "\n" not in message
     fitted = int(message.split("uses K = ")[1].split()[0])

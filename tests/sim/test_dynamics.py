@@ -182,11 +182,11 @@ def test_apply_actions_changes_speed_and_heading_as_documented():
 def test_half_turn_takes_two_decisions():
     turn_changes = torch.tensor(DEFAULT_TURN_RATIOS) * math.pi
     heading = torch.zeros(1, 1)
-    for _ in range(2):
+    for turn in (8, 7):  # +0.75 pi, then +0.25 pi
         _, heading = apply_actions(
             speeds=torch.zeros(1, 1),
             headings=heading,
-            actions=torch.tensor([[4 * 9 + 7]]),  # +0.5 pi
+            actions=torch.tensor([[4 * 9 + turn]]),
             speed_changes=torch.zeros(9),
             turn_changes=turn_changes,
             max_speed=2.5,

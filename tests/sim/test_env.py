@@ -105,11 +105,12 @@ def test_walking_into_a_standing_agent_penalises_only_the_mover():
 def test_actions_change_speed_and_heading_before_moving():
     env = RoomEnv(**TABLE_2, num_agents=1)
     _place(env, [(30.0, 50.0)], [RIGHT], [0.0])
-    full_speed_left_turn = 8 * 9 + 7  # +1.0 max_speed, +0.5 pi
+    full_speed_left_turn = 8 * 9 + 7  # +1.0 max_speed, +0.25 pi
     env.step(torch.tensor([[full_speed_left_turn]]))
-    assert env.speeds.item() == pytest.approx(env.max_speed) and env.headings.item() == pytest.approx(UP)
-    torch.testing.assert_close(env.positions[0, 0], torch.tensor([30.0, 52.5]))
-    torch.testing.assert_close(env.velocities[0, 0], torch.tensor([0.0, 2.5]), atol=1e-5, rtol=0)
+    diagonal = 2.5 * math.sqrt(0.5)
+    assert env.speeds.item() == pytest.approx(env.max_speed) and env.headings.item() == pytest.approx(UP / 2)
+    torch.testing.assert_close(env.positions[0, 0], torch.tensor([30.0 + diagonal, 50.0 + diagonal]))
+    torch.testing.assert_close(env.velocities[0, 0], torch.tensor([diagonal, diagonal]), atol=1e-5, rtol=0)
 
 
 # ---------------------------------------------------------------- episodes
