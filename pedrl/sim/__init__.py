@@ -1,8 +1,8 @@
 """Batched room simulation: geometry, dynamics, sensing, rewards and ``RoomEnv`` (pure torch, no I/O)."""
 
 from pedrl.sim.dynamics import (
-    DEFAULT_SPEED_RATIOS,
     COARSE_TURN_RATIOS,
+    DEFAULT_SPEED_RATIOS,
     DEFAULT_TURN_RATIOS,
     NOOP_ACTION,
     NUM_ACTIONS,

@@ -767,6 +767,7 @@ def move_agents_sliding(
         body_sq, body = torch.where(others, gap_x * gap_x + gap_y * gap_y, torch.inf).min(-1)
         return wall_sq < radius_sq, body_sq < contact_sq, wall, body
 
+    rank_of = order.argsort(dim=1) if yield_to_earlier else None  # each agent's place in the order of action
     for _ in range(num_substeps):
         if on_cpu and not bool(going.any()):
             break
@@ -779,7 +780,7 @@ def move_agents_sliding(
                 present=present,
                 agent_radius=agent_radius,
                 time_gap=time_gap,
-                rank=order.argsort(dim=1) if yield_to_earlier else None,
+                rank=rank_of,
             )
         for rank in range(num_agents):
             mover_index = order[:, rank]  # (R,)

@@ -215,8 +215,8 @@ class RoomEnv:
                 A contact (``info["crashed_agent"]``, ``crashed_wall``, the crash rewards) is a decision in which
                 another body (a wall) cut the agent's move: with ``stop`` the agent was stopped by it; with
                 ``slide`` its move was deflected or stopped by it; with ``headway`` and ``yield`` the same, for the
-                headway-limited move (slowing down for a body ahead is no contact). A wall contact takes precedence: an agent is
-                never flagged for both.
+                headway-limited move (slowing down for a body ahead is no contact). A wall contact takes precedence:
+                an agent is never flagged for both.
             time_gap: ``T`` of the ``headway`` and ``yield`` rules (s, ``> 0``; 1 s as JuPedSim's default); unused
                 otherwise.
             geometry: Any walkable area (``pedrl.scenarios`` builds one from polygons); ``None`` is the paper's

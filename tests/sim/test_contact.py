@@ -1,5 +1,5 @@
-"""The contact models of the room (``env.contact``): slide, headway and yield, their CPU kernel against the torch reference,
-their invariants on random scenes and in every scenario, and the behaviour each adds over ``stop``."""
+"""The contact models of the room (``env.contact``): slide, headway and yield, their CPU kernel against the torch
+reference, their invariants on random scenes and in every scenario, and the behaviour each adds over ``stop``."""
 
 import math
 from unittest import mock
