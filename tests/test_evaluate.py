@@ -16,6 +16,7 @@ from pedrl.algos.controllers import GreedyDoorController, LearnedController
 from pedrl.analysis import RoomGeometry, read_pedpy_trajectory
 from pedrl.evaluation import SCALING_COLUMNS, evaluate, print_table
 from pedrl.io import CheckpointError, read_csv
+from pedrl.sim import COARSE_TURN_RATIOS
 from pedrl.train import train
 
 CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
@@ -281,7 +282,7 @@ def test_learned_controller_replicates_tables_over_extra_agents():
 def test_greedy_controller_turns_towards_the_door_at_full_speed():
     env = SimpleNamespace(
         speed_ratios=(-1.0, -0.5, -0.25, -0.1, 0.0, 0.1, 0.25, 0.5, 1.0),
-        turn_ratios=(-0.75, -0.5, -0.25, -0.1, 0.0, 0.1, 0.25, 0.5, 0.75),
+        turn_ratios=COARSE_TURN_RATIOS,
     )
     obs = torch.zeros(1, 4, 28)
     obs[0, :, 1] = torch.tensor([0.0, 0.2, -torch.pi / 2, 3.0])  # heading relative to the door direction (rad)
@@ -294,7 +295,7 @@ def test_greedy_controller_turns_towards_the_door_at_full_speed():
 def test_greedy_controller_with_epsilon_replaces_that_share_of_its_actions():
     env = SimpleNamespace(
         speed_ratios=(-1.0, -0.5, -0.25, -0.1, 0.0, 0.1, 0.25, 0.5, 1.0),
-        turn_ratios=(-0.75, -0.5, -0.25, -0.1, 0.0, 0.1, 0.25, 0.5, 0.75),
+        turn_ratios=COARSE_TURN_RATIOS,
         num_actions=81,
     )
     obs = torch.zeros(50, 200, 28)  # every agent faces the door: the greedy action is 8 * 9 + 4 = 76
@@ -396,7 +397,6 @@ def test_contacts_count_bodies_and_walls_apart():
     assert record.crashes.sum() == 0 and record.wall_crashes.sum() > 0
 
     pair = RoomEnv(num_replicas=1, num_agents=2, width=10.0, length=10.0, max_decisions=3)
-    pair.reset(seed=0)
     east, west = 0.0, float(np.pi)
     options = {"positions": [[[3.0, 5.0], [5.0, 5.0]]], "headings": [[east, west]], "speeds": [[2.5, 2.5]]}
     with pytest.MonkeyPatch.context() as patch:

@@ -90,10 +90,14 @@ def test_paper_experiments_are_the_paper_literally(name, compose, tmp_path):
         assert budgets == sorted(budgets)  # trials grow with the number of agents
 
 
-def test_paper_experiments_state_their_budget():
-    for name in PAPER:
-        text = (Path(CONFIG_DIR) / "experiment" / f"{name}.yaml").read_text()
-        assert "Budget:" in text and "extrapolated from a measured partial run" in text, name
+@pytest.mark.parametrize(("name", "trials"), [("paper_vqql", 90), ("paper_it", 90), ("paper_in", 70)])
+def test_paper_experiments_state_their_budget(name, trials, compose, tmp_path):
+    """Each file states its trial budget, as many trials as it runs, and how long the paper's would take."""
+    text = (Path(CONFIG_DIR) / "experiment" / f"{name}.yaml").read_text()
+    assert "Budget:" in text and "extrapolated from a measured partial run" in text
+    assert f"{trials} trials" in text
+    phases = build_trainer(compose("train", [f"experiment={name}"]), tmp_path).phases()
+    assert sum(p.trials for p in phases) == trials
 
 
 @pytest.mark.parametrize("name", ["tuned_it", "tuned_in"])
@@ -101,7 +105,11 @@ def test_tuned_experiments_keep_the_papers_room_and_table_3(name, compose):
     cfg = compose("train", [f"experiment={name}"])
     assert (cfg.env.width, cfg.env.length, cfg.env.door_width, cfg.env.max_decisions) == (60.0, 100.0, 2.0, 200)
     assert (cfg.algo.gamma, cfg.algo.epsilon_start, cfg.algo.alpha) == (0.91, 0.4, 0.35)
-    assert cfg.vq.num_prototypes == 4096
+    assert (cfg.vq.num_prototypes, cfg.vq.per_process) == (4096, True)
+    # the project's choices, as the main job's
+    main = compose("train", ["experiment=main"]).env
+    for key in ("contact", "collision_order", "reward_progress", "reward_default", "reward_crash_agent"):
+        assert cfg.env[key] == main[key], key
 
 
 @pytest.mark.parametrize("name", EXPERIMENTS)

@@ -11,8 +11,8 @@ The frames then follow the room's conventions, so that every figure of Tables 4/
 - its exit time is that frame's time, ``left_at / decisions_per_second``, as the room counts whole decisions;
 - its speed in frame t is its mean speed over the interval ending there (over the part before it left, in the
   frame at which it left);
-- crashes are n/a (NaN): the room's crashes are moves its collision rule blocked, an event JuPedSim's models do
-  not have (the collision-free speed model slows down before contact instead).
+- contacts and wall contacts are n/a (NaN): the room's contacts are moves its contact rule cut, an event JuPedSim's
+  models do not have (the collision-free speed model slows down before contact instead).
 """
 
 from __future__ import annotations

@@ -289,8 +289,8 @@ class RoomEnv:
         self.contact = check_choice("contact", contact, CONTACT_MODELS)
         if self.contact != "stop" and self.collision_rule != "sequential":
             raise ValueError(
-                f"collision_rule={collision_rule!r} is invalid with contact={contact!r}: the slide and headway rules"
-                " resolve movers in turn (collision_rule: sequential; it applies to contact=stop only)"
+                f"collision_rule={collision_rule!r} is invalid with contact={contact!r}: the slide, headway and yield"
+                " rules resolve movers in turn (collision_rule: sequential; it applies to contact=stop only)"
             )
         self.time_gap = check_real("time_gap", time_gap, unit="s", positive=True)
         self.goal_depth = check_real("goal_depth", goal_depth, unit="m")
