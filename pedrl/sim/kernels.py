@@ -235,8 +235,9 @@ def _sliding(
     factor = np.empty(num_agents, dtype=np.float32)
     rank_of = np.empty(num_agents, dtype=np.int64)
     for r in range(num_replicas):
-        for k in range(num_agents):
-            rank_of[order[r, k]] = k
+        if yield_order:  # each agent's place in the order of action, for the right of way
+            for k in range(num_agents):
+                rank_of[order[r, k]] = k
         for i in range(num_agents):
             current[i, 0] = positions[r, i, 0]
             current[i, 1] = positions[r, i, 1]
