@@ -17,7 +17,7 @@ from omegaconf import DictConfig, OmegaConf
 from pedrl.algos import Trainer
 from pedrl.algos.registry import check_names_no_code, env_factory, trainer_class, vq_settings
 from pedrl.scenarios import inline_geometry
-from pedrl.sim.validation import MAX_SEED, check_integer
+from pedrl.sim.checks import MAX_SEED, check_integer
 
 
 def build_trainer(cfg: DictConfig, run_dir: str | Path, *, files: bool = True) -> Trainer:

@@ -15,7 +15,7 @@ from omegaconf import DictConfig, ListConfig
 
 from pedrl.cli import checked_groups, hydra_output_dir, run_reporting_errors
 from pedrl.runtime import set_threads
-from pedrl.sim.validation import MAX_SEED, check_bool, check_choice, check_device, check_integer, check_number
+from pedrl.sim.checks import MAX_SEED, check_bool, check_choice, check_device, check_integer, check_number
 from pedrl.validation.report import pass_count
 from pedrl.validation.runner import CHOICES, columns, validate
 from pedrl.validation.suite import TEST_NAMES

@@ -37,8 +37,8 @@ from pedrl.io.files import remove_temporaries_in
 from pedrl.notices import warn
 from pedrl.rl import LinearSchedule, epsilon_greedy, table_rows, td_update, zeros_q_values
 from pedrl.sim import RoomEnv
+from pedrl.sim.checks import check_bool, check_choice, check_device, check_integer, check_memory, check_number
 from pedrl.sim.sensing import distance_indices, fill_void_neighbours, void_draws
-from pedrl.sim.validation import check_bool, check_choice, check_device, check_integer, check_memory, check_number
 from pedrl.vq import ProcessQuantizers, Quantizer
 from pedrl.vq.kmeans import default_chunk_size
 

@@ -14,7 +14,7 @@ import torch
 
 from pedrl.rl import epsilon_greedy, table_rows
 from pedrl.sim import RoomEnv
-from pedrl.sim.validation import check_number
+from pedrl.sim.checks import check_number
 
 Encoder = Callable[[torch.Tensor, Mapping[str, Any], torch.Tensor], torch.Tensor]
 """``encode(obs (R, N, F), info, process (R * N,)) -> prototype ids (R * N,)`` int64, e.g. a trainer's

@@ -9,7 +9,7 @@ from typing import Any
 import torch
 
 from pedrl.algos.base import MAX_TRIALS, Phase, Trainer
-from pedrl.sim.validation import check_bool, check_integer, check_number
+from pedrl.sim.checks import check_bool, check_integer, check_number
 from pedrl.vq import ProcessQuantizers
 
 

@@ -23,7 +23,7 @@ import torch
 from pedrl.io import Checkpoint, CheckpointError, load_checkpoint, save_checkpoint
 from pedrl.rl import in_huge_pages
 from pedrl.scenarios import MAX_WKT_BYTES, build_scenario, check_scenario_sizes, geometry_file, inline_geometry
-from pedrl.sim.validation import shown
+from pedrl.sim.checks import shown
 from pedrl.vq import ProcessQuantizers
 
 if TYPE_CHECKING:

@@ -7,7 +7,7 @@ from typing import Any
 
 from pedrl.algos.base import MAX_TRIALS, Phase, Trainer
 from pedrl.rl import LinearSchedule
-from pedrl.sim.validation import check_integer
+from pedrl.sim.checks import check_integer
 
 
 class VQQL(Trainer):

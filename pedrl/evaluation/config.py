@@ -29,7 +29,7 @@ from pedrl.evaluation.engine import (
 from pedrl.integrations.jupedsim import INSTALL_HINT, JuPedSimModel, installed, model_from_settings
 from pedrl.runtime import set_threads
 from pedrl.sim import RoomEnv
-from pedrl.sim.validation import (
+from pedrl.sim.checks import (
     MAX_SEED,
     check_bool,
     check_choice,

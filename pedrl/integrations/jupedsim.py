@@ -48,7 +48,7 @@ from shapely.geometry import Polygon
 
 from pedrl.scenarios import Scenario
 from pedrl.sim import RoomEnv
-from pedrl.sim.validation import check_choice, check_real
+from pedrl.sim.checks import check_choice, check_real
 
 __all__ = [
     "EXIT_APRON_DEPTH",

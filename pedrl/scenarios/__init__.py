@@ -49,9 +49,9 @@ import torch
 from shapely.geometry import LineString, Point, Polygon, box
 
 from pedrl.notices import warn
+from pedrl.sim.checks import check_number, shown
 from pedrl.sim.env import MAX_DENSITY, RoomEnv
 from pedrl.sim.geometry import Geometry, SpawnArea, spawn_counts
-from pedrl.sim.validation import check_number, shown
 
 SCENARIOS: Final = ("paper_room", "bottleneck", "corridor", "corner", "four_exits", "custom")
 """Names accepted by ``scenario.name``."""

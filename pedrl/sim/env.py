@@ -13,6 +13,15 @@ from typing import Any, Final
 
 import torch
 
+from pedrl.sim.checks import (
+    check_bool,
+    check_choice,
+    check_device,
+    check_integer,
+    check_memory,
+    check_number,
+    check_real,
+)
 from pedrl.sim.dynamics import (
     COLLISION_RULES,
     CONTACT_MODELS,
@@ -31,15 +40,6 @@ from pedrl.sim.dynamics import (
 from pedrl.sim.geometry import NUM_WALLS, Geometry, X, Y, inside_polygon, spawn_counts, wrap_angle
 from pedrl.sim.rewards import MAX_REWARD, RewardTable, compute_rewards
 from pedrl.sim.sensing import Observation, feature_names, num_features, observe
-from pedrl.sim.validation import (
-    check_bool,
-    check_choice,
-    check_device,
-    check_integer,
-    check_memory,
-    check_number,
-    check_real,
-)
 
 MAX_DENSITY: Final = 0.35
 """Largest share of the free room area (where centres may lie) that the bodies may cover at placement."""

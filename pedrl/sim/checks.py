@@ -1,4 +1,4 @@
-"""One-line validation of user values: each check names the bad value and what is allowed, before any compute."""
+"""One-line checks of user values, before any compute: each names the bad value and what is allowed."""
 
 from __future__ import annotations
 
