@@ -1,3 +1,29 @@
-"""pedrl: multi-agent vector-quantised Q-learning for pedestrian navigation."""
+"""pedrl: multi-agent vector-quantised Q-learning for pedestrian navigation.
 
-__version__ = "0.1.0"
+A learned crowd, without Hydra or a trainer::
+
+    import pedrl
+
+    policy = pedrl.load_policy("policy.safetensors")      # a training checkpoint, or a file of pedrl-export
+    actions = policy.act(obs, info, epsilon=0.1)            # obs (R, N, F), info: as pedrl.sim.RoomEnv gives them
+"""
+
+from typing import Any
+
+from pedrl.version import __version__
+
+__all__ = ["TabularPolicy", "__version__", "export_policy", "load_policy", "room_factory"]
+
+
+def __getattr__(name: str) -> Any:
+    """``load_policy``, ``export_policy``, ``room_factory`` (:mod:`pedrl.policy`) and ``TabularPolicy``, imported on
+    first use: ``import pedrl`` stays light (the entry points import what they need)."""
+    if name in ("load_policy", "export_policy", "room_factory"):
+        import pedrl.policy
+
+        return getattr(pedrl.policy, name)
+    if name == "TabularPolicy":
+        from pedrl.rl.policy import TabularPolicy
+
+        return TabularPolicy
+    raise AttributeError(f"module 'pedrl' has no attribute {name!r}")

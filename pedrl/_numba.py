@@ -6,7 +6,10 @@ cache (``__pycache__`` next to the module, or ``NUMBA_CACHE_DIR``), so later pro
 Kernels are declared with :func:`cached_njit`, whose cache heals itself: a kernel whose cache files cannot be read
 (truncated, garbage) is recompiled into a fresh cache with a one-line warning, instead of failing every run.
 The torch code stays the reference and the path on other devices: the kernels return its numbers to the bit (the
-tree search the exact argmin, which can order float32 ties differently from the matrix search).
+tree search the exact argmin, which can order float32 ties differently from the matrix search). Each kernel module
+names its specification in its first line. In `pedrl.sim.dynamics` and `pedrl.rl.qlearning` a function with a
+kernel is a dispatcher under the plain name (it asks :func:`use_kernels`), beside its torch twin ``*_torch``: e.g.
+``pedrl.rl.td_update`` runs ``pedrl.rl.kernels.td_update_kernel`` or ``pedrl.rl.td_update_torch``.
 """
 
 from __future__ import annotations

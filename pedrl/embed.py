@@ -3,7 +3,7 @@
 Checkpoints hold their room: a custom room's WKT text is stored in them. Checkpoints written before that name the
 room's WKT file (``scenario.geometry``) instead, and pedrl opens no file a checkpoint names, so ``pedrl-eval``,
 ``pedrl-validate`` and ``resume=`` refuse them with the command line that re-exports them: this one. It stores the
-WKT text of ROOM.wkt in the checkpoint (:func:`pedrl.algos.restore.embed_geometry`); a bad value ends in one line
+WKT text of ROOM.wkt in the checkpoint (:func:`pedrl.configs.embed_geometry`); a bad value ends in one line
 and exit code 2.
 """
 
@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import argparse
 
-from pedrl.algos.restore import embed_geometry
 from pedrl.cli import fail
+from pedrl.configs import embed_geometry
 from pedrl.io import CheckpointError
 
 PROGRAM = "python -m pedrl.embed"

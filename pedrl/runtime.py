@@ -1,61 +1,15 @@
-"""What the entry points share to run a job: the trainer a config describes, and torch's CPU thread count.
+"""What the entry points share to run a job: torch's CPU thread count, alone or in a parallel sweep.
 
-``pedrl-train`` builds its trainer with :func:`build_trainer`; ``pedrl-eval`` rebuilds the trainer of a checkpoint
-with it (the trainer knows how observations are quantized). Both set torch's threads with :func:`set_threads`.
-Entry points import this module, never each other.
+``pedrl-train``, ``pedrl-eval`` and ``pedrl-validate`` set torch's threads with :func:`set_threads`. Entry points import
+this module, never each other; the trainer a config describes is built by :func:`pedrl.algos.registry.build_trainer`.
 """
 
 from __future__ import annotations
 
 import os
-from pathlib import Path
 from typing import Any
 
 import torch
-from omegaconf import DictConfig, OmegaConf
-
-from pedrl.algos import Trainer
-from pedrl.algos.registry import check_names_no_code, env_factory, trainer_class, vq_settings
-from pedrl.scenarios import inline_geometry
-from pedrl.sim.checks import MAX_SEED, check_integer
-
-
-def build_trainer(cfg: DictConfig, run_dir: str | Path, *, files: bool = True) -> Trainer:
-    """Build the trainer of ``cfg.algo`` with the room of ``cfg.env``; validates every value first.
-
-    Only the known room and trainer classes are built (:mod:`pedrl.algos.registry`): a config names no code, so
-    a ``_target_`` other than theirs, anywhere, is refused, and nothing is instantiated from a config node.
-    A custom room's WKT file (``scenario.geometry``) is read once, here, and the run config, which every checkpoint
-    stores, holds its WKT text instead of the path. ``files=False`` (a config read from a checkpoint) opens no file.
-    """
-    _check_top_level(cfg)
-    config = OmegaConf.to_container(cfg, resolve=True)
-    check_names_no_code(config)
-    if isinstance(config.get("scenario"), dict):
-        config["scenario"] = inline_geometry(config["scenario"], files=files)
-    trainer, settings = trainer_class(config["algo"])
-    return trainer(
-        **settings,
-        env=env_factory(config["env"], config.get("scenario"), files=files),
-        vq=vq_settings(config["vq"]),
-        processes=config["processes"],
-        rooms_per_process=config["rooms_per_process"],
-        checkpoint_every=config["checkpoint_every"],
-        device=config["device"],
-        seed=config["seed"],
-        run_dir=str(run_dir),
-        tensorboard=config["logger"]["tensorboard"],
-        progress=config["progress"],
-        run_config=config,
-    )
-
-
-def _check_top_level(cfg: DictConfig) -> None:
-    if cfg.get("threads") is not None:
-        check_integer("threads", cfg.get("threads"), minimum=1)
-    for key, minimum in (("processes", 1), ("rooms_per_process", 1), ("checkpoint_every", 0)):
-        check_integer(key, cfg.get(key), minimum=minimum)
-    check_integer("seed", cfg.get("seed"), minimum=0, maximum=MAX_SEED)
 
 
 def set_threads(threads: int | None) -> None:

@@ -14,6 +14,7 @@ import torch
 from omegaconf import DictConfig
 
 from pedrl.algos import Trainer, TrainResult
+from pedrl.algos.registry import build_trainer
 from pedrl.cli import (
     OutputDirCheck,
     checked_groups,
@@ -25,7 +26,7 @@ from pedrl.cli import (
 from pedrl.io import CheckpointError
 from pedrl.io.files import replace_atomically
 from pedrl.io.lock import RunFolderInUseError, run_folder_lock
-from pedrl.runtime import build_trainer, launcher_threads, set_threads
+from pedrl.runtime import launcher_threads, set_threads
 
 CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
 

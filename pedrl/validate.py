@@ -1,7 +1,7 @@
 """``pedrl-validate``: the validation suite on a learned checkpoint, the greedy reference and JuPedSim.
 
 ``main`` is a thin ``@hydra.main`` wrapper: it checks the values, reloads the checkpoint with
-:func:`pedrl.evaluation.load_policy` and runs :func:`pedrl.validation.runner.validate`, whose reports are described in
+:func:`pedrl.load_policy` and runs :func:`pedrl.validation.runner.validate`, whose reports are described in
 :mod:`pedrl.validation.report`.
 """
 
@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 import hydra
+import torch
 from omegaconf import DictConfig, ListConfig
 
 from pedrl.cli import checked_groups, hydra_output_dir, run_reporting_errors
@@ -55,11 +56,12 @@ def run(cfg: DictConfig, *, run_dir: Path | None = None) -> dict[str, Any]:
     set_threads(cfg.get("threads"))
     learned = None
     if checkpoint is not None:
-        from pedrl.evaluation import load_policy
+        from pedrl.policy import load_policy
 
-        policy = load_policy(checkpoint, controller="learned", epsilon=epsilon, device=device, max_decisions=None)
-        learned = (policy.controller, policy.env_settings)
-        own = float(policy.env_settings.get("agent_radius", 0.4))
+        policy = load_policy(checkpoint, device=device)
+        env_settings = dict(policy.metadata["config"]["env"])
+        learned = (policy.controller(epsilon, torch.Generator(device=device)), env_settings)  # seeded by the runner
+        own = float(env_settings.get("agent_radius", 0.4))
         if radius is not None and radius != own:
             raise ValueError(
                 f"radius={radius!r} is invalid with a checkpoint: every test runs at the checkpoint's own body radius,"

@@ -1,315 +1,32 @@
-"""Scaled evaluation (``pedrl-eval``) end to end, from tiny checkpoints of every algorithm, and its controllers."""
+"""``pedrl-eval`` (``pedrl/evaluate.py``) refuses a bad value, path or checkpoint before any compute: the eval part
+of the bad-input catalogue, and a bad checkpoint on the real command line.
 
-import json
+How a catalogue case runs and what it asserts: :mod:`tests.refusals`. The evaluation itself (:mod:`pedrl.evaluation`)
+is tested in ``tests/evaluation/``.
+"""
+
 import subprocess
 import sys
 from pathlib import Path
-from types import SimpleNamespace
 
-import numpy as np
 import pytest
-import torch
-from hydra import compose, initialize_config_dir
-from omegaconf import open_dict
 
-from pedrl.algos.controllers import GreedyDoorController, LearnedController
-from pedrl.analysis import RoomGeometry, read_pedpy_trajectory
-from pedrl.evaluation import SCALING_COLUMNS, evaluate, print_table
-from pedrl.io import CheckpointError, read_csv
-from pedrl.sim import COARSE_TURN_RATIOS
-from pedrl.train import train
-
-CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
-REQUIRED_COLUMNS = ("agents", "fails_pct", "fails_std", "mean_speed", "speed_std")
-# Two learning agents (A = 2) per checkpoint, so evaluating 3 and 5 agents replicates tables.
-TRAIN_OVERRIDES = {
-    "vqql": ["algo=vqql", "algo.num_agents=2", "algo.iterations=1"],
-    "it_vqql": ["algo=it_vqql", "algo.num_agents=2"],
-    "in_vqql": ["algo=in_vqql", "algo.stages=[1,2]"],
-}
-EVAL_AGENTS = (3, 5)
-PROCESSES = 2  # debug=default trains 2 learning processes
-
-
-def compose_config(name: str, overrides: list[str]):
-    # the module-scoped fixture below cannot use the function-scoped `compose` fixture of conftest
-    with initialize_config_dir(version_base="1.3", config_dir=CONFIG_DIR):
-        return compose(config_name=name, overrides=overrides)
-
-
-@pytest.fixture(autouse=True, scope="module")
-def one_thread():
-    """Tiny tensors run fastest on one thread (and a busy machine makes more threads much slower)."""
-    threads = torch.get_num_threads()
-    yield
-    torch.set_num_threads(threads)
+import pedrl.evaluate
+from tests.refusals import (
+    EVAL_BASE,
+    assert_nothing_computed,
+    assert_refused,
+    catalogue,
+    run_hydra_main,
+    train_checkpoint,
+)
 
 
 @pytest.fixture(scope="module")
-def checkpoints(tmp_path_factory, one_thread) -> dict[str, Path]:
-    """``last.safetensors`` of a seconds-long training run of each algorithm."""
-    paths = {}
-    for algo, overrides in TRAIN_OVERRIDES.items():
-        cfg = compose_config(
-            "train",
-            [
-                "debug=default",
-                *overrides,
-                "algo.trials=4",
-                "vq.num_prototypes=8",
-                "env.max_decisions=15",
-                "logger=none",
-                "threads=1",
-            ],
-        )
-        with open_dict(cfg):
-            cfg.progress = False
-        run_dir = tmp_path_factory.mktemp(algo)
-        train(cfg, run_dir=run_dir)
-        paths[algo] = run_dir / "checkpoints" / "last.safetensors"
-    return paths
+def checkpoint(tmp_path_factory) -> Path:
+    return train_checkpoint(tmp_path_factory)
 
 
-def eval_config(checkpoint: Path, *overrides: str):
-    return compose_config(
-        "eval",
-        [
-            f"checkpoint={checkpoint}",
-            f"agents=[{','.join(map(str, EVAL_AGENTS))}]",
-            "trials=2",
-            "trials_per_batch=1",
-            "animation.max_frames=3",
-            "threads=1",
-            *overrides,
-        ],
-    )
-
-
-# ---------------------------------------------------------------------- end to end
-@pytest.mark.parametrize("algo", list(TRAIN_OVERRIDES))
-def test_replicated_evaluation_writes_every_output(algo, checkpoints, tmp_path):
-    rows = evaluate(eval_config(checkpoints[algo]), run_dir=tmp_path)
-
-    table = read_csv(tmp_path / "scaling.csv")
-    assert list(table[0]) == list(SCALING_COLUMNS)
-    assert set(REQUIRED_COLUMNS) <= set(table[0])
-    assert [int(r["agents"]) for r in table] == list(EVAL_AGENTS)
-    for row, written in zip(rows, table, strict=True):
-        assert row["trials"] == 2 * PROCESSES == int(written["trials"])
-        assert 0.0 <= row["fails_pct"] <= 100.0 and row["fails_std"] >= 0.0
-        assert 0.0 <= row["mean_speed"] <= 2.5 and row["speed_std"] >= 0.0
-        assert row["crashes_per_agent"] >= 0.0 and row["wall_crashes_per_agent"] >= 0.0
-        assert 0 <= row["evacuated_trials"] <= row["trials"]
-        if row["evacuated_trials"]:
-            assert 0.0 < row["evacuation_time_s"] <= 15.0  # debug=default: 15 decisions of 1 s
-        if not np.isnan(row["door_flow"]):
-            assert row["door_flow"] > 0.0
-        assert float(written["fails_pct"]) == pytest.approx(row["fails_pct"], rel=1e-5)
-
-    def reject(constant):
-        raise ValueError(f"{constant} is not JSON")
-
-    assert json.loads((tmp_path / "scaling.json").read_text(), parse_constant=reject)[0]["agents"] == EVAL_AGENTS[0]
-
-    diagram = read_csv(tmp_path / "fundamental_diagram.csv")
-    assert (tmp_path / "fundamental_diagram.csv").read_text().splitlines()[0] == "agents,trial,frame,density,speed,flow"
-    for sample in diagram:
-        assert int(sample["agents"]) in EVAL_AGENTS and 0 <= int(sample["trial"]) < 2 * PROCESSES
-        assert float(sample["density"]) >= 0.05 and 0.0 <= float(sample["speed"]) <= 2.5 + 1e-5
-        assert float(sample["flow"]) == pytest.approx(float(sample["density"]) * float(sample["speed"]), rel=1e-4)
-    for name in ["fundamental_diagram.png", *(f"density_map_{n}.png" for n in EVAL_AGENTS)]:
-        assert (tmp_path / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", name
-    for n in EVAL_AGENTS:
-        counts = np.load(tmp_path / f"density_map_{n}.npy")
-        assert counts.shape == (10, 10) and counts.dtype == np.int64 and counts.min() >= 0  # 10 m x 10 m room
-        # frame 0 alone puts every agent of every trial in the room
-        assert counts.sum() >= n * 2 * PROCESSES
-        assert (tmp_path / f"animation_{n}.gif").read_bytes()[:4] == b"GIF8"
-        exported = sorted(p.name for p in (tmp_path / "trajectories" / f"agents_{n}").iterdir())
-        assert exported == ["trial_000.txt", "trial_001.txt"]  # export.trials = 2
-        ids, frames, _, framerate = read_pedpy_trajectory(tmp_path / "trajectories" / f"agents_{n}" / exported[0])
-        assert framerate == 1.0 and sorted(ids[frames == 0]) == list(range(n))
-    assert (tmp_path / "trajectories" / "geometry.wkt").read_text().startswith("POLYGON ((0.0 0.0, 10.0 0.0")
-    assert any(p.name.startswith("events.out.tfevents") for p in (tmp_path / "tb").iterdir())
-
-
-def test_tensorboard_holds_scalars_and_figures(checkpoints, tmp_path):
-    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
-
-    evaluate(eval_config(checkpoints["vqql"], "animation.enabled=false"), run_dir=tmp_path)
-    events = EventAccumulator(str(tmp_path / "tb"))
-    events.Reload()
-    assert [s.step for s in events.Scalars("eval/fails_pct")] == list(EVAL_AGENTS)
-    assert {"eval/mean_speed", "eval/door_flow", "eval/crashes_per_agent"} <= set(events.Tags()["scalars"])
-    assert {"eval/fundamental_diagram", *(f"eval/density_map_{n}" for n in EVAL_AGENTS)} <= set(events.Tags()["images"])
-    assert not list(tmp_path.glob("animation_*.gif"))
-
-
-def test_density_map_counts_every_recorded_agent_frame_in_the_room(checkpoints, tmp_path):
-    trials = 3
-    cfg = eval_config(
-        checkpoints["it_vqql"], "agents=[4]", f"trials={trials}", "trials_per_batch=2", f"export.trials={trials * 9}"
-    )
-    evaluate(cfg, run_dir=tmp_path)
-    files = sorted((tmp_path / "trajectories" / "agents_4").iterdir())
-    # every simulated trial is exported: trials x processes, batches of 2 trials per process (the last one cut)
-    assert [p.name for p in files] == [f"trial_{i:03d}.txt" for i in range(trials * PROCESSES)]
-    room = RoomGeometry(width=10.0, length=10.0, door_width=3.0)
-    inside = sum(int(room.contains(read_pedpy_trajectory(p)[2]).sum()) for p in files)
-    counts = np.load(tmp_path / "density_map_4.npy")
-    assert counts.sum() == inside
-    assert inside > 4 * trials * PROCESSES
-
-
-def test_exported_trials_open_in_pedpy(checkpoints, tmp_path):
-    pedpy = pytest.importorskip("pedpy")
-    import shapely
-
-    evaluate(eval_config(checkpoints["vqql"], "agents=[5]", "animation.enabled=false"), run_dir=tmp_path)
-    walkable = pedpy.WalkableArea((tmp_path / "trajectories" / "geometry.wkt").read_text())
-    for path in sorted((tmp_path / "trajectories" / "agents_5").iterdir()):
-        trajectory = pedpy.load_trajectory_from_txt(trajectory_file=path)
-        assert trajectory.frame_rate == 1.0 and set(trajectory.data["id"]) <= set(range(5))
-        points = shapely.points(trajectory.data[["x", "y"]].to_numpy())
-        assert shapely.covers(walkable.polygon, points).all()  # including agents in the door's exit frame
-
-
-def test_evaluation_is_deterministic_for_a_seed(checkpoints, tmp_path):
-    cfg = eval_config(checkpoints["it_vqql"], "epsilon=0.1", "animation.enabled=false", "tensorboard=false")
-    evaluate(cfg, run_dir=tmp_path / "a")
-    evaluate(cfg, run_dir=tmp_path / "b")
-    assert (tmp_path / "a" / "scaling.csv").read_text() == (tmp_path / "b" / "scaling.csv").read_text()
-    for name in ("fundamental_diagram.csv", "trajectories/agents_5/trial_001.txt"):
-        assert (tmp_path / "a" / name).read_text() == (tmp_path / "b" / name).read_text(), name
-    assert np.array_equal(np.load(tmp_path / "a" / "density_map_5.npy"), np.load(tmp_path / "b" / "density_map_5.npy"))
-
-    evaluate(eval_config(checkpoints["it_vqql"], "seed=1", "tensorboard=false"), run_dir=tmp_path / "c")
-    first = (tmp_path / "a" / "trajectories" / "agents_5" / "trial_000.txt").read_text()
-    assert (tmp_path / "c" / "trajectories" / "agents_5" / "trial_000.txt").read_text() != first
-
-
-def test_greedy_baseline_runs_on_the_same_scenarios(checkpoints, tmp_path):
-    common = ("animation.enabled=false", "tensorboard=false")
-    learned = evaluate(eval_config(checkpoints["in_vqql"], *common), run_dir=tmp_path / "learned")
-    greedy = evaluate(eval_config(checkpoints["in_vqql"], "controller=greedy", *common), run_dir=tmp_path / "greedy")
-    for n in EVAL_AGENTS:
-        for trial in ("trial_000.txt", "trial_001.txt"):
-            a = read_pedpy_trajectory(tmp_path / "learned" / "trajectories" / f"agents_{n}" / trial)
-            b = read_pedpy_trajectory(tmp_path / "greedy" / "trajectories" / f"agents_{n}" / trial)
-            assert np.array_equal(a[2][a[1] == 0], b[2][b[1] == 0])  # frame 0: the same initial positions
-            assert len(a[2][a[1] == 0]) == n
-    for row in greedy:
-        assert 0.0 <= row["fails_pct"] <= 100.0 and 0.0 <= row["mean_speed"] <= 2.5
-    assert [r["agents"] for r in greedy] == [r["agents"] for r in learned]
-
-
-def test_jupedsim_runs_on_the_same_scenes_and_reports_the_table(checkpoints, tmp_path, capsys):
-    pytest.importorskip("jupedsim")
-    common = ("agents=[5]", "trials=1", "animation.enabled=false", "tensorboard=false")
-    evaluate(eval_config(checkpoints["vqql"], "controller=greedy", *common), run_dir=tmp_path / "greedy")
-    rows = evaluate(eval_config(checkpoints["vqql"], "controller=jupedsim", *common), run_dir=tmp_path / "jupedsim")
-
-    (row,) = rows
-    assert row["agents"] == 5 and row["trials"] == PROCESSES  # one trial per process, as the other controllers
-    assert 0.0 <= row["fails_pct"] <= 100.0 and row["fails_std"] >= 0.0
-    assert 0.5 < row["mean_speed"] <= 1.2 + 1e-6  # JuPedSim's default desired speed
-    assert 0.0 <= row["stuck_pct"] <= row["fails_pct"] + 1e-9
-    if row["evacuated_trials"]:
-        assert 0.0 < row["evacuation_time_s"] <= 15.0  # debug=default: 15 decisions of 1 s
-    assert np.isnan(row["crashes_per_agent"]) and np.isnan(row["wall_crashes_per_agent"])  # n/a: no cut moves
-    assert json.loads((tmp_path / "jupedsim" / "scaling.json").read_text())[0]["crashes_per_agent"] is None
-    for trial in ("trial_000.txt", "trial_001.txt"):
-        a = read_pedpy_trajectory(tmp_path / "greedy" / "trajectories" / "agents_5" / trial)
-        b = read_pedpy_trajectory(tmp_path / "jupedsim" / "trajectories" / "agents_5" / trial)
-        assert np.allclose(a[2][a[1] == 0], b[2][b[1] == 0])  # frame 0: the same initial positions
-        assert b[3] == 1.0  # one frame per decision
-    assert (tmp_path / "jupedsim" / "fundamental_diagram.png").exists()
-    print_table(rows, "jupedsim")
-    assert "n/a" in capsys.readouterr().out
-
-
-def test_jupedsim_refuses_a_decision_that_is_no_whole_number_of_its_steps(checkpoints, tmp_path):
-    pytest.importorskip("jupedsim")
-    with pytest.raises(ValueError) as error:
-        evaluate(eval_config(checkpoints["vqql"], "controller=jupedsim", "jupedsim.dt=0.03"), run_dir=tmp_path)
-    assert "jupedsim.dt=0.03 is invalid" in str(error.value) and "\n" not in str(error.value)
-    assert not (tmp_path / "scaling.csv").exists()  # nothing ran
-
-
-def test_jupedsim_without_jupedsim_fails_with_one_line(checkpoints, tmp_path, monkeypatch):
-    monkeypatch.setitem(sys.modules, "jupedsim", None)  # not importable
-    with pytest.raises(ValueError) as error:
-        evaluate(eval_config(checkpoints["vqql"], "controller=jupedsim"), run_dir=tmp_path)
-    assert (
-        str(error.value)
-        == "controller=jupedsim is invalid here: jupedsim is not installed: pip install 'pedrl[jupedsim]'"
-    )
-
-
-# ---------------------------------------------------------------------- controllers
-def test_learned_controller_replicates_tables_over_extra_agents():
-    processes, tables, states = 2, 3, 4
-    q_values = torch.zeros(processes, tables, states, 81)
-    for p in range(processes):
-        for a in range(tables):
-            for s in range(states):
-                q_values[p, a, s, 27 * p + 9 * a + s] = 1.0  # each (process, table, state) has its own best action
-    replicas, agents = 4, 7
-
-    def encode(obs, info, process):
-        return obs[..., 0].reshape(-1).long()  # feature 0 holds the prototype id in this hand-made room
-
-    controller = LearnedController(q_values=q_values, encode=encode, epsilon=0.0)
-    state = torch.arange(replicas * agents).remainder(states).view(replicas, agents)
-    obs = torch.zeros(replicas, agents, 5)
-    obs[..., 0] = state.float()
-    actions = controller.act(None, obs, {})
-
-    replica = torch.arange(replicas)[:, None]
-    agent = torch.arange(agents)[None, :]
-    expected = 27 * (replica % processes) + 9 * (agent % tables) + state
-    assert torch.equal(actions, expected)
-    assert actions[0, 3] == actions[0, 0] - state[0, 0] + state[0, 3]  # agent 3 acts with table 0
-    process, table = controller.table_of(replicas, agents)
-    assert table[0].tolist() == [0, 1, 2, 0, 1, 2, 0] and process[:, 0].tolist() == [0, 1, 0, 1]
-
-    explore = LearnedController(q_values=q_values, encode=encode, epsilon=1.0, generator=torch.Generator())
-    assert not torch.equal(explore.act(None, obs, {}), expected)
-    with pytest.raises(ValueError, match="epsilon"):
-        LearnedController(q_values=q_values, encode=encode, epsilon=2.0)
-
-
-def test_greedy_controller_turns_towards_the_door_at_full_speed():
-    env = SimpleNamespace(
-        speed_ratios=(-1.0, -0.5, -0.25, -0.1, 0.0, 0.1, 0.25, 0.5, 1.0),
-        turn_ratios=COARSE_TURN_RATIOS,
-    )
-    obs = torch.zeros(1, 4, 28)
-    obs[0, :, 1] = torch.tensor([0.0, 0.2, -torch.pi / 2, 3.0])  # heading relative to the door direction (rad)
-    actions = GreedyDoorController().act(env, obs, {})
-    speed_index, turn_index = actions // 9, actions % 9
-    assert speed_index.tolist() == [[8, 8, 8, 8]]  # +1.0 max speed
-    assert turn_index.tolist() == [[4, 3, 7, 0]]  # no turn, -0.1 pi, +0.5 pi, -0.75 pi
-
-
-def test_greedy_controller_with_epsilon_replaces_that_share_of_its_actions():
-    env = SimpleNamespace(
-        speed_ratios=(-1.0, -0.5, -0.25, -0.1, 0.0, 0.1, 0.25, 0.5, 1.0),
-        turn_ratios=COARSE_TURN_RATIOS,
-        num_actions=81,
-    )
-    obs = torch.zeros(50, 200, 28)  # every agent faces the door: the greedy action is 8 * 9 + 4 = 76
-    noisy = GreedyDoorController(epsilon=0.3, generator=torch.Generator().manual_seed(0)).act(env, obs, {})
-    changed = float((noisy != 76).double().mean())
-    assert changed == pytest.approx(0.3 * 80 / 81, abs=0.01)  # a random action is the greedy one 1 time in 81
-    again = GreedyDoorController(epsilon=0.3, generator=torch.Generator().manual_seed(0)).act(env, obs, {})
-    assert torch.equal(noisy, again)
-    assert torch.equal(GreedyDoorController(epsilon=0.0).act(env, obs, {}), torch.full((50, 200), 76))
-    with pytest.raises(ValueError, match="epsilon"):
-        GreedyDoorController(epsilon=-0.1)
-
-
-# ---------------------------------------------------------------------- bad input
 @pytest.mark.parametrize("case", ["missing", "not_a_checkpoint"])
 def test_bad_checkpoint_fails_with_one_line_on_the_command_line(case, tmp_path):
     path = tmp_path / "nothing.safetensors"
@@ -328,79 +45,63 @@ def test_bad_checkpoint_fails_with_one_line_on_the_command_line(case, tmp_path):
     assert lines[0].startswith("pedrl-eval: error: checkpoint ") and str(path) in lines[0]
 
 
-@pytest.mark.parametrize(
-    ("override", "message"),
-    [
-        ("agents=[0]", "agents=[0] is invalid"),
-        ("agents=[]", "agents=[] is invalid"),
-        ("controller=foo", "controller='foo' is invalid"),
-        ("jupedsim.model=foo", "jupedsim.model='foo' is invalid"),
-        ("jupedsim.desired_speed=0", "jupedsim.desired_speed=0 is invalid"),
-        ("epsilon=2", "epsilon=2 is invalid"),
-        ("trials=0", "trials=0 is invalid"),
-        ("density_map.tile_size=0", "density_map.tile_size=0 is invalid"),
-        ("agents=[1000]", "num_agents=1000 is invalid"),
-    ],
-)
-def test_bad_values_fail_with_one_line(override, message, checkpoints, tmp_path):
-    with pytest.raises(ValueError) as error:
-        evaluate(eval_config(checkpoints["vqql"], override), run_dir=tmp_path)
-    assert message in str(error.value) and "\n" not in str(error.value)
-    assert not (tmp_path / "scaling.csv").exists()  # nothing ran
+EVAL_CASES: list[tuple[str, tuple[str, ...]]] = [
+    ("checkpoint=???", ("checkpoint is missing", "checkpoint=<path")),
+    ("checkpoint={tmp}/absent.safetensors", ("checkpoint", "absent.safetensors")),
+    ("checkpoint={tmp}/notes.safetensors", ("checkpoint", "notes.safetensors")),
+    ("agents=[0]", ("agents=[0]", "integers >= 1")),
+    ("scenario=nowhere", ("scenario='nowhere' is invalid", "must be one of")),
+    ("scenario=corner agents=[20]", ("num_agents=20", "cannot be placed in spawn area 0")),
+    ("scenario=bottleneck scenario.opening=0", ("scenario.opening=0", "> 0")),
+    ("agents=[]", ("agents=[]", "non-empty list")),
+    ("agents=5", ("agents=5", "non-empty list")),
+    ("agents=[2,2]", ("agents=[2, 2]", "appear once")),
+    ("agents=[2.5]", ("agents=[2.5]", "integers >= 1")),
+    ("agents=[1000000]", ("num_agents=1000000", "cannot be placed")),
+    ("trials=0", ("trials=0", "integer >= 1")),
+    ("trials=1.5", ("trials=1.5", "integer >= 1")),
+    ("trials_per_batch=0", ("trials_per_batch=0", "integer >= 1")),
+    ("trials=1000000000 trials_per_batch=1000000000", ("needs about", "GiB", "trials_per_batch")),
+    ("controller=foo", ("controller='foo'", "learned, greedy")),
+    ("epsilon=2", ("epsilon=2", "[0, 1]")),
+    ("epsilon=-0.1", ("epsilon=-0.1", "[0, 1]")),
+    ("max_decisions=0", ("max_decisions=0", "integer >= 1")),
+    ("seed=-1", ("seed=-1", "integer in [0, 4294967295]")),
+    ("seed=1e18", ("seed=1e+18", "integer in [0, 4294967295]")),
+    ("threads=0", ("threads=0", "integer >= 1")),
+    ("device=meta", ("device='meta'", "cpu or cuda")),
+    ("device=gpu", ("device='gpu'", "cpu or cuda")),
+    ("measurement.radius=0", ("measurement.radius=0", "> 0")),
+    ("measurement.distance=1000", ("measurement.distance=1000", "inside the room", "[0, 10)")),
+    ("measurement.distance=10", ("measurement.distance=10", "inside the room", "[0, 10)")),
+    ("measurement.distance=-1", ("measurement.distance=-1", ">= 0")),
+    ("measurement.min_density=-1", ("measurement.min_density=-1", ">= 0")),
+    ("measurement.plot_points=0", ("measurement.plot_points=0", "integer >= 1")),
+    ("density_map.tile_size=0", ("density_map.tile_size=0", "> 0")),
+    ("density_map.tile_size=1e-6", ("density_map.tile_size=1e-06", "tiles", "needs about", "GiB")),
+    ("export.trials=-1", ("export.trials=-1", "integer >= 0")),
+    ("animation.enabled=maybe", ("animation.enabled='maybe'", "true or false")),
+    ("animation.fps=0", ("animation.fps=0", "> 0")),
+    ("animation.max_frames=0", ("animation.max_frames=0", "integer >= 1")),
+    ("tensorboard=maybe", ("tensorboard='maybe'", "true or false")),
+]
 
 
-def test_missing_checkpoint_argument_and_foreign_files(tmp_path):
-    cfg = compose_config("eval", [])
-    with pytest.raises(ValueError, match="checkpoint is missing"):
-        evaluate(cfg, run_dir=tmp_path)
-    from safetensors.torch import save_file
-
-    foreign = tmp_path / "foreign.safetensors"
-    save_file({"weights": torch.zeros(2)}, str(foreign))
-    with pytest.raises(CheckpointError, match="not a pedrl checkpoint"):
-        evaluate(eval_config(foreign), run_dir=tmp_path)
+EVAL_FAST = {
+    "agents=[0]",
+    "device=meta",
+    "measurement.distance=1000",
+    "density_map.tile_size=1e-6",
+    "scenario=nowhere",
+    "scenario=corner agents=[20]",
+}
 
 
-def test_stuck_agents_are_those_left_in_the_room_that_did_not_move_in_the_last_20_decisions():
-    from pedrl.evaluation import stuck_agents
-
-    frames = 41
-    positions = np.zeros((1, frames, 4, 2))
-    positions[0, :, 0, 0] = np.arange(frames) * 1.0  # walked all along: not stuck
-    positions[0, :20, 1, 0] = np.arange(20) * 1.0  # walked, then stood still for the last 21 frames: stuck
-    positions[0, 20:, 1, 0] = 19.0
-    positions[0, :, 2, 0] = np.arange(frames) * 0.01  # crept 0.2 m in the last 20 decisions: stuck
-    positions[0, :, 3, 0] = 5.0  # stood still, but it passed the door (its row is padding): not stuck
-    reached = np.array([[False, False, False, True]])
-    assert stuck_agents(positions, reached).tolist() == [[False, True, True, False]]
-
-
-def test_evaluation_reports_stuck_agents_and_evacuated_trials(checkpoints, tmp_path):
-    rows = evaluate(eval_config(checkpoints["vqql"], "animation.enabled=false"), run_dir=tmp_path)
-    for row in rows:
-        assert 0.0 <= row["stuck_pct"] <= row["fails_pct"] + 1e-9  # a stuck agent is one that failed
-        assert row["evacuated_pct"] == pytest.approx(100.0 * row["evacuated_trials"] / row["trials"])
-
-
-def test_contacts_count_bodies_and_walls_apart():
-    """A lone walker running straight at full speed in a small room hits walls and never a body; two walkers put
-    face to face hit each other: each lands in its own column."""
-    from pedrl.evaluation.engine import record_batch
-    from pedrl.sim import RoomEnv
-
-    class Straight:
-        def act(self, env, obs, info):
-            return torch.full(env.active.shape, 8 * 9 + 4)  # full speed up, no turn
-
-    alone = RoomEnv(num_replicas=8, num_agents=1, width=4.0, length=4.0, door_width=1.0, max_decisions=10)
-    record = record_batch(alone, Straight())
-    assert record.crashes.sum() == 0 and record.wall_crashes.sum() > 0
-
-    pair = RoomEnv(num_replicas=1, num_agents=2, width=10.0, length=10.0, max_decisions=3)
-    east, west = 0.0, float(np.pi)
-    options = {"positions": [[[3.0, 5.0], [5.0, 5.0]]], "headings": [[east, west]], "speeds": [[2.5, 2.5]]}
-    with pytest.MonkeyPatch.context() as patch:
-        original = pair.reset
-        patch.setattr(pair, "reset", lambda **kwargs: original(seed=0, options=options))
-        record = record_batch(pair, Straight())
-    assert record.crashes[0].min() >= 1 and record.wall_crashes.sum() == 0
+@pytest.mark.parametrize(("overrides", "fragments"), catalogue(EVAL_CASES, EVAL_FAST))
+def test_eval_refuses(overrides, fragments, checkpoint, tmp_path, capsys):
+    (tmp_path / "notes.safetensors").write_text("these are not tensors\n")
+    run_dir = tmp_path / "run"
+    args = [f"checkpoint={checkpoint}", *EVAL_BASE, *overrides.format(tmp=tmp_path).split()]
+    outcome = run_hydra_main(pedrl.evaluate, [*args, f"hydra.run.dir={run_dir}"], capsys)
+    assert_refused(outcome, "pedrl-eval", fragments)
+    assert_nothing_computed(run_dir)

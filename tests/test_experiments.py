@@ -10,16 +10,21 @@ import pytest
 import torch
 from hydra import compose as hydra_compose
 from hydra import initialize_config_dir
+from omegaconf import OmegaConf
 
 from pedrl.algos.base import Trainer
+from pedrl.algos.registry import build_trainer
 from pedrl.io import load_checkpoint, read_csv
-from pedrl.runtime import build_trainer
 from pedrl.train import CONFIG_DIR, train
 
 EXPERIMENTS = sorted(p.stem for p in (Path(CONFIG_DIR) / "experiment").glob("*.yaml"))
 PAPER = {"paper_vqql": ("VQQL", 0.25), "paper_it": ("ITVQQL", 0.35), "paper_in": ("INVQQL", 0.35)}
 NAMES = {"pedrl.algos.VQQL": "vqql", "pedrl.algos.ITVQQL": "it_vqql", "pedrl.algos.INVQQL": "in_vqql"}
 K_VALUES = [512, 1024, 2048, 4096, 8192, 16384]
+REWARDS = {"paper_vqql": "paper", "paper_it": "paper", "paper_in": "paper", "main": "tuned", "tuned_it": "tuned"}
+REWARDS |= {"tuned_in": "tuned"}
+RESULTS = Path(CONFIG_DIR).parent / "docs" / "results.md"
+FORMER_COMMENTS = "## Measured figures formerly in the config comments"
 
 
 def quiet(cfg):
@@ -42,6 +47,68 @@ def test_every_experiment_composes_and_builds_a_trainer(name, compose, tmp_path)
     trainer = build_trainer(cfg, tmp_path)
     assert trainer.phases()
     assert trainer.name == NAMES[cfg.algo._target_]
+
+
+def experiment_file(name):
+    """An experiment file's body (plain containers) and its group choices, as overrides (``algo=it_vqql``)."""
+    body = OmegaConf.to_container(OmegaConf.load(Path(CONFIG_DIR) / "experiment" / f"{name}.yaml"))
+    choices = [
+        f"{key.removeprefix('override /')}={value}" for entry in body.pop("defaults") for key, value in entry.items()
+    ]
+    body.pop("hydra", None)
+    return body, choices
+
+
+def leaves(node, prefix=""):
+    for key, value in node.items():
+        if isinstance(value, dict):
+            yield from leaves(value, f"{prefix}{key}.")
+        else:
+            yield f"{prefix}{key}", value
+
+
+@pytest.mark.parametrize("name", EXPERIMENTS)
+def test_experiment_files_change_only_what_differs(name, compose):
+    """Every key an experiment sets differs from what its groups (algo, rewards) and the defaults give without it."""
+    body, choices = experiment_file(name)
+    base = OmegaConf.to_container(compose("train", choices), resolve=True)
+    for key, value in leaves(body):
+        default = base
+        for part in key.split("."):
+            default = default[part]
+        assert (type(default), default) != (type(value), value), f"experiment/{name}.yaml restates {key}={value!r}"
+
+
+@pytest.mark.parametrize("name", EXPERIMENTS)
+def test_experiments_take_their_rewards_from_the_rewards_group(name, compose):
+    body, choices = experiment_file(name)
+    assert not [key for key in body.get("env", {}) if key.startswith("reward_")], "rewards come from conf/rewards/"
+    expected = REWARDS.get(name)
+    assert [c for c in choices if c.startswith("rewards=")] == ([f"rewards={expected}"] if expected else [])
+    env = compose("train", [f"experiment={name}"]).env
+    rewards = OmegaConf.load(Path(CONFIG_DIR) / "rewards" / f"{expected or 'default'}.yaml")
+    assert {key: env[key] for key in rewards} == OmegaConf.to_container(rewards)
+
+
+def test_a_rewards_choice_on_the_command_line_wins_over_the_experiments(compose):
+    paper = OmegaConf.load(Path(CONFIG_DIR) / "rewards" / "paper.yaml")
+    env = compose("train", ["experiment=main", "rewards=paper"]).env
+    assert {key: env[key] for key in paper} == OmegaConf.to_container(paper)
+    room = OmegaConf.load(Path(CONFIG_DIR) / "env" / "room.yaml")
+    env = compose("train", ["experiment=paper_it", "rewards=default"]).env
+    assert all(env[key] == room[key] for key in room if key.startswith("reward_"))
+
+
+@pytest.mark.parametrize("name", EXPERIMENTS)
+def test_measured_figures_are_in_the_results_not_the_config(name):
+    """An experiment's header points to docs/results.md for its measured figures; the section it names exists."""
+    text = (Path(CONFIG_DIR) / "experiment" / f"{name}.yaml").read_text()
+    assert "Measured here" not in text
+    results = RESULTS.read_text()
+    assert FORMER_COMMENTS in results
+    if "Measured figures formerly in the config comments" in text.replace("\n# ", " "):
+        section = results.split(FORMER_COMMENTS, 1)[1]
+        assert f"`{name}" in section or f"{name}`" in section, name
 
 
 # ---------------------------------------------------------------------- the paper, literally
@@ -92,10 +159,13 @@ def test_paper_experiments_are_the_paper_literally(name, compose, tmp_path):
 
 @pytest.mark.parametrize(("name", "trials"), [("paper_vqql", 90), ("paper_it", 90), ("paper_in", 70)])
 def test_paper_experiments_state_their_budget(name, trials, compose, tmp_path):
-    """Each file states its trial budget, as many trials as it runs, and how long the paper's would take."""
+    """Each file states its trial budget and as many trials as it runs; how long the paper's would take,
+    extrapolated from a measured partial run, is in docs/results.md."""
     text = (Path(CONFIG_DIR) / "experiment" / f"{name}.yaml").read_text()
-    assert "Budget:" in text and "extrapolated from a measured partial run" in text
+    assert "Budget:" in text and "extrapolated from a measured partial run" in text and "docs/results.md" in text
     assert f"{trials} trials" in text
+    extrapolated = RESULTS.read_text().split("### The paper's budgets, extrapolated", 1)[1].split("\n### ", 1)[0]
+    assert f"- `{name}`: " in extrapolated and "hours" in extrapolated
     phases = build_trainer(compose("train", [f"experiment={name}"]), tmp_path).phases()
     assert sum(p.trials for p in phases) == trials
 

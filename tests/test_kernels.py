@@ -39,11 +39,10 @@ def run_trials(num_agents: int, prototypes: int, rooms_per_process: int) -> None
         progress=False,
         tensorboard=False,
     )
-    env = trainer._env(num_agents)
+    env = trainer.env_for(num_agents)
     env.reset(seed=num_agents)
     phase = trainer.phases()[0]
-    states, num_sensed, process, _ = trainer.gather(phase, env, None)
-    quantizer, _ = trainer.fit_quantizers(phase, states, num_sensed, process, None)
+    quantizer, _ = trainer.fit_quantizers(phase, trainer.gather(phase, env, None), None)
     q_values = zeros_q_values(2, num_agents, quantizer.num_prototypes, env.num_actions, device="cpu")
     for _ in range(2):
         stats = trainer.run_trial(env, quantizer, q_values, epsilon=0.3, learn=True)

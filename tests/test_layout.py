@@ -1,5 +1,7 @@
 """The module layout (issue 12): entry points import library modules only, and the room stays free of Hydra and I/O.
 
+The layout itself, package by package, is described once, in docs/design.md (section Layout).
+
 Read from the source with ``ast`` (nothing is imported), so that an import inside a function counts as well.
 """
 
@@ -9,7 +11,7 @@ from pathlib import Path
 import pytest
 
 PACKAGE = Path(__file__).resolve().parent.parent / "pedrl"
-ENTRY_POINTS = ("pedrl.train", "pedrl.evaluate", "pedrl.validate", "pedrl.plot", "pedrl.sweep")
+ENTRY_POINTS = ("pedrl.train", "pedrl.evaluate", "pedrl.validate", "pedrl.plot", "pedrl.sweep", "pedrl.export")
 SIM_FORBIDDEN = ("hydra", "omegaconf", "pedrl.io", "shapely", "pedrl.scenarios")
 """What pedrl/sim/ never imports: no config framework, and none of pedrl.io's file I/O (checkpoints, CSV, logs)."""
 
@@ -20,14 +22,20 @@ def module_name(path: Path, root: Path = PACKAGE.parent) -> str:
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
-def imported_modules(path: Path, root: Path = PACKAGE.parent) -> set[str]:
+def imported_modules(path: Path, root: Path = PACKAGE.parent, *, runtime_only: bool = False) -> set[str]:
     """Every module ``path`` imports, anywhere in the file, by its absolute name; ``from a import b`` counts as
-    both ``a`` and ``a.b`` (``b`` may be a module)."""
+    both ``a`` and ``a.b`` (``b`` may be a module). ``runtime_only`` leaves out the imports under
+    ``if TYPE_CHECKING:``, which never run."""
     package = module_name(path, root).split(".")
     if path.name != "__init__.py":
         package = package[:-1]
     names = set()
-    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+    tree = ast.parse(path.read_text(), filename=str(path))
+    if runtime_only:
+        for node in ast.walk(tree):
+            if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+                node.body = []
+    for node in ast.walk(tree):
         if isinstance(node, ast.Import):
             names.update(alias.name for alias in node.names)
         elif isinstance(node, ast.ImportFrom):

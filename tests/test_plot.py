@@ -1,18 +1,31 @@
-"""pedrl-plot: learning curves of several runs together, read from hand-made and real learning_curve.csv files."""
+"""pedrl-plot: learning curves of several runs together, read from hand-made and real learning_curve.csv files;
+and the plot part of the bad-input catalogue (:mod:`tests.refusals`)."""
 
 import csv
 import subprocess
 import sys
 import warnings
+from collections.abc import Callable, Iterator
+from pathlib import Path
 
 import numpy as np
 import pytest
 from hydra import compose, initialize_config_dir
 from omegaconf import open_dict
 
-from pedrl.algos.base import CURVE_COLUMNS
+import pedrl.plot
+from pedrl.algos.records import CURVE_COLUMNS
 from pedrl.learning_curves import draw_runs, plot_runs, read_learning_curve
 from pedrl.train import CONFIG_DIR, train
+from tests.refusals import (
+    assert_nothing_computed,
+    assert_refused,
+    binary_curve,
+    catalogue,
+    read_only_folder,
+    run_hydra_main,
+    write_small_curve,
+)
 
 DEBUG_RUNS = {"VQQL": "vqql", "IT-VQQL": "it_vqql", "IN-VQQL": "in_vqql"}
 
@@ -187,3 +200,66 @@ def test_cli_reports_bad_input_in_one_line(runs, tmp_path, override, message):
     assert done.returncode == 2
     lines = [line for line in done.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and lines[0].startswith(message), done.stderr
+
+
+# ---------------------------------------------------------------------- refused input (the bad-input catalogue)
+@pytest.fixture
+def read_only_dir(tmp_path) -> Iterator[Path]:
+    yield from read_only_folder(tmp_path)
+
+
+def _foreign_csv(run: Path) -> None:
+    (run / "learning_curve.csv").write_text("phase,global_trial,speed_mean\n1,2,3\n")
+
+
+def _header_only(run: Path) -> None:
+    (run / "learning_curve.csv").write_text(",".join(CURVE_COLUMNS) + "\n")
+
+
+def _malformed_row(run: Path) -> None:
+    path = run / "learning_curve.csv"
+    path.write_text(path.read_text() + "x" * 5 + "\n")
+
+
+PLOT_CASES: list[tuple[str, str, Callable[[Path], None] | None, tuple[str, ...]]] = [
+    ("no_runs", "runs=[]", None, ("runs=[]", "one or more run directories")),
+    ("absent_run", "runs=[{tmp}/absent]", None, ("absent", "expected a run directory")),
+    ("smooth_0", "smooth=0", None, ("smooth=0", "integer >= 1")),
+    ("smooth_abc", "smooth=abc", None, ("smooth='abc'", "integer >= 1")),
+    ("metric_foo", "metric=foo", None, ("metric='foo'", "one of", "success_rate")),
+    ("two_labels", "labels=[a,b]", None, ("labels=", "one label per run")),
+    ("same_labels", "runs=[{run},{run}] labels=[a,a]", None, ("labels=['a', 'a']", "its own label")),
+    ("binary_csv", "", binary_curve, ("learning_curve.csv", "not a CSV text file")),
+    ("foreign_csv", "", _foreign_csv, ("metric='success_rate' is not in", "learning_curve.csv", "one of speed")),
+    ("header_only", "", _header_only, ("learning_curve.csv", "has no rows")),
+    ("malformed_row", "", _malformed_row, ("learning_curve.csv", "malformed")),
+    (
+        "output_under_a_file",
+        "output={tmp}/figure.png/inside.png",
+        lambda run: (run.parent / "figure.png").write_text(""),
+        ("figure.png",),
+    ),
+]
+
+
+@pytest.mark.parametrize(
+    ("overrides", "damage", "fragments"), catalogue(PLOT_CASES, {"no_runs", "binary_csv"}, named=True)
+)
+def test_plot_refuses(overrides, damage, fragments, tmp_path, capsys):
+    run = tmp_path / "a_run"
+    write_small_curve(run / "learning_curve.csv")
+    if damage is not None:
+        damage(run)
+    run_dir = tmp_path / "plots"
+    args = [f"runs=[{run}]", *overrides.format(tmp=tmp_path, run=run).split(), f"hydra.run.dir={run_dir}"]
+    outcome = run_hydra_main(pedrl.plot, args, capsys)
+    assert_refused(outcome, "pedrl-plot", fragments)
+    assert_nothing_computed(run_dir)
+
+
+def test_plot_into_a_read_only_folder_names_the_path(tmp_path, read_only_dir, capsys):
+    run = write_small_curve(tmp_path / "a_run" / "learning_curve.csv").parent
+    output = read_only_dir / "sub" / "curves.png"
+    args = [f"runs=[{run}]", f"output={output}", f"hydra.run.dir={tmp_path / 'plots'}"]
+    outcome = run_hydra_main(pedrl.plot, args, capsys)
+    assert_refused(outcome, "pedrl-plot", (str(read_only_dir / "sub"),))

@@ -1,17 +1,22 @@
-"""pedrl.sweep (table and figure of a sweep) and the Hydra launcher configs (joblib, submitit local and slurm)."""
+"""pedrl.sweep (table and figure of a sweep) and the Hydra launcher configs (joblib, submitit local and slurm);
+and the sweep part of the bad-input catalogue (:mod:`tests.refusals`)."""
 
 import csv
 import json
 import math
 import subprocess
 import sys
+from collections.abc import Callable
+from pathlib import Path
 
 import pytest
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
+import pedrl.sweep
 from pedrl.sweep import FIGURE, SUMMARY_CSV, main, plot_sweep, pool_rows, summarise_sweep
 from pedrl.train import CONFIG_DIR
+from tests.refusals import assert_refused, make_plain_job, run_sweep_main
 
 
 def make_job(sweep_dir, name, *, overrides, success, std=0.05, num_prototypes=None, curve=None):
@@ -217,3 +222,74 @@ def test_submitit_local_launcher_runs_a_sweep(tmp_path):
         assert summary["algo"] == "vqql" and summary["phases"][0]["prototypes"] == k
     assert (sweep / ".submitit").is_dir()  # the jobs went through submitit
     assert [r["value"] for r in summarise_sweep(sweep, write=False)] == [16, 32]
+
+
+# ---------------------------------------------------------------------- refused input (the bad-input catalogue)
+def _no_parameter_args(sweep: Path) -> list[str]:
+    make_plain_job(sweep)
+    return [str(sweep), "--parameter", "algo.alpha"]
+
+
+def _broken_summary_args(sweep: Path) -> list[str]:
+    (make_plain_job(sweep) / "summary.json").write_text("{not json")
+    return [str(sweep)]
+
+
+def _binary_summary_args(sweep: Path) -> list[str]:
+    (make_plain_job(sweep) / "summary.json").write_bytes(bytes(range(256)))
+    return [str(sweep)]
+
+
+def _broken_overrides_args(sweep: Path) -> list[str]:
+    (make_plain_job(sweep) / ".hydra" / "overrides.yaml").write_text("[unclosed")
+    return [str(sweep)]
+
+
+def _sweep_is_a_file_args(sweep: Path) -> list[str]:
+    (sweep / "sweep.txt").write_text("")
+    return [str(sweep / "sweep.txt")]
+
+
+SWEEP_CASES: list[tuple[Callable[[Path], list[str]], tuple[str, ...]]] = [
+    (lambda sweep: [str(sweep / "absent")], ("absent", "does not exist")),
+    (lambda sweep: [str(sweep)], ("no finished job", "summary.json")),
+    (_sweep_is_a_file_args, ("sweep.txt", "is a file")),
+    (_no_parameter_args, ("parameter='algo.alpha'", "no value")),
+    (_broken_summary_args, ("summary.json", "not a summary written by pedrl-train")),
+    (_binary_summary_args, ("summary.json", "not a summary written by pedrl-train")),
+    (_broken_overrides_args, ("overrides.yaml", "not a config written by Hydra")),
+]
+
+
+@pytest.mark.parametrize(("make", "fragments"), SWEEP_CASES, ids=[f"case{i}" for i in range(len(SWEEP_CASES))])
+def test_sweep_refuses(make, fragments, tmp_path, capsys):
+    outcome = run_sweep_main(make(tmp_path), capsys)
+    assert_refused(outcome, "pedrl-sweep", fragments)
+    assert not (tmp_path / pedrl.sweep.SUMMARY_CSV).exists()
+
+
+def test_sweep_into_a_read_only_folder_names_the_path(tmp_path, capsys, monkeypatch):
+    make_plain_job(tmp_path)
+
+    def refuse(*args, **kwargs):
+        raise PermissionError(13, "Permission denied", str(tmp_path / pedrl.sweep.SUMMARY_CSV))
+
+    monkeypatch.setattr(pedrl.sweep, "_write_csv", refuse)
+    outcome = run_sweep_main([str(tmp_path)], capsys)
+    assert_refused(outcome, "pedrl-sweep", (str(tmp_path / pedrl.sweep.SUMMARY_CSV), "Permission denied"))
+
+
+def test_sweep_of_jobs_with_different_override_keys_names_the_key(tmp_path, capsys):
+    """Jobs of two sweeps in one folder (``algo`` overridden in one, not in the other) gave a KeyError blamed on a
+    summary.json; now one line naming the key and the jobs that lack it."""
+    make_plain_job(tmp_path, "0")
+    make_plain_job(tmp_path, "1")
+    make_plain_job(tmp_path, "2")
+    for name in ("0", "2"):
+        OmegaConf.save(
+            OmegaConf.create(["vq.num_prototypes=512", "algo=it_vqql"]), tmp_path / name / ".hydra" / "overrides.yaml"
+        )
+    for args in ([str(tmp_path)], [str(tmp_path), "--parameter", "vq.num_prototypes"]):
+        outcome = run_sweep_main(args, capsys)
+        assert_refused(outcome, "pedrl-sweep", ("override 'algo'", "set in jobs 0, 2", "not in job 1"))
+        assert not (tmp_path / pedrl.sweep.SUMMARY_CSV).exists()

@@ -1,8 +1,10 @@
 """The paper's trainers: VQQL, IT-VQQL and IN-VQQL, sharing :class:`pedrl.algos.base.Trainer`."""
 
-from pedrl.algos.base import Phase, Trainer, TrainResult, VQSettings
+from pedrl.algos.base import Trainer
 from pedrl.algos.in_vqql import INVQQL, replicate_tables
 from pedrl.algos.it_vqql import ITVQQL
+from pedrl.algos.phase import Phase, TrainResult
 from pedrl.algos.vqql import VQQL
+from pedrl.vq.settings import VQSettings
 
 __all__ = ["INVQQL", "ITVQQL", "VQQL", "Phase", "TrainResult", "Trainer", "VQSettings", "replicate_tables"]

@@ -7,8 +7,9 @@ from typing import Any
 
 import torch
 
-from pedrl.algos.base import Phase, Trainer
+from pedrl.algos.base import Trainer
 from pedrl.algos.it_vqql import _budgets
+from pedrl.algos.phase import Phase
 from pedrl.rl.qtable import empty_tables
 from pedrl.sim.sensing import feature_indices
 from pedrl.vq import UnionQuantizer
@@ -93,7 +94,7 @@ class INVQQL(Trainer):
 
     def sensed_neighbours(self, num_agents: int) -> int:
         """Neighbours an agent senses when ``num_agents`` agents are in the room: ``min(m - 1, k)``."""
-        return min(num_agents - 1, self._env(num_agents).num_neighbours)
+        return min(num_agents - 1, self.env_for(num_agents).num_neighbours)
 
     def fit_quantizer(
         self,
@@ -106,7 +107,7 @@ class INVQQL(Trainer):
         """The previous union and a new part fitted on the stage's full states (those with ``min(m - 1, k)``
         neighbours: every agent's first state of a trial is one). Fewer distinct full states than K shrink the new
         part's K (see :meth:`Trainer.fit_quantizers`)."""
-        env = self._env(phase.num_agents)
+        env = self.env_for(phase.num_agents)
         n = self.sensed_neighbours(phase.num_agents)
         index = feature_indices(n, env.num_neighbours, env.num_walls).to(self.device)
         full = states[num_sensed == n][:, index]
@@ -118,13 +119,6 @@ class INVQQL(Trainer):
         """The union keeps every prototype of the previous stages."""
         return 0 if previous is None else previous.num_prototypes
 
-    def encode(
-        self, quantizer: Any, obs: torch.Tensor, num_sensed: torch.Tensor, process: torch.Tensor | None = None
-    ) -> torch.Tensor:
-        if isinstance(quantizer, UnionQuantizer):
-            return quantizer.encode(obs, num_sensed)
-        return super().encode(quantizer, obs, num_sensed, process)
-
     def check_quantizer(self, part: Any, position: int) -> str | None:
         """A union with one part per number of sensed neighbours of stages ``1 .. position + 1``, each reading the
         features of its projection, with at most ``vq.num_prototypes`` prototypes per stage."""
@@ -133,7 +127,7 @@ class INVQQL(Trainer):
         expected = sorted({self.sensed_neighbours(m) for m in self.stages[: position + 1]})
         if part.num_sensed != expected:
             return f"has parts for {part.num_sensed} sensed neighbours: must have {expected}"
-        env = self._env(self.stages[0])
+        env = self.env_for(self.stages[0])
         for n in expected:
             index, quantizer = part.part(n)
             wanted = feature_indices(n, env.num_neighbours, env.num_walls)
@@ -143,9 +137,6 @@ class INVQQL(Trainer):
         if not 1 <= part.num_prototypes <= limit:
             return f"has {part.num_prototypes} prototypes: must have 1 to {limit} after stage {position + 1}"
         return None
-
-    def part_from_state_dict(self, tensors: dict[str, torch.Tensor]) -> UnionQuantizer:
-        return UnionQuantizer.from_state_dict(tensors)
 
 
 def _stages(stages: Any) -> list[int]:

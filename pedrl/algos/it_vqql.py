@@ -8,7 +8,8 @@ from typing import Any
 
 import torch
 
-from pedrl.algos.base import MAX_TRIALS, Phase, Trainer
+from pedrl.algos.base import Trainer
+from pedrl.algos.phase import MAX_TRIALS, Phase
 from pedrl.sim.checks import check_bool, check_integer, check_number
 from pedrl.vq import ProcessQuantizers
 
@@ -35,8 +36,9 @@ class ITVQQL(Trainer):
             footnote 1): row ``k`` of a new table is the old table's row at the old prototype nearest to new
             prototype ``k`` (the old quantizer's encoding of the new prototype, decoded to features), table ``a``
             taking old table ``a mod A_old``; one quantizer per process maps process by process.
-        **common: the keyword arguments of :class:`pedrl.algos.base.Trainer` (``void_features`` defaults to
-            ``"random"`` here).
+        void_features: empty neighbour slots filled with random valid values before quantization (section 5.1),
+            so the quantizer always sees full states; ``"zero"`` leaves them at 0.
+        **common: the keyword arguments of :class:`pedrl.algos.base.Trainer`.
     """
 
     name = "it_vqql"
@@ -51,6 +53,7 @@ class ITVQQL(Trainer):
         gather_trials: int = 5,
         gather_epsilon: float = 0.07,
         value_transfer: bool = False,
+        void_features: str = "random",
         **common: Any,
     ) -> None:
         self.iterations = iterations
@@ -60,8 +63,7 @@ class ITVQQL(Trainer):
         self.gather_trials = gather_trials
         self.gather_epsilon = gather_epsilon
         self.value_transfer = check_bool("value_transfer", value_transfer)
-        common.setdefault("void_features", "random")
-        super().__init__(**common)
+        super().__init__(void_features=void_features, **common)
 
     def phases(self) -> list[Phase]:
         return [
@@ -74,6 +76,11 @@ class ITVQQL(Trainer):
             )
             for i, (agents, budget) in enumerate(zip(self.agents_per_iteration, self.trial_budgets, strict=True))
         ]
+
+    def gather_tables(self, phase: Phase, previous: tuple[Any, torch.Tensor] | None):
+        """Re-quantization: iteration ``i`` gathers its states following iteration ``i - 1``'s tables
+        (epsilon-greedily, ``gather_epsilon``), so that its prototypes lie where the learned agents walk."""
+        return previous
 
     def initial_q_values(
         self, phase: Phase, quantizer: Any, previous: tuple[Any, torch.Tensor] | None, num_actions: int

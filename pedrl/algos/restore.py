@@ -1,6 +1,7 @@
-"""What a checkpoint must hold for a trainer to continue from it (``resume=``) or for ``pedrl-eval`` to use it.
+"""What a checkpoint must hold for a trainer to continue from it (``resume=``).
 
-Every value of a checkpoint is checked against the trainer built from the config, as if a user had typed it:
+Every value of a checkpoint is checked against the trainer built from the config, as if a user had typed it
+(the checks that need no trainer are :mod:`pedrl.policy`'s, which evaluation runs too):
 the metadata (algorithm, phase, trial, stored config), the Q tables ``q_values (P, A, K, U)`` (float32, finite,
 P processes, A tables, K prototypes of the quantizer, U = 81 actions), the quantizer's tensors (their count, K,
 feature dimension, dtype and finiteness) and the generator states. A problem gives one line naming the file,
@@ -9,42 +10,27 @@ the key, what it is and what is allowed (:class:`pedrl.io.CheckpointError`).
 
 from __future__ import annotations
 
-import copy
+import json
 import math
-import os
-import shlex
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from numbers import Real
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final
 
 import torch
 
-from pedrl.io import Checkpoint, CheckpointError, load_checkpoint, save_checkpoint
+from pedrl.configs import check_stored_config
+from pedrl.io import Checkpoint, CheckpointError, load_checkpoint
+from pedrl.policy import RNG_KEYS, check_rng_state, check_run_metadata, check_tensor_names
 from pedrl.rl import in_huge_pages
-from pedrl.scenarios import MAX_WKT_BYTES, build_scenario, check_scenario_sizes, geometry_file, inline_geometry
-from pedrl.sim.checks import shown
+from pedrl.rl.policy import rebuild_quantizer
 from pedrl.vq import ProcessQuantizers
 
 if TYPE_CHECKING:
-    from pedrl.algos.base import Phase, Trainer
+    from pedrl.algos.base import Trainer
+    from pedrl.algos.phase import Phase
 
 QUANTIZER_PREFIX: Final = "quantizer"
-RNG_KEYS: Final = ("rng/trainer", "rng/env")
-QUANTIZER_DTYPES: Final = {
-    "mean": torch.float32,
-    "std": torch.float32,
-    "prototypes": torch.float32,
-    "feature_index": torch.int64,
-    "num_sensed": torch.int64,
-}
-"""dtype of every quantizer tensor, by the last part of its name (``process000/part3.prototypes``)."""
-MAX_CONFIG_DEPTH: Final = 16
-"""Deepest nesting of a stored config (a run's config is 4 deep: ``scenario.exits[0][1]``)."""
-MAX_CONFIG_STRING: Final = 4096
-"""Longest string (or key) of a stored config, bar ``scenario.geometry``, the room's WKT text (10 MB)."""
-MAX_CONFIG_VALUES: Final = 100_000
-"""Most values (mappings, lists and leaves) of a stored config."""
 
 
 @dataclass(frozen=True)
@@ -97,8 +83,8 @@ def restore_state(trainer: Trainer, checkpoint: Checkpoint, *, continue_training
     check_stored_config(checkpoint)
     try:
         position, phase, trial = _check_progress(trainer, meta)
-        _check_extras(meta, position)
-        _check_tensor_names(checkpoint)
+        check_run_metadata(meta, checkpoint.metadata["config"], max_summaries=position + 1)
+        check_tensor_names(checkpoint)
         quantizer = _rebuild_quantizer(trainer, checkpoint, position)
         q_values = _check_tables(trainer, checkpoint.tensors.get("q_values"), phase, quantizer.num_prototypes)
         restore_rng = continue_training and trial < phase.trials
@@ -123,113 +109,18 @@ def restore_state(trainer: Trainer, checkpoint: Checkpoint, *, continue_training
     )
 
 
-def check_stored_config(checkpoint: Checkpoint) -> dict[str, Any]:
-    """The training config stored in ``checkpoint``, refused if it is not a mapping of plain values or names code.
-
-    It is bounded before anything walks it (:data:`MAX_CONFIG_DEPTH`, :data:`MAX_CONFIG_STRING`,
-    :data:`MAX_CONFIG_VALUES`, and the scenario's exits and spawn areas), and it must hold its room: a
-    ``scenario.geometry`` that names a WKT file (checkpoints written before rooms were stored) is refused with the
-    command that re-exports the checkpoint, since pedrl opens no file a checkpoint names.
-
-    Raises:
-        CheckpointError: one line naming the file and the bad key.
-    """
-    from pedrl.algos.registry import check_names_no_code  # the registry imports the trainers, which import us
-
-    config = checkpoint.metadata.get("config")
-    where = f"checkpoint {str(checkpoint.path)!r}"
-    if not isinstance(config, dict) or not all(isinstance(config.get(key), dict) for key in ("env", "algo")):
-        raise CheckpointError(f"{where} holds no training config (a mapping with env and algo) to rebuild its run")
-    try:
-        check_scenario_sizes(config.get("scenario"))  # counts only: first, for the clearest line
-        _check_config_size(config)
-        wkt_file = geometry_file(config.get("scenario"))
-        if wkt_file is None:
-            check_names_no_code(config, stored=True)
-    except ValueError as err:
-        raise CheckpointError(f"{where} holds a config that is refused: {err}") from None
-    if wkt_file is not None:
-        raise CheckpointError(
-            f"{where} names its room's WKT file (scenario.geometry={shown(wkt_file)}) instead of holding the room,"
-            " and pedrl opens no file a checkpoint names: re-export it with `python -m pedrl.embed"
-            f" {shlex.quote(str(checkpoint.path))} ROOM.wkt` (ROOM.wkt: the file it was trained on)"
-        )
-    return config
-
-
-def _check_config_size(config: dict[str, Any]) -> None:
-    """Refuse a stored config nested too deep, too large or holding too long a string, walking it without
-    recursion (a 600-deep list must give one line, not a RecursionError)."""
-    stack: list[tuple[Any, str, int]] = [(config, "", 0)]
-    count = 0
-    while stack:
-        node, path, depth = stack.pop()
-        count += 1
-        if count > MAX_CONFIG_VALUES:
-            raise ValueError(f"it holds more than {MAX_CONFIG_VALUES} values")
-        if depth > MAX_CONFIG_DEPTH:
-            raise ValueError(f"{_cut(path)} is nested deeper than {MAX_CONFIG_DEPTH} levels")
-        if isinstance(node, dict):
-            for key, value in node.items():
-                if isinstance(key, str) and len(key) > MAX_CONFIG_STRING:
-                    raise ValueError(f"config key {shown(key)} is invalid: at most {MAX_CONFIG_STRING} characters")
-                stack.append((value, f"{path}.{key}" if path else str(key), depth + 1))
-        elif isinstance(node, list):
-            stack.extend((value, f"{path}[{index}]", depth + 1) for index, value in enumerate(node))
-        elif isinstance(node, str):
-            most = MAX_WKT_BYTES if path == "scenario.geometry" else MAX_CONFIG_STRING
-            if len(node) > most:
-                raise ValueError(f"{_cut(path)}={shown(node)} is invalid: at most {most} characters")
-
-
-def _cut(path: str) -> str:
-    return path if len(path) <= 120 else path[:120] + "..."
-
-
-def embed_geometry(path: str | os.PathLike, wkt: str | os.PathLike, *, output: str | os.PathLike | None = None) -> Path:
-    """Re-export a checkpoint that names its room's WKT file (``scenario.geometry``, written before rooms were
-    stored) with that room's WKT text in its stored config; ``python -m pedrl.embed`` runs it.
-
-    ``wkt`` is read once, under the bounds of :func:`pedrl.scenarios.read_wkt`, and the stored exits and spawn areas
-    must fit its polygon. Tensors and every other value are kept; the file is written atomically, to ``output``
-    (default: in place).
-
-    Raises:
-        CheckpointError: one line, for a checkpoint that names no WKT file, a bad WKT file, or a room its stored
-            exits do not fit.
-    """
-    source = load_checkpoint(path)
-    where = f"checkpoint {str(source.path)!r}"
-    config = copy.deepcopy(source.metadata.get("config"))
-    scenario = config.get("scenario") if isinstance(config, dict) else None
-    if geometry_file(scenario) is None:
-        raise CheckpointError(f"{where} names no WKT file (scenario.geometry): there is nothing to re-export")
-    try:
-        scenario = inline_geometry({**scenario, "geometry": str(wkt)})
-        build_scenario(scenario, files=False)  # the stored exits and spawn areas must fit the polygon
-    except ValueError as err:
-        raise CheckpointError(f"cannot re-export {where}: {err}") from None
-    config["scenario"] = scenario
-    header = ("format", "format_version", "pedrl_version")  # written anew by save_checkpoint
-    metadata = {key: value for key, value in source.metadata.items() if key not in header} | {"config": config}
-    destination = Path(output) if output is not None else source.path
-    check_stored_config(Checkpoint(tensors=source.tensors, metadata=metadata, path=destination))
-    return save_checkpoint(destination, tensors=source.tensors, metadata=metadata)
-
-
-# ---------------------------------------------------------------------- metadata
 def _check_progress(trainer: Trainer, meta: dict[str, Any]) -> tuple[int, Phase, int]:
     if meta.get("algo") != trainer.name:
         raise ValueError(f"metadata algo={meta.get('algo')!r} is not the config's algorithm: must be {trainer.name!r}")
     phases = trainer.phases()
     indices = [p.index for p in phases]
     iteration = meta.get("iteration")
-    if not _is_int(iteration) or iteration not in indices:
+    if isinstance(iteration, bool) or not isinstance(iteration, int) or iteration not in indices:
         raise ValueError(f"metadata iteration={iteration!r} is invalid: must be one of the phases {indices}")
     position = indices.index(iteration)
     phase = phases[position]
     trial = meta.get("trial")
-    if not _is_int(trial) or not 0 <= trial <= phase.trials:
+    if isinstance(trial, bool) or not isinstance(trial, int) or not 0 <= trial <= phase.trials:
         raise ValueError(f"metadata trial={trial!r} is invalid: must be an integer in [0, {phase.trials}]")
     complete = meta.get("phase_complete")
     if complete is not (trial == phase.trials):
@@ -242,50 +133,9 @@ def _check_progress(trainer: Trainer, meta: dict[str, Any]) -> tuple[int, Phase,
     return position, phase, trial
 
 
-def _check_extras(meta: dict[str, Any], position: int) -> None:
-    summaries = meta.get("summaries", [])
-    listed = isinstance(summaries, list) and all(isinstance(summary, dict) for summary in summaries)
-    if not listed or len(summaries) > position + 1:
-        raise ValueError(f"metadata summaries are invalid: must be a list of at most {position + 1} mappings")
-    distortion = meta.get("distortion", math.nan)
-    if not _is_real(distortion) or (math.isfinite(distortion) and distortion < 0) or math.isinf(distortion):
-        raise ValueError(f"metadata distortion={distortion!r} is invalid: must be a number >= 0")
-    wall_time = meta.get("wall_time_s", 0.0)
-    if not _is_real(wall_time) or not (math.isfinite(wall_time) and wall_time >= 0):
-        raise ValueError(f"metadata wall_time_s={wall_time!r} is invalid: must be a finite number >= 0")
-    final = meta.get("final", {})
-    if not isinstance(final, dict) or not all(_is_real(v) for v in final.values()):
-        raise ValueError("metadata final is invalid: must map figure names to numbers")
-
-
 # ---------------------------------------------------------------------- tensors
-def _check_tensor_names(checkpoint: Checkpoint) -> None:
-    for name in ("q_values", *RNG_KEYS):
-        if name not in checkpoint.tensors:
-            raise ValueError(f"tensor {name} is missing")
-    for name in checkpoint.tensors:
-        if name not in ("q_values", *RNG_KEYS) and not name.startswith(QUANTIZER_PREFIX + "/"):
-            raise ValueError(f"tensor {name} is unknown: allowed: q_values, rng/trainer, rng/env, quantizer/...")
-    if not checkpoint.tensors_with_prefix(QUANTIZER_PREFIX):
-        raise ValueError("the quantizer tensors (quantizer/...) are missing")
-
-
 def _rebuild_quantizer(trainer: Trainer, checkpoint: Checkpoint, position: int) -> Any:
-    tensors = checkpoint.tensors_with_prefix(QUANTIZER_PREFIX)
-    for name, tensor in tensors.items():
-        leaf = name.rsplit("/", 1)[-1].rsplit(".", 1)[-1]
-        dtype = QUANTIZER_DTYPES.get(leaf)
-        if dtype is None:
-            raise ValueError(f"tensor quantizer/{name} is unknown: allowed names end in {', '.join(QUANTIZER_DTYPES)}")
-        if tensor.dtype != dtype:
-            raise ValueError(f"tensor quantizer/{name} is {tensor.dtype}: must be {dtype}")
-        if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
-            raise ValueError(f"tensor quantizer/{name} holds NaN or infinite values: must be finite")
-    try:
-        quantizer = trainer.quantizer_from_state_dict(tensors)
-    except (KeyError, ValueError, RuntimeError, TypeError, IndexError) as err:
-        reason = (str(err).strip().splitlines() or [type(err).__name__])[0]
-        raise ValueError(f"the quantizer tensors do not form a quantizer ({reason})") from None
+    quantizer = rebuild_quantizer(checkpoint.tensors_with_prefix(QUANTIZER_PREFIX))
     per_process = isinstance(quantizer, ProcessQuantizers)
     count = quantizer.num_processes if per_process else 1
     if per_process != trainer.vq.per_process or (per_process and count != trainer.processes):
@@ -301,7 +151,7 @@ def _rebuild_quantizer(trainer: Trainer, checkpoint: Checkpoint, position: int) 
 
 
 def _check_tables(trainer: Trainer, q_values: torch.Tensor, phase: Phase, num_prototypes: int) -> torch.Tensor:
-    env = trainer._env(phase.num_agents)
+    env = trainer.env_for(phase.num_agents)
     expected = (trainer.processes, trainer.num_tables(phase), num_prototypes, env.num_actions)
     allowed = f"float32 {expected} (processes, tables, prototypes, actions)"
     if q_values.dtype != torch.float32 or tuple(q_values.shape) != expected:
@@ -313,9 +163,7 @@ def _check_tables(trainer: Trainer, q_values: torch.Tensor, phase: Phase, num_pr
 
 def _check_rng(trainer: Trainer, name: str, state: torch.Tensor, *, restore: bool) -> torch.Tensor:
     """A generator state; one that will be restored is tried on a generator of the trainer's device."""
-    state = state.cpu()
-    if state.dtype != torch.uint8 or state.ndim != 1:
-        raise ValueError(f"tensor {name} is {state.dtype} {tuple(state.shape)}: must be a uint8 generator state")
+    state = check_rng_state(name, state)
     if restore:
         try:
             torch.Generator(device=trainer.device).set_state(state)
@@ -327,9 +175,47 @@ def _check_rng(trainer: Trainer, name: str, state: torch.Tensor, *, restore: boo
     return state
 
 
-def _is_int(value: Any) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool)
+RESUME_INDEPENDENT = ("resume", "device", "progress", "logger", "hydra", "threads")
+"""Top-level keys that may change on resume: the results do not depend on them."""
 
 
-def _is_real(value: Any) -> bool:
-    return isinstance(value, Real) and not isinstance(value, bool)
+NEWER_KEYS = {"env.compile_sensing": False, "env.contact": "stop", "env.time_gap": 1.0, "algo.value_transfer": False}
+"""Keys added after checkpoints were first written, with the value the runs of older checkpoints had."""
+
+
+def config_mismatch(saved: Mapping[str, Any], current: Mapping[str, Any], prefix: str = "") -> str:
+    """The first differing key between two nested configs, ignoring keys that may change on resume; a key that an
+    older checkpoint lacks counts as its value in ``NEWER_KEYS``."""
+    for key in sorted(set(saved) | set(current)):
+        if not prefix and key in RESUME_INDEPENDENT:
+            continue
+        a = saved.get(key, NEWER_KEYS.get(f"{prefix}{key}", "<absent>"))
+        b = current.get(key, "<absent>")
+        if isinstance(a, Mapping) and isinstance(b, Mapping):
+            found = config_mismatch(a, b, f"{prefix}{key}.")
+            if found:
+                return found
+        elif a != b:
+            return f"{prefix}{key} was {short_json(a)} there and is {short_json(b)} here"
+    return ""
+
+
+def short_json(value: Any, limit: int = 80) -> str:
+    """``value`` as JSON, cut to ``limit`` characters: a room's WKT text may run to megabytes."""
+    text = json.dumps(value)
+    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
+
+
+def load_resume(trainer: Trainer, path: str | Path) -> RestoredState:
+    """Read and validate the checkpoint ``trainer`` continues from: written by the same algorithm, from a config
+    that differs only in :data:`RESUME_INDEPENDENT` keys, and every value checked (:func:`restore_state`)."""
+    checkpoint = load_checkpoint(path, device=trainer.device)
+    meta = checkpoint.metadata
+    if meta.get("algo") != trainer.name:
+        raise CheckpointError(
+            f"checkpoint {str(path)!r} was written by algo={meta.get('algo')!r}, not {trainer.name!r}"
+        )
+    mismatch = config_mismatch(check_stored_config(checkpoint), trainer.config)
+    if mismatch:
+        raise CheckpointError(f"checkpoint {str(path)!r} comes from an incompatible configuration: {mismatch}")
+    return restore_state(trainer, checkpoint)

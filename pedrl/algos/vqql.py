@@ -5,7 +5,8 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from pedrl.algos.base import MAX_TRIALS, Phase, Trainer
+from pedrl.algos.base import Trainer
+from pedrl.algos.phase import MAX_TRIALS, Phase
 from pedrl.rl import LinearSchedule
 from pedrl.sim.checks import check_integer
 
@@ -23,6 +24,7 @@ class VQQL(Trainer):
         trials: total learning trials.
         iterations: blocks the trials are split into, each ending with a checkpoint.
         gather_trials: random-walk trials recorded for the quantizer.
+        alpha: learning rate (the paper's VQQL baseline: 0.25).
         **common: the keyword arguments of :class:`pedrl.algos.base.Trainer`.
     """
 
@@ -32,9 +34,10 @@ class VQQL(Trainer):
         self,
         *,
         num_agents: int = 20,
-        trials: int = 1000,
+        trials: int = 3000,
         iterations: int = 1,
         gather_trials: int = 5,
+        alpha: float = 0.25,
         **common: Any,
     ) -> None:
         self.num_agents = num_agents
@@ -43,7 +46,7 @@ class VQQL(Trainer):
         self.gather_trials = gather_trials
         check_integer("iterations", iterations, minimum=1, maximum=MAX_TRIALS)
         check_integer("trials", trials, minimum=iterations, maximum=MAX_TRIALS)
-        super().__init__(**common)
+        super().__init__(alpha=alpha, **common)
 
     def phases(self) -> list[Phase]:
         block, extra = divmod(self.trials, self.iterations)

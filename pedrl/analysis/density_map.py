@@ -1,10 +1,10 @@
 """Density maps (paper section 6, Figures 9-10): how many agent centres fell in each tile of the room.
 
-The room ``[0, width] x [0, length]`` is tiled with squares of side ``tile_size``; the last column and row
-are narrower when the room is not a whole number of tiles. Every active agent-frame whose centre is inside the
-room (``RoomGeometry.contains``: agents that have passed the door are outside) adds 1 to its tile, over all
-frames of all trials. A tile's count is thus in agent-frames: divide by the total number of frames for the
-mean occupancy.
+The bounding box of the area (``[0, width] x [0, length]`` for the paper's room) is tiled with squares of side
+``tile_size``; the last column and row are narrower when it is not a whole number of tiles. Every active
+agent-frame whose centre is inside the area (``AreaGeometry.contains``: agents that have passed an exit are
+outside) adds 1 to its tile, over all frames of all trials. A tile's count is thus in agent-frames: divide by the
+total number of frames for the mean occupancy.
 """
 
 from __future__ import annotations

@@ -127,7 +127,8 @@ def read_pedpy_trajectory(
 def write_geometry_wkt(path: str | Path, geometry: Geometry, *, exit_depth: float = DEFAULT_EXIT_DEPTH) -> Path:
     """Write the walkable area as WKT text (``pedpy.WalkableArea(path.read_text())`` loads it).
 
-    See :meth:`RoomGeometry.walkable_polygon` for the polygon (room plus an apron of ``exit_depth`` m).
+    See :meth:`AreaGeometry.to_wkt` for the polygon (the area plus an apron of ``exit_depth`` m beyond each exit;
+    :meth:`RoomGeometry.walkable_polygon` for the paper's room).
     """
     path = Path(path)
     path.write_text(geometry.to_wkt(exit_depth=exit_depth) + "\n", encoding="utf-8")

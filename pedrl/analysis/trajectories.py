@@ -1,12 +1,14 @@
 """Room geometry and recorded trajectories: the only input of :mod:`pedrl.analysis`.
 
-The analysis never imports :mod:`pedrl.sim`. A caller that runs the simulator copies the room parameters into
-a :class:`RoomGeometry` and the recorded states into a :class:`Trajectories` (numpy arrays, float32 or 64).
+The analysis never imports :mod:`pedrl.sim`. It takes a plain view of the area a trial ran in, an
+:class:`AreaGeometry` (numpy arrays and WKT text), which the side that built the simulation's geometry builds from
+it (:meth:`pedrl.scenarios.Scenario.analysis_geometry`), and the recorded states as :class:`Trajectories` (numpy
+arrays, float32 or 64).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Final
 
 import numpy as np
@@ -16,18 +18,122 @@ X: Final = 0
 Y: Final = 1
 
 DEFAULT_EXIT_DEPTH: Final = 2.5
-"""Depth (m) of the apron outside the door that :meth:`RoomGeometry.to_wkt` adds to the walkable area.
+"""Depth (m) of the apron beyond each exit that :meth:`AreaGeometry.to_wkt` adds to the walkable area.
 
-An agent is terminated on the decision its centre reaches ``y >= length``; with the default speed limit
-(2.5 m/s) and decision length (1 s) its last position lies at most 2.5 m beyond the door line.
+An agent is terminated on the decision its centre passes an exit; with the default speed limit (2.5 m/s) and
+decision length (1 s) its last position lies at most 2.5 m beyond the exit line.
 """
 
 
-@dataclass(frozen=True)
-class RoomGeometry:
-    """The rectangular room ``[0, width] x [0, length]`` with one door (docs/design.md, "The room").
+@dataclass(frozen=True, eq=False)
+class AreaGeometry:
+    """A plain view of a walkable area, what every analysis takes: its polygon, its walls and its exits (m).
 
-    The door is a gap of ``door_width`` centred on the short side ``y = length``.
+    Built from the simulation's geometry by the scenario that built it
+    (:meth:`pedrl.scenarios.Scenario.analysis_geometry`); :class:`RoomGeometry` is the paper's rectangle, built from
+    its three sizes. The "door" of the paper's analyses (density map, measurement point) is the first exit.
+
+    Attributes:
+        wkt: The walkable polygon as WKT (holes allowed), without aprons.
+        walls: ``(S, 2, 2)`` wall segments (m), float64.
+        exits: ``(E, 2, 2)`` exit segments (m), float64.
+        exit_normals: ``(E, 2)`` unit vectors out of the area through each exit.
+        name: The scenario's name (a label).
+        bounds: ``(x_min, y_min, x_max, y_max)`` of the walkable polygon (m), derived from ``wkt``.
+    """
+
+    wkt: str
+    walls: NDArray[np.float64]
+    exits: NDArray[np.float64]
+    exit_normals: NDArray[np.float64]
+    name: str = "custom"
+    bounds: tuple[float, float, float, float] = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        import shapely
+
+        polygon = shapely.from_wkt(self.wkt)
+        object.__setattr__(self, "_polygon", polygon)
+        object.__setattr__(self, "bounds", tuple(float(v) for v in polygon.bounds))
+        self._set_segments(self.walls, self.exits, self.exit_normals)
+
+    def _set_segments(self, walls: ArrayLike, exits: ArrayLike, exit_normals: ArrayLike) -> None:
+        object.__setattr__(self, "walls", np.asarray(walls, dtype=np.float64).reshape(-1, 2, 2))
+        object.__setattr__(self, "exits", np.asarray(exits, dtype=np.float64).reshape(-1, 2, 2))
+        object.__setattr__(self, "exit_normals", np.asarray(exit_normals, dtype=np.float64).reshape(-1, 2))
+
+    @property
+    def x_min(self) -> float:
+        """Left edge of the area (m)."""
+        return self.bounds[0]
+
+    @property
+    def y_min(self) -> float:
+        """Bottom edge of the area (m)."""
+        return self.bounds[1]
+
+    @property
+    def width(self) -> float:
+        """Extent along x (m)."""
+        return self.bounds[2] - self.bounds[0]
+
+    @property
+    def length(self) -> float:
+        """Extent along y (m)."""
+        return self.bounds[3] - self.bounds[1]
+
+    @property
+    def door(self) -> NDArray[np.float64]:
+        """The first exit ``(2, 2)`` (m)."""
+        return self.exits[0]
+
+    @property
+    def door_center(self) -> NDArray[np.float64]:
+        """Centre of the first exit ``(2,)`` (m)."""
+        return self.exits[0].mean(axis=0)
+
+    @property
+    def door_normal(self) -> NDArray[np.float64]:
+        """Unit vector out of the area through the first exit ``(2,)``."""
+        return self.exit_normals[0]
+
+    def describe(self) -> str:
+        """One line naming the area, for file headers."""
+        x_min, y_min, x_max, y_max = self.bounds
+        return f"area: {self.name}, bounds [{x_min:g}, {y_min:g}] x [{x_max:g}, {y_max:g}], {len(self.exits)} exits"
+
+    def contains(self, points: ArrayLike) -> NDArray[np.bool_]:
+        """Which points lie in the walkable area (agents past an exit are outside), ``(...)`` bool."""
+        import shapely
+
+        p = np.asarray(points, dtype=np.float64)
+        return shapely.contains_xy(self._polygon, p[..., X], p[..., Y])
+
+    def to_wkt(self, *, exit_depth: float = DEFAULT_EXIT_DEPTH) -> str:
+        """The walkable area with an apron of ``exit_depth`` beyond each exit (the last positions of agents that just
+        left), as WKT for ``pedpy.WalkableArea``."""
+        import shapely
+        from shapely.geometry import Polygon
+
+        if exit_depth < 0:
+            raise ValueError(f"exit_depth must be >= 0, got {exit_depth}")
+        if exit_depth == 0:
+            return self._polygon.wkt
+        aprons = [
+            Polygon([a, b, b + exit_depth * n, a + exit_depth * n])
+            for (a, b), n in zip(self.exits, self.exit_normals, strict=True)
+        ]
+        return shapely.union_all([self._polygon, *aprons]).wkt
+
+
+@dataclass(frozen=True, eq=False)
+class RoomGeometry(AreaGeometry):
+    """The paper's rectangle ``[0, width] x [0, length]`` with one door (docs/design.md, "The room"): an
+    :class:`AreaGeometry` built from three sizes, without shapely.
+
+    The door is a gap of ``door_width`` centred on the short side ``y = length``. Its walls, door and bounds are
+    the :class:`AreaGeometry` attributes; it answers in closed form where a formula is exact (the door centre
+    ``width / 2``), and writes its polygon with a door apron that flares at 45 degrees (:meth:`walkable_polygon`).
 
     Attributes:
         width: extent along x (m).
@@ -35,6 +141,11 @@ class RoomGeometry:
         door_width: width of the gap in the wall ``y = length`` (m).
     """
 
+    wkt: str = field(init=False, repr=False)
+    walls: NDArray[np.float64] = field(init=False, repr=False)
+    exits: NDArray[np.float64] = field(init=False, repr=False)
+    exit_normals: NDArray[np.float64] = field(init=False, repr=False)
+    name: str = field(default="paper_room", init=False, repr=False)
     width: float = 60.0
     length: float = 100.0
     door_width: float = 2.0
@@ -44,6 +155,17 @@ class RoomGeometry:
             raise ValueError(f"room width and length must be positive, got {self.width} x {self.length}")
         if not 0 < self.door_width < self.width:
             raise ValueError(f"door_width must be in (0, width={self.width}), got {self.door_width}")
+        w, l = self.width, self.length
+        walls = [
+            [[0.0, 0.0], [w, 0.0]],
+            [[w, 0.0], [w, l]],
+            [[w, l], [self.door_right, l]],
+            [[self.door_left, l], [0.0, l]],
+            [[0.0, l], [0.0, 0.0]],
+        ]
+        self._set_segments(walls, [[self.door_left, l], [self.door_right, l]], [[0.0, 1.0]])
+        object.__setattr__(self, "bounds", (0.0, 0.0, w, l))
+        object.__setattr__(self, "wkt", self.to_wkt(exit_depth=0.0))
 
     @property
     def door_left(self) -> float:
@@ -60,46 +182,9 @@ class RoomGeometry:
         """The goal point ``(width / 2, length)`` (m), shape ``(2,)``."""
         return np.array([self.width / 2, self.length])
 
-    @property
-    def x_min(self) -> float:
-        """Left edge of the room (m): 0."""
-        return 0.0
-
-    @property
-    def y_min(self) -> float:
-        """Bottom edge of the room (m): 0."""
-        return 0.0
-
-    @property
-    def door_normal(self) -> NDArray[np.float64]:
-        """Unit vector out of the room through the door: ``(0, 1)``."""
-        return np.array([0.0, 1.0])
-
     def describe(self) -> str:
         """One line naming the room, for file headers."""
         return f"room: width {self.width!r}, length {self.length!r}, door_width {self.door_width!r}"
-
-    @property
-    def door(self) -> NDArray[np.float64]:
-        """The door gap as a segment ``[[door_left, length], [door_right, length]]`` (m), shape ``(2, 2)``."""
-        return np.array([[self.door_left, self.length], [self.door_right, self.length]])
-
-    @property
-    def walls(self) -> NDArray[np.float64]:
-        """The five wall segments in the contract's order, shape ``(5, 2, 2)`` (segment, end, xy), metres.
-
-        Bottom, right, top-right (right of the door), top-left (left of the door), left.
-        """
-        w, l = self.width, self.length
-        return np.array(
-            [
-                [[0.0, 0.0], [w, 0.0]],
-                [[w, 0.0], [w, l]],
-                [[w, l], [self.door_right, l]],
-                [[self.door_left, l], [0.0, l]],
-                [[0.0, l], [0.0, 0.0]],
-            ]
-        )
 
     def contains(self, points: ArrayLike) -> NDArray[np.bool_]:
         """Which points lie in the room: ``0 <= x <= width`` and ``0 <= y < length``.
@@ -143,104 +228,8 @@ class RoomGeometry:
         return f"POLYGON (({coords}))"
 
 
-@dataclass(frozen=True, eq=False)
-class AreaGeometry:
-    """Any walkable area (a scenario of :mod:`pedrl.scenarios`): a polygon, its walls and its exits.
-
-    It answers what :class:`RoomGeometry` answers, so every analysis takes either; the "door" is the first exit.
-
-    Attributes:
-        wkt: The walkable polygon as WKT (holes allowed).
-        walls: ``(S, 2, 2)`` wall segments (m).
-        exits: ``(E, 2, 2)`` exit segments (m).
-        exit_normals: ``(E, 2)`` unit vectors out of the area through each exit.
-        name: The scenario's name.
-    """
-
-    wkt: str
-    walls: NDArray[np.float64]
-    exits: NDArray[np.float64]
-    exit_normals: NDArray[np.float64]
-    name: str = "custom"
-
-    def __post_init__(self) -> None:
-        import shapely
-
-        polygon = shapely.from_wkt(self.wkt)
-        object.__setattr__(self, "_polygon", polygon)
-        object.__setattr__(self, "walls", np.asarray(self.walls, dtype=np.float64).reshape(-1, 2, 2))
-        object.__setattr__(self, "exits", np.asarray(self.exits, dtype=np.float64).reshape(-1, 2, 2))
-        object.__setattr__(self, "exit_normals", np.asarray(self.exit_normals, dtype=np.float64).reshape(-1, 2))
-
-    @property
-    def bounds(self) -> tuple[float, float, float, float]:
-        """``(x_min, y_min, x_max, y_max)`` of the walkable area (m)."""
-        return tuple(float(v) for v in self._polygon.bounds)
-
-    @property
-    def x_min(self) -> float:
-        return self.bounds[0]
-
-    @property
-    def y_min(self) -> float:
-        return self.bounds[1]
-
-    @property
-    def width(self) -> float:
-        """Extent along x (m)."""
-        return self.bounds[2] - self.bounds[0]
-
-    @property
-    def length(self) -> float:
-        """Extent along y (m)."""
-        return self.bounds[3] - self.bounds[1]
-
-    @property
-    def door(self) -> NDArray[np.float64]:
-        """The first exit ``(2, 2)`` (m)."""
-        return self.exits[0]
-
-    @property
-    def door_center(self) -> NDArray[np.float64]:
-        """Centre of the first exit ``(2,)`` (m)."""
-        return self.exits[0].mean(axis=0)
-
-    @property
-    def door_normal(self) -> NDArray[np.float64]:
-        """Unit vector out of the area through the first exit."""
-        return self.exit_normals[0]
-
-    def describe(self) -> str:
-        """One line naming the area, for file headers."""
-        x_min, y_min, x_max, y_max = self.bounds
-        return f"area: {self.name}, bounds [{x_min:g}, {y_min:g}] x [{x_max:g}, {y_max:g}], {len(self.exits)} exits"
-
-    def contains(self, points: ArrayLike) -> NDArray[np.bool_]:
-        """Which points lie in the walkable area (agents past an exit are outside), ``(...)`` bool."""
-        import shapely
-
-        p = np.asarray(points, dtype=np.float64)
-        return shapely.contains_xy(self._polygon, p[..., X], p[..., Y])
-
-    def to_wkt(self, *, exit_depth: float = DEFAULT_EXIT_DEPTH) -> str:
-        """The walkable area with an apron of ``exit_depth`` beyond each exit (the last positions of agents that just
-        left), as WKT for ``pedpy.WalkableArea``."""
-        import shapely
-        from shapely.geometry import Polygon
-
-        if exit_depth < 0:
-            raise ValueError(f"exit_depth must be >= 0, got {exit_depth}")
-        if exit_depth == 0:
-            return self._polygon.wkt
-        aprons = [
-            Polygon([a, b, b + exit_depth * n, a + exit_depth * n])
-            for (a, b), n in zip(self.exits, self.exit_normals, strict=True)
-        ]
-        return shapely.union_all([self._polygon, *aprons]).wkt
-
-
-Geometry = RoomGeometry | AreaGeometry
-"""What the analysis functions take: the paper's room or any walkable area."""
+Geometry = AreaGeometry
+"""What the analysis functions take: any walkable area (the paper's room is a :class:`RoomGeometry`)."""
 
 
 @dataclass(frozen=True)
@@ -251,7 +240,7 @@ class Trajectories:
     ``1 / framerate`` seconds apart. ``active[t, n]`` says whether agent ``n`` is in the scene at frame ``t``;
     positions and velocities of inactive agent-frames are ignored by every analysis. A recorder should keep an
     agent active in the frame where it passes the door (its last position, ``y >= length``) so that door
-    crossings appear in the exported data; :meth:`RoomGeometry.to_wkt` includes an apron outside the door for
+    crossings appear in the exported data; :meth:`AreaGeometry.to_wkt` includes an apron beyond each exit for
     these positions.
 
     Attributes:
@@ -286,8 +275,8 @@ class Trajectories:
             raise ValueError(f"active must be bool, got {active.dtype}")
         if not self.framerate > 0:
             raise ValueError(f"framerate must be positive, got {self.framerate}")
-        if not isinstance(self.geometry, RoomGeometry | AreaGeometry):
-            raise TypeError(f"geometry must be a RoomGeometry or AreaGeometry, got {type(self.geometry).__name__}")
+        if not isinstance(self.geometry, AreaGeometry):
+            raise TypeError(f"geometry must be an AreaGeometry (or RoomGeometry), got {type(self.geometry).__name__}")
         if not (np.isfinite(positions[active]).all() and np.isfinite(velocities[active]).all()):
             raise ValueError("positions and velocities of active agents must be finite")
         object.__setattr__(self, "positions", positions)

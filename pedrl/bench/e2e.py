@@ -13,7 +13,8 @@ K = 4096 prototypes; keys of the returned dict):
 
 This file is also the driver that the baseline subprocess runs (``python e2e.py --rooms ...`` with the other
 tree's ``pedrl`` on ``PYTHONPATH``): everything below :func:`measure` uses only the API that commit e228a3c
-already had (``VQQL``, ``gather``, ``fit_quantizer``, ``run_trial``, ``zeros_q_values``).
+already had (``VQQL``, ``gather``, ``fit_quantizer``, ``run_trial``, ``zeros_q_values``; its rooms came from
+``_env``, which is ``env_for`` since issue 21).
 """
 
 from __future__ import annotations
@@ -83,7 +84,7 @@ def measure(*, rooms: Sequence[int], trials: int, quick: bool, device: str) -> l
             progress=False,
             tensorboard=False,
         )
-        env = trainer._env(AGENTS)
+        env = (trainer.env_for if hasattr(trainer, "env_for") else trainer._env)(AGENTS)  # e228a3c: _env
         env.reset(seed=0)
         phase = trainer.phases()[0]
         states, num_sensed = trainer.gather(phase, env, None)[:2]

@@ -22,7 +22,7 @@ from pedrl.evaluation.engine import (
     _first_line,
     build_rooms,
     evaluate_policy,
-    load_policy,
+    load_controller,
     measurement_point,
     room_geometry,
 )
@@ -49,7 +49,8 @@ device, stacked on the host and again as trajectories, and the activity flags.""
 
 # ---------------------------------------------------------------------- the evaluation
 def evaluate(cfg: DictConfig, *, run_dir: str | Path | None = None) -> list[dict[str, Any]]:
-    """Evaluate ``cfg.checkpoint`` at every agent count of ``cfg.agents``; returns the ``scaling.csv`` rows.
+    """Evaluate ``cfg.checkpoint`` (or the exported ``cfg.policy``) at every agent count of ``cfg.agents``; returns
+    the ``scaling.csv`` rows.
 
     Every output goes under ``run_dir`` (default: Hydra's output dir); see the :mod:`pedrl.evaluation` docstring.
 
@@ -62,8 +63,10 @@ def evaluate(cfg: DictConfig, *, run_dir: str | Path | None = None) -> list[dict
     set_threads(cfg.get("threads"))
     run_dir = Path(run_dir) if run_dir is not None else hydra_output_dir()
     device = torch.device(cfg.device)
-    policy = load_policy(
-        cfg.checkpoint,
+    kind, path = source(cfg)
+    policy = load_controller(
+        path,
+        kind=kind,
         controller=cfg.controller,
         epsilon=float(cfg.epsilon),
         device=device,
@@ -82,6 +85,18 @@ def evaluate(cfg: DictConfig, *, run_dir: str | Path | None = None) -> list[dict
     # ---- the evaluation, from plain values
     settings = settings_from_config(cfg)
     return evaluate_policy(policy, envs, geometry, settings, run_dir=run_dir, config_text=OmegaConf.to_yaml(cfg))
+
+
+def source(cfg: DictConfig) -> tuple[str, str]:
+    """``("checkpoint", path)`` or ``("policy", path)``: the file a validated eval config evaluates."""
+    policy = _given(cfg, "policy")
+    return ("policy", policy) if policy is not None else ("checkpoint", str(cfg.checkpoint))
+
+
+def _given(cfg: DictConfig, key: str) -> str | None:
+    """The value of ``key`` when one was given (not null, empty or Hydra's missing ``???``)."""
+    value = cfg.get(key) if key in cfg and not OmegaConf.is_missing(cfg, key) else None
+    return None if value in (None, "") else str(value)
 
 
 def _scenario(cfg: DictConfig) -> dict[str, Any] | None:
@@ -127,9 +142,14 @@ def validate_config(cfg: DictConfig) -> None:
 
 
 def _validate_values(cfg: DictConfig) -> None:
-    checkpoint = cfg.get("checkpoint")
-    if checkpoint in (None, "", "???"):
-        raise ValueError("checkpoint is missing: pass checkpoint=<path of a .safetensors checkpoint>")
+    checkpoint, policy = _given(cfg, "checkpoint"), _given(cfg, "policy")
+    if checkpoint is None and policy is None:
+        raise ValueError(
+            "checkpoint is missing: pass checkpoint=<path of a .safetensors checkpoint> "
+            "(or policy=<file of pedrl-export>)"
+        )
+    if checkpoint is not None and policy is not None:
+        raise ValueError(f"policy={policy!r} is invalid with checkpoint={checkpoint!r}: give one of them")
     agents = cfg.get("agents")
     if not isinstance(agents, ListConfig | list | tuple) or not agents:
         raise ValueError(f"agents={agents!r} is invalid: must be a non-empty list of integers >= 1, e.g. [20,40]")

@@ -7,26 +7,19 @@ docstring.
 
 from __future__ import annotations
 
-import copy
 import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from functools import partial
 from pathlib import Path
-from typing import Any, Final, Protocol, runtime_checkable
+from typing import Any, Final
 
 import numpy as np
 import torch
-from omegaconf import OmegaConf
 
-from pedrl.algos.controllers import Controller, GreedyDoorController, LearnedController
 from pedrl.analysis import (
-    AreaGeometry,
     DensityMap,
     FundamentalDiagram,
-    RoomGeometry,
-    Trajectories,
     animate_trial,
     compute_density_map,
     compute_fundamental_diagram,
@@ -34,11 +27,16 @@ from pedrl.analysis import (
     write_pedpy_trajectory,
 )
 from pedrl.analysis.trajectories import Geometry
+from pedrl.evaluation.batch import BatchRecord, Recorder
+from pedrl.evaluation.jupedsim import JuPedSimReference
 from pedrl.evaluation.report import write_density_map, write_fundamental_diagram, write_scaling_json
 from pedrl.integrations.jupedsim import JuPedSimModel
-from pedrl.io import CheckpointError, CsvWriter, RunLogger, load_checkpoint
-from pedrl.scenarios import Scenario
+from pedrl.io import CheckpointError, CsvWriter, RunLogger
+from pedrl.policy import load_policy, room_factory
+from pedrl.rl.policy import PolicyController
+from pedrl.scenarios import Scenario, paper_room
 from pedrl.sim import RoomEnv
+from pedrl.sim.controllers import Controller, GreedyDoorController
 
 SCALING_COLUMNS: Final = (
     "agents",
@@ -66,32 +64,18 @@ CONTROLLER_SEED_STRIDE: Final = 1013
 
 
 # ---------------------------------------------------------------------- what is evaluated
-@runtime_checkable
-class Recorder(Protocol):
-    """Simulates whole trials itself in place of a controller that acts in the room decision by decision: another
-    simulator on the room's initial scenes (:class:`pedrl.evaluation.jupedsim.JuPedSimReference`)."""
-
-    def check(self, env: RoomEnv) -> None:
-        """One-line ``ValueError`` if it cannot simulate the trials of ``env`` (before any compute)."""
-        ...
-
-    def record(self, env: RoomEnv) -> BatchRecord:
-        """Reset ``env`` (its generator draws the scenes) and record one trial from every replica's scene."""
-        ...
-
-
 @dataclass
-class Policy:
-    """A checkpoint made ready to simulate.
+class LoadedPolicy:
+    """A learned policy made ready to simulate.
 
     Attributes:
         controller: what chooses the actions, or a :class:`Recorder` that simulates the trials itself.
         env_factory: ``env_factory(num_replicas=, num_agents=, device=)`` builds the checkpoint's room, in its
             scenario or the one asked for; ``env_factory.scenario`` is that :class:`~pedrl.scenarios.Scenario`.
         env_settings: the checkpoint's ``env`` config (bodies, speeds, sensing, rewards), plain values.
-        processes: P, the learning processes stored in the checkpoint.
+        processes: P, the learning processes stored in the file.
         tables: A, the learned tables per process.
-        algo: the algorithm that wrote the checkpoint.
+        algo: the algorithm that learned the policy.
     """
 
     controller: Controller | Recorder
@@ -102,7 +86,7 @@ class Policy:
     algo: str
 
 
-def load_policy(
+def load_controller(
     path: str | Path,
     *,
     controller: str,
@@ -111,103 +95,42 @@ def load_policy(
     max_decisions: int | None,
     scenario: dict[str, Any] | None = None,
     jupedsim: JuPedSimModel | None = None,
-) -> Policy:
-    """Reload a checkpoint written by ``pedrl-train``: its room, quantizer and tables.
+    kind: str = "checkpoint",
+) -> LoadedPolicy:
+    """Read the policy of a training checkpoint (``kind="checkpoint"``) or of an exported policy file
+    (``kind="policy"``) with :func:`pedrl.load_policy`, and make it ready to simulate.
 
-    The room and the trainer are built from the known classes only, with the stored config's values validated as
-    if a user had typed them; a stored config that names code (a ``_target_`` other than pedrl's room and
-    trainers, anywhere) is refused before anything is built. Every tensor is checked against that config
-    (:func:`pedrl.algos.restore.restore_state`), whichever the controller. The rooms are built in ``scenario`` (a
-    ``scenario`` config), else in the checkpoint's own (the paper's room for checkpoints that predate scenarios).
-    ``controller`` is ``learned``, ``greedy`` or ``jupedsim`` (JuPedSim's ``jupedsim`` model, default
+    Nothing from the file is executed, its stored config may name no code, and every tensor is checked, whichever
+    the controller. The rooms are built in ``scenario`` (a ``scenario`` config), else in the policy's own (the
+    paper's room for checkpoints that predate scenarios). ``controller`` is ``learned`` (the policy's tables),
+    ``greedy`` or ``jupedsim`` (JuPedSim's ``jupedsim`` model, default
     :class:`~pedrl.integrations.jupedsim.JuPedSimModel`'s, with the room's body radius).
 
     Raises:
-        CheckpointError: one line, for a missing, foreign, corrupt or crafted file, or one whose trainer cannot
-            be rebuilt.
+        CheckpointError: one line, for a missing, foreign, corrupt or crafted file.
     """
-    from omegaconf.errors import OmegaConfBaseException
-
-    from pedrl.algos.registry import env_factory
-    from pedrl.algos.restore import check_stored_config, restore_state
-    from pedrl.runtime import build_trainer
-
-    checkpoint = load_checkpoint(path, device=device)
-    saved = copy.deepcopy(check_stored_config(checkpoint))  # plain values only, no _target_ but pedrl's
-    saved["device"] = str(device)
+    policy = load_policy(path, device=device, kind=kind)
+    where = f"{kind} {str(path)!r}"
+    try:  # the file's own room is stored in it and opens no file; the user's scenario may name a WKT file
+        factory = room_factory(policy, scenario, max_decisions=max_decisions)
+    except (ValueError, KeyError, TypeError) as err:
+        if scenario is not None:
+            raise
+        raise CheckpointError(f"{where} holds a config this pedrl refuses ({_first_line(err)})") from None
+    env_settings = dict(policy.metadata["config"]["env"])
     if max_decisions is not None:
-        saved["env"]["max_decisions"] = max_decisions
-    try:  # the checkpoint's own config opens no file: its room is stored in it
-        trainer = build_trainer(OmegaConf.create(saved), run_dir=Path(path).parent, files=False)
-        factory = None if scenario is not None else env_factory(saved["env"], saved.get("scenario"), files=False)
-    except (ValueError, OmegaConfBaseException, KeyError, TypeError) as err:
-        raise CheckpointError(
-            f"checkpoint {str(path)!r} holds a config this pedrl refuses ({_first_line(err)})"
-        ) from None
-    if scenario is not None:  # the user's scenario: one line naming its bad key, and a WKT file it names is read
-        factory = env_factory(saved["env"], scenario)
-    state = restore_state(trainer, checkpoint, continue_training=False)
-    q_values, quantizer = state.q_values, state.quantizer
-    processes, tables = q_values.shape[0], q_values.shape[1]
+        env_settings["max_decisions"] = max_decisions
+    label = (factory, env_settings, policy.num_processes, policy.num_tables, policy.metadata["algo"])
     if controller == "greedy":
-        greedy = GreedyDoorController(epsilon=epsilon, generator=torch.Generator(device=device))
-        return Policy(greedy, factory, saved["env"], processes, tables, trainer.name)
+        return LoadedPolicy(GreedyDoorController(epsilon=epsilon, generator=torch.Generator(device=device)), *label)
     if controller == "jupedsim":
-        from pedrl.evaluation.jupedsim import JuPedSimReference  # imported here: it builds on BatchRecord, below
-
         reference = JuPedSimReference(factory.scenario, jupedsim if jupedsim is not None else JuPedSimModel())
-        return Policy(reference, factory, saved["env"], processes, tables, trainer.name)
-    learned = LearnedController(
-        q_values=q_values,
-        encode=partial(trainer.encode_observations, quantizer),
-        epsilon=epsilon,
-        # the trainer's generator also fills void neighbour slots (IT-VQQL): one seed covers both
-        generator=trainer.generator,
-    )
-    return Policy(learned, factory, saved["env"], processes, tables, trainer.name)
+        return LoadedPolicy(reference, *label)
+    # one generator draws the exploration, the ties and random void fillings (IT-VQQL): one seed covers them all
+    return LoadedPolicy(policy.controller(epsilon, torch.Generator(device=device)), *label)
 
 
 # ---------------------------------------------------------------------- recording
-@dataclass(frozen=True)
-class BatchRecord:
-    """One trial in each of R replicas, recorded frame by frame (numpy, on the host).
-
-    Attributes:
-        positions: ``(R, T, N, 2)`` agent centres (m), frame 0 the initial state, frame t after decision t.
-        velocities: ``(R, T, N, 2)`` velocities (m/s).
-        active: ``(R, T, N)`` bool, the agent is in frame t (it took decision t; every agent in frame 0).
-        reached: ``(R, N)`` bool, the agent passed the door.
-        exit_time: ``(R, N)`` time (s) at which it passed the door, NaN if it did not.
-        crashes: ``(R, N)`` contacts with bodies: decisions in which another body cut its move (``crashed_agent``);
-            NaN where the simulator has no such event (``controller=jupedsim``).
-        wall_crashes: ``(R, N)`` decisions in which a wall cut its move (``crashed_wall``), counted apart; NaN as
-            ``crashes``.
-        speed_sum: ``(R,)`` sum over agents and decisions taken of the speed after the decision (m/s).
-        speed_sq_sum: ``(R,)`` the same sum of squared speeds (m^2/s^2).
-        speed_count: ``(R,)`` decisions taken (agent-decisions).
-    """
-
-    positions: np.ndarray
-    velocities: np.ndarray
-    active: np.ndarray
-    reached: np.ndarray
-    exit_time: np.ndarray
-    crashes: np.ndarray
-    wall_crashes: np.ndarray
-    speed_sum: np.ndarray
-    speed_sq_sum: np.ndarray
-    speed_count: np.ndarray
-
-    def trajectories(self, replica: int, geometry: Geometry, framerate: float) -> Trajectories:
-        return Trajectories(
-            positions=self.positions[replica],
-            velocities=self.velocities[replica],
-            active=self.active[replica],
-            framerate=framerate,
-            geometry=geometry,
-        )
-
-
 def record_batch(env: RoomEnv, controller: Controller) -> BatchRecord:
     """Reset ``env`` (its generator draws the scene) and run one trial in every replica to its end."""
     obs, info = env.reset()
@@ -363,7 +286,7 @@ class EvalSettings:
 
 
 def build_rooms(
-    policy: Policy, counts: Sequence[int], *, trials_per_batch: int, device: torch.device
+    policy: LoadedPolicy, counts: Sequence[int], *, trials_per_batch: int, device: torch.device
 ) -> dict[int, RoomEnv]:
     """The checkpoint's room for every agent count of ``counts``, each simulating ``trials_per_batch`` trials of
     every learning process at once (``policy.processes * trials_per_batch`` replicas)."""
@@ -376,19 +299,13 @@ def build_rooms(
 
 
 def room_geometry(envs: dict[int, RoomEnv], scenario: Scenario | None = None) -> Geometry:
-    """The area of ``envs`` (all of them share it) as the analysis functions take it: the paper's rectangle, or any
-    other ``scenario``'s polygon."""
+    """The area of ``envs`` (all of them share it) as the analysis functions take it: the plain view that
+    ``scenario``, which built their geometry, gives of it (:meth:`~pedrl.scenarios.Scenario.analysis_geometry`);
+    no scenario is the paper's room of the rooms' sizes, as for :func:`~pedrl.scenarios.build_scenario`."""
     first = next(iter(envs.values()))
-    if scenario is None or scenario.name == "paper_room":
-        return RoomGeometry(width=first.width, length=first.length, door_width=first.door_width)
-    geometry = first.geometry
-    return AreaGeometry(
-        wkt=scenario.to_wkt(),
-        walls=geometry.walls[: geometry.num_walls].cpu().numpy(),
-        exits=geometry.exits.cpu().numpy(),
-        exit_normals=geometry.exit_normals.cpu().numpy(),
-        name=scenario.name,
-    )
+    if scenario is None:
+        scenario = paper_room(width=first.width, length=first.length, door_width=first.door_width)
+    return scenario.analysis_geometry(first.geometry)
 
 
 def measurement_point(geometry: Geometry, distance: float) -> np.ndarray:
@@ -397,7 +314,7 @@ def measurement_point(geometry: Geometry, distance: float) -> np.ndarray:
 
 
 def evaluate_policy(
-    policy: Policy,
+    policy: LoadedPolicy,
     envs: dict[int, RoomEnv],
     geometry: Geometry,
     settings: EvalSettings,
@@ -432,7 +349,7 @@ def evaluate_policy(
         for agents, env in envs.items():
             tic = time.perf_counter()
             env.generator.manual_seed(settings.seed * ENV_SEED_STRIDE + agents)
-            if isinstance(policy.controller, LearnedController | GreedyDoorController):
+            if isinstance(policy.controller, PolicyController | GreedyDoorController):
                 policy.controller.generator.manual_seed(settings.seed * CONTROLLER_SEED_STRIDE + agents)
             stats, diagram, density = simulate_agent_count(env, policy, settings, geometry, point, run_dir)
             row = stats.row(agents)
@@ -471,7 +388,7 @@ def evaluate_policy(
 
 def simulate_agent_count(
     env: RoomEnv,
-    policy: Policy,
+    policy: LoadedPolicy,
     settings: EvalSettings,
     geometry: Geometry,
     point: tuple[float, float],

@@ -22,7 +22,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from pedrl.evaluation.engine import BatchRecord
+from pedrl.evaluation.batch import BatchRecord
 from pedrl.integrations.jupedsim import JuPedSimModel, JuPedSimRun, pad_frames, simulate_room, walkable_with_aprons
 from pedrl.scenarios import Scenario
 from pedrl.sim import RoomEnv
@@ -62,7 +62,7 @@ class JuPedSimReference:
 
 
 def batch_record(runs: list[JuPedSimRun]) -> BatchRecord:
-    """JuPedSim runs of one scene count as a :class:`~pedrl.evaluation.engine.BatchRecord` (one replica each), in
+    """JuPedSim runs of one scene count as a :class:`~pedrl.evaluation.batch.BatchRecord` (one replica each), in
     the room's conventions (module docstring); shorter runs are padded with their last frame, agents inactive."""
     length = max(run.num_frames for run in runs)
     frames = np.arange(length)[:, None]  # (T, 1)

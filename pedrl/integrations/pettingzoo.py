@@ -36,7 +36,9 @@ except ImportError as error:  # one line naming the fix, the cause chained
         f"pedrl.integrations.pettingzoo needs pettingzoo and gymnasium ({error}): pip install pedrl[pettingzoo]"
     ) from error
 
+from pedrl.rl.policy import TabularPolicy
 from pedrl.sim import NOOP_ACTION, RoomEnv
+from pedrl.sim.checks import check_integer, check_number
 
 __all__ = ["PedestrianParallelEnv", "parallel_env"]
 
@@ -108,6 +110,12 @@ class PedestrianParallelEnv(ParallelEnv):
     (m/s), as ``RoomEnv.reset`` takes them (a leading replica axis of 1 is accepted too). Other option keys are
     ignored with a warning (PettingZoo's API test passes arbitrary ones).
 
+    A learned crowd (``crowd``, a :class:`pedrl.rl.TabularPolicy`, e.g. ``pedrl.load_policy(path)``) drives every
+    agent but the first ``learners``: only ``pedestrian_0 .. pedestrian_{learners-1}`` are PettingZoo agents, and the
+    others act with ``crowd.act`` (exploration ``crowd_epsilon``, drawn from a generator that ``reset(seed)``
+    reseeds), so that a user's own learner trains among a learned crowd. The episode ends for the caller when
+    none of its agents is left, even if crowd agents still walk.
+
     ``state()`` is the global state for centralised training: the positions (m) then the velocities (m/s) of all
     ``N`` agents, ``(4 N,)`` float32 as ``[x0, y0, x1, y1, ..., vx0, vy0, ...]``, zero for agents not in ``agents``.
 
@@ -116,14 +124,26 @@ class PedestrianParallelEnv(ParallelEnv):
     Args:
         env: A built ``RoomEnv`` with ``num_replicas == 1``; the adapter resets and steps it.
         render_mode: Only ``None``: nothing is rendered (``pedrl-eval`` draws animations of whole trials).
+        crowd: A learned policy for the agents after the first ``learners`` (None: every agent is the caller's).
+        learners: The caller's agents, in ``[1, num_agents]`` (default: all of them, or 1 with a ``crowd``).
+        crowd_epsilon: Share of random actions of the crowd, in ``[0, 1]``.
 
     Raises:
-        ValueError: If ``env.num_replicas`` is not 1 or ``render_mode`` is not ``None``.
+        ValueError: If ``env.num_replicas`` is not 1, ``render_mode`` is not ``None``, ``learners`` is out of range,
+            or ``crowd`` reads other observations than the room gives.
     """
 
     metadata: dict[str, Any] = {"name": "pedrl_room_v0", "render_modes": [], "is_parallelizable": True}
 
-    def __init__(self, env: RoomEnv, *, render_mode: str | None = None) -> None:
+    def __init__(
+        self,
+        env: RoomEnv,
+        *,
+        render_mode: str | None = None,
+        crowd: TabularPolicy | None = None,
+        learners: int | None = None,
+        crowd_epsilon: float = 0.0,
+    ) -> None:
         num_replicas = getattr(env, "num_replicas", None)
         if num_replicas != 1:
             raise ValueError(
@@ -132,9 +152,22 @@ class PedestrianParallelEnv(ParallelEnv):
             )
         if render_mode is not None:
             raise ValueError(f"render_mode={render_mode!r} is invalid: PedestrianParallelEnv supports only None")
+        learners = (1 if crowd is not None else env.num_agents) if learners is None else learners
+        check_integer("learners", learners, minimum=1, maximum=env.num_agents)
+        check_number("crowd_epsilon", crowd_epsilon, low=0.0, high=1.0)
+        if crowd is not None:
+            features = crowd.encoder.settings.num_features
+            if features != env.num_features or crowd.num_actions != env.num_actions:
+                raise ValueError(
+                    f"crowd reads {features} features and has {crowd.num_actions} actions: the room gives "
+                    f"{env.num_features} features and {env.num_actions} actions (num_neighbours, num_walls)"
+                )
         self.env = env
         self.render_mode = render_mode
-        self.possible_agents: list[str] = [f"{AGENT_PREFIX}{index}" for index in range(env.num_agents)]
+        self.crowd, self.crowd_epsilon = crowd, float(crowd_epsilon)
+        self._crowd_generator = torch.Generator(device=env.device)
+        self._last: tuple[torch.Tensor, Mapping[str, Any]] | None = None
+        self.possible_agents: list[str] = [f"{AGENT_PREFIX}{index}" for index in range(learners)]
         self.agents: list[str] = []
         self._index = {agent: index for index, agent in enumerate(self.possible_agents)}
         low, high = observation_bounds(env)
@@ -168,8 +201,11 @@ class PedestrianParallelEnv(ParallelEnv):
     ) -> tuple[dict[str, np.ndarray], dict[str, dict[str, Any]]]:
         """Start a new trial: every agent in ``agents``; returns the observations and infos of all of them."""
         obs, info = self.env.reset(seed=seed, options=self._room_options(options))
+        if seed is not None:
+            self._crowd_generator.manual_seed(seed)
+        self._last = (obs, info)
         self._was_reset = True
-        active = self.env.active[0].cpu().tolist()
+        active = self.env.active[0].cpu().tolist()[: len(self.possible_agents)]
         self.agents = [agent for agent, alive in zip(self.possible_agents, active, strict=True) if alive]
         indices = list(range(len(self.possible_agents)))
         return self._observations(obs, indices), self._infos(info, indices)
@@ -184,7 +220,11 @@ class PedestrianParallelEnv(ParallelEnv):
         acting = [self._index[agent] for agent in self.agents]
         if not acting:
             return {}, {}, {}, {}, {}
+        if self.crowd is not None:
+            crowd = self.crowd.act(*self._last, epsilon=self.crowd_epsilon, generator=self._crowd_generator)
+            room_actions[0, len(self.possible_agents) :] = crowd[0, len(self.possible_agents) :].cpu()
         obs, reward, terminated, truncated, info = self.env.step(room_actions)
+        self._last = (obs, info)
         rewards = reward[0].cpu().tolist()
         terminations = terminated[0].cpu().tolist()
         truncations = truncated[0].cpu().tolist()
@@ -240,12 +280,13 @@ class PedestrianParallelEnv(ParallelEnv):
         """Actions ``(1, N)`` int64: the given ones, the no-op for the others (inactive agents' are ignored)."""
         if not isinstance(actions, Mapping):
             raise ValueError(f"actions of type {type(actions).__name__} is invalid: must be a dict keyed by agent")
-        room_actions = torch.full((1, len(self.possible_agents)), NOOP_ACTION, dtype=torch.int64)
+        room_actions = torch.full((1, self.env.num_agents), NOOP_ACTION, dtype=torch.int64)
         num_actions = self.env.num_actions
         for agent, action in actions.items():
             index = self._index.get(agent)
             if index is None:
-                raise ValueError(f"actions key {agent!r} is invalid: must be one of pedestrian_0 .. pedestrian_N-1")
+                last = self.possible_agents[-1]
+                raise ValueError(f"actions key {agent!r} is invalid: must be one of pedestrian_0 .. {last}")
             try:
                 value = operator.index(action)
             except TypeError:
@@ -274,7 +315,13 @@ class PedestrianParallelEnv(ParallelEnv):
 
 
 def parallel_env(
-    *, render_mode: str | None = None, scenario: str | dict[str, Any] | None = None, **room_kwargs: Any
+    *,
+    render_mode: str | None = None,
+    scenario: str | dict[str, Any] | None = None,
+    crowd: TabularPolicy | None = None,
+    learners: int | None = None,
+    crowd_epsilon: float = 0.0,
+    **room_kwargs: Any,
 ) -> PedestrianParallelEnv:
     """Build ``RoomEnv(num_replicas=1, **room_kwargs)`` in ``scenario`` and wrap it in a :class:`PedestrianParallelEnv`.
 
@@ -282,6 +329,8 @@ def parallel_env(
         render_mode: Only ``None``.
         scenario: A scenario name of :data:`pedrl.scenarios.SCENARIOS` or a ``scenario`` config (``{"name": ...,
             ...}``); ``None``: the paper's room of ``width``, ``length`` and ``door_width``.
+        crowd, learners, crowd_epsilon: a learned crowd for the agents after the first ``learners`` (see
+            :class:`PedestrianParallelEnv`).
         **room_kwargs: ``RoomEnv`` keywords (``num_agents``, ``width``, ``max_decisions``, ``device``...).
 
     Raises:
@@ -294,4 +343,6 @@ def parallel_env(
         room = built.room(**{"num_replicas": 1, **room_kwargs})
     else:
         room = RoomEnv(**{"num_replicas": 1, **room_kwargs})
-    return PedestrianParallelEnv(room, render_mode=render_mode)
+    return PedestrianParallelEnv(
+        room, render_mode=render_mode, crowd=crowd, learners=learners, crowd_epsilon=crowd_epsilon
+    )

@@ -19,8 +19,8 @@ import torch
 from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
-import pedrl
 from pedrl.io.files import replace_atomically
+from pedrl.version import __version__
 
 FORMAT_NAME: Final = "pedrl-checkpoint"
 FORMAT_VERSION: Final = 1
@@ -75,7 +75,7 @@ def save_checkpoint(path: str | os.PathLike, *, tensors: dict[str, torch.Tensor]
     header = {
         "format": FORMAT_NAME,
         "format_version": FORMAT_VERSION,
-        "pedrl_version": pedrl.__version__,
+        "pedrl_version": __version__,
         **metadata,
     }
     cpu_tensors = {name: t.detach().to("cpu").contiguous() for name, t in tensors.items()}

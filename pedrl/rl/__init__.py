@@ -1,6 +1,8 @@
-"""Tabular Q-learning on flat table rows: Q tables, epsilon-greedy action selection, the TD update, schedules."""
+"""Tabular Q-learning on flat table rows: Q tables, epsilon-greedy action selection, the TD update, schedules, and
+the learned policy (:class:`TabularPolicy`: a state encoder, the tables and the agent-to-table rule)."""
 
-from pedrl.rl.qlearning import td_update
+from pedrl.rl.policy import PolicyController, TableLayout, TabularPolicy
+from pedrl.rl.qlearning import td_update, td_update_torch
 from pedrl.rl.qtable import NUM_ACTIONS, epsilon_greedy, greedy, in_huge_pages, table_rows, zeros_q_values
 from pedrl.rl.schedules import ConstantSchedule, ExponentialSchedule, LinearSchedule, Schedule
 
@@ -9,11 +11,15 @@ __all__ = [
     "ConstantSchedule",
     "ExponentialSchedule",
     "LinearSchedule",
+    "PolicyController",
     "Schedule",
+    "TableLayout",
+    "TabularPolicy",
     "epsilon_greedy",
     "greedy",
     "in_huge_pages",
     "table_rows",
     "td_update",
+    "td_update_torch",
     "zeros_q_values",
 ]

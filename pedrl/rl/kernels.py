@@ -1,8 +1,10 @@
-"""CPU kernels of the Q-table operations, compiled with numba.
+"""Numba kernels of the Q tables; their specifications are `pedrl.rl.qlearning.td_update_torch` and `pedrl.rl.greedy`.
 
 Each reproduces its torch function of `pedrl.rl` to the bit, with the same random numbers drawn by torch
-beforehand, so a seed gives the same run either way (the tests check it). On a CPU a decision's greedy choice or
-TD update is a dozen small torch operations; here it is one pass over the batch.
+beforehand, so a seed gives the same run either way (the tests check it): :func:`td_update_kernel` is the twin of
+:func:`pedrl.rl.qlearning.td_update_torch`, :func:`greedy_from_rows` that of the torch path of
+:func:`pedrl.rl.greedy` (``pedrl.rl.qtable._greedy_from_rows``). On a CPU a decision's greedy choice or TD update is
+a dozen small torch operations; here it is one pass over the batch.
 """
 
 from __future__ import annotations
@@ -12,7 +14,7 @@ import torch
 
 from pedrl._numba import cached_njit
 
-__all__ = ["greedy_from_rows", "td_update"]
+__all__ = ["greedy_from_rows", "td_update_kernel"]
 
 
 @cached_njit(nogil=True)
@@ -146,7 +148,7 @@ def _td(table, rows, actions, rewards, next_rows, terminal, valid, alpha, gamma,
             flat[entries[b]] = flat[entries[b]] + td_error[b] * scale
 
 
-def td_update(
+def td_update_kernel(
     q_values: torch.Tensor,
     rows: torch.Tensor,
     actions: torch.Tensor,
@@ -158,7 +160,7 @@ def td_update(
     alpha: float,
     gamma: float,
 ) -> torch.Tensor:
-    """:func:`pedrl.rl.td_update` on the CPU, compiled (same arguments, same result to the bit)."""
+    """:func:`pedrl.rl.qlearning.td_update_torch` on the CPU, compiled (same arguments, same result to the bit)."""
     num = rows.shape[0]
     td_error = torch.empty(num, dtype=torch.float32)
     table = q_values.view(-1, q_values.shape[-1]).numpy()

@@ -1,4 +1,8 @@
-"""The Q-learning update (paper equation 1), batched over flat table rows."""
+"""The Q-learning update (paper equation 1), batched over flat table rows.
+
+Twins: :func:`td_update_torch` is the specification (torch, any device), :func:`pedrl.rl.kernels.td_update_kernel`
+its numba kernel for the CPU (the same numbers to the bit), and :func:`td_update` chooses between them.
+"""
 
 from __future__ import annotations
 
@@ -6,7 +10,7 @@ import torch
 
 from pedrl._numba import use_kernels
 
-__all__ = ["td_update"]
+__all__ = ["td_update", "td_update_torch"]
 
 
 def td_update(
@@ -52,11 +56,26 @@ def td_update(
         `(B,)` float32 TD errors `r + gamma max_a' Q(s', a') - Q(s, a)` (0 where not `valid`).
     """
     if use_kernels(q_values.device, compiled):
-        from pedrl.rl.kernels import td_update as compiled_td_update  # imports numba: only where it is used
+        from pedrl.rl.kernels import td_update_kernel  # imports numba: only where it is used
 
-        return compiled_td_update(
-            q_values, rows, actions, rewards, next_rows, terminal, valid, alpha=alpha, gamma=gamma
-        )
+        return td_update_kernel(q_values, rows, actions, rewards, next_rows, terminal, valid, alpha=alpha, gamma=gamma)
+    return td_update_torch(q_values, rows, actions, rewards, next_rows, terminal, valid, alpha=alpha, gamma=gamma)
+
+
+def td_update_torch(
+    q_values: torch.Tensor,
+    rows: torch.Tensor,
+    actions: torch.Tensor,
+    rewards: torch.Tensor,
+    next_rows: torch.Tensor,
+    terminal: torch.Tensor,
+    valid: torch.Tensor,
+    *,
+    alpha: float,
+    gamma: float,
+) -> torch.Tensor:
+    """:func:`td_update` in torch, on any device: the specification of
+    :func:`pedrl.rl.kernels.td_update_kernel` (same arguments but ``compiled``, same result)."""
     num_actions = q_values.shape[-1]
     flat = q_values.view(-1, num_actions)
     zero = torch.zeros((), dtype=rows.dtype, device=rows.device)

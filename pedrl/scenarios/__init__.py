@@ -4,7 +4,8 @@ A scenario is a walkable polygon (an outer boundary with holes for obstacles, as
 on its boundary, and spawn areas (polygons inside it), each with a share of the agents, the exit they take (or each
 agent's nearest) and an optional route of waypoints. :func:`build_scenario` makes one from a ``scenario`` config
 (the ``scenario/`` Hydra group), :meth:`Scenario.geometry` turns it into the tensors of
-:class:`pedrl.sim.Geometry`. shapely does every polygon operation: validity, boundaries, containment, erosion.
+:class:`pedrl.sim.Geometry`, and :meth:`Scenario.analysis_geometry` into the plain view of that geometry that
+:mod:`pedrl.analysis` takes. shapely does every polygon operation: validity, boundaries, containment, erosion.
 
 Built-in scenarios (:data:`SCENARIOS`):
 
@@ -41,7 +42,7 @@ import stat
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Final
+from typing import TYPE_CHECKING, Any, Final
 
 import numpy as np
 import shapely
@@ -52,6 +53,9 @@ from pedrl.notices import warn
 from pedrl.sim.checks import check_number, shown
 from pedrl.sim.env import MAX_DENSITY, RoomEnv
 from pedrl.sim.geometry import Geometry, SpawnArea, spawn_counts
+
+if TYPE_CHECKING:
+    from pedrl.analysis.trajectories import AreaGeometry
 
 SCENARIOS: Final = ("paper_room", "bottleneck", "corridor", "corner", "four_exits", "custom")
 """Names accepted by ``scenario.name``."""
@@ -207,9 +211,49 @@ class Scenario:
             device=device,
         )
 
+    def analysis_geometry(self, geometry: Geometry | None = None) -> AreaGeometry:
+        """The plain view of this scenario's area that :mod:`pedrl.analysis` takes: its polygon (:meth:`to_wkt`),
+        with the walls, exits and exit normals of its simulation's ``geometry`` (by default :meth:`geometry`; the
+        one a room holds is the same, on any device).
+
+        :mod:`pedrl.analysis` (and matplotlib with it) is imported here, when a view is asked for, not with this module.
+        """
+        from pedrl.analysis.trajectories import AreaGeometry
+
+        geometry = self.geometry() if geometry is None else geometry
+        return AreaGeometry(
+            wkt=self.to_wkt(),
+            walls=geometry.walls[: geometry.num_walls].cpu().numpy(),
+            exits=geometry.exits.cpu().numpy(),
+            exit_normals=geometry.exit_normals.cpu().numpy(),
+            name=self.name,
+        )
+
     def to_wkt(self) -> str:
         """The walkable area as WKT (PedPy's ``WalkableArea`` reads it)."""
         return self.walkable.wkt
+
+
+@dataclass(frozen=True, kw_only=True)
+class PaperRoom(Scenario):
+    """The paper's room (:func:`paper_room`): a :class:`Scenario` that also keeps its three sizes, so that its
+    analysis view is the closed-form :class:`~pedrl.analysis.RoomGeometry`.
+
+    Attributes:
+        width: Extent along x (m).
+        length: Extent along y (m).
+        door_width: Width of the door, centred in the side ``y = length`` (m).
+    """
+
+    width: float
+    length: float
+    door_width: float
+
+    def analysis_geometry(self, geometry: Geometry | None = None) -> AreaGeometry:
+        """The room as :class:`~pedrl.analysis.RoomGeometry` (``geometry`` is not needed: three sizes describe it)."""
+        from pedrl.analysis.trajectories import RoomGeometry
+
+        return RoomGeometry(width=self.width, length=self.length, door_width=self.door_width)
 
 
 # ---------------------------------------------------------------------------------------------- built-in scenarios
@@ -230,7 +274,7 @@ def paper_room(*, width: float = 60.0, length: float = 100.0, door_width: float 
         )
     room = box(0.0, 0.0, width, length)
     door = LineString([(width / 2 + door_width / 2, length), (width / 2 - door_width / 2, length)])
-    return Scenario("paper_room", room, (door,), (Spawn(room),))
+    return PaperRoom("paper_room", room, (door,), (Spawn(room),), width=width, length=length, door_width=door_width)
 
 
 def bottleneck(

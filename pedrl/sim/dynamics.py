@@ -1,4 +1,4 @@
-"""Actions, speed and heading updates, and sub-stepped kinematics with collisions (pure torch).
+"""Actions, speed and heading updates, and sub-stepped kinematics with collisions (torch; numba kernels on the CPU).
 
 An action ``a`` in ``[0, 81)`` is ``speed_index * 9 + turn_index``. Index 4 of each axis is the no-op, so
 ``NOOP_ACTION = 40`` keeps speed and heading.
@@ -12,13 +12,18 @@ blocked. An agent whose centre passes an exit (``Geometry.passes_exits``; in the
 within the door) has left: it stops there and no longer collides.
 
 :func:`move_agents` computes exactly this rule, but resolves all sub-steps of a decision together instead of
-looping over them: see its docstring.
+looping over them: see its docstring. The rule written literally, sub-step after sub-step, is its specification
+:func:`pedrl.sim.reference.move_agents_literal`.
+
+Twins: a rule with a numba kernel (`pedrl.sim.kernels`) has a dispatcher under its plain name, the one callers use
+(:func:`move_agents_sequential`, :func:`move_agents_sliding`), which runs the kernel on the CPU and otherwise its
+torch code under the name ``*_torch`` (:func:`move_agents_sequential_torch`, :func:`move_agents_sliding_torch`);
+the kernel returns the torch code's numbers to the bit.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from functools import lru_cache
 from typing import Final
 
@@ -26,6 +31,7 @@ import torch
 
 from pedrl._numba import use_kernels
 from pedrl.sim.geometry import Geometry, X, Y, wrap_angle
+from pedrl.sim.movement import PAIR_MARGIN, Movement
 
 NUM_SPEED_CHANGES: Final = 9
 NUM_TURNS: Final = 9
@@ -41,8 +47,6 @@ error falls to at most 2.25 degrees, so a full-speed step of 2.5 m lands within 
 clearance of a 0.4 m body in a 1 m opening); ``COARSE_TURN_RATIOS`` left up to 9 degrees (0.39 m)."""
 COARSE_TURN_RATIOS: Final = (-0.75, -0.5, -0.25, -0.1, 0.0, 0.1, 0.25, 0.5, 0.75)
 """The turn ratios before issue 19 (smallest turn 18 degrees), kept for old runs and the golden trajectories."""
-PAIR_MARGIN: Final = 1e-3
-"""Slack (m) of the conservative pre-filters of :func:`move_agents`; it only widens them."""
 
 
 def decode_actions(actions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -127,26 +131,6 @@ def count_substeps(*, max_speed: float, decision_length: float, substep_length: 
     return max(1, math.ceil(max_speed * decision_length / substep_length * (1.0 - 1e-9)))
 
 
-@dataclass(frozen=True)
-class Movement:
-    """Outcome of one decision's movement.
-
-    Attributes:
-        positions: Positions after the decision ``(R, N, 2)`` (m).
-        blocked: Agents stopped by a collision ``(R, N)`` bool; under ``stop`` their speed becomes 0.
-        crashed_wall: Agents whose move a wall cut ``(R, N)`` bool: blocked by it (``stop``), or deflected or
-            blocked by it (``slide``, ``headway``: :func:`move_agents_sliding`).
-        crashed_agent: Agents whose move another body cut, and no wall ``(R, N)`` bool (as ``crashed_wall``).
-        reached: Agents whose centre passed an exit ``(R, N)`` bool.
-    """
-
-    positions: torch.Tensor
-    blocked: torch.Tensor
-    crashed_wall: torch.Tensor
-    crashed_agent: torch.Tensor
-    reached: torch.Tensor
-
-
 def _take(values: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
     """``values[index]`` along dim 0 (``index_select``, which stays serial for small sizes)."""
     return values.index_select(0, index)
@@ -222,8 +206,8 @@ def move_agents(
 
     Positions are always computed as ``p + k * d`` with the same operations, so the checks and the result
     agree to the bit. Host syncs per decision: one for each of the two pre-filters and one per round; none
-    depends on the number of sub-steps. ``tests/sim/test_dynamics.py`` checks the result against a literal
-    sub-step loop.
+    depends on the number of sub-steps. ``tests/sim/test_dynamics.py`` checks the result against its
+    specification, the literal sub-step loop :func:`pedrl.sim.reference.move_agents_literal`.
 
     Args:
         positions: Positions at the start of the decision ``(R, N, 2)`` (m).
@@ -321,6 +305,18 @@ COLLISION_RULES: Final = ("sequential", "simultaneous")
 decision; ``simultaneous``: every proposal checked against every other proposal at once (:func:`move_agents`)."""
 
 
+def _sequential_steps(
+    positions: torch.Tensor, velocities: torch.Tensor, active: torch.Tensor, decision_length: float, num_substeps: int
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """What both paths of :func:`move_agents_sequential` start from: the move per sub-step ``(R, N, 2)``, the movers
+    ``(R, N)`` bool, the depth of the exit test ``(R, N)`` and the sub-step numbers ``1..S`` ``(S, 1, 1, 1)``."""
+    step = velocities * (decision_length / num_substeps)  # (R, N, 2)
+    going = active & (step != 0).any(-1)  # still moving in this decision
+    depth = step.norm(dim=-1) + PAIR_MARGIN  # of the exit test: a centre moves less than this per sub-step
+    substeps = torch.arange(1, num_substeps + 1, device=positions.device).to(positions.dtype).view(-1, 1, 1, 1)
+    return step, going, depth, substeps
+
+
 def move_agents_sequential(
     *,
     positions: torch.Tensor,
@@ -345,24 +341,11 @@ def move_agents_sequential(
     (where it stands now). Refused agents stop for the rest of the decision. So no body ever overlaps
     another, and two agents heading for the same spot no longer both freeze: the first to act takes it.
 
-    How it is computed, with the same floating-point operations as the literal agent-by-agent loop
-    (``tests/sim/test_dynamics.py`` checks every output to the bit):
-
-    1. Proposals ``p + k d`` do not depend on collisions, so the walls, the exits and the proposal-to-proposal
-       contacts of every sub-step are evaluated at once. Only pairs whose swept discs (straight move widened by
-       the radius) overlap can ever touch; they are kept as a dense ``(R, N, N)`` mask.
-    2. Without such a pair the decision is solved in closed form: each mover walks until the first sub-step
-       whose proposal touches a wall (it stops there) or passes the door (it leaves).
-    3. Otherwise the sub-steps run in turn, and within each the order of action is resolved for all agents at
-       once by a fixed-point iteration over the kept pairs: after round ``t`` the ``t`` first movers of each
-       replica are final, so ``N`` rounds always suffice.
-
-    With ``sync_free`` (for CUDA) nothing is read back on the host: step 2 is skipped, every sub-step runs and
-    every sub-step with a kept pair runs exactly ``N`` rounds, which leaves the fixed point unchanged; the
-    result is the same. Otherwise sub-steps stop once nobody moves and rounds once nothing changes.
-
-    On the CPU (with numba), steps 2 and 3 are instead the literal agent-by-agent loop, compiled
-    (:func:`pedrl.sim.kernels.sequential_substeps`): the same numbers, without hundreds of small operations.
+    The specification is the literal agent-by-agent loop :func:`pedrl.sim.reference.move_agents_sequential_literal`.
+    This function chooses how to compute it, with the same numbers to the bit either way: on the CPU with numba,
+    the walls in torch and the sub-steps in that loop compiled (:func:`pedrl.sim.kernels.sequential_substeps`),
+    without hundreds of small operations; otherwise (other devices, ``compiled=False``, ``sync_free``)
+    :func:`move_agents_sequential_torch`.
 
     Args:
         positions: Positions at the start of the decision ``(R, N, 2)`` (m).
@@ -373,24 +356,18 @@ def move_agents_sequential(
         decision_length: Duration of the decision (s).
         num_substeps: Number of sub-steps ``S``.
         priority: Order of action ``(R, N)`` float (lowest acts first); distinct values within a replica.
-        sync_free: Bounded iterations with masks instead of convergence tests read on the host.
+        sync_free: Bounded iterations with masks instead of convergence tests read on the host (torch path).
         compiled: Use the compiled CPU kernel (None: on the CPU when numba is there and not ``sync_free``).
 
     Returns:
         The :class:`Movement` of the decision.
     """
-    num_agents = positions.shape[1]
-    device, dtype = positions.device, positions.dtype
-    contact_sq = 4.0 * agent_radius * agent_radius
-    step = velocities * (decision_length / num_substeps)  # (R, N, 2)
-    going = active & (step != 0).any(-1)  # still moving in this decision
-    depth = step.norm(dim=-1) + PAIR_MARGIN  # of the exit test: a centre moves less than this per sub-step
-    step_scale = torch.arange(1, num_substeps + 1, device=device).to(dtype).view(-1, 1, 1, 1)  # (S, 1, 1, 1)
-    if use_kernels(device, False if sync_free and compiled is None else compiled):
+    if use_kernels(positions.device, False if sync_free and compiled is None else compiled):
         from pedrl.sim.kernels import sequential_substeps  # imports numba: only where it is used
 
+        step, going, depth, step_scale = _sequential_steps(positions, velocities, active, decision_length, num_substeps)
         walls = None
-        if not geometry._axis_aligned:  # the kernel tests axis-aligned walls itself
+        if not geometry.axis_aligned:  # the kernel tests axis-aligned walls itself
             walls = _touch_walls(positions + step_scale * step, geometry, agent_radius, exact_everywhere=False)
         moved_to, blocked, crashed_wall, reached = sequential_substeps(
             positions=positions,
@@ -405,6 +382,54 @@ def move_agents_sequential(
             priority=priority,
         )
         return Movement(moved_to, blocked, crashed_wall, blocked & ~crashed_wall, reached)
+    return move_agents_sequential_torch(
+        positions=positions,
+        velocities=velocities,
+        active=active,
+        geometry=geometry,
+        agent_radius=agent_radius,
+        decision_length=decision_length,
+        num_substeps=num_substeps,
+        priority=priority,
+        sync_free=sync_free,
+    )
+
+
+def move_agents_sequential_torch(
+    *,
+    positions: torch.Tensor,
+    velocities: torch.Tensor,
+    active: torch.Tensor,
+    geometry: Geometry,
+    agent_radius: float,
+    decision_length: float,
+    num_substeps: int,
+    priority: torch.Tensor,
+    sync_free: bool = False,
+) -> Movement:
+    """:func:`move_agents_sequential` in torch, on any device (same arguments but ``compiled``, same result).
+
+    How it is computed, with the same floating-point operations as the literal agent-by-agent loop
+    :func:`pedrl.sim.reference.move_agents_sequential_literal` (``tests/sim/test_dynamics.py`` checks every output
+    to the bit):
+
+    1. Proposals ``p + k d`` do not depend on collisions, so the walls, the exits and the proposal-to-proposal
+       contacts of every sub-step are evaluated at once. Only pairs whose swept discs (straight move widened by
+       the radius) overlap can ever touch; they are kept as a dense ``(R, N, N)`` mask.
+    2. Without such a pair the decision is solved in closed form: each mover walks until the first sub-step
+       whose proposal touches a wall (it stops there) or passes the door (it leaves).
+    3. Otherwise the sub-steps run in turn, and within each the order of action is resolved for all agents at
+       once by a fixed-point iteration over the kept pairs: after round ``t`` the ``t`` first movers of each
+       replica are final, so ``N`` rounds always suffice.
+
+    With ``sync_free`` (for CUDA) nothing is read back on the host: step 2 is skipped, every sub-step runs and
+    every sub-step with a kept pair runs exactly ``N`` rounds, which leaves the fixed point unchanged; the
+    result is the same. Otherwise sub-steps stop once nobody moves and rounds once nothing changes.
+    """
+    num_agents = positions.shape[1]
+    device, dtype = positions.device, positions.dtype
+    contact_sq = 4.0 * agent_radius * agent_radius
+    step, going, depth, step_scale = _sequential_steps(positions, velocities, active, decision_length, num_substeps)
     # p + k d, as in move_agents, so that moves without collisions agree to the bit between the two rules
     proposals = positions + step_scale * step  # (S, R, N, 2)
     walls = _touch_walls(proposals, geometry, agent_radius, exact_everywhere=sync_free)  # (S, R, N)
@@ -697,12 +722,12 @@ def move_agents_sliding(
     proposal cut the mover's move; ``crashed_agent`` when a body did so and no wall did. With ``time_gap`` the move
     is the headway-limited one: slowing for a body ahead is not a contact; the safety net firing is.
 
-    On the CPU (with numba) this is :func:`pedrl.sim.kernels.sliding_substeps`, the same loop compiled, with the same
-    float32 operations in the same order: ``tests/sim/test_contact.py`` checks the two agree to the bit on random
-    scenes and in every scenario. (Exact ties between the nearest walls or bodies are the one place they could
-    differ, when both pick a different one of two equally near.) This reference loops over sub-steps and movers in
-    Python, vectorised over replicas only (about 0.5 ms per mover and sub-step on a CPU core, 65 ms a decision for
-    20 rooms of 20 agents against 1 ms compiled): it is the path on CUDA and with ``PEDRL_NO_NUMBA=1``.
+    The specification is :func:`move_agents_sliding_torch`, a loop over sub-steps and movers. This function chooses
+    how to compute it: on the CPU (with numba) :func:`pedrl.sim.kernels.sliding_substeps`, the same loop compiled,
+    with the same float32 operations in the same order (``tests/sim/test_contact.py`` checks the two agree to the
+    bit on random scenes and in every scenario; exact ties between the nearest walls or bodies are the one place
+    they could differ, when both pick a different one of two equally near); otherwise (CUDA, ``compiled=False``,
+    ``PEDRL_NO_NUMBA=1``) the torch loop itself.
 
     Args:
         positions: Positions at the start of the decision ``(R, N, 2)`` (m).
@@ -721,12 +746,10 @@ def move_agents_sliding(
         The :class:`Movement` of the decision; ``blocked`` marks movers stopped because even the slid move was
         refused.
     """
-    device = positions.device
-    starts, directions, inverse = _wall_segments(geometry)
-    order = priority.argsort(dim=1)
-    if use_kernels(device, compiled):
+    if use_kernels(positions.device, compiled):
         from pedrl.sim.kernels import sliding_substeps  # imports numba: only where it is used
 
+        starts, directions, inverse = _wall_segments(geometry)
         return sliding_substeps(
             positions=positions,
             velocities=velocities,
@@ -738,10 +761,47 @@ def move_agents_sliding(
             agent_radius=agent_radius,
             substep_length=decision_length / num_substeps,
             num_substeps=num_substeps,
-            order=order,
+            order=priority.argsort(dim=1),
             time_gap=time_gap,
             yield_to_earlier=yield_to_earlier,
         )
+    return move_agents_sliding_torch(
+        positions=positions,
+        velocities=velocities,
+        active=active,
+        geometry=geometry,
+        agent_radius=agent_radius,
+        decision_length=decision_length,
+        num_substeps=num_substeps,
+        priority=priority,
+        time_gap=time_gap,
+        yield_to_earlier=yield_to_earlier,
+    )
+
+
+def move_agents_sliding_torch(
+    *,
+    positions: torch.Tensor,
+    velocities: torch.Tensor,
+    active: torch.Tensor,
+    geometry: Geometry,
+    agent_radius: float,
+    decision_length: float,
+    num_substeps: int,
+    priority: torch.Tensor,
+    time_gap: float | None = None,
+    yield_to_earlier: bool = False,
+) -> Movement:
+    """:func:`move_agents_sliding` in torch, on any device (same arguments but ``compiled``, same result): the
+    specification of :func:`pedrl.sim.kernels.sliding_substeps`.
+
+    It loops over sub-steps and movers in Python, vectorised over replicas only (about 0.5 ms per mover and sub-step
+    on a CPU core, 65 ms a decision for 20 rooms of 20 agents against 1 ms compiled): it is the path on CUDA and with
+    ``PEDRL_NO_NUMBA=1``.
+    """
+    device = positions.device
+    starts, directions, inverse = _wall_segments(geometry)
+    order = priority.argsort(dim=1)
     num_replicas, num_agents = active.shape
     substep_length = decision_length / num_substeps
     radius_sq = agent_radius * agent_radius

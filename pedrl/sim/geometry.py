@@ -2,8 +2,9 @@
 
 A walkable area is bounded by wall segments and exit segments. An agent leaves through any exit: it has left once
 its centre is on the far side of an exit segment (within the exit's span). :class:`Geometry` holds this for
-any polygon; ``pedrl.scenarios`` builds it from WKT or shapely polygons. The paper's room is
-:meth:`Geometry.rectangle`:
+any polygon, and :meth:`Geometry.build` is its one builder: ``pedrl.scenarios`` calls it with the segments of a
+shapely polygon (every scenario, the paper's room included), and :meth:`Geometry.rectangle` calls it with the
+paper's room written out by hand, for a room given no geometry (this package may not import shapely).
 
 The paper's room is ``[0, width] x [0, length]`` (metres). The door is a gap of ``door_width`` centred on the side
 ``y = length``; the goal point is ``(width / 2, length + goal_depth)``, the door centre by default. The five
@@ -193,6 +194,16 @@ class Geometry:
             exit crosses (m), for the fast paths of the collision rules; a box of zero size disables them.
         waypoint_radius: Distance (m) at which an agent counts a waypoint as reached and aims at the next.
         name: A label (the scenario's name).
+        box_low: Lower corner of each wall's bounding box ``(S, 2)`` (m), derived from ``walls``: an axis-aligned
+            wall's closest point to ``p`` is ``p`` clamped to its box (exact).
+        box_high: Upper corner of each wall's bounding box ``(S, 2)`` (m), derived from ``walls``.
+        axis_aligned: Whether every wall (padding included) is axis-aligned, derived from ``walls``: the wall
+            queries (and the sequential kernel) then clamp to the boxes alone.
+        exit_tangents: ``exits[:, 1] - exits[:, 0]`` ``(E, 2)`` (m), derived from ``exits``.
+        exit_spans: Squared length of each exit ``(E,)`` (m^2), derived from ``exits``: a point is within an exit's
+            span when its offset from ``exits[:, 0]`` projects onto the tangent in ``[0, exit_spans]``.
+
+    The derived attributes are computed once, at build time; the kernels read them as they are.
     """
 
     walls: torch.Tensor
@@ -205,21 +216,21 @@ class Geometry:
     clear_box: tuple[float, float, float, float]
     waypoint_radius: float = 2.0
     name: str = "custom"
-    _box_low: torch.Tensor = field(init=False, repr=False)
-    _box_high: torch.Tensor = field(init=False, repr=False)
-    _axis_aligned: bool = field(init=False, repr=False)
-    _exit_tangents: torch.Tensor = field(init=False, repr=False)
-    _exit_spans: torch.Tensor = field(init=False, repr=False)
+    box_low: torch.Tensor = field(init=False, repr=False)
+    box_high: torch.Tensor = field(init=False, repr=False)
+    axis_aligned: bool = field(init=False, repr=False)
+    exit_tangents: torch.Tensor = field(init=False, repr=False)
+    exit_spans: torch.Tensor = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         # For an axis-aligned wall the closest point to p is p clamped to the wall's bounding box (exact).
-        object.__setattr__(self, "_box_low", self.walls.amin(1))  # (S, 2)
-        object.__setattr__(self, "_box_high", self.walls.amax(1))
+        object.__setattr__(self, "box_low", self.walls.amin(1))  # (S, 2)
+        object.__setattr__(self, "box_high", self.walls.amax(1))
         direction = self.walls[:, 1] - self.walls[:, 0]
-        object.__setattr__(self, "_axis_aligned", bool(((direction == 0).any(-1)).all()))
+        object.__setattr__(self, "axis_aligned", bool(((direction == 0).any(-1)).all()))
         tangents = self.exits[:, 1] - self.exits[:, 0]
-        object.__setattr__(self, "_exit_tangents", tangents)
-        object.__setattr__(self, "_exit_spans", (tangents * tangents).sum(-1))
+        object.__setattr__(self, "exit_tangents", tangents)
+        object.__setattr__(self, "exit_spans", (tangents * tangents).sum(-1))
 
     @classmethod
     def build(
@@ -284,7 +295,11 @@ class Geometry:
     ) -> Geometry:
         """The paper's room: ``[0, width] x [0, length]`` with a door of ``door_width`` centred in ``y = length``.
 
-        Its five walls are :func:`build_walls`; agents spawn anywhere in the room and leave through the door.
+        A thin call of :meth:`build`, the builder of every scenario, with the room's segments written out: its five
+        walls are :func:`build_walls`; agents spawn anywhere in the room and leave through the door. The
+        ``paper_room`` scenario of ``pedrl.scenarios`` builds the same area through shapely: the same numbers, its
+        walls and spawn edges in shapely's order (starting at ``(width, 0)``), and it simulates the same to the bit
+        (``tests/sim/test_scenario_golden.py``).
         """
         width, length = float(width), float(length)
         door_left, door_right = width / 2.0 - door_width / 2.0, width / 2.0 + door_width / 2.0
@@ -337,8 +352,8 @@ class Geometry:
         Axis-aligned walls (every wall of the rectilinear scenarios) clamp the point to the wall's box, which is
         exact; other walls project onto the segment (:func:`closest_points_on_segments`).
         """
-        clamped = torch.clamp(points.unsqueeze(-2), self._box_low, self._box_high)
-        if self._axis_aligned:
+        clamped = torch.clamp(points.unsqueeze(-2), self.box_low, self.box_high)
+        if self.axis_aligned:
             return clamped
         aligned = (self.walls[:, 1] - self.walls[:, 0] == 0).any(-1).unsqueeze(-1)  # (S, 1)
         return torch.where(aligned, clamped, closest_points_on_segments(points, self.walls))
@@ -377,8 +392,8 @@ class Geometry:
             depth = depth.unsqueeze(-1)
         offset = points.unsqueeze(-2) - self.exits[:, 0]  # (..., E, 2)
         beyond = offset[..., X] * self.exit_normals[:, X] + offset[..., Y] * self.exit_normals[:, Y]
-        along = offset[..., X] * self._exit_tangents[:, X] + offset[..., Y] * self._exit_tangents[:, Y]
-        return ((beyond >= 0) & (beyond < depth) & (along >= 0) & (along <= self._exit_spans)).any(-1)
+        along = offset[..., X] * self.exit_tangents[:, X] + offset[..., Y] * self.exit_tangents[:, Y]
+        return ((beyond >= 0) & (beyond < depth) & (along >= 0) & (along <= self.exit_spans)).any(-1)
 
     def nearest_exits(self, points: torch.Tensor) -> torch.Tensor:
         """Index of the exit whose goal point is nearest to each point ``(..., 2)``: ``(...)`` int64."""

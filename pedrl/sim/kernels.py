@@ -1,10 +1,17 @@
-"""CPU kernels of the simulation, compiled with numba; their specifications are
-:func:`pedrl.sim.dynamics.move_agents_sequential` and :func:`pedrl.sim.dynamics.move_agents_sliding`.
+"""Numba kernels of the room's moves; the specification of each is its torch twin ``pedrl.sim.dynamics.*_torch``.
 
 On the CPU a decision of a few hundred agents is a few hundred small torch operations of microseconds each; the
-same work written as loops and compiled costs a few microseconds in all. Each kernel here reproduces a torch
-function of `pedrl.sim` to the bit (same float32 operations in the same order), which the tests check; the torch
-code stays the reference and the path on other devices.
+same work written as loops and compiled costs a few microseconds in all. Each kernel here reproduces its torch twin
+of `pedrl.sim.dynamics` to the bit (same float32 operations in the same order), which the tests check; the torch
+code stays the reference and the path on other devices, and `pedrl.sim.dynamics` chooses between the two:
+
+- :func:`sequential_substeps`: the sub-steps of :func:`pedrl.sim.dynamics.move_agents_sequential_torch`, whose own
+  specification is the literal agent-by-agent loop :func:`pedrl.sim.reference.move_agents_sequential_literal`
+  (this kernel is that loop, compiled);
+- :func:`sliding_substeps`: :func:`pedrl.sim.dynamics.move_agents_sliding_torch`;
+- ``_nearest_wall_kernel``: ``pedrl.sim.dynamics._nearest_wall``; ``_touches_walls`` and ``_passes_exits``:
+  :meth:`Geometry.touches_walls <pedrl.sim.geometry.Geometry.touches_walls>` (axis-aligned walls) and
+  :meth:`Geometry.passes_exits <pedrl.sim.geometry.Geometry.passes_exits>` of one point.
 """
 
 from __future__ import annotations
@@ -13,8 +20,8 @@ import numpy as np
 import torch
 
 from pedrl._numba import cached_njit
-from pedrl.sim.dynamics import PAIR_MARGIN, Movement
 from pedrl.sim.geometry import Geometry
+from pedrl.sim.movement import PAIR_MARGIN, Movement
 
 __all__ = ["sequential_substeps", "sliding_substeps"]
 
@@ -130,7 +137,7 @@ def sequential_substeps(
     depth: torch.Tensor,
     priority: torch.Tensor,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-    """The sub-steps of :func:`pedrl.sim.dynamics.move_agents_sequential`, agent by agent, compiled.
+    """The sub-steps of :func:`pedrl.sim.dynamics.move_agents_sequential_torch`, agent by agent, compiled.
 
     The float32 operations are torch's, in the same order: proposals ``p + k d``, the wall test of
     :meth:`Geometry.touches_walls` (done here for axis-aligned walls; ``walls (S, R, N)`` bool holds it for the
@@ -158,7 +165,7 @@ def sequential_substeps(
     reached = torch.zeros(shape, dtype=torch.bool)
     if walls is None:
         walls = torch.zeros((num_substeps, *shape), dtype=torch.bool)  # the kernel tests the walls (if any)
-        low, high = geometry._box_low, geometry._box_high
+        low, high = geometry.box_low, geometry.box_high
     else:
         low = high = torch.zeros((0, 2))
     radius_sq = agent_radius * agent_radius  # both products as torch's callers write them
@@ -175,8 +182,8 @@ def sequential_substeps(
         np.float32(radius_sq),
         geometry.exits[:, 0].contiguous().numpy(),
         geometry.exit_normals.contiguous().numpy(),
-        geometry._exit_tangents.contiguous().numpy(),
-        geometry._exit_spans.contiguous().numpy(),
+        geometry.exit_tangents.contiguous().numpy(),
+        geometry.exit_spans.contiguous().numpy(),
         priority.argsort(dim=1).numpy(),
         np.float32(contact_sq),
         out.numpy(),
@@ -188,8 +195,9 @@ def sequential_substeps(
 
 
 @cached_njit(nogil=True, inline="always")
-def _nearest_wall(x, y, starts, directions, inverse):
-    """Squared distance to the nearest wall and that wall: the projection clamped to each segment."""
+def _nearest_wall_kernel(x, y, starts, directions, inverse):
+    """Squared distance to the nearest wall and that wall (``pedrl.sim.dynamics._nearest_wall`` of one point): the
+    projection clamped to each segment."""
     nearest = np.float32(np.inf)
     index = 0
     for s in range(starts.shape[0]):
@@ -278,7 +286,7 @@ def _sliding(
                 scale = factor[i] * substep_length
                 target_x = here_x + vx * scale
                 target_y = here_y + vy * scale
-                wall_sq, wall = _nearest_wall(target_x, target_y, starts, directions, inverse)
+                wall_sq, wall = _nearest_wall_kernel(target_x, target_y, starts, directions, inverse)
                 body_sq, body = _nearest_body(target_x, target_y, i, current, present[r])
                 hits_wall = wall_sq < radius_sq
                 hits_body = body_sq < contact_sq
@@ -306,7 +314,7 @@ def _sliding(
                     wanted[i, 1] = vy
                     target_x = here_x + vx * scale
                     target_y = here_y + vy * scale
-                    slid_sq, _ = _nearest_wall(target_x, target_y, starts, directions, inverse)
+                    slid_sq, _ = _nearest_wall_kernel(target_x, target_y, starts, directions, inverse)
                     slid_body_sq, _ = _nearest_body(target_x, target_y, i, current, present[r])
                     slid_wall = slid_sq < radius_sq
                     slid_body = slid_body_sq < contact_sq
@@ -348,7 +356,8 @@ def sliding_substeps(
     time_gap: float | None,
     yield_to_earlier: bool = False,
 ) -> Movement:
-    """:func:`pedrl.sim.dynamics.move_agents_sliding`, agent by agent, compiled (same float32 operations, same order).
+    """:func:`pedrl.sim.dynamics.move_agents_sliding_torch`, agent by agent, compiled (same float32 operations, same
+    order).
 
     Args:
         positions: ``(R, N, 2)`` float32 at the start of the decision.
@@ -386,8 +395,8 @@ def sliding_substeps(
         wall_inverse.numpy(),
         geometry.exits[:, 0].contiguous().numpy(),
         geometry.exit_normals.contiguous().numpy(),
-        geometry._exit_tangents.contiguous().numpy(),
-        geometry._exit_spans.contiguous().numpy(),
+        geometry.exit_tangents.contiguous().numpy(),
+        geometry.exit_spans.contiguous().numpy(),
         np.float32(agent_radius * agent_radius),
         np.float32(4.0 * agent_radius * agent_radius),
         np.float32(substep_length),

@@ -10,7 +10,7 @@ from typing import Any, Final
 
 import torch
 
-from pedrl.algos.controllers import GreedyDoorController
+from pedrl.sim.controllers import GreedyDoorController
 from pedrl.validation.crowds import JuPedSimCrowd, PedrlCrowd
 from pedrl.validation.report import write_reports
 from pedrl.validation.suite import TEST_NAMES, Budget, TestResult, run_suite

@@ -11,9 +11,9 @@ import torch
 from hydra import compose, initialize_config_dir
 from omegaconf import open_dict
 
+from pedrl.algos.registry import build_trainer
 from pedrl.cli import run_reporting_errors
 from pedrl.io import CheckpointError, load_checkpoint, read_csv
-from pedrl.runtime import build_trainer
 from pedrl.train import train
 
 CONFIG_DIR = str(Path(__file__).resolve().parents[2] / "conf")
@@ -36,9 +36,9 @@ def _strip_clock(rows):
 
 def _interrupt_after(monkeypatch, trials: int, *, slow_s: float = 0.0) -> None:
     """Make training stop (KeyboardInterrupt) after ``trials`` logged trials, each taking at least ``slow_s``."""
-    from pedrl.algos.base import Trainer
+    from pedrl.algos.records import RunRecord
 
-    original = Trainer._log_trial
+    original = RunRecord.log_trial
     calls = {"n": 0}
 
     def interrupted(self, *args, **kwargs):
@@ -48,7 +48,7 @@ def _interrupt_after(monkeypatch, trials: int, *, slow_s: float = 0.0) -> None:
         if calls["n"] == trials:
             raise KeyboardInterrupt
 
-    monkeypatch.setattr(Trainer, "_log_trial", interrupted)
+    monkeypatch.setattr(RunRecord, "log_trial", interrupted)
 
 
 # ---------------------------------------------------------------------- a finished run
@@ -176,7 +176,7 @@ def _killed_at(point: str, nth: int):
     import csv
 
     import pedrl.io.checkpoint as checkpoint_module
-    from pedrl.algos.base import Trainer
+    from pedrl.algos.records import RunRecord
     from pedrl.io import metrics
 
     calls = {"n": 0}
@@ -189,14 +189,14 @@ def _killed_at(point: str, nth: int):
         os.kill(os.getpid(), signal.SIGKILL)
 
     if point == "phase":  # after a trial's row was written, between checkpoints
-        original_log = Trainer._log_trial
+        original_log = RunRecord.log_trial
 
         def log(self, *args, **kwargs):
             original_log(self, *args, **kwargs)
             if count():
                 die()
 
-        Trainer._log_trial = log
+        RunRecord.log_trial = log
     elif point == "checkpoint_half_written":  # safetensors had written half the temporary file
         original_save = checkpoint_module.save_file
 
@@ -315,11 +315,9 @@ def test_a_run_killed_anywhere_resumes_to_the_same_numbers(reference, tmp_path, 
 
 
 def test_checkpoints_written_before_compile_sensing_existed_still_resume():
-    from pedrl.algos.base import _config_mismatch
+    from pedrl.algos.restore import config_mismatch
 
     current = {"env": {"width": 60.0, "compile_sensing": False}, "seed": 0}
     older = {"env": {"width": 60.0}, "seed": 0}
-    assert _config_mismatch(older, current) == ""
-    assert "env.compile_sensing" in _config_mismatch(
-        older, {**current, "env": {"width": 60.0, "compile_sensing": True}}
-    )
+    assert config_mismatch(older, current) == ""
+    assert "env.compile_sensing" in config_mismatch(older, {**current, "env": {"width": 60.0, "compile_sensing": True}})

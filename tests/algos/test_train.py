@@ -7,9 +7,10 @@ import sys
 import pytest
 import torch
 
+from pedrl.algos.registry import build_trainer
 from pedrl.io import CheckpointError, load_checkpoint, read_csv
-from pedrl.runtime import build_trainer
 from pedrl.train import train
+from pedrl.vq.encoder import StateEncoder, quantizer_from_state_dict
 
 ALGOS = ("vqql", "it_vqql", "in_vqql")
 
@@ -100,9 +101,9 @@ def test_resumed_run_equals_uninterrupted_run(train_config, tmp_path, monkeypatc
     overrides = (f"algo={algo}", "checkpoint_every=3", "logger=none")
     train(train_config(*overrides), run_dir=tmp_path / "full")
 
-    from pedrl.algos.base import Trainer
+    from pedrl.algos.records import RunRecord
 
-    original = Trainer._log_trial
+    original = RunRecord.log_trial
     calls = {"n": 0}
 
     def interrupt_after_some_trials(self, *args, **kwargs):
@@ -111,10 +112,10 @@ def test_resumed_run_equals_uninterrupted_run(train_config, tmp_path, monkeypatc
         if calls["n"] == 14:  # inside the second phase, after a mid-phase checkpoint
             raise KeyboardInterrupt
 
-    monkeypatch.setattr(Trainer, "_log_trial", interrupt_after_some_trials)
+    monkeypatch.setattr(RunRecord, "log_trial", interrupt_after_some_trials)
     with pytest.raises(KeyboardInterrupt):
         train(train_config(*overrides), run_dir=tmp_path / "cut")
-    monkeypatch.setattr(Trainer, "_log_trial", original)
+    monkeypatch.setattr(RunRecord, "log_trial", original)
     train(train_config(*overrides, "resume=true"), run_dir=tmp_path / "cut")
 
     full = load_checkpoint(tmp_path / "full" / "checkpoints" / "last.safetensors")
@@ -190,13 +191,14 @@ def test_void_filling_is_drawn_once_per_agent_and_trial(void_draws, train_config
         ),
         tmp_path,
     )
-    env = trainer._env(3)
+    env = trainer.env_for(3)
     obs, info = env.reset(seed=0)
     flat, sensed = obs.reshape(-1, env.num_features), info["num_sensed"].reshape(-1)
     assert (sensed < env.num_neighbours).all()  # 3 agents: 2 neighbours sensed, 5 void slots
-    first = trainer._prepare(flat, sensed, 0)
-    later = trainer._prepare(flat, sensed, 5)  # the same state later in the trial
-    next_trial = trainer._prepare(flat, sensed, 0)  # a new trial draws again
+    encoder = StateEncoder(trainer.encoder_settings)
+    first = encoder.prepare(flat, sensed, 0, trainer.generator)
+    later = encoder.prepare(flat, sensed, 5, trainer.generator)  # the same state later in the trial
+    next_trial = encoder.prepare(flat, sensed, 0, trainer.generator)  # a new trial draws again
     assert torch.equal(first[:, :9], flat[:, :9])  # own features and both sensed neighbours kept
     assert torch.equal(first, later) == (void_draws == "trial")
     assert not torch.equal(first, next_trial)
@@ -208,7 +210,8 @@ def test_each_learning_process_fits_its_own_quantizer(algo, train_config, tmp_pa
     trainer = build_trainer(cfg, tmp_path)
     train(cfg, run_dir=tmp_path)
     checkpoint = load_checkpoint(tmp_path / "checkpoints" / "last.safetensors")
-    quantizer = trainer.quantizer_from_state_dict(checkpoint.tensors_with_prefix("quantizer"))
+    quantizer = quantizer_from_state_dict(checkpoint.tensors_with_prefix("quantizer"))
+    assert trainer.vq.per_process
     assert quantizer.num_processes == cfg.processes == checkpoint.tensors["q_values"].shape[0]
     first, second = (part.state_dict() for part in quantizer.parts[:2])
     assert first.keys() == second.keys()
@@ -233,10 +236,11 @@ def test_one_table_per_process_is_shared_by_its_agents(train_config, tmp_path):
 def test_log_distance_transform_changes_only_distances(train_config, tmp_path):
     plain = build_trainer(train_config("algo=vqql", "vq.distance_transform=none"), tmp_path)
     logged = build_trainer(train_config("algo=vqql", "vq.distance_transform=log"), tmp_path)
-    env = plain._env(plain.phases()[0].num_agents)
+    env = plain.env_for(plain.phases()[0].num_agents)
     obs, info = env.reset(seed=0)
     flat, sensed = obs.reshape(-1, env.num_features), info["num_sensed"].reshape(-1)
-    before, after = plain._prepare(flat, sensed, 0), logged._prepare(flat, sensed, 0)
+    prepare = [StateEncoder(t.encoder_settings).prepare(flat, sensed, 0, t.generator) for t in (plain, logged)]
+    before, after = prepare
     names = env.feature_names
     distance = torch.tensor(["distance" in name for name in names])
     assert torch.equal(before[:, ~distance], after[:, ~distance])

@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from pedrl.algos.base import Phase
-from pedrl.runtime import build_trainer
+from pedrl.algos.registry import build_trainer
 from pedrl.vq import ProcessQuantizers, Quantizer
 
 

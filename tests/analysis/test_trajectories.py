@@ -3,8 +3,9 @@ import sys
 
 import numpy as np
 import pytest
+import shapely
 
-from pedrl.analysis import RoomGeometry, Trajectories
+from pedrl.analysis import AreaGeometry, RoomGeometry, Trajectories
 
 
 def shoelace_area(outline: np.ndarray) -> float:
@@ -52,6 +53,35 @@ def test_contains_excludes_agents_past_the_door():
     geometry = RoomGeometry(width=20.0, length=30.0, door_width=2.0)
     inside = geometry.contains([[0.0, 0.0], [20.0, 29.999], [10.0, 30.0], [-0.1, 5.0], [10.0, 31.0]])
     np.testing.assert_array_equal(inside, [True, True, False, False, False])
+
+
+def test_room_is_the_area_view_of_its_rectangle():
+    """The paper's room is an :class:`AreaGeometry`: its walls, door, normal and bounds are the general attributes."""
+    geometry = RoomGeometry(width=20.0, length=30.0, door_width=2.0)
+    assert isinstance(geometry, AreaGeometry) and geometry.name == "paper_room"
+    assert geometry.bounds == (0.0, 0.0, 20.0, 30.0) and (geometry.x_min, geometry.y_min) == (0.0, 0.0)
+    np.testing.assert_array_equal(geometry.exits, [geometry.door])
+    np.testing.assert_array_equal(geometry.exit_normals, [[0.0, 1.0]])
+    assert geometry.wkt == geometry.to_wkt(exit_depth=0.0)
+    assert repr(geometry) == "RoomGeometry(width=20.0, length=30.0, door_width=2.0)"
+
+
+def test_area_view_of_a_polygon_with_a_hole():
+    geometry = AreaGeometry(
+        wkt="POLYGON ((0 0, 12 0, 12 10, 0 10, 0 0), (5 4, 7 4, 7 6, 5 6, 5 4))",
+        walls=np.zeros((9, 2, 2)),
+        exits=[[[12.0, 6.0], [12.0, 4.0]]],
+        exit_normals=[[1.0, 0.0]],
+        name="custom",
+    )
+    assert geometry.bounds == (0.0, 0.0, 12.0, 10.0) and (geometry.width, geometry.length) == (12.0, 10.0)
+    np.testing.assert_array_equal(geometry.door_center, [12.0, 5.0])
+    np.testing.assert_array_equal(geometry.door_normal, [1.0, 0.0])
+    np.testing.assert_array_equal(geometry.contains([[1.0, 1.0], [6.0, 5.0], [12.5, 5.0]]), [True, False, False])
+    assert geometry.describe() == "area: custom, bounds [0, 0] x [12, 10], 1 exits"
+    apron = shapely.from_wkt(geometry.to_wkt(exit_depth=1.5))
+    assert apron.area == pytest.approx(12.0 * 10.0 - 4.0 + 2.0 * 1.5)
+    assert shapely.from_wkt(geometry.to_wkt(exit_depth=0.0)).equals(shapely.from_wkt(geometry.wkt))
 
 
 @pytest.mark.parametrize(

@@ -23,8 +23,8 @@ from safetensors import safe_open
 from safetensors.torch import load_file, save_file
 
 import pedrl.embed
-from pedrl.algos.restore import embed_geometry
-from pedrl.evaluation import load_policy
+from pedrl.configs import embed_geometry
+from pedrl.evaluation import load_controller
 from pedrl.io import CheckpointError
 from pedrl.io.checkpoint import METADATA_KEY
 from pedrl.notices import PedrlWarning
@@ -132,7 +132,7 @@ def test_a_checkpoint_holds_its_room_and_loading_it_opens_no_other_file(custom_r
         stored = json.loads(handle.metadata()[METADATA_KEY])["config"]["scenario"]
     assert is_wkt_text(stored["geometry"]) and stored["exits"] == EXITS
     with files_opened() as opened:
-        policy = load_policy(checkpoint, controller="learned", epsilon=0.0, device=CPU, max_decisions=None)
+        policy = load_controller(checkpoint, controller="learned", epsilon=0.0, device=CPU, max_decisions=None)
     assert str(wkt) not in opened and not [path for path in opened if path.endswith(".wkt")]
     assert policy.env_factory.scenario.walkable.equals(custom(wkt).walkable)
 
@@ -155,7 +155,7 @@ def test_a_checkpoint_naming_its_wkt_file_is_refused_with_how_to_reexport_it(cus
     checkpoint, cfg, wkt = custom_run
     old = restored(checkpoint, lambda config: config["scenario"].update(geometry=str(wkt)))
     with files_opened() as opened, pytest.raises(CheckpointError) as error:
-        load_policy(old, controller="learned", epsilon=0.0, device=CPU, max_decisions=None)
+        load_controller(old, controller="learned", epsilon=0.0, device=CPU, max_decisions=None)
     one_line_error(error.value, str(old), "names its room's WKT file", "python -m pedrl.embed", longest=600)
     assert str(wkt) not in opened
     resumed = copy.deepcopy(cfg)
@@ -165,7 +165,7 @@ def test_a_checkpoint_naming_its_wkt_file_is_refused_with_how_to_reexport_it(cus
         train(resumed, run_dir=tmp_path / "resumed")
 
     pedrl.embed.main([str(old), str(wkt), "--output", str(tmp_path / "embedded.safetensors")])
-    policy = load_policy(
+    policy = load_controller(
         tmp_path / "embedded.safetensors", controller="learned", epsilon=0.0, device=CPU, max_decisions=None
     )
     assert policy.env_factory.scenario.walkable.equals(custom(wkt).walkable)

@@ -1,15 +1,19 @@
 """Scenarios from polygons: each built-in one, custom WKT input, the bad inputs, and physical invariants in each."""
 
+import ast
 import math
+from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 from shapely.geometry import box
 
-from pedrl.algos.controllers import GreedyDoorController
 from pedrl.algos.registry import env_factory
-from pedrl.scenarios import SCENARIOS, Scenario, Spawn, build_scenario
+from pedrl.analysis import AreaGeometry, RoomGeometry
+from pedrl.scenarios import SCENARIOS, PaperRoom, Scenario, Spawn, build_scenario
 from pedrl.sim import RoomEnv
+from pedrl.sim.controllers import GreedyDoorController
 from pedrl.sim.geometry import distances_to_segments
 
 BUILT_IN = [name for name in SCENARIOS if name != "custom"]
@@ -158,3 +162,51 @@ def test_spawn_areas_are_split_by_weight_and_checked():
     assert env.spawn_counts == (6, 2)
     assert (env.positions[0, :6, 0] <= 5).all() and (env.positions[0, 6:, 0] >= 15).all()
     assert math.isclose(scenario.geometry().spawns[0].area, 50.0)
+
+
+@pytest.mark.parametrize("name", BUILT_IN)
+def test_the_analysis_view_is_the_simulated_geometry(name):
+    """A scenario builds the simulation's geometry and the analysis' plain view of it: the same walls, exits, normals
+    and bounds (the paper's room in closed form, a :class:`RoomGeometry`)."""
+    scenario = build_scenario({"name": name}, room={"width": 20.0, "length": 30.0, "door_width": 3.0})
+    geometry = scenario.geometry()
+    view = scenario.analysis_geometry(geometry)
+    assert isinstance(view, AreaGeometry) and isinstance(view, RoomGeometry) == (name == "paper_room")
+    assert view.bounds == geometry.bounds
+    walls = geometry.walls[: geometry.num_walls].double().numpy()
+    assert sorted(map(repr, view.walls.tolist())) == sorted(map(repr, walls.tolist()))  # the paper's room: its order
+    assert np.array_equal(np.sort(view.exits, axis=1), np.sort(geometry.exits.double().numpy(), axis=1))
+    assert np.array_equal(view.exit_normals, geometry.exit_normals.double().numpy())
+    assert view.contains(geometry.exit_goals.double().numpy() - 0.1 * view.exit_normals).all()
+    assert not view.contains(geometry.exit_goals.double().numpy() + 0.1 * view.exit_normals).any()
+
+
+def test_the_paper_room_view_is_the_general_view_in_closed_form():
+    """The paper's room answers what the general view of its polygon answers (:class:`RoomGeometry` only writes its
+    door apron and its door centre in closed form)."""
+    scenario = build_scenario({"name": "paper_room"}, room={"width": 20.0, "length": 30.0, "door_width": 3.0})
+    assert isinstance(scenario, PaperRoom) and (scenario.width, scenario.length, scenario.door_width) == (20, 30, 3)
+    room, general = scenario.analysis_geometry(), Scenario.analysis_geometry(scenario)
+    assert type(general) is AreaGeometry
+    assert room.bounds == general.bounds and (room.width, room.length) == (general.width, general.length)
+    assert np.array_equal(room.door_center, general.door_center)
+    assert np.array_equal(room.door_normal, general.door_normal)
+    points = np.random.default_rng(0).uniform([-1.0, -1.0], [21.0, 33.0], (2000, 2))
+    assert np.array_equal(room.contains(points), general.contains(points))
+    assert room.to_wkt(exit_depth=0.0) != general.to_wkt(exit_depth=0.0)  # the same polygon, written otherwise
+    assert AreaGeometry(room.to_wkt(exit_depth=0.0), room.walls, room.exits, room.exit_normals).bounds == room.bounds
+
+
+def test_nothing_outside_the_scenarios_compares_a_scenario_name():
+    """The objects are asked (``Scenario.analysis_geometry``), not their names: no comparison with a built-in
+    scenario's name anywhere in pedrl but where ``build_scenario`` reads a config."""
+    package = Path(__file__).resolve().parents[2] / "pedrl"
+    found = []
+    for path in sorted(package.rglob("*.py")):
+        if path == package / "scenarios" / "__init__.py":
+            continue
+        for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+            if isinstance(node, ast.Compare):
+                names = [part for part in (node.left, *node.comparators) if isinstance(part, ast.Constant)]
+                found += [f"{path.name}:{node.lineno}" for part in names if part.value in SCENARIOS]
+    assert not found, f"comparisons with a scenario's name: {found}"

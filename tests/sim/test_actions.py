@@ -5,8 +5,8 @@ import math
 import pytest
 import torch
 
-from pedrl.algos.controllers import GreedyDoorController
 from pedrl.sim import COARSE_TURN_RATIOS, DEFAULT_TURN_RATIOS, RoomEnv
+from pedrl.sim.controllers import GreedyDoorController
 
 STEP = 2.5  # m, a full-speed decision at the default max_speed
 CLEARANCE = 0.1  # m, either side of a 0.4 m body in a 1 m opening

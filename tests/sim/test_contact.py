@@ -10,11 +10,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from pedrl._numba import numba_available
-from pedrl.algos.controllers import GreedyDoorController
 from pedrl.algos.registry import env_factory
 from pedrl.scenarios import SCENARIOS
 from pedrl.sim import RoomEnv, dynamics
-from pedrl.sim.dynamics import NUM_ACTIONS, NUM_TURNS, move_agents_sliding
+from pedrl.sim.controllers import GreedyDoorController
+from pedrl.sim.dynamics import NUM_ACTIONS, NUM_TURNS, move_agents_sliding, move_agents_sliding_torch
 from pedrl.sim.geometry import distances_to_segments
 
 TOLERANCE = 1e-4  # m, as tests/sim/test_properties.py (docs/design.md invariants)
@@ -119,7 +119,7 @@ def test_kernel_equals_the_torch_reference_to_the_bit(seed, num_agents, room, sp
         yield_to_earlier=rule == "yield",
     )
     compiled = move_agents_sliding(**kwargs, compiled=True)
-    reference = move_agents_sliding(**kwargs, compiled=False)
+    reference = move_agents_sliding_torch(**kwargs)  # the kernel's specification
     assert torch.equal(compiled.positions, reference.positions)  # same float32 operations in the same order
     for flag in ("blocked", "crashed_wall", "crashed_agent", "reached"):
         assert torch.equal(getattr(compiled, flag), getattr(reference, flag)), flag

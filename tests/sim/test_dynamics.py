@@ -1,4 +1,5 @@
-"""Actions, speed and heading updates, and the collision rule (against a literal sub-step reference)."""
+"""Actions, speed and heading updates, and the collision rules against their literal specifications
+(`pedrl.sim.reference`)."""
 
 import math
 
@@ -13,7 +14,6 @@ from pedrl.sim.dynamics import (
     DEFAULT_TURN_RATIOS,
     NOOP_ACTION,
     NUM_ACTIONS,
-    Movement,
     apply_actions,
     count_substeps,
     decode_actions,
@@ -23,110 +23,7 @@ from pedrl.sim.dynamics import (
     velocities_from,
 )
 from pedrl.sim.geometry import Geometry, build_walls, distances_to_segments
-
-
-def reference_move(
-    *,
-    positions: torch.Tensor,
-    velocities: torch.Tensor,
-    active: torch.Tensor,
-    geometry: Geometry,
-    agent_radius: float,
-    decision_length: float,
-    num_substeps: int,
-) -> Movement:
-    """The collision rule of docs/design.md written literally: a loop over sub-steps, rounds inside each."""
-    num_replicas, num_agents, _ = positions.shape
-    step = velocities * (decision_length / num_substeps)
-    moving = active & (step != 0).any(-1)
-    step = step * moving.unsqueeze(-1)
-    in_room = active.clone()
-    going = moving.clone()
-    moved = torch.zeros(num_replicas, num_agents, dtype=torch.int64)
-    crashed_wall = torch.zeros_like(active)
-    crashed_agent = torch.zeros_like(active)
-    reached = torch.zeros_like(active)
-    contact_sq = 4.0 * agent_radius**2
-    not_self = ~torch.eye(num_agents, dtype=torch.bool)
-    for substep in range(1, num_substeps + 1):
-        current = positions + moved.to(torch.float32).unsqueeze(-1) * step
-        proposal = positions + float(substep) * step
-        wall_hit = going & geometry.touches_walls(proposal, radius=agent_radius)
-        blocked = wall_hit.clone()
-        for _ in range(num_agents + 1):
-            go = going & ~blocked
-            target = torch.where(go.unsqueeze(-1), proposal, current)
-            gaps = proposal.unsqueeze(2) - target.unsqueeze(1)  # [r, i, j] = proposal_i - target_j
-            close = ((gaps * gaps).sum(-1) < contact_sq) & not_self & in_room.unsqueeze(1)
-            new = go & close.any(-1)
-            if not new.any():
-                break
-            blocked |= new
-            crashed_agent |= new
-        crashed_wall |= wall_hit
-        moved = moved + go.long()
-        arrived = go & (proposal[..., 1] >= geometry.bounds[3])
-        reached |= arrived
-        in_room &= ~arrived
-        going = go & ~arrived
-    return Movement(
-        positions=positions + moved.to(torch.float32).unsqueeze(-1) * step,
-        blocked=crashed_wall | crashed_agent,
-        crashed_wall=crashed_wall,
-        crashed_agent=crashed_agent,
-        reached=reached,
-    )
-
-
-def reference_sequential_move(
-    *,
-    positions: torch.Tensor,
-    velocities: torch.Tensor,
-    active: torch.Tensor,
-    geometry: Geometry,
-    agent_radius: float,
-    decision_length: float,
-    num_substeps: int,
-    priority: torch.Tensor,
-) -> Movement:
-    """The paper's rule written literally: sub-step after sub-step, agent after agent in priority order."""
-    num_replicas, num_agents, _ = positions.shape
-    step = velocities * (decision_length / num_substeps)
-    going = active & (step != 0).any(-1)
-    present = active.clone()
-    moved = torch.zeros(num_replicas, num_agents)
-    crashed_wall = torch.zeros_like(active)
-    blocked = torch.zeros_like(active)
-    reached = torch.zeros_like(active)
-    for substep in range(1, num_substeps + 1):
-        for r in range(num_replicas):
-            for i in priority[r].argsort().tolist():
-                if not going[r, i]:
-                    continue
-                proposal = positions[r, i] + float(substep) * step[r, i]
-                wall = bool(geometry.touches_walls(proposal, radius=agent_radius))
-                current = positions[r] + moved[r].unsqueeze(-1) * step[r]  # where everyone stands now
-                gaps = proposal - current
-                others = present[r].clone()
-                others[i] = False
-                body = bool((((gaps * gaps).sum(-1) < 4.0 * agent_radius**2) & others).any())
-                if wall or body:
-                    blocked[r, i] = True
-                    crashed_wall[r, i] |= wall
-                    going[r, i] = False
-                    continue
-                moved[r, i] += 1
-                if proposal[1] >= geometry.bounds[3]:  # out: it collides until the end of this sub-step
-                    reached[r, i] = True
-                    going[r, i] = False
-        present &= ~reached
-    return Movement(
-        positions=positions + moved.unsqueeze(-1) * step,
-        blocked=blocked,
-        crashed_wall=crashed_wall,
-        crashed_agent=blocked & ~crashed_wall,
-        reached=reached,
-    )
+from pedrl.sim.reference import move_agents_literal, move_agents_sequential_literal
 
 
 def motion(env: RoomEnv, velocities: torch.Tensor) -> dict:
@@ -268,7 +165,7 @@ def test_move_agents_equals_the_literal_substep_rule(seed, num_replicas, num_age
         headings = torch.where(torch.rand(shape, generator=generator) < 0.3, to_door, headings)
         kwargs = motion(env, velocities_from(speeds=speeds, headings=headings))
         fast = move_agents(**kwargs)
-        slow = reference_move(**kwargs)
+        slow = move_agents_literal(**kwargs)
         assert torch.equal(fast.positions, slow.positions)
         assert torch.equal(fast.crashed_wall, slow.crashed_wall)
         assert torch.equal(fast.crashed_agent, slow.crashed_agent & ~slow.crashed_wall)
@@ -313,7 +210,7 @@ def test_dense_rooms_match_the_reference_and_exercise_every_event():
         headings = headings + 0.6 * torch.randn(3, 12, generator=generator)
         kwargs = motion(env, velocities_from(speeds=speeds, headings=headings))
         fast = move_agents(**kwargs)
-        slow = reference_move(**kwargs)
+        slow = move_agents_literal(**kwargs)
         assert torch.equal(fast.positions, slow.positions)
         assert torch.equal(fast.crashed_wall, slow.crashed_wall)
         assert torch.equal(fast.reached, slow.reached)
@@ -403,7 +300,7 @@ def test_move_agents_sequential_equals_the_literal_agent_by_agent_loop(seed, num
         kwargs = motion(env, velocities_from(speeds=speeds, headings=headings))
         kwargs["priority"] = torch.rand(shape, generator=generator)
         fast = move_agents_sequential(**kwargs, compiled=False)
-        slow = reference_sequential_move(**kwargs)
+        slow = move_agents_sequential_literal(**kwargs)
         bounded = move_agents_sequential(**kwargs, sync_free=True)  # the CUDA path: fixed rounds, no host reads
         compiled = move_agents_sequential(**kwargs, compiled=True)  # the CPU default: the numba kernel
         for field in ("positions", "blocked", "crashed_wall", "crashed_agent", "reached"):
@@ -430,7 +327,7 @@ def test_compiled_rule_equals_the_torch_rule_with_slanted_walls_and_two_exits(se
     scenario = custom(geometry=wkt, exits=[[6, 12, 9, 12], [6, 0, 9, 0]])
     env = scenario.room(num_replicas=3, num_agents=25)
     env.reset(seed=seed)
-    assert not env.geometry._axis_aligned
+    assert not env.geometry.axis_aligned
     generator = torch.Generator().manual_seed(seed)
     shape = (3, 25)
     compared = events = 0
@@ -448,3 +345,35 @@ def test_compiled_rule_equals_the_torch_rule_with_slanted_walls_and_two_exits(se
         events += int(eager.crashed_wall.sum() + eager.crashed_agent.sum() + eager.reached.sum())
         env.positions, env.active = eager.positions, env.active & ~eager.reached
     assert compared == 12 and events > 0
+
+
+def test_the_literal_rules_use_the_room_exits_beyond_the_paper_room(tmp_path):
+    """A hexagon with an exit in its top and one in its bottom wall: the literal specifications take the room's own
+    exit test (not the paper room's ``y >= length``), so both rules equal them to the bit, and crowds leave through
+    both exits."""
+    from pedrl.scenarios import custom
+
+    wkt = tmp_path / "hexagon.wkt"
+    wkt.write_text("POLYGON ((4 0, 12 0, 16 6, 12 12, 4 12, 0 6, 4 0))")
+    env = custom(geometry=wkt, exits=[[6, 12, 9, 12], [6, 0, 9, 0]]).room(num_replicas=2, num_agents=16)
+    env.reset(seed=5)
+    generator = torch.Generator().manual_seed(5)
+    shape = (2, 16)
+    out_top = out_bottom = 0
+    for _ in range(10):
+        targets = env.targets()
+        to_exit = torch.atan2(targets[..., 1] - env.positions[..., 1], targets[..., 0] - env.positions[..., 0])
+        headings = to_exit + 0.3 * torch.randn(shape, generator=generator)
+        kwargs = motion(env, velocities_from(speeds=torch.full(shape, env.max_speed), headings=headings))
+        fast, slow = move_agents(**kwargs), move_agents_literal(**kwargs)
+        for field in ("positions", "blocked", "crashed_wall", "reached"):
+            assert torch.equal(getattr(fast, field), getattr(slow, field)), field
+        kwargs["priority"] = torch.rand(shape, generator=generator)
+        sequential = move_agents_sequential(**kwargs, compiled=False)
+        literal = move_agents_sequential_literal(**kwargs)
+        for field in ("positions", "blocked", "crashed_wall", "crashed_agent", "reached"):
+            assert torch.equal(getattr(sequential, field), getattr(literal, field)), field
+        out_top += int((sequential.reached & (sequential.positions[..., 1] >= 12.0)).sum())
+        out_bottom += int((sequential.reached & (sequential.positions[..., 1] <= 0.0)).sum())
+        env.positions, env.active = sequential.positions, env.active & ~sequential.reached
+    assert out_top > 0 and out_bottom > 0, (out_top, out_bottom)

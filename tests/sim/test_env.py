@@ -424,3 +424,12 @@ def test_compiled_sensing_is_not_recompiled_per_trial_and_matches_eager_sensing(
         run_trial(seed)
     compiled.reset(seed=4, options={"replicas": torch.tensor([True, False])})  # a partial reset: same shapes
     assert counters["stats"]["unique_graphs"] == graphs
+
+
+@pytest.mark.parametrize("seed", [1.5, 2**70, True, -1, "3", 2**64])
+def test_room_reset_refuses_a_seed_that_is_not_an_integer_in_range(seed):
+    """``reset(seed=1.5)`` truncated to 1 and ``reset(seed=2**70)`` overflowed with a traceback."""
+    env = RoomEnv(num_replicas=1, num_agents=2, width=10.0, length=10.0)
+    with pytest.raises(ValueError, match=r"^seed=.* is invalid: must be an integer in \[0, 18446744073709551615\]"):
+        env.reset(seed=seed)
+    env.reset(seed=2**64 - 1)  # the widest a torch generator takes: derived seeds (seed * 10007 + phase) fit

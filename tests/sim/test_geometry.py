@@ -52,6 +52,22 @@ def test_rectangle_describes_walls_door_goal_and_padding():
     assert room.squared_wall_distances(points)[:, NUM_WALLS:].min() > 1e11
 
 
+def test_derived_attributes_are_public_and_follow_the_segments():
+    """What the kernels read: each wall's box, whether all walls are axis-aligned, each exit's tangent and span."""
+    room = Geometry.rectangle(width=10.0, length=12.0, door_width=3.0)
+    assert torch.equal(room.box_low, room.walls.amin(1)) and torch.equal(room.box_high, room.walls.amax(1))
+    assert room.axis_aligned
+    assert room.exit_tangents.tolist() == [[-3.0, 0.0]] and room.exit_spans.tolist() == [9.0]
+    moved = room.to("cpu")
+    assert torch.equal(moved.box_low, room.box_low) and torch.equal(moved.exit_spans, room.exit_spans)
+    spawn = SpawnArea(box=(0.0, 0.0, 1.0, 1.0), edges=torch.zeros(0, 2, 2), area=1.0, perimeter=4.0)
+    slanted = Geometry.build(
+        walls=[[[0.0, 0.0], [4.0, 4.0]]], exits=[[[4.0, 0.0], [4.0, 4.0]]], exit_normals=[[1.0, 0.0]],
+        spawns=[spawn], bounds=(0.0, 0.0, 4.0, 4.0),
+    )  # fmt: skip
+    assert not slanted.axis_aligned
+
+
 def test_exits_are_passed_only_through_their_span_and_within_the_depth():
     room = Geometry.rectangle(width=10.0, length=10.0, door_width=2.0)
     points = torch.tensor([[5.0, 10.0], [5.0, 10.3], [4.1, 10.2], [3.9, 10.2], [5.0, 9.99], [5.0, 10.6]])

@@ -12,8 +12,8 @@ from hydra import compose, initialize_config_dir
 from omegaconf import open_dict
 from shapely.geometry import LineString
 
-from pedrl.algos.controllers import GreedyDoorController
 from pedrl.scenarios import LIDDLE_FLOWS, LIDDLE_WIDTHS, build_scenario
+from pedrl.sim.controllers import GreedyDoorController
 from pedrl.train import train
 from pedrl.validate import run
 from pedrl.validation.crowds import PedrlCrowd

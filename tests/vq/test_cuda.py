@@ -104,7 +104,7 @@ def test_a_training_trial_runs_on_cuda_and_learns_like_the_cpu():
             progress=False,
             tensorboard=False,
         )
-        env = trainer._env(4)
+        env = trainer.env_for(4)
         env.reset(seed=0)
         phase = trainer.phases()[0]
         states, num_sensed = trainer.gather(phase, env, None)[:2]

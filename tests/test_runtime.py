@@ -1,4 +1,5 @@
-"""Each job of a parallel sweep gets its share of the cores (``hydra/launcher=parallel``)."""
+"""pedrl.runtime's thread count: each job of a parallel sweep gets its share of the cores
+(``hydra/launcher=parallel``)."""
 
 from pathlib import Path
 

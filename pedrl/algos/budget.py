@@ -1,0 +1,75 @@
+"""What a run will cost and whether it can work, checked before any compute: memory, and states to fit K."""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING, Final
+
+from pedrl.vq.kmeans import default_chunk_size
+
+if TYPE_CHECKING:
+    from pedrl.algos.base import Trainer
+
+TABLE_COPIES: Final = 2
+"""Q tables alive at once in the memory estimate: the phase's and the previous phase's (followed while gathering,
+through a replication to the new agents in IN-VQQL that is freed before the new tables are made)."""
+GATHER_COPIES: Final = 3
+"""Copies of every gathered state in the memory estimate: as recorded, concatenated, and prepared for k-means."""
+KMEANS_COPIES: Final = 4
+"""Copies of the states one k-means fit holds: subsampled, standardised, weighted, and their nearest distances."""
+
+
+def memory_needs(trainer: Trainer) -> dict[str, float]:
+    """Estimated bytes of a run's largest allocations, by what they hold: the worst phase of each.
+
+    Q tables ``(R, A, K, 81)`` float32 (:data:`TABLE_COPIES` of them), the gathered states
+    (``gather_trials x R E N x max_decisions`` rows of ``F`` float32, :data:`GATHER_COPIES` copies), one k-means
+    fit (``vq.max_states`` states, :data:`KMEANS_COPIES` copies, and a ``chunk_size x K`` block of scores) and
+    one decision of the room (:meth:`pedrl.sim.RoomEnv.step_memory`).
+    """
+    tables = gathered = kmeans = room = 0
+    chunk = trainer.vq.chunk_size or default_chunk_size(trainer.device)
+    for phase in trainer.phases():
+        env = trainer.env_for(phase.num_agents)
+        entries = trainer.processes * trainer.num_tables(phase) * trainer.max_prototypes(phase) * env.num_actions
+        tables = max(tables, TABLE_COPIES * entries * 4)
+        rooms = trainer.processes * trainer.rooms_per_process
+        rows = phase.gather_trials * rooms * phase.num_agents * env.max_decisions
+        gathered = max(gathered, rows * (GATHER_COPIES * env.num_features * 4 + 16))
+        fit_rows = min(rows, trainer.vq.max_states)
+        kmeans = max(kmeans, (KMEANS_COPIES * fit_rows * env.num_features + chunk * trainer.vq.num_prototypes) * 4)
+        room = max(room, env.step_memory())
+    return {"Q tables": tables, "gathered states": gathered, "k-means": kmeans, "room": room}
+
+
+def check_gathering_yield(trainer: Trainer) -> None:
+    """Refuse, before any compute, a ``vq.num_prototypes`` that no gathering can reach: k-means needs a distinct
+    state per prototype, and a phase records at most ``gather_trials x E x N x max_decisions`` states per
+    process (``R`` times that for a shared quantizer). Fewer distinct states than that (agents leave the room
+    early) only shrink K, with a warning (:meth:`fit_quantizers`)."""
+    for phase in trainer.phases():
+        env = trainer.env_for(phase.num_agents)
+        factors = {
+            "algo.gather_trials": phase.gather_trials,
+            "rooms_per_process": trainer.rooms_per_process,
+            "agents": phase.num_agents,
+            "env.max_decisions": env.max_decisions,
+        }
+        if not trainer.vq.per_process:
+            factors = {"processes": trainer.processes, **factors}
+        most = math.prod(factors.values())
+        if most < trainer.vq.num_prototypes:
+            scope = "for the shared quantizer" if not trainer.vq.per_process else "per process"
+            product = " x ".join(
+                agents_text(value) if key == "agents" else f"{key}={value}" for key, value in factors.items()
+            )
+            raise ValueError(
+                f"vq.num_prototypes={trainer.vq.num_prototypes} is invalid: phase {phase.index} gathers at most "
+                f"{most} states {scope} ({product}) and k-means needs one per prototype: must be at most "
+                f"{most}, or raise algo.gather_trials"
+            )
+
+
+def agents_text(count: int) -> str:
+    """``1 agent``, ``20 agents``."""
+    return f"{count} agent" if count == 1 else f"{count} agents"

@@ -1,0 +1,60 @@
+"""A phase of a trainer (an IT-VQQL iteration, an IN-VQQL stage, the VQQL run) and the result of a run."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Final
+
+from pedrl.sim.checks import check_integer, check_number
+
+MAX_TRIALS: Final = 10**9
+"""Most learning trials of one phase: years of compute at the fastest measured rates; more is a typo (or a
+``trials_growth`` that overflows)."""
+
+
+@dataclass(frozen=True)
+class Phase:
+    """One iteration (IT-VQQL), stage (IN-VQQL) or the single VQQL run.
+
+    Attributes:
+        index: 1-based phase number, as in the paper's figures.
+        num_agents: agents in the room, all of them learning.
+        trials: learning trials of this phase.
+        gather_trials: trials run to gather the quantizer's training states.
+        gather_epsilon: exploration rate while gathering (1.0 is a random walk).
+    """
+
+    index: int
+    num_agents: int
+    trials: int
+    gather_trials: int
+    gather_epsilon: float
+
+    def __post_init__(self) -> None:
+        """Check every value before any compute (one line naming it)."""
+        check_integer("num_agents", self.num_agents, minimum=1)
+        check_integer("trials", self.trials, minimum=1)
+        check_integer("gather_trials", self.gather_trials, minimum=1)
+        check_number("gather_epsilon", self.gather_epsilon, low=0.0, high=1.0)
+
+
+@dataclass
+class TrainResult:
+    """What :meth:`Trainer.fit` returns: final figures and where the outputs are.
+
+    ``wall_time_s`` is the run's wall time over every segment (a resumed run adds the time up to its checkpoint).
+    """
+
+    final: dict[str, float]
+    run_dir: Path
+    checkpoint: Path
+    wall_time_s: float
+    phases: list[dict[str, Any]] = field(default_factory=list)
+    finished_before: bool = False
+    """The run was resumed from the checkpoint of its last phase: nothing was left to do or written."""
+
+    @classmethod
+    def finished(cls, run_dir: Path, checkpoint: Path, wall_time_s: float, final, summaries) -> TrainResult:
+        """The result of a run resumed from the checkpoint of its last phase: nothing to do, nothing rewritten."""
+        return cls(dict(final), run_dir, checkpoint, wall_time_s, list(summaries), finished_before=True)

@@ -1,0 +1,214 @@
+"""Learned policies from files: a training checkpoint or an exported policy, read without a trainer or Hydra.
+
+Usage::
+
+    import pedrl
+
+    policy = pedrl.load_policy("outputs/main/run/checkpoints/last.safetensors")   # or an exported policy.safetensors
+    room = pedrl.room_factory(policy)(num_replicas=1, num_agents=40)            # the room it learned in
+    obs, info = room.reset(seed=0)
+    while room.active.any():
+        obs, reward, terminated, truncated, info = room.step(policy.act(obs, info, epsilon=0.1))
+
+:func:`export_policy` (``pedrl-export``) writes a policy file: the encoder and the tables with their metadata (the
+algorithm, and the training config, which holds the room it learned in), without the generator states and phase
+bookkeeping a checkpoint keeps to resume training.
+
+Both kinds of file are refused and checked the same way: nothing in them is executed (safetensors), the stored
+config may name no code and is bounded (:func:`pedrl.configs.check_stored_config`), and every tensor is checked
+against the encoder and the room (:meth:`pedrl.rl.TabularPolicy.check`). Progress metadata that only a resumed
+training run reads (the phase, the trial) is checked against the run's phases by ``pedrl-train resume=...``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any, Final
+
+import torch
+
+from pedrl.configs import ALGO_TARGETS, check_stored_config, env_factory
+from pedrl.io import Checkpoint, CheckpointError, load_checkpoint
+from pedrl.rl.policy import POLICY_KIND, TabularPolicy, from_tensors
+from pedrl.sim import RoomEnv
+from pedrl.vq.encoder import EncoderSettings
+from pedrl.vq.settings import VQSettings
+
+RNG_KEYS: Final = ("rng/trainer", "rng/env")
+"""Generator states a training checkpoint holds (to resume mid-phase)."""
+RANDOM_VOID_ALGOS: Final = ("it_vqql",)
+"""Algorithms whose ``void_features`` defaults to ``"random"`` (paper section 5.1), for stored configs that lack the
+key; the others default to ``"zero"``."""
+
+
+def load_policy(
+    path: str | Path,
+    *,
+    device: str | torch.device = "cpu",
+    kind: str | None = None,
+) -> TabularPolicy:
+    """Read the learned policy of a training checkpoint or of an exported policy file.
+
+    Args:
+        path: a ``.safetensors`` file written by ``pedrl-train`` or ``pedrl-export``.
+        device: where the tables and the quantizer go.
+        kind: ``"checkpoint"`` or ``"policy"`` to accept only that kind of file (None: either).
+
+    Returns:
+        The policy, with ``metadata["config"]`` (the training config) and ``metadata["algo"]``;
+        :func:`room_factory` builds the room it learned in.
+
+    Raises:
+        CheckpointError: one line naming the file, for a missing, foreign, corrupt or crafted one.
+    """
+    checkpoint = load_checkpoint(path, device=device)
+    exported = checkpoint.metadata.get("kind") == POLICY_KIND
+    found = "policy" if exported else "checkpoint"
+    if kind is not None and kind != found:
+        other = "pedrl-export writes one from a checkpoint" if kind == "policy" else "pass it as policy="
+        raise CheckpointError(
+            f"{str(path)!r} is {'an exported policy' if exported else 'a training checkpoint'}, "
+            f"not {'an exported policy' if kind == 'policy' else 'a training checkpoint'} ({other})"
+        )
+    where = f"{'policy' if exported else 'checkpoint'} {str(path)!r}"
+    config = check_stored_config(checkpoint)
+    try:
+        factory = env_factory(config["env"], config.get("scenario"), files=False)
+    except (ValueError, KeyError, TypeError) as err:
+        raise CheckpointError(f"{where} holds a config this pedrl refuses ({_first_line(err)})") from None
+    try:
+        if not exported:
+            _check_training_file(checkpoint, config)
+        room = factory(num_replicas=1, num_agents=1, device=device)
+        settings = _encoder_settings(checkpoint.metadata, config, room)
+        tensors = {k: v for k, v in checkpoint.tensors.items() if k not in RNG_KEYS}
+        metadata = {"algo": ALGO_TARGETS[config["algo"]["_target_"]], "config": config, "source": str(path)}
+        policy = from_tensors(settings, tensors, num_actions=room.num_actions, metadata=metadata)
+    except ValueError as err:
+        raise CheckpointError(f"{where}: {_first_line(err)}") from None
+    return policy
+
+
+def export_policy(checkpoint: str | Path, out: str | Path, *, device: str | torch.device = "cpu") -> Path:
+    """Write the policy of a training checkpoint to ``out``: its encoder and tables, with their metadata.
+
+    Raises:
+        CheckpointError: one line, for a checkpoint that cannot be read or a file that cannot be written.
+    """
+    policy = load_policy(checkpoint, device=device, kind="checkpoint")
+    return policy.save(out)
+
+
+def room_factory(
+    policy: TabularPolicy, scenario: Mapping[str, Any] | None = None, *, max_decisions: int | None = None
+) -> Callable[..., RoomEnv]:
+    """``factory(num_replicas=, num_agents=, device=)`` building rooms of the policy's training config (bodies,
+    speeds, sensing, rewards), in its own scenario or in ``scenario`` (a ``scenario`` config; a WKT file it names
+    is read), with trials of ``max_decisions`` decisions (None: the trained length). ``factory.scenario`` is the
+    :class:`~pedrl.scenarios.Scenario`.
+
+    Raises:
+        ValueError: one line, for a bad ``scenario`` or ``max_decisions``.
+    """
+    config = policy.metadata["config"]
+    env = dict(config["env"]) | ({} if max_decisions is None else {"max_decisions": max_decisions})
+    if scenario is None:
+        return env_factory(env, config.get("scenario"), files=False)
+    return env_factory(env, scenario)
+
+
+# ---------------------------------------------------------------------- checks
+def check_tensor_names(checkpoint: Checkpoint) -> None:
+    """One-line ``ValueError`` unless a training checkpoint holds ``q_values``, both generator states and
+    ``quantizer/...`` tensors, and nothing else."""
+    for name in ("q_values", *RNG_KEYS):
+        if name not in checkpoint.tensors:
+            raise ValueError(f"tensor {name} is missing")
+    for name in checkpoint.tensors:
+        if name not in ("q_values", *RNG_KEYS) and not name.startswith("quantizer/"):
+            raise ValueError(f"tensor {name} is unknown: allowed: q_values, rng/trainer, rng/env, quantizer/...")
+
+
+def check_rng_state(name: str, state: torch.Tensor) -> torch.Tensor:
+    """A generator state on the CPU; one line unless it is a 1-D uint8 tensor."""
+    state = state.cpu()
+    if state.dtype != torch.uint8 or state.ndim != 1:
+        raise ValueError(f"tensor {name} is {state.dtype} {tuple(state.shape)}: must be a uint8 generator state")
+    return state
+
+
+def check_run_metadata(meta: Mapping[str, Any], config: Mapping[str, Any], max_summaries: int | None = None) -> None:
+    """One-line ``ValueError`` for a training checkpoint's metadata that is not what ``pedrl-train`` writes: the
+    algorithm of its config, a phase number >= 1, a trial >= 0, and the phase summaries, distortion, wall time and
+    final figures of the right types (at most ``max_summaries`` summaries, when given)."""
+    algo = ALGO_TARGETS.get(config["algo"].get("_target_"))
+    if meta.get("algo") != algo:
+        raise ValueError(f"metadata algo={meta.get('algo')!r} is not the config's algorithm: must be {algo!r}")
+    for key, low in (("iteration", 1), ("trial", 0), ("agents", 1)):
+        value = meta.get(key)
+        if not _is_int(value) or value < low:
+            raise ValueError(f"metadata {key}={value!r} is invalid: must be an integer >= {low}")
+    if not isinstance(meta.get("phase_complete"), bool):
+        raise ValueError(f"metadata phase_complete={meta.get('phase_complete')!r} is invalid: must be true or false")
+    summaries = meta.get("summaries", [])
+    listed = isinstance(summaries, list) and all(isinstance(summary, dict) for summary in summaries)
+    if not listed or (max_summaries is not None and len(summaries) > max_summaries):
+        most = f"at most {max_summaries} " if max_summaries is not None else ""
+        raise ValueError(f"metadata summaries are invalid: must be a list of {most}mappings")
+    distortion = meta.get("distortion", math.nan)
+    if not _is_real(distortion) or (math.isfinite(distortion) and distortion < 0) or math.isinf(distortion):
+        raise ValueError(f"metadata distortion={distortion!r} is invalid: must be a number >= 0")
+    wall_time = meta.get("wall_time_s", 0.0)
+    if not _is_real(wall_time) or not (math.isfinite(wall_time) and wall_time >= 0):
+        raise ValueError(f"metadata wall_time_s={wall_time!r} is invalid: must be a finite number >= 0")
+    final = meta.get("final", {})
+    if not isinstance(final, dict) or not all(_is_real(v) for v in final.values()):
+        raise ValueError("metadata final is invalid: must map figure names to numbers")
+
+
+def _check_training_file(checkpoint: Checkpoint, config: Mapping[str, Any]) -> None:
+    check_run_metadata(checkpoint.metadata, config)
+    check_tensor_names(checkpoint)
+    for name in RNG_KEYS:
+        check_rng_state(name, checkpoint.tensors[name])
+    tables = config["algo"].get("tables", "process")
+    q_values = checkpoint.tensors["q_values"]
+    expected = 1 if tables == "process" else checkpoint.metadata["agents"]
+    if q_values.ndim == 4 and q_values.shape[1] != expected:
+        raise ValueError(
+            f"tensor q_values is {q_values.dtype} {tuple(q_values.shape)}: algo.tables={tables} with "
+            f"{checkpoint.metadata['agents']} agents needs {expected} tables per process"
+        )
+
+
+def _encoder_settings(meta: Mapping[str, Any], config: Mapping[str, Any], room: RoomEnv) -> EncoderSettings:
+    """The encoder settings a file stores, or (checkpoints written before they were stored) those its config and
+    room give; a stored set must agree with them."""
+    algo = config["algo"]
+    name = ALGO_TARGETS[algo["_target_"]]
+    derived = EncoderSettings.for_room(
+        room,
+        void_features=algo.get("void_features", "random" if name in RANDOM_VOID_ALGOS else "zero"),
+        void_draws=algo.get("void_draws", "trial"),
+        distance_transform=VQSettings.from_config(config["vq"]).distance_transform,
+    )
+    if "encoder" not in meta:
+        return derived
+    stored = EncoderSettings.from_metadata(meta["encoder"])
+    if stored != derived:
+        raise ValueError(f"metadata encoder={meta['encoder']!r} disagrees with its config: must be {derived}")
+    return stored
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_real(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def _first_line(err: BaseException) -> str:
+    return (str(err).strip().splitlines() or [type(err).__name__])[0]

@@ -1,0 +1,290 @@
+"""A learned policy you can carry: a state encoder, the Q tables, and the rule that gives each agent its table.
+
+:class:`TabularPolicy` is what training learns and what evaluation, validation and the PettingZoo adapter run.
+It needs no trainer and no config: ``pedrl-export`` writes one to a small file (:meth:`TabularPolicy.save`) and
+:meth:`TabularPolicy.load` (or :func:`pedrl.load_policy`, which also reads training checkpoints) reads it back.
+
+The agent-to-table rule (:class:`TableLayout`): replica ``i`` of a room is driven by learning process
+``p = (i // E) mod P`` and agent ``n`` of every replica by table ``a = n mod A`` of that process, where ``P`` and
+``A`` are the stored processes and tables and ``E`` the rooms per process. Training runs ``P E`` replicas with
+its ``rooms_per_process = E`` (rooms ``p E .. p E + E - 1`` learn into process ``p``); a loaded policy has
+``E = 1``: replica ``i`` takes process ``i mod P``, so a batch of trials cycles through every learned process.
+A room with more agents than were learned reuses the tables: with ``A = 20``, agents 20, 40, ... act with table 0.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, Final
+
+import torch
+
+from pedrl.io import CheckpointError, load_checkpoint, save_checkpoint
+from pedrl.rl.qtable import NUM_ACTIONS, epsilon_greedy, table_rows
+from pedrl.sim.checks import check_integer, check_number
+from pedrl.vq.encoder import EncoderSettings, StateEncoder, quantizer_from_state_dict
+
+POLICY_KIND: Final = "pedrl-policy"
+"""``kind`` of an exported policy file's metadata (a training checkpoint has none)."""
+POLICY_VERSION: Final = 1
+"""``policy_version`` of the files this pedrl writes and reads."""
+FILE_KEYS: Final = ("format", "format_version", "pedrl_version", "kind", "policy_version", "encoder")
+"""Metadata keys a policy file writes itself; the others are the policy's own ``metadata``."""
+QUANTIZER_PREFIX: Final = "quantizer"
+QUANTIZER_DTYPES: Final = {
+    "mean": torch.float32,
+    "std": torch.float32,
+    "prototypes": torch.float32,
+    "feature_index": torch.int64,
+    "num_sensed": torch.int64,
+}
+"""dtype of every quantizer tensor, by the last part of its name (``process000/part3.prototypes``)."""
+
+
+class TableLayout:
+    """The agent-to-table rule: replica ``i`` -> process ``(i // E) mod P``, agent ``n`` -> table ``n mod A``.
+
+    Args:
+        processes: P, learning processes stored in the tables.
+        tables: A, tables per process.
+        num_states: K, rows per table.
+        rooms_per_process: E, consecutive replicas per process.
+    """
+
+    def __init__(self, processes: int, tables: int, num_states: int, rooms_per_process: int = 1) -> None:
+        self.processes, self.tables, self.num_states = processes, tables, num_states
+        self.rooms_per_process = check_integer("rooms_per_process", rooms_per_process, minimum=1)
+        self._cache: dict[tuple[int, int, torch.device], tuple[torch.Tensor, torch.Tensor]] = {}
+
+    def blocks(self, replicas: int) -> bool:
+        """True when ``replicas`` rooms are exactly ``E`` consecutive rooms per process, in order: the trainers'
+        layout, which per-process quantizers encode without being told the processes."""
+        return replicas == self.processes * self.rooms_per_process
+
+    def of(self, replicas: int, agents: int, device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(process (R * N,), rows (R * N,))``: every agent's process and the first row ``(p A + a) K`` of its
+        table in ``q_values.view(-1, U)``, flat, replica-major; cached per room shape."""
+        key = (replicas, agents, device)
+        if key not in self._cache:
+            replica = torch.arange(replicas, device=device)
+            process = torch.div(replica, self.rooms_per_process, rounding_mode="floor").remainder(self.processes)
+            process = process.repeat_interleave(agents)
+            table = torch.arange(agents, device=device).remainder(self.tables).repeat(replicas)
+            rows = table_rows(process, table, 0, num_tables=self.tables, num_states=self.num_states)
+            self._cache[key] = (process, rows)
+        return self._cache[key]
+
+
+class TabularPolicy:
+    """Acts epsilon-greedily on learned tables ``q_values (P, A, K, U)`` over ``encoder``'s state ids.
+
+    Args:
+        encoder: observation -> state id (its quantizer has K prototypes per process).
+        q_values: ``(P, A, K, U)`` float32 tables: P processes, A tables each, K states, U actions.
+        rooms_per_process: E of the agent-to-table rule (module docstring); 1 for a loaded policy.
+        metadata: plain values carried with the policy (the algorithm, the room it learned in).
+    """
+
+    def __init__(
+        self,
+        encoder: StateEncoder,
+        q_values: torch.Tensor,
+        *,
+        rooms_per_process: int = 1,
+        metadata: Mapping[str, Any] | None = None,
+    ) -> None:
+        if q_values.ndim != 4:
+            raise ValueError(f"q_values must have shape (P, A, K, U), got {tuple(q_values.shape)}")
+        self.encoder = encoder
+        self.q_values = q_values
+        self.metadata = dict(metadata or {})
+        processes, tables, num_states, _ = q_values.shape
+        self.layout = TableLayout(processes, tables, num_states, rooms_per_process)
+
+    @property
+    def num_processes(self) -> int:
+        """P, the learning processes stored in the tables."""
+        return self.q_values.shape[0]
+
+    @property
+    def num_tables(self) -> int:
+        """A, the learned tables per process."""
+        return self.q_values.shape[1]
+
+    @property
+    def num_actions(self) -> int:
+        """U, the actions."""
+        return self.q_values.shape[-1]
+
+    @property
+    def device(self) -> torch.device:
+        return self.q_values.device
+
+    def rows(
+        self,
+        obs: torch.Tensor,
+        info: Mapping[str, Any],
+        generator: torch.Generator,
+        *,
+        rows_mask: torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        """Flat rows ``(R * N,)`` of every agent's state in ``q_values.view(-1, U)`` for observations
+        ``(R, N, F)``; with ``rows_mask (R * N,)`` only those agents are encoded (the others get their table's
+        first row). ``generator`` draws random void fillings."""
+        replicas, agents = obs.shape[0], obs.shape[1]
+        process, base_rows = self.layout.of(replicas, agents, obs.device)
+        implicit = self.layout.blocks(replicas)  # the trainers' layout: the quantizers need not be told
+        ids = self.encoder.encode(
+            obs, info, generator, None if implicit else process, rows_mask=rows_mask, process_of_rows=process
+        )
+        return base_rows + ids
+
+    def act(
+        self,
+        obs: torch.Tensor,
+        info: Mapping[str, Any],
+        *,
+        epsilon: float = 0.0,
+        generator: torch.Generator | None = None,
+    ) -> torch.Tensor:
+        """Actions ``(R, N)`` int64 for observations ``obs (R, N, F)`` and ``info`` (as ``RoomEnv`` returns them).
+
+        ``epsilon`` in ``[0, 1]`` is the share of random actions (0: greedy, ties broken at random); ``generator``
+        (on the tables' device) draws them, the ties and random void fillings: reseed it for reproducible runs.
+        """
+        generator = generator if generator is not None else torch.Generator(device=self.device)
+        rows = self.rows(obs, info, generator)
+        return epsilon_greedy(self.q_values, rows, epsilon, generator).view(obs.shape[0], obs.shape[1])
+
+    def controller(self, epsilon: float = 0.0, generator: torch.Generator | None = None) -> PolicyController:
+        """This policy as a controller of the evaluation engine, with a fixed ``epsilon`` and ``generator``."""
+        return PolicyController(self, epsilon=epsilon, generator=generator)
+
+    # ------------------------------------------------------------------ checks and files
+    def check(self, num_actions: int | None = None) -> None:
+        """One-line ``ValueError`` unless the tables are finite float32 ``(P, A, K, U)`` with the encoder's K, P
+        matching its per-process quantizers, and U = ``num_actions`` (when given)."""
+        q_values = self.q_values
+        processes, tables, num_states, actions = q_values.shape
+        expected = (processes, tables, self.encoder.num_states, num_actions if num_actions is not None else actions)
+        if q_values.dtype != torch.float32 or tuple(q_values.shape) != expected or min(expected) < 1:
+            raise ValueError(
+                f"tensor q_values is {q_values.dtype} {tuple(q_values.shape)}: must be float32 {expected} "
+                "(processes, tables, prototypes, actions)"
+            )
+        parts = getattr(self.encoder.quantizer, "num_processes", None)  # one quantizer per process, or shared
+        if parts is not None and parts != processes:
+            raise ValueError(
+                f"tensor q_values is {q_values.dtype} {tuple(q_values.shape)} for {processes} processes, and the file "
+                f"holds {parts} quantizer(s): must hold one per process"
+            )
+        if not bool(torch.isfinite(q_values).all()):
+            raise ValueError("tensor q_values holds NaN or infinite values: must be finite")
+        self.encoder.check()
+
+    def save(self, path: str | Path) -> Path:
+        """Write the encoder and the tables, with their metadata, to ``path`` (atomically; safetensors)."""
+        tensors = {"q_values": self.q_values.contiguous()}
+        tensors |= {f"{QUANTIZER_PREFIX}/{k}": v for k, v in self.encoder.state_dict().items()}
+        metadata = {
+            **{key: value for key, value in self.metadata.items() if key not in FILE_KEYS},
+            "kind": POLICY_KIND,
+            "policy_version": POLICY_VERSION,
+            "encoder": self.encoder.settings.to_metadata(),
+        }
+        save_checkpoint(Path(path), tensors=tensors, metadata=metadata)
+        return Path(path)
+
+    @classmethod
+    def load(cls, path: str | Path, *, device: str | torch.device = "cpu") -> TabularPolicy:
+        """Read a policy file written by :meth:`save` (``pedrl-export``): nothing in it is executed, and every
+        tensor and setting is checked.
+
+        Raises:
+            CheckpointError: one line naming the file and what is wrong.
+        """
+        checkpoint = load_checkpoint(path, device=device)
+        meta = checkpoint.metadata
+        if meta.get("kind") != POLICY_KIND:
+            raise CheckpointError(
+                f"{str(path)!r} is not an exported policy (metadata kind={meta.get('kind')!r}, must be "
+                f"{POLICY_KIND!r}): export a training checkpoint with pedrl-export, or load it with pedrl.load_policy"
+            )
+        try:
+            if meta.get("policy_version") != POLICY_VERSION:
+                version = meta.get("policy_version")
+                raise ValueError(f"metadata policy_version={version!r} is unknown: this pedrl reads {POLICY_VERSION}")
+            settings = EncoderSettings.from_metadata(meta.get("encoder"))
+            for name in set(checkpoint.tensors) - {"q_values"}:
+                if not name.startswith(QUANTIZER_PREFIX + "/"):
+                    raise ValueError(f"tensor {name} is unknown: allowed: q_values, quantizer/...")
+            carried = {key: value for key, value in meta.items() if key not in FILE_KEYS}
+            policy = from_tensors(settings, checkpoint.tensors, num_actions=NUM_ACTIONS, metadata=carried)
+        except ValueError as err:
+            raise CheckpointError(f"policy {str(path)!r}: {err}") from None
+        return policy
+
+
+class PolicyController:
+    """A :class:`TabularPolicy` with a fixed ``epsilon`` and ``generator``: the evaluation engine's controller
+    (``act(env, obs, info)``)."""
+
+    def __init__(
+        self, policy: TabularPolicy, *, epsilon: float = 0.0, generator: torch.Generator | None = None
+    ) -> None:
+        check_number("epsilon", epsilon, low=0.0, high=1.0)
+        self.policy = policy
+        self.epsilon = float(epsilon)
+        self.generator = generator if generator is not None else torch.Generator(device=policy.device)
+
+    def act(self, env: Any, obs: torch.Tensor, info: Mapping[str, Any]) -> torch.Tensor:
+        """Actions ``(R, N)`` int64 for observations ``obs (R, N, F)``."""
+        return self.policy.act(obs, info, epsilon=self.epsilon, generator=self.generator)
+
+
+def check_quantizer_tensors(tensors: Mapping[str, torch.Tensor]) -> None:
+    """One-line ``ValueError`` for a quantizer tensor (named without the ``quantizer/`` prefix) of an unknown
+    name, a wrong dtype, or with NaN or infinite values."""
+    for name, tensor in tensors.items():
+        leaf = name.rsplit("/", 1)[-1].rsplit(".", 1)[-1]
+        dtype = QUANTIZER_DTYPES.get(leaf)
+        if dtype is None:
+            raise ValueError(f"tensor quantizer/{name} is unknown: allowed names end in {', '.join(QUANTIZER_DTYPES)}")
+        if tensor.dtype != dtype:
+            raise ValueError(f"tensor quantizer/{name} is {tensor.dtype}: must be {dtype}")
+        if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
+            raise ValueError(f"tensor quantizer/{name} holds NaN or infinite values: must be finite")
+
+
+def rebuild_quantizer(tensors: Mapping[str, torch.Tensor]) -> Any:
+    """The quantizer of checked ``tensors`` (named without the ``quantizer/`` prefix); one line if they do not
+    form one."""
+    if not tensors:
+        raise ValueError("the quantizer tensors (quantizer/...) are missing")
+    check_quantizer_tensors(tensors)
+    try:
+        return quantizer_from_state_dict(dict(tensors))
+    except (KeyError, ValueError, RuntimeError, TypeError, IndexError) as err:
+        reason = (str(err).strip().splitlines() or [type(err).__name__])[0]
+        raise ValueError(f"the quantizer tensors do not form a quantizer ({reason})") from None
+
+
+def from_tensors(
+    settings: EncoderSettings,
+    tensors: Mapping[str, torch.Tensor],
+    *,
+    num_actions: int | None = None,
+    metadata: Mapping[str, Any] | None = None,
+) -> TabularPolicy:
+    """A checked policy from a file's tensors (``q_values`` and ``quantizer/...``) and its encoder settings."""
+    prefix = QUANTIZER_PREFIX + "/"
+    quantizer = rebuild_quantizer({k[len(prefix) :]: v for k, v in tensors.items() if k.startswith(prefix)})
+    q_values = tensors.get("q_values")
+    if q_values is None:
+        raise ValueError("tensor q_values is missing")
+    if q_values.ndim != 4:
+        raise ValueError(f"tensor q_values is {q_values.dtype} {tuple(q_values.shape)}: must be (P, A, K, U)")
+    policy = TabularPolicy(StateEncoder(settings, quantizer), q_values, metadata=metadata)
+    policy.check(num_actions)
+    return policy

@@ -1,0 +1,77 @@
+"""How quantizers are fitted: the ``vq`` config group, checked before any compute."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, fields
+from typing import Any, Final
+
+from pedrl.sim.checks import check_bool, check_choice, check_integer, check_number
+from pedrl.vq.encoder import DISTANCE_TRANSFORMS
+
+KMEANS_INITS: Final = ("kmeans++", "random")
+"""Values of ``vq.init``: k-means++ seeding or K random states (see :func:`pedrl.vq.kmeans`)."""
+
+
+@dataclass(frozen=True)
+class VQSettings:
+    """How quantizers are fitted (the ``vq`` config group).
+
+    Attributes:
+        num_prototypes: K, the number of prototypes (the paper's best: 4096).
+        max_iterations: Lloyd iteration cap.
+        tolerance: stop when the relative decrease of distortion falls below it.
+        max_states: cap on gathered states kept for k-means (a uniform random subset is kept).
+        init: k-means initialisation (see :func:`pedrl.vq.kmeans`).
+        chunk_size: rows per block in distance computations (bounds memory; None: the measured best).
+        weight_own: weight of the agent's own features (speed, velocity angle, door distance) after
+            standardisation; 1 is the paper's plain standardisation.
+        weight_neighbours: weight of the neighbour features after standardisation: one number for every
+            neighbour, or one per neighbour rank (nearest first, ``k`` numbers), so that the nearest neighbours
+            are resolved more finely than the far ones.
+        weight_walls: weight of every wall feature after standardisation.
+        distance_transform: ``"none"`` (the paper's raw distances) or ``"log"`` (``log(1 + d)`` for every distance
+            feature before standardisation: fine near the door and the neighbours, coarse far away).
+        per_process: one quantizer per learning process, fitted on that process's own states (the paper's
+            processes are independent); False: one quantizer fitted on all processes' states and shared.
+    """
+
+    num_prototypes: int = 4096
+    max_iterations: int = 50
+    tolerance: float = 1e-4
+    max_states: int = 200_000
+    init: str = "kmeans++"
+    chunk_size: int | None = None
+    weight_own: float = 4.0
+    weight_neighbours: float | Sequence[float] = 0.2
+    weight_walls: float = 0.5
+    per_process: bool = True
+    distance_transform: str = "log"
+
+    def __post_init__(self) -> None:
+        """Check every value (except the neighbour weights, which need the room) before any compute."""
+        check_integer("vq.num_prototypes", self.num_prototypes, minimum=2)
+        check_integer("vq.max_iterations", self.max_iterations, minimum=1)
+        check_number("vq.tolerance", self.tolerance, low=0.0)
+        check_integer("vq.max_states", self.max_states, minimum=1)
+        if self.max_states < self.num_prototypes:
+            raise ValueError(
+                f"vq.max_states={self.max_states!r} is invalid: must be at least vq.num_prototypes="
+                f"{self.num_prototypes} (k-means needs at least one state per prototype)"
+            )
+        check_choice("vq.init", self.init, KMEANS_INITS)
+        if self.chunk_size is not None:
+            check_integer("vq.chunk_size", self.chunk_size, minimum=1)
+        check_number("vq.weight_own", self.weight_own, low=0.0, low_open=True)
+        check_number("vq.weight_walls", self.weight_walls, low=0.0, low_open=True)
+        check_bool("vq.per_process", self.per_process)
+        check_choice("vq.distance_transform", self.distance_transform, DISTANCE_TRANSFORMS)
+
+    @classmethod
+    def from_config(cls, values: Mapping[str, Any]) -> VQSettings:
+        """Settings from the ``vq`` config group; an unknown key is a one-line ``ValueError``."""
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(values) - known)
+        if unknown:
+            raise ValueError(f"vq.{unknown[0]} is not a quantizer setting: allowed: {', '.join(sorted(known))}")
+        return cls(**dict(values))

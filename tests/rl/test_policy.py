@@ -1,0 +1,121 @@
+"""TabularPolicy: the agent-to-table rule, acting, and its file (save, load, refusals)."""
+
+import json
+
+import pytest
+import torch
+from safetensors.torch import load_file, save_file
+
+from pedrl.io import CheckpointError
+from pedrl.io.checkpoint import METADATA_KEY
+from pedrl.rl import TableLayout, TabularPolicy
+from pedrl.sim import RoomEnv
+from pedrl.vq import ProcessQuantizers, Quantizer
+from pedrl.vq.encoder import EncoderSettings, StateEncoder
+
+
+class IdInFeatureZero:
+    """A hand-made encoder: feature 0 of every observation holds its state id."""
+
+    def encode(self, obs, info, generator, process=None, *, rows_mask=None, process_of_rows=None):
+        return obs[..., 0].reshape(-1).long()
+
+
+def test_agents_use_table_n_mod_a_of_process_i_mod_p():
+    processes, tables, states = 2, 3, 4
+    q_values = torch.zeros(processes, tables, states, 81)
+    for p in range(processes):
+        for a in range(tables):
+            for s in range(states):
+                q_values[p, a, s, 27 * p + 9 * a + s] = 1.0  # each (process, table, state) has its own best action
+    policy = TabularPolicy(IdInFeatureZero(), q_values)
+    replicas, agents = 4, 7
+    state = torch.arange(replicas * agents).remainder(states).view(replicas, agents)
+    obs = torch.zeros(replicas, agents, 5)
+    obs[..., 0] = state.float()
+    actions = policy.act(obs, {})
+    replica, agent = torch.arange(replicas)[:, None], torch.arange(agents)[None, :]
+    assert torch.equal(actions, 27 * (replica % processes) + 9 * (agent % tables) + state)
+    explore = policy.act(obs, {}, epsilon=1.0, generator=torch.Generator().manual_seed(0))
+    assert not torch.equal(explore, actions)
+    with pytest.raises(ValueError, match="epsilon"):
+        policy.controller(epsilon=2.0)
+
+
+def test_the_training_layout_gives_e_consecutive_rooms_to_each_process():
+    layout = TableLayout(processes=3, tables=2, num_states=5, rooms_per_process=2)
+    process, rows = layout.of(replicas=6, agents=4, device=torch.device("cpu"))
+    assert process.view(6, 4)[:, 0].tolist() == [0, 0, 1, 1, 2, 2]  # rooms p E .. p E + E - 1 learn into p
+    table = torch.arange(4).remainder(2)
+    assert torch.equal(rows.view(6, 4), ((process.view(6, 4) * 2 + table) * 5))
+    assert layout.blocks(6) and not layout.blocks(12)
+    evaluation = TableLayout(processes=3, tables=2, num_states=5)
+    assert evaluation.of(7, 1, torch.device("cpu"))[0].tolist() == [0, 1, 2, 0, 1, 2, 0]  # replica i: i mod P
+
+
+def small_policy(per_process=False):
+    env = RoomEnv(num_replicas=2, num_agents=5, width=8.0, length=8.0, door_width=2.0, max_decisions=6)
+    obs, info = env.reset(seed=3)
+    settings = EncoderSettings(
+        num_neighbours=env.num_neighbours,
+        num_walls=env.num_walls,
+        max_distance=env.max_distance,
+        max_speed=env.max_speed,
+        void_features="random",
+    )
+    states = torch.randn(200, env.num_features, generator=torch.Generator().manual_seed(0))
+    part = Quantizer.fit(states, 6, generator=torch.Generator().manual_seed(0), max_iterations=3)[0]
+    quantizer = (
+        ProcessQuantizers([part, Quantizer.from_state_dict({k: v.clone() for k, v in part.state_dict().items()})])
+        if per_process
+        else part
+    )
+    q_values = torch.randn(2, 5, 6, 81, generator=torch.Generator().manual_seed(1))
+    policy = TabularPolicy(StateEncoder(settings, quantizer), q_values, metadata={"algo": "it_vqql"})
+    return policy, env, obs, info
+
+
+@pytest.mark.parametrize("per_process", [False, True])
+def test_a_saved_policy_loads_and_acts_the_same(tmp_path, per_process):
+    policy, env, obs, info = small_policy(per_process)
+    path = policy.save(tmp_path / "policy.safetensors")
+    loaded = TabularPolicy.load(path)
+    assert loaded.metadata["algo"] == "it_vqql" and loaded.encoder.settings == policy.encoder.settings
+    for _ in range(3):
+        want = policy.act(obs, info, epsilon=0.2, generator=torch.Generator().manual_seed(5))
+        got = loaded.act(obs, info, epsilon=0.2, generator=torch.Generator().manual_seed(5))
+        assert torch.equal(want, got)
+        obs, _, _, _, info = env.step(want)
+
+
+def _rewrite(path, change):
+    tensors = load_file(str(path))
+    from safetensors import safe_open
+
+    with safe_open(str(path), framework="pt") as handle:
+        metadata = json.loads(handle.metadata()[METADATA_KEY])
+    change(tensors, metadata)
+    save_file(tensors, str(path), metadata={METADATA_KEY: json.dumps(metadata)})
+    return path
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (lambda t, m: m.pop("kind"), "is not an exported policy"),
+        (lambda t, m: m.update(policy_version=7), "policy_version=7 is unknown"),
+        (lambda t, m: m["encoder"].update(num_walls=3), "reads 28 features: the observations have 30"),
+        (lambda t, m: t.update(payload=torch.zeros(2)), "tensor payload is unknown"),
+        (lambda t, m: t.pop("q_values"), "q_values is missing"),
+        (lambda t, m: t.update(q_values=t["q_values"][..., :9].contiguous()), "q_values is torch.float32"),
+        (lambda t, m: t.update(q_values=t["q_values"].double()), "q_values is torch.float64"),
+        (lambda t, m: t["q_values"].fill_(float("nan")), "holds NaN"),
+        (lambda t, m: t.update({"quantizer/prototypes": t["quantizer/prototypes"].double()}), "must be torch.float32"),
+    ],
+)
+def test_a_crafted_policy_file_is_refused_in_one_line(tmp_path, change, message):
+    policy, *_ = small_policy()
+    path = _rewrite(policy.save(tmp_path / "policy.safetensors"), change)
+    with pytest.raises(CheckpointError, match=message) as error:
+        TabularPolicy.load(path)
+    assert "\n" not in str(error.value) and str(path) in str(error.value)

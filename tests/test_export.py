@@ -1,0 +1,156 @@
+"""pedrl-export and pedrl.load_policy: an exported policy acts as the checkpoint it came from, in pedrl-eval
+``policy=`` and in the PettingZoo adapter, and bad input is refused in one line."""
+
+import csv
+import subprocess
+import sys
+
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+from omegaconf import open_dict
+
+import pedrl
+import pedrl.evaluate
+import pedrl.export
+from pedrl.evaluation import evaluate
+from pedrl.io import CheckpointError
+from pedrl.policy import room_factory
+from pedrl.train import CONFIG_DIR, train
+from tests.refusals import EVAL_BASE, assert_refused, run_hydra_main
+
+TINY_IT = (
+    "debug=default",
+    "algo=it_vqql",  # random void filling: the generator drives exploration, ties and void draws alike
+    "algo.num_agents=3",
+    "algo.iterations=2",
+    "algo.trials=2",
+    "vq.num_prototypes=8",
+    "env.max_decisions=10",
+    "logger=none",
+)
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    """A seconds-long IT-VQQL checkpoint (2 processes, one quantizer per process) and its exported policy."""
+    with initialize_config_dir(version_base="1.3", config_dir=CONFIG_DIR):
+        cfg = compose("train", list(TINY_IT))
+    with open_dict(cfg):
+        cfg.progress = False
+    run_dir = tmp_path_factory.mktemp("trained")
+    threads = torch.get_num_threads()
+    try:
+        train(cfg, run_dir=run_dir)
+    finally:
+        torch.set_num_threads(threads)
+    checkpoint = run_dir / "checkpoints" / "last.safetensors"
+    exported = pedrl.export_policy(checkpoint, run_dir / "policy.safetensors")
+    return checkpoint, exported
+
+
+def test_the_exported_policy_is_the_checkpoints_encoder_and_tables(trained):
+    checkpoint, exported = trained
+    original, carried = pedrl.load_policy(checkpoint), pedrl.load_policy(exported)
+    assert exported.stat().st_size < checkpoint.stat().st_size  # no generator states
+    assert torch.equal(original.q_values, carried.q_values)
+    assert carried.encoder.settings == original.encoder.settings
+    assert carried.encoder.settings.void_features == "random"
+    assert carried.metadata["algo"] == "it_vqql" and carried.metadata["config"] == original.metadata["config"]
+    assert isinstance(pedrl.TabularPolicy.load(exported), pedrl.TabularPolicy)
+    room = room_factory(carried)(num_replicas=4, num_agents=5)  # more agents and replicas than were learned
+    obs, info = room.reset(seed=2)
+    for _ in range(5):
+        want = original.act(obs, info, epsilon=0.2, generator=torch.Generator().manual_seed(9))
+        got = carried.act(obs, info, epsilon=0.2, generator=torch.Generator().manual_seed(9))
+        assert torch.equal(want, got)
+        obs, *_, info = room.step(want)
+
+
+def test_pedrl_eval_gives_the_same_numbers_from_the_policy_file(trained, tmp_path):
+    checkpoint, exported = trained
+    rows = {}
+    for key, path in (("checkpoint", checkpoint), ("policy", exported)):
+        with initialize_config_dir(version_base="1.3", config_dir=CONFIG_DIR):
+            cfg = compose("eval", [*EVAL_BASE, f"{key}={path}", "export.trials=0", "seed=4"])
+        evaluate(cfg, run_dir=tmp_path / key)
+        with open(tmp_path / key / "scaling.csv") as file:
+            rows[key] = list(csv.DictReader(file))
+    assert rows["checkpoint"] == rows["policy"] and len(rows["policy"]) == 2
+
+
+def test_a_user_learner_trains_among_the_learned_crowd(trained):
+    from pedrl.integrations.pettingzoo import PedestrianParallelEnv
+
+    _, exported = trained
+    crowd = pedrl.load_policy(exported)
+    factory = room_factory(crowd)
+    env = PedestrianParallelEnv(factory(num_replicas=1, num_agents=4), crowd=crowd, learners=1, crowd_epsilon=0.1)
+    assert env.possible_agents == ["pedestrian_0"]
+    observations, _ = env.reset(seed=5)
+    reference = factory(num_replicas=1, num_agents=4)  # the same room, every crowd action by hand
+    obs, info = reference.reset(seed=5)
+    generator = torch.Generator().manual_seed(5)
+    for _ in range(6):
+        if not env.agents:
+            break
+        assert torch.equal(torch.as_tensor(observations["pedestrian_0"]), obs[0, 0])
+        actions = crowd.act(obs, info, epsilon=0.1, generator=generator)
+        actions[0, 0] = 40  # the user's learner: the no-op
+        observations, *_ = env.step({"pedestrian_0": 40})
+        obs, *_, info = reference.step(actions)
+        assert torch.equal(env.env.positions, reference.positions)  # the crowd walked as the policy acts
+    with pytest.raises(ValueError, match="learners=5 is invalid"):
+        PedestrianParallelEnv(factory(num_replicas=1, num_agents=4), crowd=crowd, learners=5)
+
+
+def test_a_training_checkpoint_is_not_a_policy_file_and_back(trained):
+    checkpoint, exported = trained
+    with pytest.raises(CheckpointError, match="is not an exported policy"):
+        pedrl.TabularPolicy.load(checkpoint)
+    with pytest.raises(CheckpointError, match="is an exported policy, not a training checkpoint"):
+        pedrl.load_policy(exported, kind="checkpoint")
+
+
+@pytest.mark.parametrize(
+    ("args", "fragments"),
+    [
+        (["out=policy.txt"], ("policy.txt' is invalid", ".safetensors")),
+        (["out=CHECKPOINT"], ("it is the checkpoint itself",)),
+        (["checkpoint=missing.safetensors", "out=p.safetensors"], ("missing.safetensors",)),
+        (["checkpoint=POLICY", "out=again.safetensors"], ("is an exported policy, not a training checkpoint",)),
+        (["out=p.safetensors", "device=gpu"], ("device='gpu' is invalid",)),
+    ],
+)
+def test_pedrl_export_refuses_bad_input_in_one_line(args, fragments, trained, tmp_path, capsys):
+    checkpoint, exported = trained
+    args = [a.replace("CHECKPOINT", str(checkpoint)).replace("POLICY", str(exported)) for a in args]
+    if not any(a.startswith("checkpoint=") for a in args):
+        args.append(f"checkpoint={checkpoint}")
+    args = [a if not a.startswith("out=") or "/" in a else f"out={tmp_path / a[4:]}" for a in args]
+    outcome = run_hydra_main(pedrl.export, args, capsys)
+    assert_refused(outcome, "pedrl-export", fragments)
+    assert not list(tmp_path.glob("*.safetensors")), "nothing is written"
+
+
+def test_pedrl_export_and_eval_policy_as_console_scripts(trained, tmp_path):
+    checkpoint, _ = trained
+    out = tmp_path / "policy.safetensors"
+    done = subprocess.run(
+        [sys.executable, "-m", "pedrl.export", f"checkpoint={checkpoint}", f"out={out}"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=tmp_path,
+    )
+    assert done.returncode == 0, done.stderr
+    assert out.is_file() and "pedrl-export: wrote" in done.stdout
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["policy.safetensors"], "it writes nothing else"
+    refused = subprocess.run(
+        [sys.executable, "-m", "pedrl.evaluate", f"checkpoint={out}", f"hydra.run.dir={tmp_path / 'eval'}"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    lines = refused.stderr.strip().splitlines()
+    assert refused.returncode == 2 and len(lines) == 1 and "pass it as policy=" in lines[0], refused.stderr
