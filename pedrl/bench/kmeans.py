@@ -76,17 +76,51 @@ def run(*, quick: bool = False, device: str = "cpu", repeats: int = 3) -> dict:
     data = mixture_data(num_points, dim, num_components=256, generator=generator, device=device)
     start_index = torch.randperm(num_points, generator=generator, device=device)[:num_prototypes]
     initial = data[start_index].clone()
+    skipped: dict[str, str] = {}
+    runners = _runners(data, initial, num_prototypes=num_prototypes, device=device, skipped=skipped)
+    seconds = _seconds_per_iteration(runners, low=low, high=high, repeats=repeats)
+    encode_seconds = _encode_seconds(data[:encode_batch], initial, device=device, repeats=repeats)
+
+    def ratio(other: str) -> float | None:
+        value = seconds.get(other)
+        return seconds["pedrl"] / value if value else None
+
+    return {
+        "kmeans_config": {
+            "num_points": num_points,
+            "dim": dim,
+            "num_prototypes": num_prototypes,
+            "iterations": [low, high],
+            "device": device,
+            "torch_threads": torch.get_num_threads(),
+            "precision": PrototypeIndex(initial).precision,
+            "encode_batch": encode_batch,
+        },
+        "kmeans_seconds_per_iteration": seconds,
+        "kmeans_ratio_pedrl_over_faiss": ratio("faiss"),
+        "kmeans_ratio_pedrl_over_sklearn": ratio("sklearn"),
+        "kmeans_skipped": skipped,
+        "encode_states_per_second": encode_batch / encode_seconds,
+    }
+
+
+def _sync(device: str) -> None:
+    if torch.device(device).type == "cuda":
+        torch.cuda.synchronize()
+
+
+def _runners(
+    data: torch.Tensor, initial: torch.Tensor, *, num_prototypes: int, device: str, skipped: dict[str, str]
+) -> dict[str, Callable[[int], None]]:
+    """One k-means run of `n` iterations per library installed, from the same data and initial centroids; the
+    libraries missing go to `skipped` with the reason."""
+    num_points, dim = data.shape
     data_cpu = data.cpu().numpy()
     initial_cpu = initial.cpu().numpy()
-    skipped: dict[str, str] = {}
-
-    def sync() -> None:
-        if torch.device(device).type == "cuda":
-            torch.cuda.synchronize()
 
     def run_pedrl(n: int) -> None:
         kmeans(data, num_prototypes, max_iterations=n, tolerance=0.0, init=initial)
-        sync()
+        _sync(device)
 
     runners: dict[str, Callable[[int], None]] = {"pedrl": run_pedrl}
     try:
@@ -123,7 +157,14 @@ def run(*, quick: bool = False, device: str = "cpu", repeats: int = 3) -> dict:
             model.train(data_cpu, init_centroids=initial_cpu)
 
         runners["faiss"] = run_faiss
+    return runners
 
+
+def _seconds_per_iteration(
+    runners: dict[str, Callable[[int], None]], *, low: int, high: int, repeats: int
+) -> dict[str, float | None]:
+    """The marginal time of one iteration of each runner, `(T(high) - T(low)) / (high - low)` of the best times;
+    None for the libraries without a runner."""
     best = {(name, n): math.inf for name in runners for n in (low, high)}
     for name in runners:
         runners[name](low)  # warm-up (JIT kernels, allocations)
@@ -134,42 +175,24 @@ def run(*, quick: bool = False, device: str = "cpu", repeats: int = 3) -> dict:
     seconds: dict[str, float | None] = {name: None for name in ("pedrl", "sklearn", "faiss")}
     for name in runners:
         seconds[name] = max(best[name, high] - best[name, low], 0.0) / (high - low)
+    return seconds
 
+
+def _encode_seconds(states: torch.Tensor, prototypes: torch.Tensor, *, device: str, repeats: int) -> float:
+    """The best time of `Quantizer.encode` of `states` with the identity standardisation and `prototypes`."""
+    dim = states.shape[1]
     quantizer = Quantizer(
         mean=torch.zeros(dim, device=device),
         std=torch.ones(dim, device=device),
-        prototypes=initial,
+        prototypes=prototypes,
     )
-    states = data[:encode_batch]
 
     def encode() -> None:
         quantizer.encode(states)
-        sync()
+        _sync(device)
 
     encode()
-    encode_seconds = _best_time(encode, max(repeats, 5))
-
-    def ratio(other: str) -> float | None:
-        value = seconds.get(other)
-        return seconds["pedrl"] / value if value else None
-
-    return {
-        "kmeans_config": {
-            "num_points": num_points,
-            "dim": dim,
-            "num_prototypes": num_prototypes,
-            "iterations": [low, high],
-            "device": device,
-            "torch_threads": torch.get_num_threads(),
-            "precision": PrototypeIndex(initial).precision,
-            "encode_batch": encode_batch,
-        },
-        "kmeans_seconds_per_iteration": seconds,
-        "kmeans_ratio_pedrl_over_faiss": ratio("faiss"),
-        "kmeans_ratio_pedrl_over_sklearn": ratio("sklearn"),
-        "kmeans_skipped": skipped,
-        "encode_states_per_second": encode_batch / encode_seconds,
-    }
+    return _best_time(encode, max(repeats, 5))
 
 
 def main() -> None:

@@ -1,7 +1,8 @@
-"""The evaluation engine of ``pedrl-eval``: reload a checkpoint and simulate it with more agents (paper section 6,
+"""The evaluation engine of ``pedrl-eval``: reload a learned policy and simulate it with more agents (paper section 6,
 Tables 4 and 5).
 
-- :mod:`pedrl.evaluation.engine`: the checkpoint made ready to simulate (:func:`load_policy`), the trials recorded
+- :mod:`pedrl.evaluation.engine`: a checkpoint or exported policy made ready to simulate (:func:`load_controller`,
+  through :func:`pedrl.load_policy`: no trainer is built), the trials recorded
   batch by batch (:func:`record_batch`), the figures of Tables 4/5 (:class:`ScalingStats`) and the whole run over
   plain arguments (:func:`evaluate_policy`).
 - :mod:`pedrl.evaluation.report`: the figures and files of a run and the console table (:func:`print_table`).
@@ -10,14 +11,15 @@ Tables 4 and 5).
 - :mod:`pedrl.evaluation.jupedsim`: ``controller=jupedsim``, JuPedSim on the same scenes
   (:class:`JuPedSimReference`, a :class:`Recorder`).
 
-The checkpoint's stored training config rebuilds its room, its trainer (which knows how observations are
-quantized) and its quantizer; its tables ``q_values (P, A, K, U)`` drive the agents (``controller=learned``), or the
-non-learned :class:`~pedrl.algos.controllers.GreedyDoorController` does (``controller=greedy``), or JuPedSim's
-collision-free speed model simulates the same initial scenes in the same area with the same body radius and trial
-length (``controller=jupedsim``, settings ``jupedsim.*``; :mod:`pedrl.evaluation.jupedsim`). For every agent
-count of ``agents`` it simulates ``trials`` trials with the tables of every one of the P learning processes
-(``trials * P`` simulated trials, numbered ``run = trial * P + process``); agent ``n`` acts with table ``n mod A``.
-Initial positions depend only on ``seed`` and the agent count, so both controllers face the same scenarios.
+The file's stored training config rebuilds its room, and its state encoder (void filling, distance transform,
+quantizer) and tables ``q_values (P, A, K, U)`` drive the agents as a :class:`pedrl.rl.TabularPolicy`
+(``controller=learned``), or the non-learned :class:`~pedrl.sim.controllers.GreedyDoorController` does
+(``controller=greedy``), or JuPedSim's collision-free speed model simulates the same initial scenes in the same area
+with the same body radius and trial length (``controller=jupedsim``, settings ``jupedsim.*``;
+:mod:`pedrl.evaluation.jupedsim`). For every agent count of ``agents`` it simulates ``trials`` trials with the
+tables of every one of the P learning processes (``trials * P`` simulated trials, numbered ``run = trial * P +
+process``); agent ``n`` acts with table ``n mod A``. Initial positions depend only on ``seed`` and the agent count,
+so both controllers face the same scenarios.
 
 Outputs, under the run directory:
 

@@ -72,21 +72,7 @@ def write_fundamental_diagram(
     The figure shows at most ``max_points`` samples per agent count (a random subset: hundreds of thousands of
     points hide each other) and the least-squares fit of all samples, ``S(rho)`` linear and ``Q = rho S(rho)``.
     """
-    with open(run_dir / "fundamental_diagram.csv", "w", newline="") as handle:
-        writer = csv.writer(handle)
-        writer.writerow(FUNDAMENTAL_COLUMNS)
-        for agents, diagram in diagrams.items():
-            writer.writerows(
-                zip(
-                    [agents] * diagram.num_samples,
-                    diagram.trial.tolist(),
-                    diagram.frame.tolist(),
-                    (f"{v:.6g}" for v in diagram.density),
-                    (f"{v:.6g}" for v in diagram.speed),
-                    (f"{v:.6g}" for v in diagram.flow),
-                    strict=True,
-                )
-            )
+    _write_fundamental_csv(run_dir, diagrams)
     figure = Figure(figsize=(11.0, 4.8), layout="constrained")
     speed_axes, flow_axes = figure.subplots(1, 2)
     rng = np.random.default_rng(seed)
@@ -136,6 +122,25 @@ def write_fundamental_diagram(
     )
     figure.savefig(run_dir / "fundamental_diagram.png", dpi=120)
     return figure
+
+
+def _write_fundamental_csv(run_dir: Path, diagrams: dict[int, FundamentalDiagram]) -> None:
+    """``fundamental_diagram.csv``: every sample of every agent count, one row each (:data:`FUNDAMENTAL_COLUMNS`)."""
+    with open(run_dir / "fundamental_diagram.csv", "w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(FUNDAMENTAL_COLUMNS)
+        for agents, diagram in diagrams.items():
+            writer.writerows(
+                zip(
+                    [agents] * diagram.num_samples,
+                    diagram.trial.tolist(),
+                    diagram.frame.tolist(),
+                    (f"{v:.6g}" for v in diagram.density),
+                    (f"{v:.6g}" for v in diagram.speed),
+                    (f"{v:.6g}" for v in diagram.flow),
+                    strict=True,
+                )
+            )
 
 
 def write_scaling_json(run_dir: Path, rows: list[dict[str, Any]]) -> None:

@@ -302,8 +302,55 @@ def simulate(
     """
     jps = _import_jupedsim()
     model = model if model is not None else JuPedSimModel()
+    start = _checked_start(
+        scenario,
+        model=model,
+        positions=positions,
+        exit_index=exit_index,
+        waypoints=waypoints,
+        max_time=max_time,
+        frame_rate=frame_rate,
+    )
+    simulation, agents = _jupedsim_scene(jps, scenario, model, start)
+    return _run_frames(simulation, agents, scenario, model, start, pass_waypoints=pass_waypoints)
 
-    # ---- validation: every check before any compute
+
+@dataclass(frozen=True)
+class _Start:
+    """The checked input of :func:`simulate`: the agents' start, their routes and exits, and the frames to record.
+
+    Attributes:
+        starts: ``(N, 2)`` float64 start centres (m).
+        exits: ``(N,)`` int64, each agent's exit.
+        routes: per agent, its waypoints ``(x, y)`` (m), in order (may be empty).
+        frame_rate: frames per second of simulated time (1/s).
+        steps_per_frame: JuPedSim steps per frame.
+        num_frames: T, the frames to record after the start at most.
+        area: the walkable area grown by the exit aprons.
+        aprons: the exit aprons, one per exit.
+    """
+
+    starts: np.ndarray
+    exits: np.ndarray
+    routes: list[tuple[tuple[float, float], ...]]
+    frame_rate: float
+    steps_per_frame: int
+    num_frames: int
+    area: Polygon
+    aprons: tuple[Polygon, ...]
+
+
+def _checked_start(
+    scenario: Scenario,
+    *,
+    model: object,
+    positions: ArrayLike,
+    exit_index: ArrayLike,
+    waypoints: Sequence[Sequence[tuple[float, float]]],
+    max_time: float,
+    frame_rate: float,
+) -> _Start:
+    """The arguments of :func:`simulate` checked, every check before any compute (a one-line ValueError)."""
     if not isinstance(model, JuPedSimModel):
         raise ValueError(f"model={model!r} is invalid: must be a JuPedSimModel")
     starts = _points("positions", positions)
@@ -327,19 +374,34 @@ def simulate(
         raise ValueError(
             f"max_time={max_time!r} is invalid: shorter than one frame (1 / frame_rate = {1 / frame_rate:g} s)"
         )
-    route_check_steps = max(1, round(ROUTE_CHECK_PERIOD / model.dt))
+    return _Start(
+        starts=starts,
+        exits=exits,
+        routes=routes,
+        frame_rate=frame_rate,
+        steps_per_frame=steps_per_frame,
+        num_frames=num_frames,
+        area=area,
+        aprons=aprons,
+    )
 
-    # ---- the JuPedSim scene: area, exit stages, one journey per distinct route, the agents
+
+def _jupedsim_scene(
+    jps: Any, scenario: Scenario, model: JuPedSimModel, start: _Start
+) -> tuple[Any, dict[int, tuple[int, _Journey]]]:
+    """The JuPedSim simulation of the area, its exit stages, one journey per distinct route, and the agents; and
+    each agent's JuPedSim id -> (agent index, its journey)."""
     operational = jps.CollisionFreeSpeedModel() if model.model == "collision_free_speed" else jps.SocialForceModel()
     try:
-        simulation = jps.Simulation(model=operational, geometry=area, dt=model.dt)
-        exit_stages = [simulation.add_exit_stage(apron) for apron in aprons]
+        simulation = jps.Simulation(model=operational, geometry=start.area, dt=model.dt)
+        exit_stages = [simulation.add_exit_stage(apron) for apron in start.aprons]
     except RuntimeError as err:
         raise ValueError(f"scenario {scenario.name!r} is invalid for JuPedSim: {_first_line(err)}") from None
     waypoint_stages: dict[tuple[float, float], int] = {}
     journeys: dict[tuple[tuple[tuple[float, float], ...], int], _Journey] = {}
     agents: dict[int, tuple[int, _Journey]] = {}  # JuPedSim id -> (agent index, its journey)
-    for index in range(count):
+    starts, routes, exits = start.starts, start.routes, start.exits
+    for index in range(starts.shape[0]):
         key = (routes[index], int(exits[index]))
         if key not in journeys:
             journeys[key] = _add_journey(jps, simulation, scenario, key, exit_stages, waypoint_stages)
@@ -351,9 +413,23 @@ def simulate(
             raise ValueError(
                 f"positions[{index}]={starts[index].tolist()} is invalid: JuPedSim refuses it ({_first_line(err)})"
             ) from None
-    routing = {agent_id: journey for agent_id, (_, journey) in agents.items() if journey.lines}
+    return simulation, agents
 
-    # ---- the run, frame by frame
+
+def _run_frames(
+    simulation: Any,
+    agents: dict[int, tuple[int, _Journey]],
+    scenario: Scenario,
+    model: JuPedSimModel,
+    start: _Start,
+    *,
+    pass_waypoints: bool,
+) -> JuPedSimRun:
+    """The run, frame by frame, until every agent left or ``start.num_frames`` frames passed."""
+    starts, num_frames, steps_per_frame = start.starts, start.num_frames, start.steps_per_frame
+    count = starts.shape[0]
+    route_check_steps = max(1, round(ROUTE_CHECK_PERIOD / model.dt))
+    routing = {agent_id: journey for agent_id, (_, journey) in agents.items() if journey.lines}
     frames = np.empty((num_frames + 1, count, 2))
     frames[0] = starts
     current = starts.copy()
@@ -396,7 +472,9 @@ def simulate(
     frames = frames[: recorded + 1]
     steps = np.arange(recorded + 1)[:, None]
     active = (left_at < 0)[None, :] | (steps < left_at[None, :])
-    return JuPedSimRun(positions=frames, active=active, left_at=left_at, exit_time=exit_time, frame_rate=frame_rate)
+    return JuPedSimRun(
+        positions=frames, active=active, left_at=left_at, exit_time=exit_time, frame_rate=start.frame_rate
+    )
 
 
 # ---------------------------------------------------------------------- journeys

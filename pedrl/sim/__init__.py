@@ -24,6 +24,7 @@ from pedrl.sim.sensing import (
     num_features,
     observe,
 )
+from pedrl.sim.spawning import Spawns
 
 __all__ = [
     "DEFAULT_SPEED_RATIOS",
@@ -42,6 +43,7 @@ __all__ = [
     "RoomEnv",
     "Geometry",
     "SpawnArea",
+    "Spawns",
     "apply_actions",
     "build_walls",
     "compute_rewards",

@@ -173,6 +173,83 @@ def _discs_overlap(
     return gap_x * gap_x + gap_y * gap_y < limit * limit
 
 
+def _wall_and_exit_times(
+    geometry: Geometry,
+    flat_positions: torch.Tensor,
+    flat_step: torch.Tensor,
+    moving: torch.Tensor,
+    centre_x: torch.Tensor,
+    centre_y: torch.Tensor,
+    half_move: torch.Tensor,
+    agent_radius: float,
+    substep_row: torch.Tensor,
+    never: torch.Tensor,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Step 1 of :func:`move_agents`: each agent's first sub-step touching a wall and first past an exit ``(R * N,)``
+    (``never`` if none). A swept disc inside the clear box touches no wall and passes no exit, so only the other
+    movers are traced sub-step by sub-step."""
+    num_flat = flat_positions.shape[0]
+    substep_scale = substep_row.to(flat_positions.dtype).unsqueeze(-1)  # (S, 1, 1)
+    centres = torch.stack((centre_x, centre_y), dim=-1)
+    clear = geometry.clear_of_walls(centres, margin=half_move + (agent_radius + PAIR_MARGIN))
+    near_walls = (moving & ~clear).view(-1).nonzero().squeeze(1)  # (W,) flat agent indices
+    first_wall = never.expand(num_flat).clone()  # (R * N,)
+    first_door = first_wall.clone()
+    if near_walls.shape[0] > 0:
+        trace = _take(flat_positions, near_walls) + substep_scale * _take(flat_step, near_walls)  # (S, W, 2)
+        hits_wall = geometry.touches_walls(trace, radius=agent_radius)
+        first_wall.index_copy_(0, near_walls, torch.where(hits_wall, substep_row, never).amin(0))
+        depth = _take(flat_step, near_walls).norm(dim=-1) + PAIR_MARGIN  # a crossing is at most one sub-step deep
+        passes_door = geometry.passes_exits(trace, depth=depth)
+        first_door.index_copy_(0, near_walls, torch.where(passes_door, substep_row, never).amin(0))
+    return first_wall, first_door
+
+
+def _collision_rounds(
+    pairs: torch.Tensor,
+    flat_positions: torch.Tensor,
+    flat_step: torch.Tensor,
+    moving: torch.Tensor,
+    blocked_at: torch.Tensor,
+    first_door: torch.Tensor,
+    substep_row: torch.Tensor,
+    never: torch.Tensor,
+    contact_sq: float,
+) -> torch.Tensor:
+    """Step 3 of :func:`move_agents`: the collision rounds over the kept ``pairs (M, 3)`` (replica, i, j), in both
+    orders (src proposes, dst is the obstacle), until no new agent is blocked. Returns the block times ``(R * N,)``."""
+    num_replicas, num_agents = moving.shape
+    num_flat, dtype = num_replicas * num_agents, flat_positions.dtype
+    substep_scale = substep_row.to(dtype).unsqueeze(-1)  # (S, 1, 1)
+    replica, first, second = pairs.unbind(1)
+    one = replica * num_agents + first
+    other = replica * num_agents + second
+    src = torch.cat((one, other))  # (2M,)
+    dst = torch.cat((other, one))
+    proposals = _take(flat_positions, src) + substep_scale * _take(flat_step, src)  # (S, 2M, 2)
+    dst_start, dst_step = _take(flat_positions, dst), _take(flat_step, dst)
+    pair_replica = replica.repeat(2)
+    src_still = ~_take(moving.view(-1), src)
+    for _ in range(num_flat + 1):
+        reached_at = torch.where(first_door < blocked_at, first_door, never)  # (R * N,)
+        last_move = torch.minimum(blocked_at - 1, reached_at)  # last sub-step each agent moves in
+        src_last = _take(last_move, src).masked_fill_(src_still, 0)  # a standing agent proposes nothing
+        dst_substep = torch.minimum(substep_row, _take(last_move, dst))  # (S, 2M)
+        gaps = proposals - (dst_start + dst_substep.to(dtype).unsqueeze(-1) * dst_step)  # (S, 2M, 2)
+        conflict = (gaps * gaps).sum(-1) < contact_sq
+        conflict &= (substep_row <= src_last) & (substep_row <= _take(reached_at, dst))
+        first_conflict = torch.where(conflict, substep_row, never).amin(0)  # (2M,)
+        if not bool((first_conflict < never).any()):
+            break
+        earliest = never.expand(num_replicas).clone()
+        earliest = earliest.scatter_reduce_(0, pair_replica, first_conflict, reduce="amin")  # (R,)
+        committed = torch.where(first_conflict == _take(earliest, pair_replica), first_conflict, never)
+        blocked_at = blocked_at.scatter_reduce(0, src, committed, reduce="amin")
+    else:  # pragma: no cover - each round blocks at least one agent for good
+        raise RuntimeError("collision resolution did not converge")
+    return blocked_at
+
+
 def move_agents(
     *,
     positions: torch.Tensor,
@@ -222,7 +299,6 @@ def move_agents(
         The :class:`Movement` of the decision.
     """
     num_replicas, num_agents, _ = positions.shape
-    num_flat = num_replicas * num_agents
     device, dtype = positions.device, positions.dtype
     never = torch.tensor(num_substeps + 1, device=device)  # "no such sub-step"
     contact_sq = 4.0 * agent_radius * agent_radius
@@ -231,61 +307,27 @@ def move_agents(
     moving = active & (step != 0).any(-1)
     step = step * moving.unsqueeze(-1)
     substep_row = torch.arange(1, num_substeps + 1, device=device).view(-1, 1)  # (S, 1)
-    substep_scale = substep_row.to(dtype).unsqueeze(-1)  # (S, 1, 1)
     flat_positions = positions.reshape(-1, 2)  # (R * N, 2)
     flat_step = step.reshape(-1, 2)
 
     # swept discs: centre of the straight move and half its length
     centre_x, centre_y, half_move = _swept_discs(positions, step, active, num_substeps)
 
-    # 1. walls and exits, agent by agent; a swept disc inside the clear box touches no wall and passes no exit,
-    # so only the other movers are traced sub-step by sub-step
-    centres = torch.stack((centre_x, centre_y), dim=-1)
-    clear = geometry.clear_of_walls(centres, margin=half_move + (agent_radius + PAIR_MARGIN))
-    near_walls = (moving & ~clear).view(-1).nonzero().squeeze(1)  # (W,) flat agent indices
-    first_wall = never.expand(num_flat).clone()  # (R * N,)
-    first_door = first_wall.clone()
-    if near_walls.shape[0] > 0:
-        trace = _take(flat_positions, near_walls) + substep_scale * _take(flat_step, near_walls)  # (S, W, 2)
-        hits_wall = geometry.touches_walls(trace, radius=agent_radius)
-        first_wall.index_copy_(0, near_walls, torch.where(hits_wall, substep_row, never).amin(0))
-        depth = _take(flat_step, near_walls).norm(dim=-1) + PAIR_MARGIN  # a crossing is at most one sub-step deep
-        passes_door = geometry.passes_exits(trace, depth=depth)
-        first_door.index_copy_(0, near_walls, torch.where(passes_door, substep_row, never).amin(0))
+    # 1. walls and exits, agent by agent (only movers near a wall are traced)
+    first_wall, first_door = _wall_and_exit_times(
+        geometry, flat_positions, flat_step, moving, centre_x, centre_y, half_move, agent_radius, substep_row, never
+    )
     blocked_at = torch.where(first_wall <= first_door, first_wall, never)  # (R * N,)
 
     # 2. pairs whose swept discs overlap, each unordered pair once
     candidate = _discs_overlap(centre_x, centre_y, half_move, agent_radius) & _upper_triangle(num_agents, device)
     pairs = candidate.nonzero()  # (M, 3): replica, i, j
 
-    # 3. collision rounds over the kept pairs, in both orders: src proposes, dst is the obstacle
+    # 3. collision rounds over the kept pairs
     if pairs.shape[0] > 0:
-        replica, first, second = pairs.unbind(1)
-        one = replica * num_agents + first
-        other = replica * num_agents + second
-        src = torch.cat((one, other))  # (2M,)
-        dst = torch.cat((other, one))
-        proposals = _take(flat_positions, src) + substep_scale * _take(flat_step, src)  # (S, 2M, 2)
-        dst_start, dst_step = _take(flat_positions, dst), _take(flat_step, dst)
-        pair_replica = replica.repeat(2)
-        src_still = ~_take(moving.view(-1), src)
-        for _ in range(num_flat + 1):
-            reached_at = torch.where(first_door < blocked_at, first_door, never)  # (R * N,)
-            last_move = torch.minimum(blocked_at - 1, reached_at)  # last sub-step each agent moves in
-            src_last = _take(last_move, src).masked_fill_(src_still, 0)  # a standing agent proposes nothing
-            dst_substep = torch.minimum(substep_row, _take(last_move, dst))  # (S, 2M)
-            gaps = proposals - (dst_start + dst_substep.to(dtype).unsqueeze(-1) * dst_step)  # (S, 2M, 2)
-            conflict = (gaps * gaps).sum(-1) < contact_sq
-            conflict &= (substep_row <= src_last) & (substep_row <= _take(reached_at, dst))
-            first_conflict = torch.where(conflict, substep_row, never).amin(0)  # (2M,)
-            if not bool((first_conflict < never).any()):
-                break
-            earliest = never.expand(num_replicas).clone()
-            earliest = earliest.scatter_reduce_(0, pair_replica, first_conflict, reduce="amin")  # (R,)
-            committed = torch.where(first_conflict == _take(earliest, pair_replica), first_conflict, never)
-            blocked_at = blocked_at.scatter_reduce(0, src, committed, reduce="amin")
-        else:  # pragma: no cover - each round blocks at least one agent for good
-            raise RuntimeError("collision resolution did not converge")
+        blocked_at = _collision_rounds(
+            pairs, flat_positions, flat_step, moving, blocked_at, first_door, substep_row, never, contact_sq
+        )
 
     reached_at = torch.where(first_door < blocked_at, first_door, never)
     last_move = torch.minimum(blocked_at - 1, reached_at).view(num_replicas, num_agents)

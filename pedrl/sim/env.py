@@ -2,6 +2,8 @@
 
 The API follows PettingZoo's ``ParallelEnv`` in batched tensor form, over ``[replicas, agents, ...]``:
 ``reset(seed, options) -> (obs, info)`` and ``step(actions) -> (obs, reward, terminated, truncated, info)``.
+Who starts where and heads where (placement, exits, waypoint routes) is :class:`~pedrl.sim.spawning.Spawns`'s
+(spawning.py); the checks of the arguments, options and actions are in room_checks.py.
 """
 
 from __future__ import annotations
@@ -13,50 +15,43 @@ from typing import Any, Final
 
 import torch
 
-from pedrl.sim.checks import (
-    check_bool,
-    check_choice,
-    check_device,
-    check_integer,
-    check_memory,
-    check_number,
-    check_real,
-)
+from pedrl.sim.checks import check_bool, check_device, check_integer, check_memory, check_number, check_real
 from pedrl.sim.dynamics import (
-    COLLISION_RULES,
-    CONTACT_MODELS,
     DEFAULT_SPEED_RATIOS,
     DEFAULT_TURN_RATIOS,
-    NOOP_INDEX,
     NUM_ACTIONS,
-    NUM_SPEED_CHANGES,
+    Movement,
     apply_actions,
-    count_substeps,
     move_agents,
     move_agents_sequential,
     move_agents_sliding,
     velocities_from,
 )
-from pedrl.sim.geometry import NUM_WALLS, Geometry, X, Y, inside_polygon, spawn_counts, wrap_angle
-from pedrl.sim.rewards import MAX_REWARD, RewardTable, compute_rewards
+from pedrl.sim.geometry import NUM_WALLS, Geometry, X, Y, spawn_counts
+from pedrl.sim.rewards import MAX_REWARD, compute_rewards
+from pedrl.sim.room_checks import (
+    check_actions,
+    check_extent,
+    check_goal_depth,
+    check_ratios,
+    check_rewards,
+    check_rules,
+    check_substep_length,
+    check_substeps,
+    read_option,
+    read_options,
+)
 from pedrl.sim.sensing import Observation, feature_names, num_features, observe
+from pedrl.sim.spawning import MAX_DENSITY as MAX_DENSITY  # re-exported: pedrl.scenarios checks its spawn areas by it
+from pedrl.sim.spawning import PlacementError as PlacementError  # re-exported: raised by reset
+from pedrl.sim.spawning import Spawns, check_density
 
-MAX_DENSITY: Final = 0.35
-"""Largest share of the free room area (where centres may lie) that the bodies may cover at placement."""
 MAX_PLACEMENT_ROUNDS: Final = 1000
-"""Rounds of rejection sampling before placement gives up."""
-PLACEMENT_TOLERANCE: Final = 1e-4
-"""Slack (m) when checking hand-placed positions against walls and other bodies."""
-COLLISION_ORDERS: Final = ("random", "door_first")
-"""Orders of action of the sequential collision rule (see ``RoomEnv``)."""
-OPTION_KEYS: Final = ("positions", "headings", "speeds", "replicas")
+"""Rounds of rejection sampling before placement gives up (:meth:`Spawns.place <pedrl.sim.spawning.Spawns.place>`)."""
 MAX_RESET_SEED: Final = 2**64 - 1
 """Largest ``reset(seed=...)``: a torch generator's seed is 64 bits. Wider than the command line's ``seed``
 (``MAX_SEED``, 2^32 - 1), because trainers and evaluation reseed rooms with derived seeds such as
 ``seed * 10007 + phase``."""
-MAX_SUBSTEPS: Final = 1000
-"""Most sub-steps per decision (``max_speed / decisions_per_second / substep_length``, 7 by default): the sequential
-collision rule loops over them, so ``max_speed=1e5`` (250 000 sub-steps) hung and ``1e9`` tried to allocate 20 GB."""
 PAIRWISE_BYTES: Final = 40
 """Bytes per ``(replica, agent, agent)`` entry of the pairwise matrices a decision allocates (sensing distances and
 sort, the swept-disc pre-filter): a measured upper bound, for the memory estimate of :meth:`RoomEnv.step_memory`."""
@@ -79,26 +74,6 @@ def compiled_observe() -> Callable[..., Observation]:
     return torch.compile(observe, dynamic=False)
 
 
-class PlacementError(ValueError):
-    """The agents could not be placed in the room without overlaps."""
-
-
-def _ratios(name: str, value: Any, *, unit: str) -> tuple[float, ...]:
-    """Nine finite ratios with the no-op (index 4) equal to 0, else a one-line ``ValueError``."""
-    if isinstance(value, str | bytes) or not isinstance(value, Sequence | torch.Tensor):
-        try:
-            value = list(value)  # e.g. an OmegaConf ListConfig
-        except TypeError:
-            raise ValueError(f"{name}={value!r} is invalid: must be a sequence of 9 finite numbers") from None
-    items = [float(item) if isinstance(item, torch.Tensor) else item for item in value]
-    if len(items) != NUM_SPEED_CHANGES:
-        raise ValueError(f"{name} has {len(items)} values: must be a sequence of 9 finite numbers ({unit})")
-    ratios = tuple(check_real(f"{name}[{index}]", item, unit=unit) for index, item in enumerate(items))
-    if ratios[NOOP_INDEX] != 0.0:
-        raise ValueError(f"{name}[{NOOP_INDEX}]={ratios[NOOP_INDEX]!r} is invalid: the no-op (index 4) must be 0.0")
-    return ratios
-
-
 class RoomEnv:
     """R replicas of a walkable area (the paper's room by default), each holding N agents that must leave by an exit.
 
@@ -116,6 +91,8 @@ class RoomEnv:
         geometry: Walls, exits and spawn areas (:class:`~pedrl.sim.geometry.Geometry`).
         exit_index: The exit each agent heads for ``(R, N)`` int64: its group's, or the nearest at placement.
         stage: The waypoint each agent aims at ``(R, N)`` int64; past its group's waypoints, its exit.
+        spawns: Who starts where and heads where (:class:`~pedrl.sim.spawning.Spawns`).
+        spawn_counts: The number of agents of each spawn group (agents numbered group by group).
         generator: The environment's random generator, on ``device``; ``reset(seed=...)`` reseeds it.
         num_actions: 81.
         num_features: ``3 + 3 * num_neighbours + 2 * num_walls``.
@@ -231,71 +208,22 @@ class RoomEnv:
         self.num_replicas = check_integer("num_replicas", num_replicas, minimum=1)
         self.num_agents = check_integer("num_agents", num_agents, minimum=1)
         self.device = check_device(device)
-        self.width = check_real("width", width, unit="m", positive=True)
-        self.length = check_real("length", length, unit="m", positive=True)
-        self.door_width = check_real("door_width", door_width, unit="m", positive=True)
-        self.agent_radius = check_real("agent_radius", agent_radius, unit="m", positive=True)
-        if geometry is None:
-            if self.door_width > self.width:
-                raise ValueError(
-                    f"door_width={door_width!r} is invalid: the door must fit in its wall, at most width={width!r} m"
-                )
-            if 2.0 * self.agent_radius > self.door_width:
-                raise ValueError(
-                    f"agent_radius={agent_radius!r} is invalid: a body must fit through the door, at most"
-                    f" door_width / 2 = {self.door_width / 2.0!r} m"
-                )
-        elif not isinstance(geometry, Geometry):
-            raise ValueError(f"geometry of type {type(geometry).__name__} is invalid: must be a pedrl.sim.Geometry")
-        else:
-            self.width = geometry.bounds[2] - geometry.bounds[0]
-            self.length = geometry.bounds[3] - geometry.bounds[1]
-            narrowest = float(torch.linalg.vector_norm(geometry.exits[:, 1] - geometry.exits[:, 0], dim=-1).min())
-            if 2.0 * self.agent_radius > narrowest:
-                raise ValueError(
-                    f"agent_radius={agent_radius!r} is invalid: a body must fit through every exit, at most"
-                    f" {narrowest / 2.0:g} m (half the narrowest exit)"
-                )
-        if 2.0 * self.agent_radius >= min(self.width, self.length):
-            raise ValueError(
-                f"agent_radius={agent_radius!r} is invalid: a body must fit in the room, less than"
-                f" min(width, length) / 2 = {min(self.width, self.length) / 2.0!r} m"
-            )
+        self.width, self.length, self.door_width, self.agent_radius = check_extent(
+            width=width, length=length, door_width=door_width, agent_radius=agent_radius, geometry=geometry
+        )
         self.max_speed = check_real("max_speed", max_speed, unit="m/s", positive=True)
         self.decisions_per_second = check_real("decisions_per_second", decisions_per_second, unit="1/s", positive=True)
         self.max_decisions = check_integer("max_decisions", max_decisions, minimum=1)
         self.num_neighbours = check_integer("num_neighbours", num_neighbours, minimum=0)
         wall_count = NUM_WALLS if geometry is None else geometry.num_walls
         self.num_walls = check_integer("num_walls", num_walls, minimum=0, maximum=wall_count)
-        self.speed_ratios = _ratios("speed_ratios", speed_ratios, unit="fraction of max_speed")
-        self.turn_ratios = _ratios("turn_ratios", turn_ratios, unit="fraction of pi")
-        self.rewards = RewardTable(
-            goal=check_number("reward_goal", reward_goal, low=-MAX_REWARD, high=MAX_REWARD),
-            crash_wall=check_number("reward_crash_wall", reward_crash_wall, low=-MAX_REWARD, high=MAX_REWARD),
-            crash_agent=check_number("reward_crash_agent", reward_crash_agent, low=-MAX_REWARD, high=MAX_REWARD),
-            default=check_number("reward_default", reward_default, low=-MAX_REWARD, high=MAX_REWARD),
-        )
-        if substep_length is None:
-            self.substep_length = self.agent_radius
-        else:
-            self.substep_length = check_real("substep_length", substep_length, unit="m", positive=True)
-            if self.substep_length > self.agent_radius:
-                raise ValueError(
-                    f"substep_length={substep_length!r} is invalid: must be in"
-                    f" (0, agent_radius={agent_radius!r}] m so that nothing tunnels"
-                )
-        self.collision_rule = check_choice("collision_rule", collision_rule, COLLISION_RULES)
-        self.collision_order = check_choice("collision_order", collision_order, COLLISION_ORDERS)
-        self.contact = check_choice("contact", contact, CONTACT_MODELS)
-        if self.contact != "stop" and self.collision_rule != "sequential":
-            raise ValueError(
-                f"collision_rule={collision_rule!r} is invalid with contact={contact!r}: the slide, headway and yield"
-                " rules resolve movers in turn (collision_rule: sequential; it applies to contact=stop only)"
-            )
+        self.speed_ratios = check_ratios("speed_ratios", speed_ratios, unit="fraction of max_speed")
+        self.turn_ratios = check_ratios("turn_ratios", turn_ratios, unit="fraction of pi")
+        self.rewards = check_rewards(reward_goal, reward_crash_wall, reward_crash_agent, reward_default)
+        self.substep_length = check_substep_length(substep_length, agent_radius)
+        self.collision_rule, self.collision_order, self.contact = check_rules(collision_rule, collision_order, contact)
         self.time_gap = check_real("time_gap", time_gap, unit="s", positive=True)
-        self.goal_depth = check_real("goal_depth", goal_depth, unit="m")
-        if self.goal_depth < 0:
-            raise ValueError(f"goal_depth={goal_depth!r} is invalid: must be a finite number >= 0 (m)")
+        self.goal_depth = check_goal_depth(goal_depth)
         self.reward_progress = check_number("reward_progress", reward_progress, low=0.0, high=MAX_REWARD)
         self.compile_sensing = check_bool("compile_sensing", compile_sensing)
         if geometry is None:
@@ -303,41 +231,36 @@ class RoomEnv:
                 width=self.width, length=self.length, door_width=self.door_width, goal_depth=self.goal_depth
             )
         self.spawn_counts = spawn_counts(self.num_agents, [spawn.weight for spawn in geometry.spawns])
-        for index, (spawn, count) in enumerate(zip(geometry.spawns, self.spawn_counts, strict=True)):
-            free_area = spawn.free_area(self.agent_radius)
-            body_area = count * math.pi * self.agent_radius**2
-            if body_area > MAX_DENSITY * free_area:
-                where = (
-                    f"a {self.width} m x {self.length} m room"
-                    if len(geometry.spawns) == 1 and spawn.box == geometry.bounds
-                    else f"spawn area {index} ({spawn.area:.4g} m^2, {count} of the agents)"
-                )
-                share = f"{body_area / free_area:.0%}" if free_area > 0 else "all"
-                raise ValueError(
-                    f"num_agents={num_agents!r} is invalid: {count} bodies of radius {self.agent_radius} m cannot be"
-                    f" placed in {where} (they would cover {share} of the free area; at most {MAX_DENSITY:.0%})"
-                )
-
+        check_density(
+            geometry, self.spawn_counts, num_agents, agent_radius=self.agent_radius, room=(self.width, self.length)
+        )
         self.decision_length = 1.0 / self.decisions_per_second
-        self.num_substeps = self._check_substeps()
+        self.num_substeps = check_substeps(self.max_speed, self.decisions_per_second, self.substep_length)
         check_memory(
             {"room state and collision pairs": self.step_memory()},
             device=self.device,
             advice="fewer agents or replicas (processes, rooms_per_process, trials_per_batch)",
         )
+        self._build(geometry)
 
-        # ---- constants
+    def _build(self, geometry: Geometry) -> None:
+        """The constants (geometry on the device, spawn tables, action tables), the generator and the state, zero
+        until :meth:`reset`."""
         self.geometry = geometry if geometry.device == self.device else geometry.to(self.device)
-        self._build_spawn_tables()
+        self.spawns = Spawns(
+            self.geometry,
+            self.spawn_counts,
+            agent_radius=self.agent_radius,
+            num_replicas=self.num_replicas,
+            room=(self.width, self.length),
+            device=self.device,
+        )
         self.speed_changes = torch.tensor(self.speed_ratios, device=self.device) * self.max_speed
         self.turn_changes = torch.tensor(self.turn_ratios, device=self.device) * math.pi
         self.num_features = num_features(self.num_neighbours, self.num_walls)
         self.feature_names = feature_names(self.num_neighbours, self.num_walls)
         self.generator = torch.Generator(device=self.device)
         self.generator.seed()
-        self._earlier_agents = torch.ones(self.num_agents, self.num_agents, dtype=torch.bool, device=self.device).tril_(
-            -1
-        )
 
         # ---- state (filled by reset)
         shape = (self.num_replicas, self.num_agents)
@@ -355,78 +278,15 @@ class RoomEnv:
         self._oldest_reset = 0
         self._was_reset = False
 
-    def _build_spawn_tables(self) -> None:
-        """Per-agent tables of the spawn groups (agents numbered group by group): drawing box, exit and route."""
-        radius, device = self.agent_radius, self.device
-        group = torch.repeat_interleave(
-            torch.arange(len(self.spawn_counts), device=device), torch.tensor(self.spawn_counts, device=device)
-        )
-        self._group = group  # (N,)
-        low, span, exits = [], [], []
-        for spawn in self.geometry.spawns:
-            x_min, y_min, x_max, y_max = spawn.box
-            low.append([x_min + radius, y_min + radius])
-            span.append([x_max - x_min - 2.0 * radius, y_max - y_min - 2.0 * radius])
-            exits.append(spawn.exit)
-        self._spawn_low = torch.tensor(low, device=device)[group]  # (N, 2)
-        self._spawn_span = torch.tensor(span, device=device)[group]
-        self._assigned_exit = torch.tensor(exits, device=device)[group]  # (N,), -1: nearest
-        most = max(spawn.waypoints.shape[0] for spawn in self.geometry.spawns)
-        routes = torch.full((len(self.geometry.spawns), most, 2), math.nan, device=device)
-        for index, spawn in enumerate(self.geometry.spawns):
-            routes[index, : spawn.waypoints.shape[0]] = spawn.waypoints
-        self._waypoints = routes[group]  # (N, K, 2), NaN past the end of a route
-        self._route_length = torch.tensor([s.waypoints.shape[0] for s in self.geometry.spawns], device=device)[group]
-
     def targets(self) -> torch.Tensor:
         """The point each agent aims at ``(R, N, 2)`` (m): its current waypoint, else its exit's goal point. The
         reference line of the state and the progress reward run to it. Set at reset and when routes advance."""
         return self._targets
 
-    def _route_point(self, stage: torch.Tensor) -> torch.Tensor:
-        """Waypoint ``stage`` of each agent's route ``(R, N, 2)``, or its exit's goal point past the route's end."""
-        goals = self.geometry.exit_goals[self.exit_index]  # (R, N, 2)
-        if self._waypoints.shape[1] == 0:
-            return goals
-        index = stage.clamp(max=self._waypoints.shape[1] - 1)[..., None, None].expand(-1, -1, 1, 2)
-        waypoint = torch.gather(self._waypoints.expand(self.num_replicas, -1, -1, -1), 2, index).squeeze(2)
-        return torch.where((stage < self._route_length).unsqueeze(-1), waypoint, goals)
-
     def _advance_routes(self) -> None:
-        """Agents that reached their waypoint aim at the next point of their route.
-
-        A waypoint is reached within ``waypoint_radius`` of it, or past it: beyond the line through it across the
-        direction to the next point, less than ``waypoint_radius`` to the side. (Agents move up to ``max_speed /
-        decisions_per_second`` per decision, so they overshoot a small disc.)
-        """
-        if self._waypoints.shape[1] == 0:
-            return
-        radius = self.geometry.waypoint_radius
-        for _ in range(self._waypoints.shape[1]):  # fixed rounds, no host sync
-            current = self._route_point(self.stage)
-            direction = self._route_point(self.stage + 1) - current
-            direction = direction / torch.linalg.vector_norm(direction, dim=-1, keepdim=True).clamp_min(1e-9)
-            offset = self.positions - current
-            ahead = offset[..., X] * direction[..., X] + offset[..., Y] * direction[..., Y]
-            side = offset[..., X] * direction[..., Y] - offset[..., Y] * direction[..., X]
-            near = (offset * offset).sum(-1) < radius * radius
-            arrived = (near | ((ahead >= 0) & (side.abs() < radius))) & (self.stage < self._route_length)
-            self.stage = self.stage + arrived.to(torch.int64)
-        self._targets = self._route_point(self.stage)
-
-    def _check_substeps(self) -> int:
-        """Sub-steps per decision, at most :data:`MAX_SUBSTEPS`, else a one-line ``ValueError`` with the numbers."""
-        move = self.max_speed * self.decision_length  # m per decision at top speed
-        if move / self.substep_length > MAX_SUBSTEPS:
-            raise ValueError(
-                f"max_speed={self.max_speed!r} m/s, decisions_per_second={self.decisions_per_second!r} and "
-                f"substep_length={self.substep_length!r} m are invalid together: a decision would take "
-                f"{move / self.substep_length:.3g} sub-steps; max_speed / decisions_per_second / substep_length "
-                f"must be at most {MAX_SUBSTEPS}"
-            )
-        return count_substeps(
-            max_speed=self.max_speed, decision_length=self.decision_length, substep_length=self.substep_length
-        )
+        """Agents that reached their waypoint aim at the next point of their route (:meth:`Spawns.advance`)."""
+        if self.spawns.has_routes:
+            self.stage, self._targets = self.spawns.advance(self.positions, self.stage, self.exit_index)
 
     def step_memory(self) -> int:
         """Estimated peak bytes of one :meth:`step`: the worst case, every pair of agents close enough to collide.
@@ -475,45 +335,24 @@ class RoomEnv:
         """
         if seed is not None:
             self.generator.manual_seed(check_integer("seed", seed, minimum=0, maximum=MAX_RESET_SEED))
-        options = dict(options or {})
-        unknown = sorted(set(options) - set(OPTION_KEYS))
-        if unknown:
-            allowed = ", ".join(OPTION_KEYS)
-            raise ValueError(f"options key {unknown[0]!r} is invalid: must be one of {allowed}")
+        options = read_options(options)
         shape = (self.num_replicas, self.num_agents)
-        replicas = self._option(options, "replicas", (self.num_replicas,), dtype=torch.bool)
+        replicas = read_option(options, "replicas", (self.num_replicas,), device=self.device, dtype=torch.bool)
         if replicas is None:
             replicas = torch.ones(self.num_replicas, dtype=torch.bool, device=self.device)
         chosen = replicas.unsqueeze(-1)  # (R, 1)
-
-        positions = self._option(options, "positions", (*shape, 2))
-        if positions is None:
-            positions = self._place(replicas)
-        else:
-            self._check_positions(positions, replicas)
-        headings = self._option(options, "headings", shape)
-        if headings is None:
-            uniform = torch.rand(shape, generator=self.generator, device=self.device)
-            headings = math.pi - 2.0 * math.pi * uniform
-        headings = wrap_angle(headings)
-        speeds = self._option(options, "speeds", shape)
-        if speeds is None:
-            speeds = torch.zeros(shape, device=self.device)
-        elif bool((((speeds < 0) | (speeds > self.max_speed)) & chosen).any()):
-            raise ValueError(
-                f"options['speeds'] is invalid: every speed must be in [0, max_speed={self.max_speed}] m/s"
-            )
+        positions, headings, speeds = self.spawns.start(
+            options, replicas, self.generator, max_speed=self.max_speed, rounds=MAX_PLACEMENT_ROUNDS
+        )
 
         self.positions = torch.where(chosen.unsqueeze(-1), positions, self.positions)
         self.headings = torch.where(chosen, headings, self.headings)
         self.speeds = torch.where(chosen, speeds, self.speeds)
         self.velocities = velocities_from(speeds=self.speeds, headings=self.headings)
         self.active = self.active | chosen
-        assigned = self._assigned_exit.expand(shape)
-        exits = torch.where(assigned >= 0, assigned, self.geometry.nearest_exits(self.positions))
-        self.exit_index = torch.where(chosen, exits, self.exit_index)
+        self.exit_index = torch.where(chosen, self.spawns.exits(self.positions), self.exit_index)
         self.stage = torch.where(chosen, 0, self.stage)
-        self._targets = self._route_point(self.stage)
+        self._targets = self.spawns.route_point(self.stage, self.exit_index)
         self._advance_routes()
         self.decisions = torch.where(replicas, 0, self.decisions)
         self._reset_at[replicas.cpu()] = self._steps_taken
@@ -552,7 +391,7 @@ class RoomEnv:
         """
         if not self._was_reset:
             raise RuntimeError("RoomEnv.step() called before reset()")
-        actions = self._check_actions(actions)
+        actions = check_actions(actions, (self.num_replicas, self.num_agents), device=self.device)
         acting = self.active
         targets = self.targets()  # this decision's targets, for the order of action and the progress
 
@@ -566,40 +405,7 @@ class RoomEnv:
             max_speed=self.max_speed,
             active=acting,
         )
-        velocities = velocities_from(speeds=speeds, headings=headings)
-
-        # ---- move, sub-stepped, with collisions
-        motion = dict(
-            positions=self.positions,
-            velocities=velocities,
-            active=acting,
-            geometry=self.geometry,
-            agent_radius=self.agent_radius,
-            decision_length=self.decision_length,
-            num_substeps=self.num_substeps,
-        )
-        if self.collision_rule == "sequential":
-            priority = torch.rand(self.active.shape, generator=self.generator, device=self.device)
-            if self.collision_order == "door_first":  # metres dominate, the uniform draw breaks ties
-                priority = self._goal_distance(self.positions, targets) + priority * 1e-3
-        if self.contact != "stop":
-            time_gap = self.time_gap if self.contact in ("headway", "yield") else None
-            movement = move_agents_sliding(
-                **motion, priority=priority, time_gap=time_gap, yield_to_earlier=self.contact == "yield"
-            )
-            # the speed is the distance actually walked; the heading stays the commanded one
-            walked = torch.linalg.vector_norm(movement.positions - self.positions, dim=-1) / self.decision_length
-            speeds = torch.where(acting, walked.clamp_max(self.max_speed), speeds)
-            velocities = velocities_from(speeds=speeds, headings=headings)
-        else:
-            if self.collision_rule == "sequential":
-                # off the CPU: fixed rounds with masks, so that a decision never waits for the host (same result)
-                movement = move_agents_sequential(**motion, priority=priority, sync_free=self.device.type != "cpu")
-            else:
-                movement = move_agents(**motion)
-            speeds = torch.where(movement.blocked, 0.0, speeds)
-            velocities = torch.where(movement.blocked.unsqueeze(-1), 0.0, velocities)
-
+        movement, speeds, velocities = self._move(acting, speeds, headings, targets)
         progress = self._goal_distance(self.positions, targets) - self._goal_distance(movement.positions, targets)
 
         # ---- end of trial: door, then the clock
@@ -634,6 +440,44 @@ class RoomEnv:
         return observation.features, reward, movement.reached, truncated, info
 
     # ------------------------------------------------------------------ internals
+
+    def _move(
+        self, acting: torch.Tensor, speeds: torch.Tensor, headings: torch.Tensor, targets: torch.Tensor
+    ) -> tuple[Movement, torch.Tensor, torch.Tensor]:
+        """Move the ``acting`` agents at the new ``speeds`` and ``headings``, sub-stepped, by the contact model and
+        collision rule: the movement, and the speeds and velocities after it."""
+        velocities = velocities_from(speeds=speeds, headings=headings)
+        motion = dict(
+            positions=self.positions,
+            velocities=velocities,
+            active=acting,
+            geometry=self.geometry,
+            agent_radius=self.agent_radius,
+            decision_length=self.decision_length,
+            num_substeps=self.num_substeps,
+        )
+        if self.collision_rule == "sequential":
+            priority = torch.rand(self.active.shape, generator=self.generator, device=self.device)
+            if self.collision_order == "door_first":  # metres dominate, the uniform draw breaks ties
+                priority = self._goal_distance(self.positions, targets) + priority * 1e-3
+        if self.contact != "stop":
+            time_gap = self.time_gap if self.contact in ("headway", "yield") else None
+            movement = move_agents_sliding(
+                **motion, priority=priority, time_gap=time_gap, yield_to_earlier=self.contact == "yield"
+            )
+            # the speed is the distance actually walked; the heading stays the commanded one
+            walked = torch.linalg.vector_norm(movement.positions - self.positions, dim=-1) / self.decision_length
+            speeds = torch.where(acting, walked.clamp_max(self.max_speed), speeds)
+            velocities = velocities_from(speeds=speeds, headings=headings)
+        else:
+            if self.collision_rule == "sequential":
+                # off the CPU: fixed rounds with masks, so that a decision never waits for the host (same result)
+                movement = move_agents_sequential(**motion, priority=priority, sync_free=self.device.type != "cpu")
+            else:
+                movement = move_agents(**motion)
+            speeds = torch.where(movement.blocked, 0.0, speeds)
+            velocities = torch.where(movement.blocked.unsqueeze(-1), 0.0, velocities)
+        return movement, speeds, velocities
 
     def _observe(self, *, observers: torch.Tensor, sensed: torch.Tensor) -> Observation:
         sense = compiled_observe() if self.compile_sensing else observe
@@ -672,91 +516,3 @@ class RoomEnv:
             "speed": self.speeds,
             "decision": self.decision,
         }
-
-    def _check_actions(self, actions: Any) -> torch.Tensor:
-        expected = (self.num_replicas, self.num_agents)
-        if not isinstance(actions, torch.Tensor):
-            raise ValueError(f"actions of type {type(actions).__name__} is invalid: must be a torch.Tensor")
-        if tuple(actions.shape) != expected:
-            raise ValueError(f"actions.shape={tuple(actions.shape)} is invalid: must be {expected}")
-        if actions.is_floating_point() or actions.is_complex() or actions.dtype == torch.bool:
-            raise ValueError(f"actions.dtype={actions.dtype} is invalid: must be an integer dtype (int64)")
-        return actions.to(device=self.device, dtype=torch.int64)
-
-    def _option(
-        self,
-        options: Mapping[str, Any],
-        key: str,
-        shape: tuple[int, ...],
-        *,
-        dtype: torch.dtype = torch.float32,
-    ) -> torch.Tensor | None:
-        if options.get(key) is None:
-            return None
-        value = torch.as_tensor(options[key], dtype=dtype, device=self.device)
-        if tuple(value.shape) != shape:
-            raise ValueError(f"options[{key!r}] has shape {tuple(value.shape)}: must be {shape}")
-        if dtype.is_floating_point and not bool(torch.isfinite(value).all()):
-            raise ValueError(f"options[{key!r}] is invalid: every value must be finite")
-        return value
-
-    def _uniform_positions(self, shape: tuple[int, ...]) -> torch.Tensor:
-        """Centres uniform in each agent's spawn box shrunk by the body radius ``(*shape, 2)`` (m)."""
-        uniform = torch.rand((*shape, 2), generator=self.generator, device=self.device)
-        return self._spawn_low + uniform * self._spawn_span
-
-    def _misplaced(self, positions: torch.Tensor) -> torch.Tensor:
-        """``(R, N)`` bool: the centre is outside its spawn area or its body touches a wall."""
-        touches = self.geometry.touches_walls(positions, radius=self.agent_radius)
-        outside = torch.zeros_like(touches)
-        for index, spawn in enumerate(self.geometry.spawns):
-            if not spawn.is_box:  # a box holds every centre drawn in it
-                outside |= (self._group == index) & ~inside_polygon(positions, spawn.edges)
-        return touches | outside
-
-    def _place(self, replicas: torch.Tensor) -> torch.Tensor:
-        """Non-overlapping positions ``(R, N, 2)`` in the spawn areas for the chosen replicas ``(R,)``, by rejection.
-
-        Each round redraws only the agents that overlap an earlier-indexed agent of their replica, lie outside
-        their spawn area or touch a wall.
-        """
-        shape = (self.num_replicas, self.num_agents)
-        positions = self._uniform_positions(shape)
-        contact_sq = (2.0 * self.agent_radius) ** 2
-        for _ in range(MAX_PLACEMENT_ROUNDS):
-            offsets = positions.unsqueeze(2) - positions.unsqueeze(1)
-            overlapping = ((offsets * offsets).sum(-1) < contact_sq) & self._earlier_agents
-            redraw = (overlapping.any(-1) | self._misplaced(positions)) & replicas.unsqueeze(-1)
-            if not bool(redraw.any()):
-                return positions
-            positions = torch.where(redraw.unsqueeze(-1), self._uniform_positions(shape), positions)
-        raise PlacementError(
-            f"could not place num_agents={self.num_agents} agents of radius {self.agent_radius} m in the"
-            f" {self.width} m x {self.length} m room after {MAX_PLACEMENT_ROUNDS} rounds of rejection"
-            " sampling: use fewer agents or a larger room"
-        )
-
-    def _check_positions(self, positions: torch.Tensor, replicas: torch.Tensor) -> None:
-        """Raise ``ValueError`` if a hand-placed body of a reset replica is outside, on a wall or overlaps."""
-        chosen = replicas.unsqueeze(-1)
-        clearance = self.agent_radius - PLACEMENT_TOLERANCE
-        wall_sq = self.geometry.squared_wall_distances(positions).amin(-1)
-        inside = self.geometry.inside(positions)
-        bad = chosen & ~(inside & (wall_sq >= clearance * clearance))
-        if bool(bad.any()):
-            replica, agent = (int(index) for index in bad.nonzero()[0])
-            x, y = (float(value) for value in positions[replica, agent])
-            raise ValueError(
-                f"options['positions'] is invalid: agent {agent} of replica {replica} at ({x:.4g}, {y:.4g})"
-                f" m is outside the room or closer than agent_radius={self.agent_radius} m to a wall"
-            )
-        offsets = positions.unsqueeze(2) - positions.unsqueeze(1)
-        contact = 2.0 * self.agent_radius - PLACEMENT_TOLERANCE
-        overlapping = ((offsets * offsets).sum(-1) < contact * contact) & self._earlier_agents
-        overlapping &= chosen.unsqueeze(-1)
-        if bool(overlapping.any()):
-            replica, agent, other = (int(index) for index in overlapping.nonzero()[0])
-            raise ValueError(
-                f"options['positions'] is invalid: agents {other} and {agent} of replica {replica} overlap"
-                f" (centres closer than 2 * agent_radius = {2.0 * self.agent_radius} m)"
-            )

@@ -1,0 +1,176 @@
+"""The checks of ``RoomEnv``'s arguments, ``reset`` options and actions: each a one-line ``ValueError`` that names the
+bad value (the generic checks of a number, a choice or a device are in :mod:`pedrl.sim.checks`)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any, Final
+
+import torch
+
+from pedrl.sim.checks import check_choice, check_number, check_real
+from pedrl.sim.dynamics import COLLISION_RULES, CONTACT_MODELS, NOOP_INDEX, NUM_SPEED_CHANGES, count_substeps
+from pedrl.sim.geometry import Geometry
+from pedrl.sim.rewards import MAX_REWARD, RewardTable
+
+COLLISION_ORDERS: Final = ("random", "door_first")
+"""Orders of action of the sequential collision rule (see ``RoomEnv``)."""
+OPTION_KEYS: Final = ("positions", "headings", "speeds", "replicas")
+"""The keys of ``RoomEnv.reset``'s ``options``."""
+MAX_SUBSTEPS: Final = 1000
+"""Most sub-steps per decision (``max_speed / decisions_per_second / substep_length``, 7 by default): the sequential
+collision rule loops over them, so ``max_speed=1e5`` (250 000 sub-steps) hung and ``1e9`` tried to allocate 20 GB."""
+
+
+def check_extent(
+    *, width: Any, length: Any, door_width: Any, agent_radius: Any, geometry: Any
+) -> tuple[float, float, float, float]:
+    """``(width, length, door_width, agent_radius)`` checked: positive, a body fits through the door (every exit of
+    ``geometry``) and in the room; with a ``geometry``, ``width`` and ``length`` are the extent of its bounds."""
+    checked_width = check_real("width", width, unit="m", positive=True)
+    checked_length = check_real("length", length, unit="m", positive=True)
+    checked_door = check_real("door_width", door_width, unit="m", positive=True)
+    radius = check_real("agent_radius", agent_radius, unit="m", positive=True)
+    if geometry is None:
+        if checked_door > checked_width:
+            raise ValueError(
+                f"door_width={door_width!r} is invalid: the door must fit in its wall, at most width={width!r} m"
+            )
+        if 2.0 * radius > checked_door:
+            raise ValueError(
+                f"agent_radius={agent_radius!r} is invalid: a body must fit through the door, at most"
+                f" door_width / 2 = {checked_door / 2.0!r} m"
+            )
+    elif not isinstance(geometry, Geometry):
+        raise ValueError(f"geometry of type {type(geometry).__name__} is invalid: must be a pedrl.sim.Geometry")
+    else:
+        checked_width = geometry.bounds[2] - geometry.bounds[0]
+        checked_length = geometry.bounds[3] - geometry.bounds[1]
+        narrowest = float(torch.linalg.vector_norm(geometry.exits[:, 1] - geometry.exits[:, 0], dim=-1).min())
+        if 2.0 * radius > narrowest:
+            raise ValueError(
+                f"agent_radius={agent_radius!r} is invalid: a body must fit through every exit, at most"
+                f" {narrowest / 2.0:g} m (half the narrowest exit)"
+            )
+    if 2.0 * radius >= min(checked_width, checked_length):
+        raise ValueError(
+            f"agent_radius={agent_radius!r} is invalid: a body must fit in the room, less than"
+            f" min(width, length) / 2 = {min(checked_width, checked_length) / 2.0!r} m"
+        )
+    return checked_width, checked_length, checked_door, radius
+
+
+def check_ratios(name: str, value: Any, *, unit: str) -> tuple[float, ...]:
+    """Nine finite ratios with the no-op (index 4) equal to 0, else a one-line ``ValueError``."""
+    if isinstance(value, str | bytes) or not isinstance(value, Sequence | torch.Tensor):
+        try:
+            value = list(value)  # e.g. an OmegaConf ListConfig
+        except TypeError:
+            raise ValueError(f"{name}={value!r} is invalid: must be a sequence of 9 finite numbers") from None
+    items = [float(item) if isinstance(item, torch.Tensor) else item for item in value]
+    if len(items) != NUM_SPEED_CHANGES:
+        raise ValueError(f"{name} has {len(items)} values: must be a sequence of 9 finite numbers ({unit})")
+    ratios = tuple(check_real(f"{name}[{index}]", item, unit=unit) for index, item in enumerate(items))
+    if ratios[NOOP_INDEX] != 0.0:
+        raise ValueError(f"{name}[{NOOP_INDEX}]={ratios[NOOP_INDEX]!r} is invalid: the no-op (index 4) must be 0.0")
+    return ratios
+
+
+def check_rewards(goal: Any, crash_wall: Any, crash_agent: Any, default: Any) -> RewardTable:
+    """The rewards of Table 2 (``reward_goal``, ``reward_crash_wall``, ``reward_crash_agent``, ``reward_default``),
+    each within ``[-MAX_REWARD, MAX_REWARD]``."""
+    return RewardTable(
+        goal=check_number("reward_goal", goal, low=-MAX_REWARD, high=MAX_REWARD),
+        crash_wall=check_number("reward_crash_wall", crash_wall, low=-MAX_REWARD, high=MAX_REWARD),
+        crash_agent=check_number("reward_crash_agent", crash_agent, low=-MAX_REWARD, high=MAX_REWARD),
+        default=check_number("reward_default", default, low=-MAX_REWARD, high=MAX_REWARD),
+    )
+
+
+def check_substep_length(substep_length: Any, agent_radius: Any) -> float:
+    """``substep_length`` in ``(0, agent_radius]`` (``agent_radius``, already checked, if ``None``)."""
+    if substep_length is None:
+        return float(agent_radius)
+    checked = check_real("substep_length", substep_length, unit="m", positive=True)
+    if checked > float(agent_radius):
+        raise ValueError(
+            f"substep_length={substep_length!r} is invalid: must be in"
+            f" (0, agent_radius={agent_radius!r}] m so that nothing tunnels"
+        )
+    return checked
+
+
+def check_rules(collision_rule: Any, collision_order: Any, contact: Any) -> tuple[str, str, str]:
+    """``(collision_rule, collision_order, contact)`` checked, and compatible: every contact model but ``stop``
+    resolves movers in turn, so it needs the sequential rule."""
+    rule = check_choice("collision_rule", collision_rule, COLLISION_RULES)
+    order = check_choice("collision_order", collision_order, COLLISION_ORDERS)
+    model = check_choice("contact", contact, CONTACT_MODELS)
+    if model != "stop" and rule != "sequential":
+        raise ValueError(
+            f"collision_rule={collision_rule!r} is invalid with contact={contact!r}: the slide, headway and yield"
+            " rules resolve movers in turn (collision_rule: sequential; it applies to contact=stop only)"
+        )
+    return rule, order, model
+
+
+def check_goal_depth(goal_depth: Any) -> float:
+    """``goal_depth`` as a finite float ``>= 0`` (m)."""
+    checked = check_real("goal_depth", goal_depth, unit="m")
+    if checked < 0:
+        raise ValueError(f"goal_depth={goal_depth!r} is invalid: must be a finite number >= 0 (m)")
+    return checked
+
+
+def check_substeps(max_speed: float, decisions_per_second: float, substep_length: float) -> int:
+    """Sub-steps per decision, at most :data:`MAX_SUBSTEPS`, else a one-line ``ValueError`` with the numbers."""
+    decision_length = 1.0 / decisions_per_second
+    move = max_speed * decision_length  # m per decision at top speed
+    if move / substep_length > MAX_SUBSTEPS:
+        raise ValueError(
+            f"max_speed={max_speed!r} m/s, decisions_per_second={decisions_per_second!r} and "
+            f"substep_length={substep_length!r} m are invalid together: a decision would take "
+            f"{move / substep_length:.3g} sub-steps; max_speed / decisions_per_second / substep_length "
+            f"must be at most {MAX_SUBSTEPS}"
+        )
+    return count_substeps(max_speed=max_speed, decision_length=decision_length, substep_length=substep_length)
+
+
+def read_options(options: Mapping[str, Any] | None) -> dict[str, Any]:
+    """``reset``'s ``options`` as a dict, with no key outside :data:`OPTION_KEYS`."""
+    options = dict(options or {})
+    unknown = sorted(set(options) - set(OPTION_KEYS))
+    if unknown:
+        allowed = ", ".join(OPTION_KEYS)
+        raise ValueError(f"options key {unknown[0]!r} is invalid: must be one of {allowed}")
+    return options
+
+
+def read_option(
+    options: Mapping[str, Any],
+    key: str,
+    shape: tuple[int, ...],
+    *,
+    device: torch.device,
+    dtype: torch.dtype = torch.float32,
+) -> torch.Tensor | None:
+    """``options[key]`` as a tensor of ``shape`` (finite if floating point), or ``None`` if it is absent or None."""
+    if options.get(key) is None:
+        return None
+    value = torch.as_tensor(options[key], dtype=dtype, device=device)
+    if tuple(value.shape) != shape:
+        raise ValueError(f"options[{key!r}] has shape {tuple(value.shape)}: must be {shape}")
+    if dtype.is_floating_point and not bool(torch.isfinite(value).all()):
+        raise ValueError(f"options[{key!r}] is invalid: every value must be finite")
+    return value
+
+
+def check_actions(actions: Any, shape: tuple[int, int], *, device: torch.device) -> torch.Tensor:
+    """``actions`` as an int64 tensor of ``shape`` on ``device``: an integer tensor, of that shape."""
+    if not isinstance(actions, torch.Tensor):
+        raise ValueError(f"actions of type {type(actions).__name__} is invalid: must be a torch.Tensor")
+    if tuple(actions.shape) != shape:
+        raise ValueError(f"actions.shape={tuple(actions.shape)} is invalid: must be {shape}")
+    if actions.is_floating_point() or actions.is_complex() or actions.dtype == torch.bool:
+        raise ValueError(f"actions.dtype={actions.dtype} is invalid: must be an integer dtype (int64)")
+    return actions.to(device=device, dtype=torch.int64)
