@@ -5,7 +5,7 @@ A learned crowd, without Hydra or a trainer::
     import pedrl
 
     policy = pedrl.load_policy("policy.safetensors")      # a training checkpoint, or a file of pedrl-export
-    actions = policy.act(obs, info, epsilon=0.1)            # obs (R, N, F), info: as pedrl.sim.RoomEnv gives them
+    actions = policy.act(obs, info, epsilon=0.1, generator=generator)   # obs (R, N, F), info: as RoomEnv gives
 """
 
 from typing import Any

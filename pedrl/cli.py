@@ -18,11 +18,18 @@ from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
 from pedrl.io import CheckpointError
+from pedrl.sim.checks import first_line
 
 T = TypeVar("T")
 PROGRAMS = {"train": "pedrl-train", "evaluate": "pedrl-eval", "plot": "pedrl-plot", "validate": "pedrl-validate"}
 """Console command of each Hydra job name (the module's name)."""
-CONFIG_NAMES = {"pedrl-train": "train", "pedrl-eval": "eval", "pedrl-plot": "plot", "pedrl-validate": "validate"}
+CONFIG_NAMES = {
+    "pedrl-train": "train",
+    "pedrl-eval": "eval",
+    "pedrl-plot": "plot",
+    "pedrl-validate": "validate",
+    "pedrl-export": "export",
+}
 """Primary config (``conf/<name>.yaml``) of each console command."""
 DISK_ERRORS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EIO, errno.EFBIG})
 """Errors of a write that name no file (a full disk fails at ``close``): blamed on the run folder being written."""
@@ -110,7 +117,7 @@ def run_hydra_reporting_errors(program: str, main: Callable[[], T], *, config_di
     except (ConfigCompositionException, OverrideParseException) as err:
         message = describe_hydra_error(err, config_dir=config_dir, config_name=config_name, argv=sys.argv[1:])
     except OmegaConfBaseException as err:  # a Hydra key that cannot be resolved: hydra.run.dir=${oops}
-        reason = (str(err).strip().splitlines() or [type(err).__name__])[0]
+        reason = first_line(err)
         key = getattr(err, "full_key", None)
         message = f"{key} is invalid: {reason}" if key else reason
     except BrokenPipeError:  # stdout piped into a program that stopped reading (`pedrl-train --help | head`)
@@ -250,7 +257,7 @@ def _describe_override_failure(err: Exception) -> str:
             "hydra."
         ):
             line = getattr(frame.f_locals.get("override"), "input_line", None)
-            reason = (str(err).strip().splitlines() or [type(err).__name__])[0]
+            reason = first_line(err)
             return f"{line!r} cannot be applied to the config ({reason})" if line else reason
         traceback = traceback.tb_next
     raise err
@@ -300,7 +307,7 @@ class OutputDirCheck(Callback):
         try:  # Hydra turns a callback's exception into a warning of five lines, and goes on
             directory = OmegaConf.select(config, key, throw_on_missing=True)
         except OmegaConfBaseException as err:  # hydra.run.dir=${oops}
-            fail(program, f"{key} is invalid: {(str(err).strip().splitlines() or [type(err).__name__])[0]}")
+            fail(program, f"{key} is invalid: {first_line(err)}")
         OutputDirCheck.folder = Path(str(directory))
         problem = output_dir_problem(OutputDirCheck.folder)
         if problem:

@@ -37,6 +37,19 @@ ALGO_TARGETS: Final[dict[str, str]] = {
 }
 """Allowed values of ``algo._target_``, with the name of the algorithm each selects."""
 KNOWN_TARGETS: Final = {"env._target_": ENV_CLASSES, "algo._target_": ALGO_TARGETS}
+HISTORICAL_VALUES: Final = {
+    "env.compile_sensing": False,
+    "env.contact": "stop",
+    "env.time_gap": 1.0,
+    "algo.value_transfer": False,
+    "algo.tables": "agent",
+    "algo.void_draws": "decision",
+    "vq.distance_transform": "none",
+}
+"""Keys added after checkpoints were first written, with the value the runs of older checkpoints had (one table per
+agent, raw distances and void fillings drawn at every encode came before their keys)."""
+VOID_FEATURES_DEFAULTS: Final = {"vqql": "zero", "it_vqql": "random", "in_vqql": "zero"}
+"""``algo.void_features`` of each algorithm when its config does not say (IT-VQQL fills void slots, section 5.1)."""
 ENV_RUN_ARGUMENTS: Final = ("num_replicas", "num_agents", "device", "geometry")
 """Room arguments supplied at run time (not config values): the geometry comes from the ``scenario`` config."""
 MAX_CONFIG_DEPTH: Final = 16
@@ -145,8 +158,9 @@ def _parameters(cls: type) -> list[str]:
     return names
 
 
-def check_stored_config(checkpoint: Checkpoint) -> dict[str, Any]:
-    """The training config stored in ``checkpoint``, refused if it is not a mapping of plain values or names code.
+def check_stored_config(checkpoint: Checkpoint, *, kind: str = "checkpoint") -> dict[str, Any]:
+    """The training config stored in ``checkpoint`` (a ``kind`` of file: ``checkpoint`` or ``policy``, for the
+    messages), refused if it is not a mapping of plain values or names code.
 
     It is bounded before anything walks it (:data:`MAX_CONFIG_DEPTH`, :data:`MAX_CONFIG_STRING`,
     :data:`MAX_CONFIG_VALUES`, and the scenario's exits and spawn areas), and it must hold its room: a
@@ -156,8 +170,11 @@ def check_stored_config(checkpoint: Checkpoint) -> dict[str, Any]:
     Raises:
         CheckpointError: one line naming the file and the bad key.
     """
-    config = checkpoint.metadata.get("config")
-    where = f"checkpoint {str(checkpoint.path)!r}"
+    return checked_config(checkpoint.metadata.get("config"), f"{kind} {str(checkpoint.path)!r}", checkpoint.path)
+
+
+def checked_config(config: Any, where: str, path: Path | None = None) -> dict[str, Any]:
+    """:func:`check_stored_config` of a ``config`` read from the file ``path`` (``where`` names it in messages)."""
     if not isinstance(config, dict) or not all(isinstance(config.get(key), dict) for key in ("env", "algo")):
         raise CheckpointError(f"{where} holds no training config (a mapping with env and algo) to rebuild its run")
     try:
@@ -172,7 +189,7 @@ def check_stored_config(checkpoint: Checkpoint) -> dict[str, Any]:
         raise CheckpointError(
             f"{where} names its room's WKT file (scenario.geometry={shown(wkt_file)}) instead of holding the room,"
             " and pedrl opens no file a checkpoint names: re-export it with `python -m pedrl.embed"
-            f" {shlex.quote(str(checkpoint.path))} ROOM.wkt` (ROOM.wkt: the file it was trained on)"
+            f" {shlex.quote(str(path))} ROOM.wkt` (ROOM.wkt: the file it was trained on)"
         )
     return config
 
@@ -238,3 +255,13 @@ def embed_geometry(path: str | os.PathLike, wkt: str | os.PathLike, *, output: s
 
 
 # ---------------------------------------------------------------------- metadata
+
+
+def stored_value(config: Mapping[str, Any], key: str) -> Any:
+    """The value of the dotted ``key`` (``"algo.tables"``) in a stored ``config``, else its
+    :data:`HISTORICAL_VALUES` entry (``KeyError`` if neither)."""
+    section, _, name = key.partition(".")
+    node = config.get(section)
+    if isinstance(node, Mapping) and name in node:
+        return node[name]
+    return HISTORICAL_VALUES[key]

@@ -11,9 +11,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import hydra
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
-from pedrl.cli import run_reporting_errors
+from pedrl.cli import checked_groups, run_reporting_errors
 from pedrl.sim.checks import check_device
 
 CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
@@ -24,7 +24,9 @@ def export(cfg: DictConfig) -> Path:
     from pedrl.policy import export_policy
 
     for key in ("checkpoint", "out"):
-        value = cfg.get(key)
+        value = cfg.get(key) if not OmegaConf.is_missing(cfg, key) else None
+        if value is None:
+            raise ValueError(f"{key} is missing: pass {key}=<path of a .safetensors file>")
         if not isinstance(value, str) or not value.endswith(".safetensors"):
             raise ValueError(f"{key}={value!r} is invalid: must be a path ending in .safetensors")
     if Path(cfg.out).resolve() == Path(cfg.checkpoint).resolve():
@@ -32,6 +34,7 @@ def export(cfg: DictConfig) -> Path:
     return export_policy(cfg.checkpoint, cfg.out, device=check_device(cfg.get("device", "cpu")))
 
 
+@checked_groups("pedrl-export", CONFIG_DIR, groups=())
 @hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="export")
 def main(cfg: DictConfig) -> None:
     """Export a policy; a bad value or file exits with code 2 and one line."""

@@ -7,8 +7,10 @@ Usage::
     policy = pedrl.load_policy("outputs/main/run/checkpoints/last.safetensors")   # or an exported policy.safetensors
     room = pedrl.room_factory(policy)(num_replicas=1, num_agents=40)            # the room it learned in
     obs, info = room.reset(seed=0)
+    generator = torch.Generator().manual_seed(0)                                  # exploration, ties, void fillings
     while room.active.any():
-        obs, reward, terminated, truncated, info = room.step(policy.act(obs, info, epsilon=0.1))
+        actions = policy.act(obs, info, epsilon=0.1, generator=generator)
+        obs, reward, terminated, truncated, info = room.step(actions)
 
 :func:`export_policy` (``pedrl-export``) writes a policy file: the encoder and the tables with their metadata (the
 algorithm, and the training config, which holds the room it learned in), without the generator states and phase
@@ -23,24 +25,32 @@ training run reads (the phase, the trial) is checked against the run's phases by
 from __future__ import annotations
 
 import math
+import weakref
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any, Final
 
 import torch
 
-from pedrl.configs import ALGO_TARGETS, check_stored_config, env_factory
+from pedrl.configs import (
+    ALGO_TARGETS,
+    VOID_FEATURES_DEFAULTS,
+    check_stored_config,
+    checked_config,
+    env_factory,
+    stored_value,
+)
 from pedrl.io import Checkpoint, CheckpointError, load_checkpoint
-from pedrl.rl.policy import POLICY_KIND, TabularPolicy, from_tensors
+from pedrl.rl.policy import POLICY_KIND, TabularPolicy, check_policy_file, from_tensors
 from pedrl.sim import RoomEnv
+from pedrl.sim.checks import first_line, shown
 from pedrl.vq.encoder import EncoderSettings
-from pedrl.vq.settings import VQSettings
 
 RNG_KEYS: Final = ("rng/trainer", "rng/env")
 """Generator states a training checkpoint holds (to resume mid-phase)."""
-RANDOM_VOID_ALGOS: Final = ("it_vqql",)
-"""Algorithms whose ``void_features`` defaults to ``"random"`` (paper section 5.1), for stored configs that lack the
-key; the others default to ``"zero"``."""
+_ROOMS: weakref.WeakKeyDictionary[TabularPolicy, Callable[..., RoomEnv]] = weakref.WeakKeyDictionary()
+"""The room factory each loaded policy was checked against: :func:`room_factory` reuses it (building a stored room
+reads its WKT text with shapely, up to 10 MB)."""
 
 
 def load_policy(
@@ -48,6 +58,7 @@ def load_policy(
     *,
     device: str | torch.device = "cpu",
     kind: str | None = None,
+    hint: str | None = None,
 ) -> TabularPolicy:
     """Read the learned policy of a training checkpoint or of an exported policy file.
 
@@ -55,6 +66,7 @@ def load_policy(
         path: a ``.safetensors`` file written by ``pedrl-train`` or ``pedrl-export``.
         device: where the tables and the quantizer go.
         kind: ``"checkpoint"`` or ``"policy"`` to accept only that kind of file (None: either).
+        hint: what the one-line refusal of the other kind advises (e.g. ``"pass it as policy="``).
 
     Returns:
         The policy, with ``metadata["config"]`` (the training config) and ``metadata["algo"]``;
@@ -67,27 +79,29 @@ def load_policy(
     exported = checkpoint.metadata.get("kind") == POLICY_KIND
     found = "policy" if exported else "checkpoint"
     if kind is not None and kind != found:
-        other = "pedrl-export writes one from a checkpoint" if kind == "policy" else "pass it as policy="
-        raise CheckpointError(
-            f"{str(path)!r} is {'an exported policy' if exported else 'a training checkpoint'}, "
-            f"not {'an exported policy' if kind == 'policy' else 'a training checkpoint'} ({other})"
-        )
-    where = f"{'policy' if exported else 'checkpoint'} {str(path)!r}"
-    config = check_stored_config(checkpoint)
+        names = {"policy": "an exported policy", "checkpoint": "a training checkpoint"}
+        advice = f" ({hint})" if hint else ""
+        raise CheckpointError(f"{str(path)!r} is {names[found]}, not {names[kind]}{advice}")
+    where = f"{found} {str(path)!r}"
+    config = check_stored_config(checkpoint, kind=found)
     try:
+        _check_config_parts(config)
         factory = env_factory(config["env"], config.get("scenario"), files=False)
     except (ValueError, KeyError, TypeError) as err:
-        raise CheckpointError(f"{where} holds a config this pedrl refuses ({_first_line(err)})") from None
+        raise CheckpointError(f"{where} holds a config this pedrl refuses ({first_line(err)})") from None
     try:
-        if not exported:
-            _check_training_file(checkpoint, config)
+        if exported:
+            stored = check_policy_file(checkpoint.metadata, checkpoint.tensors)
+        else:
+            stored = _check_training_file(checkpoint, config)
         room = factory(num_replicas=1, num_agents=1, device=device)
-        settings = _encoder_settings(checkpoint.metadata, config, room)
+        settings = _encoder_settings(stored, config, room)
         tensors = {k: v for k, v in checkpoint.tensors.items() if k not in RNG_KEYS}
         metadata = {"algo": ALGO_TARGETS[config["algo"]["_target_"]], "config": config, "source": str(path)}
         policy = from_tensors(settings, tensors, num_actions=room.num_actions, metadata=metadata)
     except ValueError as err:
-        raise CheckpointError(f"{where}: {_first_line(err)}") from None
+        raise CheckpointError(f"{where}: {first_line(err)}") from None
+    _ROOMS[policy] = factory
     return policy
 
 
@@ -97,7 +111,7 @@ def export_policy(checkpoint: str | Path, out: str | Path, *, device: str | torc
     Raises:
         CheckpointError: one line, for a checkpoint that cannot be read or a file that cannot be written.
     """
-    policy = load_policy(checkpoint, device=device, kind="checkpoint")
+    policy = load_policy(checkpoint, device=device, kind="checkpoint", hint="it is exported already")
     return policy.save(out)
 
 
@@ -110,13 +124,28 @@ def room_factory(
     :class:`~pedrl.scenarios.Scenario`.
 
     Raises:
-        ValueError: one line, for a bad ``scenario`` or ``max_decisions``.
+        ValueError: one line, for a bad ``scenario`` or ``max_decisions``, or a policy without a training config.
     """
+    env = room_settings(policy) | ({} if max_decisions is None else {"max_decisions": max_decisions})
     config = policy.metadata["config"]
-    env = dict(config["env"]) | ({} if max_decisions is None else {"max_decisions": max_decisions})
-    if scenario is None:
-        return env_factory(env, config.get("scenario"), files=False)
-    return env_factory(env, scenario)
+    if scenario is not None:
+        return env_factory(env, scenario)
+    if max_decisions is None and policy in _ROOMS:
+        return _ROOMS[policy]
+    return env_factory(env, config.get("scenario"), files=False)
+
+
+def room_settings(policy: TabularPolicy) -> dict[str, Any]:
+    """The ``env`` settings (bodies, speeds, sensing, rewards) of the room ``policy`` learned in: its training
+    config's, checked as a stored config is (:func:`pedrl.configs.checked_config`).
+
+    Raises:
+        ValueError: one line, for a policy that holds no training config (one built in memory).
+    """
+    config = policy.metadata.get("config")
+    if policy not in _ROOMS:  # a policy file read by TabularPolicy.load, or built in memory: check what it holds
+        config = checked_config(config, f"policy of {policy.metadata.get('source', 'unknown origin')}")
+    return dict(config["env"])
 
 
 # ---------------------------------------------------------------------- checks
@@ -168,12 +197,23 @@ def check_run_metadata(meta: Mapping[str, Any], config: Mapping[str, Any], max_s
         raise ValueError("metadata final is invalid: must map figure names to numbers")
 
 
-def _check_training_file(checkpoint: Checkpoint, config: Mapping[str, Any]) -> None:
+def _check_config_parts(config: Mapping[str, Any]) -> None:
+    """One line for a stored config whose ``algo`` names no known trainer or whose ``vq`` is not a mapping."""
+    target = config["algo"].get("_target_")
+    if target not in ALGO_TARGETS:
+        raise ValueError(f"algo._target_={shown(target)} is invalid: must be one of {', '.join(ALGO_TARGETS)}")
+    if not isinstance(config.get("vq", {}), Mapping):
+        raise ValueError(f"vq={shown(config.get('vq'))} is invalid: must be a mapping of quantizer settings")
+
+
+def _check_training_file(checkpoint: Checkpoint, config: Mapping[str, Any]) -> EncoderSettings | None:
+    """The checks of a training checkpoint that need no trainer; returns its stored encoder settings (None in files
+    written before they were stored)."""
     check_run_metadata(checkpoint.metadata, config)
     check_tensor_names(checkpoint)
     for name in RNG_KEYS:
         check_rng_state(name, checkpoint.tensors[name])
-    tables = config["algo"].get("tables", "process")
+    tables = stored_value(config, "algo.tables")
     q_values = checkpoint.tensors["q_values"]
     expected = 1 if tables == "process" else checkpoint.metadata["agents"]
     if q_values.ndim == 4 and q_values.shape[1] != expected:
@@ -181,25 +221,24 @@ def _check_training_file(checkpoint: Checkpoint, config: Mapping[str, Any]) -> N
             f"tensor q_values is {q_values.dtype} {tuple(q_values.shape)}: algo.tables={tables} with "
             f"{checkpoint.metadata['agents']} agents needs {expected} tables per process"
         )
+    stored = checkpoint.metadata.get("encoder")
+    return None if stored is None else EncoderSettings.from_metadata(stored)
 
 
-def _encoder_settings(meta: Mapping[str, Any], config: Mapping[str, Any], room: RoomEnv) -> EncoderSettings:
-    """The encoder settings a file stores, or (checkpoints written before they were stored) those its config and
-    room give; a stored set must agree with them."""
+def _encoder_settings(stored: EncoderSettings | None, config: Mapping[str, Any], room: RoomEnv) -> EncoderSettings:
+    """The encoder settings a file stores, which must agree with its config and room; or (checkpoints written before
+    they were stored) those its config and room give, keys it lacks taking the values of their time
+    (:data:`pedrl.configs.HISTORICAL_VALUES`)."""
     algo = config["algo"]
-    name = ALGO_TARGETS[algo["_target_"]]
     derived = EncoderSettings.for_room(
         room,
-        void_features=algo.get("void_features", "random" if name in RANDOM_VOID_ALGOS else "zero"),
-        void_draws=algo.get("void_draws", "trial"),
-        distance_transform=VQSettings.from_config(config["vq"]).distance_transform,
+        void_features=algo.get("void_features", VOID_FEATURES_DEFAULTS[ALGO_TARGETS[algo["_target_"]]]),
+        void_draws=stored_value(config, "algo.void_draws"),
+        distance_transform=stored_value(config, "vq.distance_transform"),
     )
-    if "encoder" not in meta:
-        return derived
-    stored = EncoderSettings.from_metadata(meta["encoder"])
-    if stored != derived:
-        raise ValueError(f"metadata encoder={meta['encoder']!r} disagrees with its config: must be {derived}")
-    return stored
+    if stored is not None and stored != derived:
+        raise ValueError(f"metadata encoder={stored.to_metadata()!r} disagrees with its config: must be {derived}")
+    return derived
 
 
 def _is_int(value: Any) -> bool:
@@ -208,7 +247,3 @@ def _is_int(value: Any) -> bool:
 
 def _is_real(value: Any) -> bool:
     return isinstance(value, int | float) and not isinstance(value, bool)
-
-
-def _first_line(err: BaseException) -> str:
-    return (str(err).strip().splitlines() or [type(err).__name__])[0]

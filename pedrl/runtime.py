@@ -13,7 +13,7 @@ import torch
 
 
 def set_threads(threads: int | None) -> None:
-    """Set torch's CPU thread count (None: leave torch's default); validated by :func:`build_trainer`."""
+    """Set torch's CPU thread count (None: leave torch's default); each entry point checks ``threads`` first."""
     if threads is not None and torch.get_num_threads() != threads:
         torch.set_num_threads(threads)
 

@@ -56,10 +56,10 @@ def run(cfg: DictConfig, *, run_dir: Path | None = None) -> dict[str, Any]:
     set_threads(cfg.get("threads"))
     learned = None
     if checkpoint is not None:
-        from pedrl.policy import load_policy
+        from pedrl.policy import load_policy, room_settings
 
         policy = load_policy(checkpoint, device=device)
-        env_settings = dict(policy.metadata["config"]["env"])
+        env_settings = room_settings(policy)
         learned = (policy.controller(epsilon, torch.Generator(device=device)), env_settings)  # seeded by the runner
         own = float(env_settings.get("agent_radius", 0.4))
         if radius is not None and radius != own:

@@ -120,6 +120,8 @@ def test_a_training_checkpoint_is_not_a_policy_file_and_back(trained):
         (["checkpoint=missing.safetensors", "out=p.safetensors"], ("missing.safetensors",)),
         (["checkpoint=POLICY", "out=again.safetensors"], ("is an exported policy, not a training checkpoint",)),
         (["out=p.safetensors", "device=gpu"], ("device='gpu' is invalid",)),
+        (["out=p.safetensors", "oot=q.safetensors"], ("oot is not a key of the config",)),
+        ([], ("out is missing: pass out=",)),
     ],
 )
 def test_pedrl_export_refuses_bad_input_in_one_line(args, fragments, trained, tmp_path, capsys):
@@ -154,3 +156,69 @@ def test_pedrl_export_and_eval_policy_as_console_scripts(trained, tmp_path):
     )
     lines = refused.stderr.strip().splitlines()
     assert refused.returncode == 2 and len(lines) == 1 and "pass it as policy=" in lines[0], refused.stderr
+
+
+def _rewritten(path, tmp_path, change):
+    """A copy of the file at ``path`` with ``change(tensors, metadata)`` applied."""
+    import json
+
+    from safetensors import safe_open
+    from safetensors.torch import load_file, save_file
+
+    from pedrl.io.checkpoint import METADATA_KEY
+
+    tensors = load_file(str(path))
+    with safe_open(str(path), framework="pt") as handle:
+        metadata = json.loads(handle.metadata()[METADATA_KEY])
+    change(tensors, metadata)
+    out = tmp_path / f"changed_{path.name}"
+    save_file(tensors, str(out), metadata={METADATA_KEY: json.dumps(metadata)})
+    return out
+
+
+@pytest.mark.parametrize(
+    ("which", "change", "message"),
+    [
+        ("policy", lambda t, m: m.update(policy_version=2), "policy_version=2 is unknown"),
+        ("policy", lambda t, m: t.update(evil=torch.zeros(1)), "tensor evil is unknown"),
+        ("policy", lambda t, m: m.pop("encoder"), "metadata encoder is missing"),
+        ("policy", lambda t, m: m["config"].pop("vq"), "disagrees with its config"),  # no vq: raw distances then
+        ("policy", lambda t, m: m["config"].update(vq=None), "vq=None is invalid"),
+        ("policy", lambda t, m: m["config"]["algo"].pop("_target_"), "algo._target_=None is invalid"),
+        ("checkpoint", lambda t, m: m["config"]["algo"].pop("_target_"), "algo._target_=None is invalid"),
+        ("checkpoint", lambda t, m: m["encoder"].update(num_walls=1), "disagrees with its config"),
+    ],
+)
+def test_both_kinds_of_file_are_checked_alike_in_one_line(trained, tmp_path, which, change, message):
+    path = _rewritten(dict(zip(("checkpoint", "policy"), trained, strict=True))[which], tmp_path, change)
+    with pytest.raises(CheckpointError, match=message) as error:
+        pedrl.load_policy(path)
+    assert "\n" not in str(error.value) and str(path) in str(error.value)
+
+
+def test_a_checkpoint_older_than_its_keys_gets_the_values_of_its_time(trained, tmp_path):
+    """Keys added after a checkpoint was written take the values runs had then (pedrl.configs.HISTORICAL_VALUES):
+    void fillings drawn at every encode and raw distances, here; the encoder follows them."""
+
+    def older(tensors, metadata):
+        metadata.pop("encoder")
+        metadata["config"]["algo"].pop("void_draws")
+        metadata["config"]["vq"].pop("distance_transform")
+
+    settings = pedrl.load_policy(_rewritten(trained[0], tmp_path, older)).encoder.settings
+    assert (settings.void_draws, settings.distance_transform) == ("decision", "none")
+
+
+def test_act_without_a_generator_draws_on_from_the_policys_own(trained):
+    policy = pedrl.load_policy(trained[1])
+    room = room_factory(policy)(num_replicas=2, num_agents=5)
+    obs, info = room.reset(seed=0)
+    first, second = (policy.act(obs, info, epsilon=1.0) for _ in range(2))
+    assert not torch.equal(first, second)  # a new default generator per call would repeat the same draws
+
+
+def test_the_adapter_refuses_a_crowd_it_cannot_run(trained):
+    from pedrl.integrations.pettingzoo import parallel_env
+
+    with pytest.raises(ValueError, match="crowd of type str is invalid: must be a pedrl.TabularPolicy"):
+        parallel_env(num_agents=3, width=8.0, length=8.0, crowd=str(trained[1]))

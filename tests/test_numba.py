@@ -14,9 +14,9 @@ pytestmark = pytest.mark.skipif(not numba_available(), reason="numba is off (PED
 # Two small kernels (the greedy choice and its row prefetch): about 1 s to compile in a fresh process.
 SCRIPT = """
 import torch
-from pedrl.rl.kernels import greedy_from_rows
+from pedrl.rl.kernels import greedy_kernel
 q_values = torch.tensor([[0.0, 3.0, 1.0], [5.0, 1.0, 2.0]]).view(1, 1, 2, 3)
-print(greedy_from_rows(q_values, torch.tensor([1, 0, 1]), torch.zeros(3)).tolist())
+print(greedy_kernel(q_values, torch.tensor([1, 0, 1]), torch.zeros(3)).tolist())
 """
 
 

@@ -40,7 +40,7 @@ from pedrl.rl.policy import TabularPolicy
 from pedrl.sim import RoomEnv
 from pedrl.sim.checks import check_bool, check_choice, check_device, check_integer, check_memory, check_number
 from pedrl.vq import Quantizer
-from pedrl.vq.encoder import EncoderSettings, StateEncoder
+from pedrl.vq.encoder import VOID_DRAWS, VOID_FEATURES, EncoderSettings, StateEncoder
 from pedrl.vq.settings import VQSettings
 
 TABLES = ("agent", "process")
@@ -114,8 +114,8 @@ class Trainer:
         check_number("epsilon_start", epsilon_start, low=0.0, high=1.0)
         check_number("epsilon_end", epsilon_end, low=0.0, high=1.0)
         check_number("epsilon_decay_fraction", epsilon_decay_fraction, low=0.0, high=1.0, low_open=True)
-        check_choice("void_features", void_features, ("zero", "random"))
-        check_choice("void_draws", void_draws, ("trial", "decision"))
+        check_choice("void_features", void_features, VOID_FEATURES)
+        check_choice("void_draws", void_draws, VOID_DRAWS)
         check_choice("tables", tables, TABLES)
         self.device = check_device(device)
         self.env_factory, self.processes, self.rooms_per_process, self.tables = (
@@ -299,7 +299,12 @@ class Trainer:
         schedule = self.epsilon_schedule(phase)
         description = f"{self.name} phase {phase.index}/{len(self.phases())} ({phase.num_agents} agents)"
         tic = time.perf_counter()
-        bar = tqdm(range(first_trial, phase.trials), desc=description, disable=not (self.progress and interactive()))
+        bar = tqdm(
+            range(first_trial, phase.trials),
+            desc=description,
+            disable=not (self.progress and interactive()),
+            leave=False,
+        )
         stats = None
         for trial in bar:
             epsilon = schedule(trial)
@@ -394,10 +399,9 @@ class Trainer:
     def _save(self, record, phase, quantizer, q_values, distortion, summaries, env, trial, stats, iteration) -> None:
         """Write the checkpoint of ``phase`` after ``trial`` trials (:meth:`RunRecord.save`)."""
         tensors = {
-            "q_values": q_values,
+            **self.policy(quantizer, q_values).tensors(),
             "rng/trainer": self.generator.get_state(),
             "rng/env": env.generator.get_state(),
-            **{f"quantizer/{k}": v for k, v in quantizer.state_dict().items()},
         }
         metadata = {
             "algo": self.name,

@@ -15,22 +15,20 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Final
+from typing import TYPE_CHECKING, Any
 
 import torch
 
-from pedrl.configs import check_stored_config
+from pedrl.configs import HISTORICAL_VALUES, check_stored_config
 from pedrl.io import Checkpoint, CheckpointError, load_checkpoint
 from pedrl.policy import RNG_KEYS, check_rng_state, check_run_metadata, check_tensor_names
 from pedrl.rl import in_huge_pages
-from pedrl.rl.policy import rebuild_quantizer
+from pedrl.rl.policy import QUANTIZER_PREFIX, rebuild_quantizer
 from pedrl.vq import ProcessQuantizers
 
 if TYPE_CHECKING:
     from pedrl.algos.base import Trainer
     from pedrl.algos.phase import Phase
-
-QUANTIZER_PREFIX: Final = "quantizer"
 
 
 @dataclass(frozen=True)
@@ -66,29 +64,26 @@ class RestoredState:
     final: dict[str, float] = field(default_factory=dict)
 
 
-def restore_state(trainer: Trainer, checkpoint: Checkpoint, *, continue_training: bool = True) -> RestoredState:
-    """Validate ``checkpoint`` against ``trainer`` and rebuild its quantizer and tables.
+def restore_state(trainer: Trainer, checkpoint: Checkpoint) -> RestoredState:
+    """Validate ``checkpoint`` (its stored config already checked, :func:`load_resume`) against ``trainer`` and
+    rebuild its quantizer and tables; the generator states of a mid-phase checkpoint must fit the trainer's device.
 
     Args:
         trainer: the trainer built from the run's config.
         checkpoint: the loaded file.
-        continue_training: the generator states will be restored (a mid-phase resume), so they must also fit a
-            generator of the trainer's device; ``pedrl-eval`` does not use them.
 
     Raises:
         CheckpointError: one line naming the file, the bad key, what it is and what is allowed.
     """
     where = f"checkpoint {str(checkpoint.path)!r}"
     meta = checkpoint.metadata
-    check_stored_config(checkpoint)
     try:
         position, phase, trial = _check_progress(trainer, meta)
         check_run_metadata(meta, checkpoint.metadata["config"], max_summaries=position + 1)
         check_tensor_names(checkpoint)
         quantizer = _rebuild_quantizer(trainer, checkpoint, position)
         q_values = _check_tables(trainer, checkpoint.tensors.get("q_values"), phase, quantizer.num_prototypes)
-        restore_rng = continue_training and trial < phase.trials
-        rng = [_check_rng(trainer, name, checkpoint.tensors[name], restore=restore_rng) for name in RNG_KEYS]
+        rng = [_check_rng(trainer, name, checkpoint.tensors[name], restore=trial < phase.trials) for name in RNG_KEYS]
     except CheckpointError:
         raise
     except ValueError as err:
@@ -128,6 +123,8 @@ def _check_progress(trainer: Trainer, meta: dict[str, Any]) -> tuple[int, Phase,
             f"metadata phase_complete={complete!r} is invalid: must be {trial == phase.trials} at trial {trial} "
             f"of {phase.trials}"
         )
+    if trial == 0:  # a phase's first checkpoint comes after a trial (or at its end): its start is the previous phase's
+        raise ValueError(f"metadata trial=0 is invalid: must be in [1, {phase.trials}] (no checkpoint before a trial)")
     if meta.get("agents") != phase.num_agents:
         raise ValueError(f"metadata agents={meta.get('agents')!r} is invalid: phase {iteration} has {phase.num_agents}")
     return position, phase, trial
@@ -179,17 +176,13 @@ RESUME_INDEPENDENT = ("resume", "device", "progress", "logger", "hydra", "thread
 """Top-level keys that may change on resume: the results do not depend on them."""
 
 
-NEWER_KEYS = {"env.compile_sensing": False, "env.contact": "stop", "env.time_gap": 1.0, "algo.value_transfer": False}
-"""Keys added after checkpoints were first written, with the value the runs of older checkpoints had."""
-
-
 def config_mismatch(saved: Mapping[str, Any], current: Mapping[str, Any], prefix: str = "") -> str:
     """The first differing key between two nested configs, ignoring keys that may change on resume; a key that an
-    older checkpoint lacks counts as its value in ``NEWER_KEYS``."""
+    older checkpoint lacks counts as its value in ``HISTORICAL_VALUES``."""
     for key in sorted(set(saved) | set(current)):
         if not prefix and key in RESUME_INDEPENDENT:
             continue
-        a = saved.get(key, NEWER_KEYS.get(f"{prefix}{key}", "<absent>"))
+        a = saved.get(key, HISTORICAL_VALUES.get(f"{prefix}{key}", "<absent>"))
         b = current.get(key, "<absent>")
         if isinstance(a, Mapping) and isinstance(b, Mapping):
             found = config_mismatch(a, b, f"{prefix}{key}.")

@@ -19,7 +19,6 @@ from pedrl.cli import hydra_output_dir
 from pedrl.evaluation.engine import (
     EvalSettings,
     Recorder,
-    _first_line,
     build_rooms,
     evaluate_policy,
     load_controller,
@@ -37,6 +36,7 @@ from pedrl.sim.checks import (
     check_integer,
     check_memory,
     check_number,
+    first_line,
 )
 
 CONTROLLERS: Final = ("learned", "greedy", "jupedsim")
@@ -138,7 +138,7 @@ def validate_config(cfg: DictConfig) -> None:
     try:
         _validate_values(cfg)
     except OmegaConfBaseException as err:  # e.g. a key deleted with ~key
-        raise ValueError(f"the eval config is incomplete: {_first_line(err)}") from None
+        raise ValueError(f"the eval config is incomplete: {first_line(err)}") from None
 
 
 def _validate_values(cfg: DictConfig) -> None:

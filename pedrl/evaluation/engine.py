@@ -31,11 +31,12 @@ from pedrl.evaluation.batch import BatchRecord, Recorder
 from pedrl.evaluation.jupedsim import JuPedSimReference
 from pedrl.evaluation.report import write_density_map, write_fundamental_diagram, write_scaling_json
 from pedrl.integrations.jupedsim import JuPedSimModel
-from pedrl.io import CheckpointError, CsvWriter, RunLogger
-from pedrl.policy import load_policy, room_factory
+from pedrl.io import CsvWriter, RunLogger
+from pedrl.policy import load_policy, room_factory, room_settings
 from pedrl.rl.policy import PolicyController
 from pedrl.scenarios import Scenario, paper_room
 from pedrl.sim import RoomEnv
+from pedrl.sim.checks import first_line
 from pedrl.sim.controllers import Controller, GreedyDoorController
 
 SCALING_COLUMNS: Final = (
@@ -109,17 +110,13 @@ def load_controller(
     Raises:
         CheckpointError: one line, for a missing, foreign, corrupt or crafted file.
     """
-    policy = load_policy(path, device=device, kind=kind)
-    where = f"{kind} {str(path)!r}"
+    other = {"checkpoint": "pass it as policy=", "policy": "pass it as checkpoint="}[kind]
+    policy = load_policy(path, device=device, kind=kind, hint=other)
     try:  # the file's own room is stored in it and opens no file; the user's scenario may name a WKT file
         factory = room_factory(policy, scenario, max_decisions=max_decisions)
-    except (ValueError, KeyError, TypeError) as err:
-        if scenario is not None:
-            raise
-        raise CheckpointError(f"{where} holds a config this pedrl refuses ({_first_line(err)})") from None
-    env_settings = dict(policy.metadata["config"]["env"])
-    if max_decisions is not None:
-        env_settings["max_decisions"] = max_decisions
+    except (KeyError, TypeError) as err:  # a ValueError names the scenario's or max_decisions' bad value itself
+        raise ValueError(f"the room of {kind} {str(path)!r} cannot be built ({first_line(err)})") from None
+    env_settings = room_settings(policy) | ({} if max_decisions is None else {"max_decisions": max_decisions})
     label = (factory, env_settings, policy.num_processes, policy.num_tables, policy.metadata["algo"])
     if controller == "greedy":
         return LoadedPolicy(GreedyDoorController(epsilon=epsilon, generator=torch.Generator(device=device)), *label)
@@ -452,7 +449,3 @@ def _concatenate_diagrams(diagrams: Sequence[FundamentalDiagram]) -> Fundamental
 
 def _add_maps(a: DensityMap, b: DensityMap) -> DensityMap:
     return replace(a, counts=a.counts + b.counts, num_frames=a.num_frames + b.num_frames)
-
-
-def _first_line(err: BaseException) -> str:
-    return (str(err).strip().splitlines() or [type(err).__name__])[0]

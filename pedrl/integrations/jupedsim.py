@@ -48,7 +48,7 @@ from shapely.geometry import Polygon
 
 from pedrl.scenarios import Scenario
 from pedrl.sim import RoomEnv
-from pedrl.sim.checks import check_choice, check_real
+from pedrl.sim.checks import check_choice, check_real, first_line
 
 __all__ = [
     "EXIT_APRON_DEPTH",
@@ -396,7 +396,7 @@ def _jupedsim_scene(
         simulation = jps.Simulation(model=operational, geometry=start.area, dt=model.dt)
         exit_stages = [simulation.add_exit_stage(apron) for apron in start.aprons]
     except RuntimeError as err:
-        raise ValueError(f"scenario {scenario.name!r} is invalid for JuPedSim: {_first_line(err)}") from None
+        raise ValueError(f"scenario {scenario.name!r} is invalid for JuPedSim: {first_line(err)}") from None
     waypoint_stages: dict[tuple[float, float], int] = {}
     journeys: dict[tuple[tuple[tuple[float, float], ...], int], _Journey] = {}
     agents: dict[int, tuple[int, _Journey]] = {}  # JuPedSim id -> (agent index, its journey)
@@ -411,7 +411,7 @@ def _jupedsim_scene(
             agents[simulation.add_agent(parameters)] = (index, journey)
         except RuntimeError as err:  # e.g. too close to a wall or another agent for the model
             raise ValueError(
-                f"positions[{index}]={starts[index].tolist()} is invalid: JuPedSim refuses it ({_first_line(err)})"
+                f"positions[{index}]={starts[index].tolist()} is invalid: JuPedSim refuses it ({first_line(err)})"
             ) from None
     return simulation, agents
 
@@ -651,7 +651,3 @@ def _check_inside(name: str, points: np.ndarray, walkable: Polygon) -> None:
 def _describe(value: Any) -> str:
     shape = getattr(value, "shape", None)
     return f"shape {tuple(shape)}" if shape is not None else repr(value)[:60]
-
-
-def _first_line(err: BaseException) -> str:
-    return (str(err).strip().splitlines() or [type(err).__name__])[0]

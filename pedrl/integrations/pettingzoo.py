@@ -155,6 +155,15 @@ class PedestrianParallelEnv(ParallelEnv):
         learners = (1 if crowd is not None else env.num_agents) if learners is None else learners
         check_integer("learners", learners, minimum=1, maximum=env.num_agents)
         check_number("crowd_epsilon", crowd_epsilon, low=0.0, high=1.0)
+        if crowd is not None and not isinstance(crowd, TabularPolicy):
+            raise ValueError(
+                f"crowd of type {type(crowd).__name__} is invalid: must be a pedrl.TabularPolicy (pedrl.load_policy)"
+            )
+        if crowd is not None and crowd.device != env.device:
+            raise ValueError(
+                f"crowd is on {crowd.device} and the room on {env.device}: load it there, "
+                f"pedrl.load_policy(path, device={str(env.device)!r})"
+            )
         if crowd is not None:
             features = crowd.encoder.settings.num_features
             if features != env.num_features or crowd.num_actions != env.num_actions:

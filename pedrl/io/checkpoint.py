@@ -20,6 +20,7 @@ from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
 from pedrl.io.files import replace_atomically
+from pedrl.sim.checks import first_line
 from pedrl.version import __version__
 
 FORMAT_NAME: Final = "pedrl-checkpoint"
@@ -83,7 +84,7 @@ def save_checkpoint(path: str | os.PathLike, *, tensors: dict[str, torch.Tensor]
     try:
         return replace_atomically(path, lambda temporary: save_file(cpu_tensors, str(temporary), metadata=encoded))
     except (SafetensorError, OSError) as err:
-        raise CheckpointError(f"cannot write checkpoint {str(path)!r}: {_first_line(err)}") from None
+        raise CheckpointError(f"cannot write checkpoint {str(path)!r}: {first_line(err)}") from None
 
 
 def load_checkpoint(path: str | os.PathLike, *, device: str | torch.device = "cpu") -> Checkpoint:
@@ -106,7 +107,7 @@ def load_checkpoint(path: str | os.PathLike, *, device: str | torch.device = "cp
         tensors = load_file(str(path), device=str(device))
     except (SafetensorError, OSError, RuntimeError, ValueError, OverflowError) as err:
         raise CheckpointError(
-            f"checkpoint {str(path)!r} is corrupt or truncated, or not a safetensors file ({_first_line(err)})"
+            f"checkpoint {str(path)!r} is corrupt or truncated, or not a safetensors file ({first_line(err)})"
         ) from None
     if raw is None:
         raise CheckpointError(f"checkpoint {str(path)!r} is a safetensors file but not a pedrl checkpoint")
@@ -127,7 +128,3 @@ def load_checkpoint(path: str | os.PathLike, *, device: str | torch.device = "cp
             f"checkpoint {str(path)!r} has format_version={version}, this pedrl reads up to {FORMAT_VERSION}"
         )
     return Checkpoint(tensors=tensors, metadata=metadata, path=path)
-
-
-def _first_line(err: BaseException) -> str:
-    return (str(err).strip().splitlines() or [type(err).__name__])[0]

@@ -1,10 +1,11 @@
-"""Numba kernels of the Q tables; their specifications are `pedrl.rl.qlearning.td_update_torch` and `pedrl.rl.greedy`.
+"""Numba kernels of the Q tables; their specifications are `pedrl.rl.qlearning.td_update_torch` and
+`pedrl.rl.qtable.greedy_torch`.
 
 Each reproduces its torch function of `pedrl.rl` to the bit, with the same random numbers drawn by torch
 beforehand, so a seed gives the same run either way (the tests check it): :func:`td_update_kernel` is the twin of
-:func:`pedrl.rl.qlearning.td_update_torch`, :func:`greedy_from_rows` that of the torch path of
-:func:`pedrl.rl.greedy` (``pedrl.rl.qtable._greedy_from_rows``). On a CPU a decision's greedy choice or TD update is
-a dozen small torch operations; here it is one pass over the batch.
+:func:`pedrl.rl.qlearning.td_update_torch`, :func:`greedy_kernel` that of :func:`pedrl.rl.qtable.greedy_torch`.
+On a CPU a decision's greedy choice or TD update is a dozen small torch operations; here it is one pass over the
+batch.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import torch
 
 from pedrl._numba import cached_njit
 
-__all__ = ["greedy_from_rows", "td_update_kernel"]
+__all__ = ["greedy_kernel", "td_update_kernel"]
 
 
 @cached_njit(nogil=True)
@@ -94,7 +95,7 @@ def _greedy(table, rows, uniform, actions):
         actions[b] = chosen
 
 
-def greedy_from_rows(q_values: torch.Tensor, rows: torch.Tensor, uniform: torch.Tensor) -> torch.Tensor:
+def greedy_kernel(q_values: torch.Tensor, rows: torch.Tensor, uniform: torch.Tensor) -> torch.Tensor:
     """Greedy actions of ``rows (B,)`` of the flat tables, the ``floor(uniform * c)``-th of ``c`` tied maxima."""
     actions = torch.empty(rows.shape[0], dtype=torch.int64)
     table = q_values.view(-1, q_values.shape[-1]).numpy()

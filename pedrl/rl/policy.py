@@ -22,7 +22,7 @@ import torch
 
 from pedrl.io import CheckpointError, load_checkpoint, save_checkpoint
 from pedrl.rl.qtable import NUM_ACTIONS, epsilon_greedy, table_rows
-from pedrl.sim.checks import check_integer, check_number
+from pedrl.sim.checks import check_integer, check_number, first_line
 from pedrl.vq.encoder import EncoderSettings, StateEncoder, quantizer_from_state_dict
 
 POLICY_KIND: Final = "pedrl-policy"
@@ -101,6 +101,7 @@ class TabularPolicy:
         self.metadata = dict(metadata or {})
         processes, tables, num_states, _ = q_values.shape
         self.layout = TableLayout(processes, tables, num_states, rooms_per_process)
+        self._generator: torch.Generator | None = None  # act's, when none is given: one stream of draws
 
     @property
     def num_processes(self) -> int:
@@ -151,9 +152,17 @@ class TabularPolicy:
         """Actions ``(R, N)`` int64 for observations ``obs (R, N, F)`` and ``info`` (as ``RoomEnv`` returns them).
 
         ``epsilon`` in ``[0, 1]`` is the share of random actions (0: greedy, ties broken at random); ``generator``
-        (on the tables' device) draws them, the ties and random void fillings: reseed it for reproducible runs.
+        (on the tables' device) draws them, the ties and random void fillings: pass a seeded one for reproducible
+        runs (None: the policy's own, seeded from the system's entropy on first use).
+
+        The encoder draws random void fillings once per trial (``void_draws="trial"``, at decision 0), so one
+        policy acts in one stream of trials at a time: rooms stepped in turn want a policy each.
         """
-        generator = generator if generator is not None else torch.Generator(device=self.device)
+        if generator is None:
+            if self._generator is None:
+                self._generator = torch.Generator(device=self.device)
+                self._generator.seed()
+            generator = self._generator
         rows = self.rows(obs, info, generator)
         return epsilon_greedy(self.q_values, rows, epsilon, generator).view(obs.shape[0], obs.shape[1])
 
@@ -183,10 +192,16 @@ class TabularPolicy:
             raise ValueError("tensor q_values holds NaN or infinite values: must be finite")
         self.encoder.check()
 
+    def tensors(self) -> dict[str, torch.Tensor]:
+        """The tables and the quantizer as named tensors: ``q_values`` and ``quantizer/<key>`` (as files hold them)."""
+        return {
+            "q_values": self.q_values,
+            **{f"{QUANTIZER_PREFIX}/{k}": v for k, v in self.encoder.state_dict().items()},
+        }
+
     def save(self, path: str | Path) -> Path:
         """Write the encoder and the tables, with their metadata, to ``path`` (atomically; safetensors)."""
-        tensors = {"q_values": self.q_values.contiguous()}
-        tensors |= {f"{QUANTIZER_PREFIX}/{k}": v for k, v in self.encoder.state_dict().items()}
+        tensors = {name: tensor.contiguous() for name, tensor in self.tensors().items()}
         metadata = {
             **{key: value for key, value in self.metadata.items() if key not in FILE_KEYS},
             "kind": POLICY_KIND,
@@ -212,18 +227,27 @@ class TabularPolicy:
                 f"{POLICY_KIND!r}): export a training checkpoint with pedrl-export, or load it with pedrl.load_policy"
             )
         try:
-            if meta.get("policy_version") != POLICY_VERSION:
-                version = meta.get("policy_version")
-                raise ValueError(f"metadata policy_version={version!r} is unknown: this pedrl reads {POLICY_VERSION}")
-            settings = EncoderSettings.from_metadata(meta.get("encoder"))
-            for name in set(checkpoint.tensors) - {"q_values"}:
-                if not name.startswith(QUANTIZER_PREFIX + "/"):
-                    raise ValueError(f"tensor {name} is unknown: allowed: q_values, quantizer/...")
+            settings = check_policy_file(meta, checkpoint.tensors)
             carried = {key: value for key, value in meta.items() if key not in FILE_KEYS}
-            policy = from_tensors(settings, checkpoint.tensors, num_actions=NUM_ACTIONS, metadata=carried)
+            return from_tensors(settings, checkpoint.tensors, num_actions=NUM_ACTIONS, metadata=carried)
         except ValueError as err:
             raise CheckpointError(f"policy {str(path)!r}: {err}") from None
-        return policy
+
+
+def check_policy_file(meta: Mapping[str, Any], tensors: Mapping[str, torch.Tensor]) -> EncoderSettings:
+    """The encoder settings of an exported policy file (``meta`` with ``kind`` :data:`POLICY_KIND`), after a one-line
+    ``ValueError`` for an unknown ``policy_version``, missing or bad ``encoder`` settings, or a tensor other than
+    ``q_values`` and ``quantizer/...`` (the tensors themselves are checked by :func:`from_tensors`)."""
+    if meta.get("policy_version") != POLICY_VERSION:
+        version = meta.get("policy_version")
+        raise ValueError(f"metadata policy_version={version!r} is unknown: this pedrl reads {POLICY_VERSION}")
+    if "encoder" not in meta:
+        raise ValueError("metadata encoder is missing: a policy file stores its encoder settings")
+    settings = EncoderSettings.from_metadata(meta["encoder"])
+    for name in set(tensors) - {"q_values"}:
+        if not name.startswith(QUANTIZER_PREFIX + "/"):
+            raise ValueError(f"tensor {name} is unknown: allowed: q_values, quantizer/...")
+    return settings
 
 
 class PolicyController:
@@ -266,7 +290,7 @@ def rebuild_quantizer(tensors: Mapping[str, torch.Tensor]) -> Any:
     try:
         return quantizer_from_state_dict(dict(tensors))
     except (KeyError, ValueError, RuntimeError, TypeError, IndexError) as err:
-        reason = (str(err).strip().splitlines() or [type(err).__name__])[0]
+        reason = first_line(err)
         raise ValueError(f"the quantizer tensors do not form a quantizer ({reason})") from None
 
 

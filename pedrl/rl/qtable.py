@@ -107,23 +107,6 @@ def table_rows(
     return (process * num_tables + table) * num_states + state
 
 
-def _greedy_from_rows(values: torch.Tensor, generator: torch.Generator | None) -> torch.Tensor:
-    """Argmax of each row of `values (B, U)`, ties broken uniformly at random.
-
-    The `j`-th of a row's `c` tied maxima is picked with `j` uniform in `[0, c)`: a running count of the maxima
-    exceeds `j` first at that action. One random number per row, not one per action. Counts are int16 (`U` is
-    small), the fastest of the variants measured on CPU.
-    """
-    num_rows, num_actions = values.shape
-    best = values.amax(1, keepdim=True)
-    running = (values == best).to(torch.int16).cumsum(1, dtype=torch.int16)
-    count = running[:, -1].long()
-    uniform = torch.rand(num_rows, generator=generator, device=values.device)
-    pick = (uniform * count).long().clamp_(max=count - 1).to(torch.int16)
-    # A materialised right-hand side: broadcast int16 comparisons are slow in torch on CPU.
-    return (running > pick[:, None].expand(-1, num_actions).contiguous()).byte().argmax(1)
-
-
 def greedy(
     q_values: torch.Tensor,
     rows: torch.Tensor,
@@ -147,12 +130,31 @@ def greedy(
         `(B,)` int64 actions in `[0, U)`.
     """
     if use_kernels(q_values.device, compiled):
-        from pedrl.rl.kernels import greedy_from_rows  # imports numba: only where it is used
+        from pedrl.rl.kernels import greedy_kernel  # imports numba: only where it is used
 
         uniform = torch.rand(rows.shape[0], generator=generator, device=q_values.device)
-        return greedy_from_rows(q_values, rows, uniform)
+        return greedy_kernel(q_values, rows, uniform)
+    return greedy_torch(q_values, rows, generator)
+
+
+def greedy_torch(q_values: torch.Tensor, rows: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
+    """:func:`greedy` in torch, on any device: the specification of :func:`pedrl.rl.kernels.greedy_kernel`. The
+    argmax of each row `rows (B,)` of `q_values`, ties broken uniformly at random.
+
+    The `j`-th of a row's `c` tied maxima is picked with `j` uniform in `[0, c)`: a running count of the maxima
+    exceeds `j` first at that action. One random number per row, not one per action. Counts are int16 (`U` is
+    small), the fastest of the variants measured on CPU.
+    """
     # index_select: a plain row gather from a large table is several times slower on CPU
-    return _greedy_from_rows(q_values.view(-1, q_values.shape[-1]).index_select(0, rows), generator)
+    values = q_values.view(-1, q_values.shape[-1]).index_select(0, rows)
+    num_rows, num_actions = values.shape
+    best = values.amax(1, keepdim=True)
+    running = (values == best).to(torch.int16).cumsum(1, dtype=torch.int16)
+    count = running[:, -1].long()
+    uniform = torch.rand(num_rows, generator=generator, device=values.device)
+    pick = (uniform * count).long().clamp_(max=count - 1).to(torch.int16)
+    # A materialised right-hand side: broadcast int16 comparisons are slow in torch on CPU.
+    return (running > pick[:, None].expand(-1, num_actions).contiguous()).byte().argmax(1)
 
 
 def epsilon_greedy(

@@ -50,7 +50,7 @@ import torch
 from shapely.geometry import LineString, Point, Polygon, box
 
 from pedrl.notices import warn
-from pedrl.sim.checks import check_number, shown
+from pedrl.sim.checks import check_number, first_line, shown
 from pedrl.sim.env import MAX_DENSITY, RoomEnv
 from pedrl.sim.geometry import Geometry, SpawnArea, spawn_counts
 
@@ -781,7 +781,7 @@ def _index(name: str, value: Any, size: int) -> int:
 
 def _reason(err: BaseException) -> str:
     """First line of an error, cut short: a parser may quote the text it read."""
-    line = (str(err).strip().splitlines() or [type(err).__name__])[0]
+    line = first_line(err)
     return line if len(line) <= 120 else line[:120] + "..."
 
 

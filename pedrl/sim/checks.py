@@ -97,7 +97,7 @@ def check_device(value: Any) -> torch.device:
             raise ValueError(f"device type {device.type!r} is not supported")
         torch.empty(1, device=device)
     except (RuntimeError, AssertionError, TypeError, ValueError) as error:
-        reason = (str(error).strip().splitlines() or [type(error).__name__])[0].split(". ")[0][:100]
+        reason = first_line(error).split(". ")[0][:100]
         raise ValueError(
             f"device={value!r} is invalid: must be cpu or cuda[:index], available here ({reason})"
         ) from None
@@ -146,3 +146,8 @@ def check_memory(needs: Mapping[str, float], *, device: torch.device, advice: st
 
 def _gib(size: float) -> str:
     return f"{size / GIB:.3g} GiB"
+
+
+def first_line(err: BaseException) -> str:
+    """The first line of an error's message (its type's name when empty): what a one-line error quotes."""
+    return (str(err).strip().splitlines() or [type(err).__name__])[0]

@@ -1,4 +1,4 @@
-"""Exact nearest-prototype search by a k-d tree, compiled with numba (CPU).
+"""Exact nearest-prototype search by a k-d tree, in numba (CPU); its specification is `pedrl.vq.nearest_prototype`.
 
 The quantizer's states are far from filling their 28 dimensions: with the default feature weights (own features
 4, walls 0.5, neighbours 0.2) three principal components hold 98 % of the prototypes' variance, so a k-d tree

@@ -226,6 +226,7 @@ CORPUS = {
     # metadata values
     "negative trial": (_set_meta("trial", -7), "trial=-7 is invalid: must be an integer in \\[0, 2\\]"),
     "trial past the phase": (_set_meta("trial", 3), "trial=3 is invalid"),
+    "no trial inside a phase": (lambda t, m, c: m.update(trial=0, phase_complete=False), "trial=0 is invalid"),
     "trial as text": (_set_meta("trial", "1"), "trial='1' is invalid"),
     "unknown phase": (_set_meta("iteration", 9), "iteration=9 is invalid"),
     "phase_complete disagrees": (_set_meta("phase_complete", False), "phase_complete=False is invalid"),
@@ -320,7 +321,13 @@ def _craft(original: Path, folder: Path, make, canary: Path) -> Path:
     return _write(path, tensors, metadata)
 
 
-RESUME_ONLY = {"negative trial", "trial past the phase", "unknown phase", "phase_complete disagrees"}
+RESUME_ONLY = {
+    "negative trial",
+    "trial past the phase",
+    "no trial inside a phase",
+    "unknown phase",
+    "phase_complete disagrees",
+}
 """Progress that only a resumed run reads, checked against the run's phases by ``pedrl-train resume=``: evaluation
 needs no trainer (issue 21), checks only that the trial is an integer >= 0, and acts with the tables it holds."""
 
