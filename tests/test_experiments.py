@@ -22,7 +22,7 @@ PAPER = {"paper_vqql": ("VQQL", 0.25), "paper_it": ("ITVQQL", 0.35), "paper_in":
 NAMES = {"pedrl.algos.VQQL": "vqql", "pedrl.algos.ITVQQL": "it_vqql", "pedrl.algos.INVQQL": "in_vqql"}
 K_VALUES = [512, 1024, 2048, 4096, 8192, 16384]
 REWARDS = {"paper_vqql": "paper", "paper_it": "paper", "paper_in": "paper", "main": "tuned", "tuned_it": "tuned"}
-REWARDS |= {"tuned_in": "tuned"}
+REWARDS |= {"tuned_in": "tuned", "pedestrian": "tuned"}
 RESULTS = Path(CONFIG_DIR).parent / "docs" / "results.md"
 FORMER_COMMENTS = "## Measured figures formerly in the config comments"
 
