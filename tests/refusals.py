@@ -112,23 +112,25 @@ def assert_nothing_computed(run_dir: Path) -> None:
 
 
 # ---------------------------------------------------------------------- what the cases refer to
-def train_checkpoint(tmp_path_factory) -> Path:
-    """``last.safetensors`` of a seconds-long VQQL run (2 processes, 2 agents, a 10 m x 10 m room).
+TINY_VQQL = (
+    "debug=default",
+    "algo=vqql",
+    "algo.num_agents=2",
+    "algo.trials=2",
+    "vq.num_prototypes=8",
+    "env.max_decisions=10",
+    "logger=none",
+)
+"""A seconds-long VQQL run: 2 processes, 2 agents, a 10 m x 10 m room."""
+
+
+def train_checkpoint(tmp_path_factory, overrides: tuple[str, ...] = TINY_VQQL) -> Path:
+    """``last.safetensors`` of a seconds-long run of the train config with ``overrides`` (default :data:`TINY_VQQL`),
+    progress bars off and torch's thread count restored after it.
 
     Each test module that needs it wraps it in a module-scoped ``checkpoint`` fixture."""
     with initialize_config_dir(version_base="1.3", config_dir=CONFIG_DIR):
-        cfg = compose(
-            "train",
-            [
-                "debug=default",
-                "algo=vqql",
-                "algo.num_agents=2",
-                "algo.trials=2",
-                "vq.num_prototypes=8",
-                "env.max_decisions=10",
-                "logger=none",
-            ],
-        )
+        cfg = compose("train", list(overrides))
     with open_dict(cfg):
         cfg.progress = False
     run_dir = tmp_path_factory.mktemp("trained")

@@ -8,7 +8,6 @@ import sys
 import pytest
 import torch
 from hydra import compose, initialize_config_dir
-from omegaconf import open_dict
 
 import pedrl
 import pedrl.evaluate
@@ -16,8 +15,8 @@ import pedrl.export
 from pedrl.evaluation import evaluate
 from pedrl.io import CheckpointError
 from pedrl.policy import room_factory
-from pedrl.train import CONFIG_DIR, train
-from tests.refusals import EVAL_BASE, assert_refused, run_hydra_main
+from pedrl.train import CONFIG_DIR
+from tests.refusals import EVAL_BASE, assert_refused, run_hydra_main, train_checkpoint
 
 TINY_IT = (
     "debug=default",
@@ -34,18 +33,8 @@ TINY_IT = (
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory):
     """A seconds-long IT-VQQL checkpoint (2 processes, one quantizer per process) and its exported policy."""
-    with initialize_config_dir(version_base="1.3", config_dir=CONFIG_DIR):
-        cfg = compose("train", list(TINY_IT))
-    with open_dict(cfg):
-        cfg.progress = False
-    run_dir = tmp_path_factory.mktemp("trained")
-    threads = torch.get_num_threads()
-    try:
-        train(cfg, run_dir=run_dir)
-    finally:
-        torch.set_num_threads(threads)
-    checkpoint = run_dir / "checkpoints" / "last.safetensors"
-    exported = pedrl.export_policy(checkpoint, run_dir / "policy.safetensors")
+    checkpoint = train_checkpoint(tmp_path_factory, TINY_IT)
+    exported = pedrl.export_policy(checkpoint, checkpoint.parent.parent / "policy.safetensors")
     return checkpoint, exported
 
 
