@@ -267,7 +267,9 @@ class Trainer:
                     first_trial = 0
                     self._seed_phase(phase, env)
                     if not (self.continues_previous(phase) and previous is not None):
-                        quantizer, q_values, distortion = self._new_tables(phase, env, previous, summaries, record)
+                        quantizer, q_values, distortion = self._new_tables(
+                            phase, env, previous, summaries, record, global_trial
+                        )
                     else:
                         quantizer, q_values = previous
                 save = partial(self._save, record, phase, quantizer, q_values, distortion, summaries, env)
@@ -283,14 +285,16 @@ class Trainer:
         final = final_figures(stats) if stats is not None else {}
         return TrainResult(final, self.run_dir, record.checkpoint_path, record.wall_time(), summaries)
 
-    def _new_tables(self, phase, env, previous, summaries, record) -> tuple[Any, torch.Tensor, float]:
+    def _new_tables(self, phase, env, previous, summaries, record, global_trial) -> tuple[Any, torch.Tensor, float]:
         """Gather the phase's states (following the previous tables, or a random walk), fit its quantizer, and make
-        its first tables; the phase's summary goes to ``summaries`` and TensorBoard."""
+        its first tables; the phase's summary goes to ``summaries`` and TensorBoard (at ``global_trial``, the
+        phase's first)."""
         gathered = self.gather(phase, env, previous)
         quantizer, distortion = self.fit_quantizers(phase, gathered, previous[0] if previous else None)
         q_values = self.initial_q_values(phase, quantizer, previous, env.num_actions)
-        first_trial = sum(p.trials for p in self.phases()[: phase.index - 1])
-        summaries.append(record.log_phase(phase, first_trial, gathered, quantizer.num_prototypes, distortion, q_values))
+        summaries.append(
+            record.log_phase(phase, global_trial, gathered, quantizer.num_prototypes, distortion, q_values)
+        )
         return quantizer, q_values, distortion
 
     def _learn(self, phase, env, policy, first_trial, global_trial, record, save) -> tuple[TrialStats, int]:
