@@ -18,7 +18,7 @@ import os
 import shlex
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any, Final
+from typing import Any, Final, NamedTuple
 
 from pedrl.io import Checkpoint, CheckpointError, load_checkpoint, save_checkpoint
 from pedrl.scenarios import MAX_WKT_BYTES, build_scenario, check_scenario_sizes, geometry_file, inline_geometry
@@ -45,6 +45,7 @@ HISTORICAL_VALUES: Final = {
     "algo.tables": "agent",
     "algo.void_draws": "decision",
     "vq.distance_transform": "none",
+    "mix": [],
 }
 """Keys added after checkpoints were first written, with the value the runs of older checkpoints had (one table per
 agent, raw distances and void fillings drawn at every encode came before their keys)."""
@@ -56,8 +57,22 @@ MAX_CONFIG_DEPTH: Final = 16
 """Deepest nesting of a stored config (a run's config is 4 deep: ``scenario.exits[0][1]``)."""
 MAX_CONFIG_STRING: Final = 4096
 """Longest string (or key) of a stored config, bar ``scenario.geometry``, the room's WKT text (10 MB)."""
+MAX_MIX: Final = 16
+"""Most rooms of a ``mix`` (training across scenarios)."""
+MAX_MIX_AGENTS: Final = 10_000
+"""Most agents of a room of a ``mix``."""
 MAX_CONFIG_VALUES: Final = 100_000
 """Most values (mappings, lists and leaves) of a stored config."""
+
+
+class TrainingRoom(NamedTuple):
+    """A room a run trains in besides its scenario's (``mix``): its label, its factory (:func:`env_factory`), its
+    agents, and its ``mix`` entry as a checkpoint stores it (a WKT file replaced by its text)."""
+
+    label: str
+    factory: Callable[..., RoomEnv]
+    num_agents: int
+    config: dict[str, Any]
 
 
 def check_names_no_code(config: Mapping[str, Any], *, stored: bool = False) -> None:
@@ -177,8 +192,11 @@ def checked_config(config: Any, where: str, path: Path | None = None) -> dict[st
     """:func:`check_stored_config` of a ``config`` read from the file ``path`` (``where`` names it in messages)."""
     if not isinstance(config, dict) or not all(isinstance(config.get(key), dict) for key in ("env", "algo")):
         raise CheckpointError(f"{where} holds no training config (a mapping with env and algo) to rebuild its run")
+    mix = config.get("mix") if isinstance(config.get("mix"), list) else []
     try:
         check_scenario_sizes(config.get("scenario"))  # counts only: first, for the clearest line
+        for entry in mix[:MAX_MIX]:
+            check_scenario_sizes(entry)
         _check_config_size(config)
         wkt_file = geometry_file(config.get("scenario"))
         if wkt_file is None:
@@ -192,6 +210,47 @@ def checked_config(config: Any, where: str, path: Path | None = None) -> dict[st
             f" {shlex.quote(str(path))} ROOM.wkt` (ROOM.wkt: the file it was trained on)"
         )
     return config
+
+
+def mix_rooms(env: Mapping[str, Any], mix: Any, *, home: str = "room", files: bool = True) -> list[TrainingRoom]:
+    """The rooms of a ``mix`` config: a list of scenario configs (``name`` and the builder's keys, as in
+    ``conf/scenario/``), each with the ``agents`` it holds; each room is the ``env`` config's, in its scenario.
+
+    Labels (the TensorBoard tags and the ``room`` column of ``learning_curve.csv``) are ``<name>_<agents>``, with
+    ``_<index>`` added where two would be the same; the run's own room is labelled ``home``, its scenario's name.
+
+    Raises:
+        ValueError: one line naming ``mix[i]`` and the bad value.
+    """
+    if mix is None:
+        return []
+    if not isinstance(mix, list | tuple):
+        raise ValueError(
+            f"mix={shown(mix)} is invalid: must be a list of scenarios, e.g. [{{name: corridor, agents: 40}}]"
+        )
+    if len(mix) > MAX_MIX:
+        raise ValueError(f"mix holds {len(mix)} rooms: at most {MAX_MIX}")
+    rooms, labels = [], {home}
+    for index, entry in enumerate(mix):
+        where = f"mix[{index}]"
+        if not isinstance(entry, Mapping) or not isinstance(entry.get("name"), str):
+            raise ValueError(
+                f"{where}={shown(entry)} is invalid: must be a scenario config with a name and agents, e.g. "
+                "{name: corridor, agents: 40}"
+            )
+        agents = entry.get("agents")
+        if isinstance(agents, bool) or not isinstance(agents, int) or not 1 <= agents <= MAX_MIX_AGENTS:
+            raise ValueError(f"{where}.agents={shown(agents)} is invalid: must be an integer in [1, {MAX_MIX_AGENTS}]")
+        try:
+            scenario = inline_geometry({key: value for key, value in entry.items() if key != "agents"}, files=files)
+            factory = env_factory(env, scenario, files=files)
+        except ValueError as err:
+            raise ValueError(f"{where}: {err}") from None
+        label = f"{scenario['name']}_{agents}"
+        label = label if label not in labels else f"{label}_{index}"
+        labels.add(label)
+        rooms.append(TrainingRoom(label, factory, agents, {**scenario, "agents": agents}))
+    return rooms
 
 
 def _check_config_size(config: dict[str, Any]) -> None:
@@ -214,9 +273,14 @@ def _check_config_size(config: dict[str, Any]) -> None:
         elif isinstance(node, list):
             stack.extend((value, f"{path}[{index}]", depth + 1) for index, value in enumerate(node))
         elif isinstance(node, str):
-            most = MAX_WKT_BYTES if path == "scenario.geometry" else MAX_CONFIG_STRING
+            most = MAX_WKT_BYTES if _is_geometry_path(path) else MAX_CONFIG_STRING
             if len(node) > most:
                 raise ValueError(f"{_cut(path)}={shown(node)} is invalid: at most {most} characters")
+
+
+def _is_geometry_path(path: str) -> bool:
+    """``scenario.geometry`` or ``mix[i].geometry``: where a stored config holds a room's WKT text."""
+    return path == "scenario.geometry" or (path.startswith("mix[") and path.endswith("].geometry"))
 
 
 def _cut(path: str) -> str:

@@ -17,13 +17,15 @@ from pedrl.analysis import plot_learning_curves
 from pedrl.io import read_csv
 
 
-def read_learning_curve(path: str | Path, *, metric: str = "success_rate", smooth: int = 1):
+def read_learning_curve(path: str | Path, *, metric: str = "success_rate", smooth: int = 1, room: str | None = None):
     """Read ``learning_curve.csv``.
 
     Args:
         path: the CSV, or the run directory holding it.
         metric: one of the curve metrics (``success_rate``, ``episodic_return``, ...).
         smooth: moving-average window in trials (1: raw); the average is trailing and restarts at every phase.
+        room: the rows of this room of a run trained across scenarios (its ``room`` column); None: the run's own
+            room, the one that plays its last trial (every row, for a run in one room).
 
     Returns:
         ``(global_trial (T,), mean (T,), std (T,), boundaries)`` where boundaries are the trial numbers at which a
@@ -46,6 +48,11 @@ def read_learning_curve(path: str | Path, *, metric: str = "success_rate", smoot
         raise ValueError(f"learning curve {str(path)!r} is not a CSV text file ({reason})") from None
     if not rows:
         raise ValueError(f"learning curve {str(path)!r} has no rows yet")
+    rooms = curve_rooms(rows)
+    if room is not None and room not in rooms:
+        raise ValueError(f"room={room!r} is not in {str(path)!r}: one of {', '.join(rooms) or 'none (no room column)'}")
+    if len(rooms) > 1:
+        rows = [r for r in rows if r["room"] == (room if room is not None else rows[-1]["room"])]
     if f"{metric}_mean" not in rows[0]:
         known = sorted(k[: -len("_mean")] for k in rows[0] if k.endswith("_mean"))
         raise ValueError(f"metric={metric!r} is not in {str(path)!r}: one of {', '.join(known)}")
@@ -60,6 +67,11 @@ def read_learning_curve(path: str | Path, *, metric: str = "success_rate", smoot
     if smooth > 1:
         mean, std = _moving_average(mean, phases, smooth), _moving_average(std, phases, smooth)
     return trials, mean, std, boundaries
+
+
+def curve_rooms(rows: Sequence[dict[str, str]]) -> list[str]:
+    """The rooms of a learning curve's ``rows``, in the order they first play (none before rooms were logged)."""
+    return list(dict.fromkeys(r["room"] for r in rows if r.get("room")))
 
 
 def _moving_average(values: np.ndarray, phases: np.ndarray, window: int) -> np.ndarray:
@@ -139,5 +151,16 @@ def _default_labels(runs: Sequence[Path]) -> list[str]:
 
 
 def plot_learning_curve_file(csv_path: str | Path, output: str | Path, *, label: str, smooth: int = 1) -> Path:
-    """``learning_curve.png`` of one run."""
-    return plot_runs([csv_path], output, labels=[label], smooth=smooth)
+    """``learning_curve.png`` of one run: one curve, or one per room for a run trained across scenarios."""
+    rows = read_csv(csv_path)
+    rooms = curve_rooms(rows)
+    if len(rooms) <= 1:
+        return plot_runs([csv_path], output, labels=[label], smooth=smooth)
+    curves = {}
+    for room in rooms:
+        trials, mean, std, _ = read_learning_curve(csv_path, smooth=smooth, room=room)
+        curves[f"{label}: {room}"] = (trials, mean, std)
+    starts = [float(b["global_trial"]) for a, b in zip(rows, rows[1:], strict=False) if a["phase"] != b["phase"]]
+    axes = plot_learning_curves(curves, boundaries=starts, ylabel="success rate (fraction of agents reaching an exit)")
+    axes.figure.savefig(output, dpi=120)
+    return Path(output)

@@ -22,7 +22,7 @@ PAPER = {"paper_vqql": ("VQQL", 0.25), "paper_it": ("ITVQQL", 0.35), "paper_in":
 NAMES = {"pedrl.algos.VQQL": "vqql", "pedrl.algos.ITVQQL": "it_vqql", "pedrl.algos.INVQQL": "in_vqql"}
 K_VALUES = [512, 1024, 2048, 4096, 8192, 16384]
 REWARDS = {"paper_vqql": "paper", "paper_it": "paper", "paper_in": "paper", "main": "tuned", "tuned_it": "tuned"}
-REWARDS |= {"tuned_in": "tuned", "pedestrian": "tuned"}
+REWARDS |= {"tuned_in": "tuned", "pedestrian": "tuned", "pedestrian_mix": "tuned"}
 RESULTS = Path(CONFIG_DIR).parent / "docs" / "results.md"
 FORMER_COMMENTS = "## Measured figures formerly in the config comments"
 
@@ -50,10 +50,13 @@ def test_every_experiment_composes_and_builds_a_trainer(name, compose, tmp_path)
 
 
 def experiment_file(name):
-    """An experiment file's body (plain containers) and its group choices, as overrides (``algo=it_vqql``)."""
+    """An experiment file's body (plain containers) and its group choices, as overrides (``algo=it_vqql``); an
+    experiment it builds on (a plain name in its defaults) is ``experiment=<name>``."""
     body = OmegaConf.to_container(OmegaConf.load(Path(CONFIG_DIR) / "experiment" / f"{name}.yaml"))
     choices = [
-        f"{key.removeprefix('override /')}={value}" for entry in body.pop("defaults") for key, value in entry.items()
+        f"experiment={entry}" if isinstance(entry, str) else f"{key.removeprefix('override /')}={value}"
+        for entry in body.pop("defaults")
+        for key, value in ([(None, entry)] if isinstance(entry, str) else entry.items())
     ]
     body.pop("hydra", None)
     return body, choices
@@ -84,7 +87,10 @@ def test_experiments_take_their_rewards_from_the_rewards_group(name, compose):
     body, choices = experiment_file(name)
     assert not [key for key in body.get("env", {}) if key.startswith("reward_")], "rewards come from conf/rewards/"
     expected = REWARDS.get(name)
-    assert [c for c in choices if c.startswith("rewards=")] == ([f"rewards={expected}"] if expected else [])
+    bases = [c.removeprefix("experiment=") for c in choices if c.startswith("experiment=")]
+    inherited = [c for base in bases for c in experiment_file(base)[1] if c.startswith("rewards=")]
+    own = [c for c in choices if c.startswith("rewards=")]
+    assert own + inherited == ([f"rewards={expected}"] if expected else [])
     env = compose("train", [f"experiment={name}"]).env
     rewards = OmegaConf.load(Path(CONFIG_DIR) / "rewards" / f"{expected or 'default'}.yaml")
     assert {key: env[key] for key in rewards} == OmegaConf.to_container(rewards)

@@ -20,7 +20,8 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import replace
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -30,10 +31,12 @@ from tqdm.auto import tqdm
 
 from pedrl.algos.budget import check_gathering_yield, memory_needs
 from pedrl.algos.fitting import feature_weights, fit_plain_quantizer, fit_quantizers
+from pedrl.algos.mix import merge_gathered, room_of_trial
 from pedrl.algos.phase import Phase, TrainResult
 from pedrl.algos.records import RunRecord, final_figures, interactive, report_phase
 from pedrl.algos.restore import load_resume
 from pedrl.algos.rollout import Gathered, TrialStats, check_finite, gather, run_trial
+from pedrl.configs import TrainingRoom
 from pedrl.io.files import remove_temporaries_in
 from pedrl.rl import LinearSchedule, zeros_q_values
 from pedrl.rl.policy import TabularPolicy
@@ -76,6 +79,9 @@ class Trainer:
         tensorboard: write TensorBoard events.
         progress: show a progress bar.
         run_config: the resolved run config, stored in checkpoints and compared on resume.
+        mix: rooms of other scenarios that take turns with each phase's room, trial by trial
+            (:mod:`pedrl.algos.mix`); their states are gathered too, and they learn into the same tables.
+        home: the label of the phase's own room in ``learning_curve.csv`` and TensorBoard (its scenario's name).
     """
 
     name = "base"
@@ -102,6 +108,8 @@ class Trainer:
         tensorboard: bool = True,
         progress: bool = True,
         run_config: Mapping[str, Any] | None = None,
+        mix: Sequence[TrainingRoom] = (),
+        home: str = "room",
     ) -> None:
         self.vq = vq if isinstance(vq, VQSettings) else VQSettings.from_config(vq)
         check_integer("processes", processes, minimum=1)
@@ -138,12 +146,18 @@ class Trainer:
             self.env_for(num_agents)  # validates the phases and the room parameters before any compute
         self.feature_weights()  # validates the neighbour weights before any compute
         room = next(iter(self._envs.values()))
-        self.encoder_settings = EncoderSettings.for_room(
+        self.home, self.mix = home, list(mix)
+        replicas = self.processes * self.rooms_per_process  # the same env settings: the same observations and actions
+        self._mix_envs = [e.factory(num_replicas=replicas, num_agents=e.num_agents, device=self.device) for e in mix]
+        settings = EncoderSettings.for_room(
             room,
             void_features=void_features,
             void_draws=void_draws,
             distance_transform=self.vq.distance_transform,
         )
+        # random void fillings span the largest room trained in
+        longest = max([settings.max_distance] + [env.max_distance for env in self._mix_envs])
+        self.encoder_settings = replace(settings, max_distance=longest)
         check_memory(
             memory_needs(self),
             device=self.device,
@@ -273,9 +287,11 @@ class Trainer:
                     else:
                         quantizer, q_values = previous
                 save = partial(self._save, record, phase, quantizer, q_values, distortion, summaries, env)
-                # --- 2. learn from the phase's trials, with a checkpoint every checkpoint_every trials
+                # --- 2. learn from the phase's trials (in turn in every room), with a checkpoint every
+                #        checkpoint_every trials
                 policy = self.policy(quantizer, q_values)
-                stats, global_trial = self._learn(phase, env, policy, first_trial, global_trial, record, save)
+                rooms = self.rooms(env)
+                stats, global_trial = self._learn(phase, rooms, policy, first_trial, global_trial, record, save)
                 # --- 3. the phase's checkpoint, iter_XXXX and last
                 save(phase.trials, stats, iteration=True)
                 previous = (quantizer, q_values)
@@ -297,9 +313,10 @@ class Trainer:
         )
         return quantizer, q_values, distortion
 
-    def _learn(self, phase, env, policy, first_trial, global_trial, record, save) -> tuple[TrialStats, int]:
-        """Trials ``first_trial .. phase.trials - 1`` of ``phase``, each logged; ``save(trial, stats, iteration)``
-        writes a checkpoint. Returns the last trial's statistics and the next global trial."""
+    def _learn(self, phase, rooms, policy, first_trial, global_trial, record, save) -> tuple[TrialStats, int]:
+        """Trials ``first_trial .. phase.trials - 1`` of ``phase``, each in its turn's room of ``rooms`` (labels and
+        rooms, :meth:`rooms`) and logged; ``save(trial, stats, iteration)`` writes a checkpoint. Returns the last
+        trial's statistics and the next global trial."""
         schedule = self.epsilon_schedule(phase)
         description = f"{self.name} phase {phase.index}/{len(self.phases())} ({phase.num_agents} agents)"
         tic = time.perf_counter()
@@ -313,12 +330,23 @@ class Trainer:
         for trial in bar:
             epsilon = schedule(trial)
             trial_tic = time.perf_counter()
+            label, env = rooms[room_of_trial(trial, phase.trials, len(rooms))]
             stats = run_trial(
                 env, policy, epsilon=epsilon, generator=self.generator, learn=True, alpha=self.alpha, gamma=self.gamma
             )
             check_finite(phase.index, trial, stats, policy.q_values, last=trial + 1 == phase.trials)
             rate = stats.agent_decisions / (time.perf_counter() - trial_tic)
-            record.log_trial(phase, trial, global_trial, epsilon, stats, rate)
+            record.log_trial(
+                phase,
+                trial,
+                global_trial,
+                epsilon,
+                stats,
+                rate,
+                room=label,
+                agents=env.num_agents,
+                per_room=bool(self.mix),
+            )
             global_trial += 1
             bar.set_postfix(success=f"{stats.success_rate.mean():.2f}", eps=f"{epsilon:.3f}")
             if self.checkpoint_every and (trial + 1) % self.checkpoint_every == 0 and trial + 1 < phase.trials:
@@ -333,14 +361,11 @@ class Trainer:
         """Record the states visited in ``phase.gather_trials`` trials, following :meth:`gather_tables` (or a random
         walk) with exploration ``phase.gather_epsilon``."""
         tables = self.gather_tables(phase, previous)
-        return gather(
-            env,
-            StateEncoder(self.encoder_settings),
-            self.policy(*tables) if tables is not None else None,
-            trials=phase.gather_trials,
-            epsilon=phase.gather_epsilon,
-            processes=self.processes,
-            generator=self.generator,
+        policy = self.policy(*tables) if tables is not None else None
+        encoder = StateEncoder(self.encoder_settings)
+        settings = dict(trials=phase.gather_trials, epsilon=phase.gather_epsilon, processes=self.processes)
+        return merge_gathered(
+            [gather(room, encoder, policy, **settings, generator=self.generator) for _, room in self.rooms(env)]
         )
 
     def fit_quantizers(self, phase: Phase, gathered: Gathered, previous: Any | None) -> tuple[Any, float]:
@@ -393,6 +418,13 @@ class Trainer:
                 device=self.device,
             )
         return self._envs[num_agents]
+
+    def rooms(self, env: RoomEnv) -> list[tuple[str, RoomEnv]]:
+        """The labelled rooms a phase whose own room is ``env`` trains in: ``env``, then the ``mix`` rooms. These
+        draw from ``env``'s generator, so that one stream (``rng/env`` in a checkpoint) drives every room."""
+        for room in self._mix_envs:
+            room.generator = env.generator
+        return [(self.home, env), *((entry.label, room) for entry, room in zip(self.mix, self._mix_envs, strict=True))]
 
     # ------------------------------------------------------------------ bookkeeping
     def _seed_phase(self, phase: Phase, env: RoomEnv) -> None:

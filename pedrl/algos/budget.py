@@ -23,7 +23,8 @@ def memory_needs(trainer: Trainer) -> dict[str, float]:
     """Estimated bytes of a run's largest allocations, by what they hold: the worst phase of each.
 
     Q tables ``(R, A, K, 81)`` float32 (:data:`TABLE_COPIES` of them), the gathered states
-    (``gather_trials x R E N x max_decisions`` rows of ``F`` float32, :data:`GATHER_COPIES` copies), one k-means
+    (``gather_trials x R E N x max_decisions`` rows of ``F`` float32 in each room, the ``mix`` rooms' included,
+    :data:`GATHER_COPIES` copies), one k-means
     fit (``vq.max_states`` states, :data:`KMEANS_COPIES` copies, and a ``chunk_size x K`` block of scores) and
     one decision of the room (:meth:`pedrl.sim.RoomEnv.step_memory`).
     """
@@ -34,7 +35,8 @@ def memory_needs(trainer: Trainer) -> dict[str, float]:
         entries = trainer.processes * trainer.num_tables(phase) * trainer.max_prototypes(phase) * env.num_actions
         tables = max(tables, TABLE_COPIES * entries * 4)
         rooms = trainer.processes * trainer.rooms_per_process
-        rows = phase.gather_trials * rooms * phase.num_agents * env.max_decisions
+        agents = phase.num_agents + sum(entry.num_agents for entry in trainer.mix)  # gathered in every room
+        rows = phase.gather_trials * rooms * agents * env.max_decisions
         gathered = max(gathered, rows * (GATHER_COPIES * env.num_features * 4 + 16))
         fit_rows = min(rows, trainer.vq.max_states)
         kmeans = max(kmeans, (KMEANS_COPIES * fit_rows * env.num_features + chunk * trainer.vq.num_prototypes) * 4)

@@ -22,6 +22,7 @@ CURVE_COLUMNS: Final = (
     "epsilon",
     *(f"{m}_{s}" for m in CURVE_METRICS for s in ("mean", "std")),
     "decisions_per_s",
+    "room",
 )
 
 
@@ -65,9 +66,21 @@ class RunRecord:
             if writer is not None:
                 writer.close()
 
-    def log_trial(self, phase: Phase, trial: int, global_trial: int, epsilon: float, stats: TrialStats, rate: float):
+    def log_trial(
+        self,
+        phase: Phase,
+        trial: int,
+        global_trial: int,
+        epsilon: float,
+        stats: TrialStats,
+        rate: float,
+        *,
+        room: str = "",
+        agents: int | None = None,
+        per_room: bool = False,
+    ):
         """One trial's row and scalars (:func:`log_trial`)."""
-        log_trial(self.logger, self.curve, phase, trial, global_trial, epsilon, stats, rate)
+        log_trial(self.logger, self.curve, phase, trial, global_trial, epsilon, stats, rate, room, agents, per_room)
 
     def log_phase(
         self, phase: Phase, global_trial: int, gathered: Gathered, prototypes: int, distortion: float, q_values
@@ -105,16 +118,21 @@ def log_trial(
     epsilon: float,
     stats: TrialStats,
     rate: float,
+    room: str = "",
+    agents: int | None = None,
+    per_room: bool = False,
 ) -> None:
     """Write one trial's row of ``learning_curve.csv`` and its TensorBoard scalars (mean and spread over the
-    processes)."""
+    processes); the row names the ``room`` it was played in and its ``agents`` (None: the phase's), and
+    ``per_room`` (training across scenarios) also logs the room's own curves, ``rooms/<room>/<metric>``."""
     row: dict[str, Any] = {
         "phase": phase.index,
-        "agents": phase.num_agents,
+        "agents": phase.num_agents if agents is None else agents,
         "trial": trial,
         "global_trial": global_trial,
         "epsilon": epsilon,
         "decisions_per_s": rate,
+        "room": room,
         **final_figures(stats),
     }
     for metric in CURVE_METRICS:
@@ -124,6 +142,8 @@ def log_trial(
         global_trial,
         {"charts/decisions_per_s": rate, "charts/epsilon": epsilon, "charts/phase": phase.index},
     )
+    if per_room:
+        logger.log_scalars(global_trial, {f"rooms/{room}/{m}": float(getattr(stats, m).mean()) for m in CURVE_METRICS})
     curve.write(row)
 
 

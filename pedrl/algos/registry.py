@@ -23,6 +23,7 @@ from pedrl.configs import (
     check_names_no_code,
     config_settings,
     env_factory,
+    mix_rooms,
 )
 from pedrl.scenarios import inline_geometry
 from pedrl.sim.checks import MAX_SEED, check_integer
@@ -53,6 +54,8 @@ assert set(TRAINER_CLASSES) == set(ALGO_TARGETS) and all(
 )
 TRAINER_RUN_ARGUMENTS: Final = (
     "env",
+    "mix",
+    "home",
     "vq",
     "processes",
     "rooms_per_process",
@@ -99,9 +102,16 @@ def build_trainer(cfg: DictConfig, run_dir: str | Path, *, files: bool = True) -
     if isinstance(config.get("scenario"), dict):
         config["scenario"] = inline_geometry(config["scenario"], files=files)
     trainer, settings = trainer_class(config["algo"])
+    scenario = config.get("scenario") or {}
+    home = str(scenario.get("name", "paper_room"))
+    mix = mix_rooms(config["env"], config.get("mix"), home=home, files=files)
+    if mix:
+        config["mix"] = [room.config for room in mix]  # a WKT file's text, not its name
     return trainer(
         **settings,
         env=env_factory(config["env"], config.get("scenario"), files=files),
+        mix=mix,
+        home=home,
         vq=vq_settings(config["vq"]),
         processes=config["processes"],
         rooms_per_process=config["rooms_per_process"],

@@ -1,0 +1,139 @@
+"""Training across scenarios (``mix``): rooms of other geometries take turns with each phase's own room."""
+
+import json
+
+import pytest
+import torch
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+from pedrl.algos.mix import room_of_trial
+from pedrl.algos.registry import build_trainer
+from pedrl.configs import mix_rooms
+from pedrl.io import load_checkpoint, read_csv
+from pedrl.train import train
+
+MIX = "mix=[{name: corridor, length: 12.0, width: 3.0, spawn_length: 4.0, agents: 4}, {name: corner, agents: 3}]"
+"""Two small rooms besides the debug room (10 m x 10 m, 20 agents)."""
+
+
+@pytest.mark.parametrize("rooms", [1, 2, 3, 8])
+@pytest.mark.parametrize("trials", [1, 7, 24])
+def test_rooms_take_turns_and_the_own_room_plays_the_last_trial(rooms, trials):
+    turns = [room_of_trial(trial, trials, rooms) for trial in range(trials)]
+    assert turns[-1] == 0
+    assert all((b - a - 1) % rooms == 0 for a, b in zip(turns, turns[1:], strict=False))  # each room in its turn
+    counts = [turns.count(room) for room in range(rooms)]
+    assert max(counts) - min(counts) <= 1 if trials >= rooms else max(counts) == 1
+
+
+def test_a_mixed_run_learns_in_every_room_and_logs_each(train_config, tmp_path):
+    result = train(train_config("algo=it_vqql", MIX), run_dir=tmp_path)
+    rows = read_csv(tmp_path / "learning_curve.csv")
+    labels = ["paper_room", "corridor_4", "corner_3"]
+    assert len(rows) == 20
+    for phase in ("1", "2"):
+        phase_rows = [r for r in rows if r["phase"] == phase]
+        assert [r["room"] for r in phase_rows] == [labels[room_of_trial(t, 10, 3)] for t in range(10)]
+        assert phase_rows[-1]["room"] == "paper_room"  # the phase's final figures are its own room's
+    agents = {r["room"]: r["agents"] for r in rows}
+    assert agents == {"corridor_4": "4", "corner_3": "3", "paper_room": "20"}
+    assert result.final["success_rate_mean"] == pytest.approx(float(rows[-1]["success_rate_mean"]), abs=1e-5)
+
+    events = EventAccumulator(str(tmp_path / "tb")).Reload()
+    tags = set(events.Tags()["scalars"])
+    for label in labels:
+        assert f"rooms/{label}/success_rate" in tags and f"rooms/{label}/crashes_agent" in tags
+    corner = [e.step for e in events.Scalars("rooms/corner_3/success_rate")]
+    assert corner == [int(r["global_trial"]) for r in rows if r["room"] == "corner_3"]
+
+    checkpoint = load_checkpoint(tmp_path / "checkpoints" / "last.safetensors")
+    stored = checkpoint.metadata["config"]["mix"]
+    assert [entry["name"] for entry in stored] == ["corridor", "corner"] and stored[1]["agents"] == 3
+
+
+def test_states_are_gathered_in_every_room(train_config, tmp_path):
+    """The quantizer sees every room: the mixed run gathers more states, and its void fillings span the largest."""
+    train(train_config("algo=it_vqql", "algo.iterations=1", "algo.trials=3"), run_dir=tmp_path / "one")
+    train(train_config("algo=it_vqql", "algo.iterations=1", "algo.trials=3", MIX), run_dir=tmp_path / "mix")
+    gathered = {
+        run: json.loads((tmp_path / run / "summary.json").read_text())["phases"][0]["gathered_states"]
+        for run in ("one", "mix")
+    }
+    assert gathered["mix"] > gathered["one"]
+    trainer = build_trainer(train_config("algo=it_vqql", MIX), tmp_path / "built")
+    longest = max(room.max_distance for _, room in trainer.rooms(trainer.env_for(20)))
+    assert trainer.encoder_settings.max_distance == longest > trainer.env_for(20).max_distance  # the corridor's
+
+
+def test_a_mixed_run_resumed_mid_phase_equals_an_uninterrupted_one(train_config, tmp_path, monkeypatch):
+    """One generator drives every room, and a checkpoint holds it: resuming continues the same trials."""
+    overrides = ("algo=it_vqql", "checkpoint_every=4", "logger=none", MIX)
+    train(train_config(*overrides), run_dir=tmp_path / "full")
+    from pedrl.algos.records import RunRecord
+
+    original = RunRecord.log_trial
+    calls = {"n": 0}
+
+    def interrupt(self, *args, **kwargs):
+        original(self, *args, **kwargs)
+        calls["n"] += 1
+        if calls["n"] == 15:  # second phase, after its first mid-phase checkpoint (trial 4)
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(RunRecord, "log_trial", interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        train(train_config(*overrides), run_dir=tmp_path / "cut")
+    monkeypatch.setattr(RunRecord, "log_trial", original)
+    train(train_config(*overrides, "resume=true"), run_dir=tmp_path / "cut")
+    full, cut = (load_checkpoint(tmp_path / run / "checkpoints" / "last.safetensors") for run in ("full", "cut"))
+    assert torch.equal(full.tensors["q_values"], cut.tensors["q_values"])
+    strip = lambda rows: [{k: v for k, v in r.items() if k != "decisions_per_s"} for r in rows]  # noqa: E731
+    assert strip(read_csv(tmp_path / "full" / "learning_curve.csv")) == strip(
+        read_csv(tmp_path / "cut" / "learning_curve.csv")
+    )
+
+
+def test_a_resume_with_another_mix_is_refused(train_config, tmp_path):
+    train(train_config("algo=vqql", "algo.iterations=1", "algo.trials=2", "logger=none", MIX), run_dir=tmp_path)
+    cfg = train_config("algo=vqql", "algo.iterations=1", "algo.trials=2", "logger=none", "resume=true")
+    from pedrl.io import CheckpointError
+
+    with pytest.raises(CheckpointError, match="mix was"):
+        train(cfg, run_dir=tmp_path)
+
+
+ENV = {"_target_": "pedrl.sim.RoomEnv"}
+
+
+@pytest.mark.parametrize(
+    ("mix", "message"),
+    [
+        ("corridor", r"mix='corridor' is invalid: must be a list of scenarios"),
+        ([{"agents": 4}], r"mix\[0\]=.* is invalid: must be a scenario config with a name and agents"),
+        ([{"name": "corridor"}], r"mix\[0\]\.agents=None is invalid: must be an integer in \[1, 10000\]"),
+        ([{"name": "corridor", "agents": 0}], r"mix\[0\]\.agents=0 is invalid"),
+        ([{"name": "corridor", "agents": True}], r"mix\[0\]\.agents=True is invalid"),
+        ([{"name": "hall", "agents": 4}], r"mix\[0\]: scenario\.name='hall' is invalid: must be one of"),
+        ([{"name": "corridor", "opening": 1.0, "agents": 4}], r"mix\[0\]: scenario\.opening is not a setting"),
+        ([{"name": "corridor", "agents": 4}] * 17, r"mix holds 17 rooms: at most 16"),
+    ],
+)
+def test_a_bad_mix_is_refused_in_one_line(mix, message):
+    with pytest.raises(ValueError, match=message) as info:
+        mix_rooms(ENV, mix)
+    assert "\n" not in str(info.value)
+
+
+def test_labels_tell_rooms_apart():
+    rooms = mix_rooms(
+        ENV, [{"name": "corner", "agents": 4}, {"name": "corner", "width": 3.0, "agents": 4}], home="corner"
+    )
+    assert [room.label for room in rooms] == ["corner_4", "corner_4_1"]
+    assert mix_rooms(ENV, None) == [] and mix_rooms(ENV, []) == []
+
+
+def test_a_bad_mix_stops_pedrl_train_before_any_compute(train_config, tmp_path):
+    cfg = train_config("algo=vqql", "mix=[{name: corridor, agents: -1}]")
+    with pytest.raises(ValueError, match=r"mix\[0\]\.agents=-1 is invalid"):
+        train(cfg, run_dir=tmp_path)
+    assert not (tmp_path / "checkpoints").exists()
