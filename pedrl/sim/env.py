@@ -377,10 +377,11 @@ class RoomEnv:
             actions: Actions ``(R, N)`` int64 in ``[0, 81)``; ignored for inactive agents.
 
         Returns:
-            ``obs (R, N, F)`` float32, ``reward (R, N)`` float32, ``terminated (R, N)`` bool (reached the door
-            this decision), ``truncated (R, N)`` bool (still in the room when the clock reached
+            ``obs (R, N, F)`` float32, ``reward (R, N)`` float32, ``terminated (R, N)`` bool (left the room
+            through an exit this decision), ``truncated (R, N)`` bool (still in the room when the clock reached
             ``max_decisions``), and ``info`` with ``crashed_agent``, ``crashed_wall``, ``reached`` bool
-            ``(R, N)``, ``num_sensed`` int64 ``(R, N)``, ``neighbour_mask`` bool ``(R, N, k)``, ``speed``
+            ``(R, N)`` (left through its own exit: the goal; one that leaves through another group's exit, as a
+            corridor walker stepping back out of the end it started at, gets no goal reward and is not counted), ``num_sensed`` int64 ``(R, N)``, ``neighbour_mask`` bool ``(R, N, k)``, ``speed``
             float32 ``(R, N)`` (m/s after the step) and ``decision`` (int, the trial clock). Agents inactive
             before the step get obs 0 and reward 0; an agent truncated by this step still gets its final
             observation (it is still in the room), one that reached the door gets 0.
@@ -420,10 +421,11 @@ class RoomEnv:
         self.active = in_room & ~truncated
         self._advance_routes()
 
-        # ---- rewards and observations
+        # ---- rewards and observations: the goal only through the agent's own exit
+        reached = self.spawns.own_exit(movement.reached, movement.positions, self.exit_index)
         reward = compute_rewards(
             table=self.rewards,
-            reached=movement.reached,
+            reached=reached,
             crashed_wall=movement.crashed_wall,
             crashed_agent=movement.crashed_agent,
             acting=acting,
@@ -435,7 +437,7 @@ class RoomEnv:
             observation,
             crashed_agent=movement.crashed_agent,
             crashed_wall=movement.crashed_wall,
-            reached=movement.reached,
+            reached=reached,
         )
         return observation.features, reward, movement.reached, truncated, info
 

@@ -99,6 +99,8 @@ class Spawns:
         self.low = torch.tensor(low, device=device)[group]  # (N, 2)
         self.span = torch.tensor(span, device=device)[group]
         self.assigned_exit = torch.tensor(exits, device=device)[group]  # (N,), -1: nearest
+        # another exit than its group's can be passed: only with two exits or more and an assigned one
+        self.checks_exits = geometry.exits.shape[0] > 1 and any(exit_ >= 0 for exit_ in exits)
         most = max(spawn.waypoints.shape[0] for spawn in geometry.spawns)
         routes = torch.full((len(geometry.spawns), most, 2), math.nan, device=device)
         for index, spawn in enumerate(geometry.spawns):
@@ -213,6 +215,16 @@ class Spawns:
         """The exit of each agent at ``positions`` ``(R, N, 2)``: its group's, else the nearest ``(R, N)`` int64."""
         assigned = self.assigned_exit.expand(positions.shape[:-1])
         return torch.where(assigned >= 0, assigned, self.geometry.nearest_exits(positions))
+
+    def own_exit(self, left: torch.Tensor, positions: torch.Tensor, exit_index: torch.Tensor) -> torch.Tensor:
+        """Which of the agents that ``left`` the room ``(R, N)`` at ``positions`` ``(R, N, 2)`` left through their
+        own exit ``exit_index``: an agent of a group with an assigned exit that leaves through another one (the
+        corridor's walkers stepping back out of the end they started at) did not reach its goal. An agent without
+        an assigned exit reaches its goal through any exit; the exit passed is the one nearest to where it left."""
+        if not self.checks_exits:
+            return left
+        through = self.geometry.nearest_exits(positions)
+        return left & ((self.assigned_exit < 0) | (through == exit_index))
 
     def route_point(self, stage: torch.Tensor, exit_index: torch.Tensor) -> torch.Tensor:
         """Waypoint ``stage`` of each agent's route ``(R, N, 2)``, or its exit's goal point past the route's end."""

@@ -145,9 +145,9 @@ class PedrlCrowd:
         left_at = torch.full(env.active.shape, -1, dtype=torch.int64, device=env.device)
         decision = 0
         while bool(env.active.any()):
-            obs, _, terminated, _, info = env.step(self.controller.act(env, obs, info))
+            obs, _, _, _, info = env.step(self.controller.act(env, obs, info))
             decision += 1
-            left_at = torch.where(terminated, decision, left_at)
+            left_at = torch.where(info["reached"], decision, left_at)  # through its own exit
             frames.append(env.positions.clone())
             active.append(env.active.clone())
         return Recording(

@@ -28,7 +28,7 @@ class Recording:
     Attributes:
         positions: Centres ``(T + 1, R, N, 2)`` (m), frame 0 the start.
         active: In-room flags ``(T + 1, R, N)``: the agent has not left yet.
-        left_at: ``(R, N)`` the frame at which each agent left (-1: never).
+        left_at: ``(R, N)`` the frame at which each agent left through its own exit (-1: never).
         frame_rate: Frames per second.
         radius: Body radius (m).
         max_speed: The fastest speed the model allows (m/s): a frame's displacement is at most

@@ -12,7 +12,7 @@ from shapely.geometry import box
 from pedrl.algos.registry import env_factory
 from pedrl.analysis import AreaGeometry, RoomGeometry
 from pedrl.scenarios import SCENARIOS, PaperRoom, Scenario, Spawn, build_scenario
-from pedrl.sim import RoomEnv
+from pedrl.sim import NOOP_ACTION, RoomEnv
 from pedrl.sim.controllers import GreedyDoorController
 from pedrl.sim.geometry import distances_to_segments
 
@@ -210,3 +210,29 @@ def test_nothing_outside_the_scenarios_compares_a_scenario_name():
                 names = [part for part in (node.left, *node.comparators) if isinstance(part, ast.Constant)]
                 found += [f"{path.name}:{node.lineno}" for part in names if part.value in SCENARIOS]
     assert not found, f"comparisons with a scenario's name: {found}"
+
+
+def test_only_its_own_exit_reaches_the_goal():
+    """The corridor's groups head for opposite ends. A walker stepping back out of the end it started at leaves the
+    room (terminated) but reaches no goal: no goal reward, not counted as reached. The other group's walker leaving
+    by that same end reaches its goal (the control), and in four exits (no assigned exit) any exit is a goal."""
+    env = env_factory({**ENV, "max_speed": 1.0}, {"name": "corridor", "length": 20.0, "spawn_length": 5.0})(
+        num_replicas=1, num_agents=2
+    )
+    assert env.exit_index.shape == (1, 2)
+    # agent 0's group heads for exit 0 (x = 20), agent 1's for exit 1 (x = 0)
+    env.reset(
+        options={"positions": [[(0.5, 2.5), (3.0, 1.0)]], "headings": [[math.pi, math.pi]], "speeds": [[1.0, 1.0]]}
+    )
+    assert env.exit_index.tolist() == [[0, 1]] and env.geometry.exit_goals[0, 0] >= 20.0
+    _, reward, terminated, _, info = env.step(torch.full((1, 2), NOOP_ACTION))
+    assert terminated[0, 0] and not info["reached"][0, 0]  # out through the wrong end: no goal
+    assert reward[0, 0] < env.rewards.goal / 2
+    env.reset(options={"positions": [[(17.0, 1.0), (0.5, 2.5)]], "headings": [[0.0, math.pi]], "speeds": [[1.0, 1.0]]})
+    _, reward, terminated, _, info = env.step(torch.full((1, 2), NOOP_ACTION))
+    assert terminated[0, 1] and info["reached"][0, 1] and reward[0, 1] >= env.rewards.goal / 2  # its own end
+
+    rooms = env_factory(ENV, {"name": "four_exits"})(num_replicas=1, num_agents=1)
+    rooms.reset(options={"positions": [[(2.0, 0.6)]], "headings": [[-math.pi / 2]], "speeds": [[1.0]]})
+    _, _, terminated, _, info = rooms.step(torch.full((1, 1), NOOP_ACTION))
+    assert not rooms.spawns.checks_exits and terminated[0, 0] == info["reached"][0, 0]
