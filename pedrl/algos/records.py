@@ -78,9 +78,31 @@ class RunRecord:
         room: str = "",
         agents: int | None = None,
         per_room: bool = False,
-    ):
-        """One trial's row and scalars (:func:`log_trial`)."""
-        log_trial(self.logger, self.curve, phase, trial, global_trial, epsilon, stats, rate, room, agents, per_room)
+    ) -> None:
+        """Write one trial's row of ``learning_curve.csv`` and its TensorBoard scalars (mean and spread over the
+        processes); the row names the ``room`` it was played in and its ``agents`` (None: the phase's), and
+        ``per_room`` (training across scenarios) also logs the room's own curves, ``rooms/<room>/<metric>``."""
+        row: dict[str, Any] = {
+            "phase": phase.index,
+            "agents": phase.num_agents if agents is None else agents,
+            "trial": trial,
+            "global_trial": global_trial,
+            "epsilon": epsilon,
+            "decisions_per_s": rate,
+            "room": room,
+            **final_figures(stats),
+        }
+        for metric in CURVE_METRICS:
+            tag = "losses/td_error" if metric == "td_error" else f"charts/{metric}"
+            self.logger.log_spread(global_trial, tag, getattr(stats, metric).double())
+        self.logger.log_scalars(
+            global_trial,
+            {"charts/decisions_per_s": rate, "charts/epsilon": epsilon, "charts/phase": phase.index},
+        )
+        if per_room:
+            means = {f"rooms/{room}/{metric}": float(getattr(stats, metric).mean()) for metric in CURVE_METRICS}
+            self.logger.log_scalars(global_trial, means)
+        self.curve.write(row)
 
     def log_phase(
         self, phase: Phase, global_trial: int, gathered: Gathered, prototypes: int, distortion: float, q_values
@@ -107,44 +129,6 @@ class RunRecord:
             path = self.run_dir / "checkpoints" / f"iter_{phase.index:04d}.safetensors"
             save_checkpoint(path, tensors=tensors, metadata=metadata)
         save_checkpoint(self.checkpoint_path, tensors=tensors, metadata=metadata)
-
-
-def log_trial(
-    logger: RunLogger,
-    curve: CsvWriter,
-    phase: Phase,
-    trial: int,
-    global_trial: int,
-    epsilon: float,
-    stats: TrialStats,
-    rate: float,
-    room: str = "",
-    agents: int | None = None,
-    per_room: bool = False,
-) -> None:
-    """Write one trial's row of ``learning_curve.csv`` and its TensorBoard scalars (mean and spread over the
-    processes); the row names the ``room`` it was played in and its ``agents`` (None: the phase's), and
-    ``per_room`` (training across scenarios) also logs the room's own curves, ``rooms/<room>/<metric>``."""
-    row: dict[str, Any] = {
-        "phase": phase.index,
-        "agents": phase.num_agents if agents is None else agents,
-        "trial": trial,
-        "global_trial": global_trial,
-        "epsilon": epsilon,
-        "decisions_per_s": rate,
-        "room": room,
-        **final_figures(stats),
-    }
-    for metric in CURVE_METRICS:
-        tag = "losses/td_error" if metric == "td_error" else f"charts/{metric}"
-        logger.log_spread(global_trial, tag, getattr(stats, metric).double())
-    logger.log_scalars(
-        global_trial,
-        {"charts/decisions_per_s": rate, "charts/epsilon": epsilon, "charts/phase": phase.index},
-    )
-    if per_room:
-        logger.log_scalars(global_trial, {f"rooms/{room}/{m}": float(getattr(stats, m).mean()) for m in CURVE_METRICS})
-    curve.write(row)
 
 
 def report_phase(description: str, trials: int, tic: float, stats: TrialStats | None) -> None:

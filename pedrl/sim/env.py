@@ -381,10 +381,11 @@ class RoomEnv:
             through an exit this decision), ``truncated (R, N)`` bool (still in the room when the clock reached
             ``max_decisions``), and ``info`` with ``crashed_agent``, ``crashed_wall``, ``reached`` bool
             ``(R, N)`` (left through its own exit: the goal; one that leaves through another group's exit, as a
-            corridor walker stepping back out of the end it started at, gets no goal reward and is not counted), ``num_sensed`` int64 ``(R, N)``, ``neighbour_mask`` bool ``(R, N, k)``, ``speed``
-            float32 ``(R, N)`` (m/s after the step) and ``decision`` (int, the trial clock). Agents inactive
-            before the step get obs 0 and reward 0; an agent truncated by this step still gets its final
-            observation (it is still in the room), one that reached the door gets 0.
+            corridor walker stepping back out of the end it started at, gets no goal reward and is not counted),
+            ``num_sensed`` int64 ``(R, N)``, ``neighbour_mask`` bool ``(R, N, k)``, ``speed`` float32 ``(R, N)``
+            (m/s after the step) and ``decision`` (int, the trial clock). Agents inactive before the step get obs 0
+            and reward 0; an agent truncated by this step still gets its final observation (it is still in the
+            room), one that left gets 0.
 
         Raises:
             RuntimeError: If :meth:`reset` was never called.

@@ -3,7 +3,6 @@
 import json
 
 import pytest
-import torch
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from pedrl.algos.mix import room_of_trial
@@ -11,6 +10,7 @@ from pedrl.algos.registry import build_trainer
 from pedrl.configs import mix_rooms
 from pedrl.io import load_checkpoint, read_csv
 from pedrl.train import train
+from tests.algos.resuming import assert_resume_equals_uninterrupted
 
 MIX = "mix=[{name: corridor, length: 12.0, width: 3.0, spawn_length: 4.0, agents: 4}, {name: corner, agents: 3}]"
 """Two small rooms besides the debug room (10 m x 10 m, 20 agents)."""
@@ -68,29 +68,8 @@ def test_states_are_gathered_in_every_room(train_config, tmp_path):
 def test_a_mixed_run_resumed_mid_phase_equals_an_uninterrupted_one(train_config, tmp_path, monkeypatch):
     """One generator drives every room, and a checkpoint holds it: resuming continues the same trials."""
     overrides = ("algo=it_vqql", "checkpoint_every=4", "logger=none", MIX)
-    train(train_config(*overrides), run_dir=tmp_path / "full")
-    from pedrl.algos.records import RunRecord
-
-    original = RunRecord.log_trial
-    calls = {"n": 0}
-
-    def interrupt(self, *args, **kwargs):
-        original(self, *args, **kwargs)
-        calls["n"] += 1
-        if calls["n"] == 15:  # second phase, after its first mid-phase checkpoint (trial 4)
-            raise KeyboardInterrupt
-
-    monkeypatch.setattr(RunRecord, "log_trial", interrupt)
-    with pytest.raises(KeyboardInterrupt):
-        train(train_config(*overrides), run_dir=tmp_path / "cut")
-    monkeypatch.setattr(RunRecord, "log_trial", original)
-    train(train_config(*overrides, "resume=true"), run_dir=tmp_path / "cut")
-    full, cut = (load_checkpoint(tmp_path / run / "checkpoints" / "last.safetensors") for run in ("full", "cut"))
-    assert torch.equal(full.tensors["q_values"], cut.tensors["q_values"])
-    strip = lambda rows: [{k: v for k, v in r.items() if k != "decisions_per_s"} for r in rows]  # noqa: E731
-    assert strip(read_csv(tmp_path / "full" / "learning_curve.csv")) == strip(
-        read_csv(tmp_path / "cut" / "learning_curve.csv")
-    )
+    # 15 trials: the second phase, after its first mid-phase checkpoint (trial 4)
+    assert_resume_equals_uninterrupted(train_config, overrides, tmp_path, monkeypatch, stop_after=15)
 
 
 def test_a_resume_with_another_mix_is_refused(train_config, tmp_path):

@@ -11,6 +11,7 @@ from pedrl.algos.registry import build_trainer
 from pedrl.io import CheckpointError, load_checkpoint, read_csv
 from pedrl.train import train
 from pedrl.vq.encoder import StateEncoder, quantizer_from_state_dict
+from tests.algos.resuming import assert_resume_equals_uninterrupted
 
 ALGOS = ("vqql", "it_vqql", "in_vqql")
 
@@ -99,32 +100,8 @@ def test_seeded_runs_are_reproducible(train_config, tmp_path):
 @pytest.mark.parametrize("algo", ALGOS)
 def test_resumed_run_equals_uninterrupted_run(train_config, tmp_path, monkeypatch, algo):
     overrides = (f"algo={algo}", "checkpoint_every=3", "logger=none")
-    train(train_config(*overrides), run_dir=tmp_path / "full")
-
-    from pedrl.algos.records import RunRecord
-
-    original = RunRecord.log_trial
-    calls = {"n": 0}
-
-    def interrupt_after_some_trials(self, *args, **kwargs):
-        original(self, *args, **kwargs)
-        calls["n"] += 1
-        if calls["n"] == 14:  # inside the second phase, after a mid-phase checkpoint
-            raise KeyboardInterrupt
-
-    monkeypatch.setattr(RunRecord, "log_trial", interrupt_after_some_trials)
-    with pytest.raises(KeyboardInterrupt):
-        train(train_config(*overrides), run_dir=tmp_path / "cut")
-    monkeypatch.setattr(RunRecord, "log_trial", original)
-    train(train_config(*overrides, "resume=true"), run_dir=tmp_path / "cut")
-
-    full = load_checkpoint(tmp_path / "full" / "checkpoints" / "last.safetensors")
-    resumed = load_checkpoint(tmp_path / "cut" / "checkpoints" / "last.safetensors")
-    assert torch.equal(full.tensors["q_values"], resumed.tensors["q_values"])
-    full_rows = read_csv(tmp_path / "full" / "learning_curve.csv")
-    resumed_rows = read_csv(tmp_path / "cut" / "learning_curve.csv")
-    strip = lambda rows: [{k: v for k, v in r.items() if k != "decisions_per_s"} for r in rows]  # noqa: E731
-    assert strip(full_rows) == strip(resumed_rows)
+    # 14 trials: inside the second phase, after a mid-phase checkpoint
+    assert_resume_equals_uninterrupted(train_config, overrides, tmp_path, monkeypatch, stop_after=14)
 
 
 def test_resume_from_foreign_config_is_refused(train_config, tmp_path):
