@@ -9,6 +9,7 @@ from pedrl.algos.mix import room_of_trial
 from pedrl.algos.registry import build_trainer
 from pedrl.configs import mix_rooms
 from pedrl.io import load_checkpoint, read_csv
+from pedrl.learning_curves import read_learning_curve
 from pedrl.train import train
 from tests.algos.resuming import assert_resume_equals_uninterrupted
 
@@ -45,6 +46,14 @@ def test_a_mixed_run_learns_in_every_room_and_logs_each(train_config, tmp_path):
         assert f"rooms/{label}/success_rate" in tags and f"rooms/{label}/crashes_agent" in tags
     corner = [e.step for e in events.Scalars("rooms/corner_3/success_rate")]
     assert corner == [int(r["global_trial"]) for r in rows if r["room"] == "corner_3"]
+
+    trials, _, _, _ = read_learning_curve(tmp_path)  # the run's own room by default
+    assert trials.tolist() == [float(r["global_trial"]) for r in rows if r["room"] == "paper_room"]
+    trials, _, _, _ = read_learning_curve(tmp_path, room="corner_3")
+    assert trials.tolist() == [float(r["global_trial"]) for r in rows if r["room"] == "corner_3"]
+    with pytest.raises(ValueError, match=r"room='hall' is not in .*: one of paper_room, corridor_4, corner_3$"):
+        read_learning_curve(tmp_path, room="hall")
+    assert (tmp_path / "learning_curve.png").stat().st_size > 0
 
     checkpoint = load_checkpoint(tmp_path / "checkpoints" / "last.safetensors")
     stored = checkpoint.metadata["config"]["mix"]
