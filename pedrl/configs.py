@@ -15,6 +15,7 @@ from __future__ import annotations
 import copy
 import inspect
 import os
+import re
 import shlex
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -195,7 +196,9 @@ def checked_config(config: Any, where: str, path: Path | None = None) -> dict[st
     mix = config.get("mix") if isinstance(config.get("mix"), list) else []
     try:
         check_scenario_sizes(config.get("scenario"))  # counts only: first, for the clearest line
-        for entry in mix[:MAX_MIX]:
+        if len(mix) > MAX_MIX:
+            raise ValueError(f"mix holds {len(mix)} rooms: at most {MAX_MIX}")
+        for entry in mix:
             check_scenario_sizes(entry)
         _check_config_size(config)
         wkt_file = geometry_file(config.get("scenario"))
@@ -244,6 +247,7 @@ def mix_rooms(env: Mapping[str, Any], mix: Any, *, home: str = "room", files: bo
         try:
             scenario = inline_geometry({key: value for key, value in entry.items() if key != "agents"}, files=files)
             factory = env_factory(env, scenario, files=files)
+            factory(num_replicas=1, num_agents=agents)  # the agents must fit its spawn areas
         except ValueError as err:
             raise ValueError(f"{where}: {err}") from None
         label = f"{scenario['name']}_{agents}"
@@ -280,7 +284,7 @@ def _check_config_size(config: dict[str, Any]) -> None:
 
 def _is_geometry_path(path: str) -> bool:
     """``scenario.geometry`` or ``mix[i].geometry``: where a stored config holds a room's WKT text."""
-    return path == "scenario.geometry" or (path.startswith("mix[") and path.endswith("].geometry"))
+    return path == "scenario.geometry" or re.fullmatch(r"mix\[\d+\]\.geometry", path) is not None
 
 
 def _cut(path: str) -> str:

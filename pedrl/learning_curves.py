@@ -24,8 +24,8 @@ def read_learning_curve(path: str | Path, *, metric: str = "success_rate", smoot
         path: the CSV, or the run directory holding it.
         metric: one of the curve metrics (``success_rate``, ``episodic_return``, ...).
         smooth: moving-average window in trials (1: raw); the average is trailing and restarts at every phase.
-        room: the rows of this room of a run trained across scenarios (its ``room`` column); None: the run's own
-            room, the one that plays its last trial (every row, for a run in one room).
+        room: the rows of this room of a run trained across scenarios (its ``room`` column); None: the room of the
+            last row, which is the run's own once a phase is complete (every row, for a run in one room).
 
     Returns:
         ``(global_trial (T,), mean (T,), std (T,), boundaries)`` where boundaries are the trial numbers at which a

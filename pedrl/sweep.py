@@ -247,11 +247,13 @@ def _job_row(job: Path, overrides: dict[str, str], varying: list[str], parameter
 
 
 def _last_trials_success(path: Path) -> float | str:
-    """Mean success rate of the last :data:`LAST_TRIALS` rows of ``learning_curve.csv`` ('' without the file)."""
+    """Mean success rate of the last :data:`LAST_TRIALS` rows of ``learning_curve.csv`` ('' without the file); of a
+    run trained across scenarios, the last rows of its own room (the room of its last row)."""
     if not path.is_file():
         return ""
     with open(path, newline="") as handle:
-        rows = list(csv.DictReader(handle))[-LAST_TRIALS:]
+        rows = list(csv.DictReader(handle))
+    rows = [r for r in rows if r.get("room") == rows[-1].get("room")][-LAST_TRIALS:] if rows else rows
     try:
         return sum(float(r["success_rate_mean"]) for r in rows) / len(rows) if rows else ""
     except (KeyError, ValueError):

@@ -293,3 +293,18 @@ def test_sweep_of_jobs_with_different_override_keys_names_the_key(tmp_path, caps
         outcome = run_sweep_main(args, capsys)
         assert_refused(outcome, "pedrl-sweep", ("override 'algo'", "set in jobs 0, 2", "not in job 1"))
         assert not (tmp_path / pedrl.sweep.SUMMARY_CSV).exists()
+
+
+def test_a_mixed_run_is_summarised_by_its_own_room(tmp_path):
+    """Rows of a run trained across scenarios alternate rooms; the sweep's success is its own room's (the last
+    row's), not a blend of every room's."""
+    from pedrl.sweep import _last_trials_success
+
+    path = tmp_path / "learning_curve.csv"
+    rows = ["success_rate_mean,room"] + [
+        f"{1.0 if t % 2 else 0.0},{'paper_room' if t % 2 else 'corner_20'}" for t in range(40)
+    ]
+    path.write_text("\n".join(rows) + "\n")
+    assert _last_trials_success(path) == pytest.approx(1.0)
+    path.write_text("success_rate_mean\n" + "\n".join(["0.5"] * 30) + "\n")  # no room column: every row
+    assert _last_trials_success(path) == pytest.approx(0.5)

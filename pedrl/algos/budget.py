@@ -26,7 +26,7 @@ def memory_needs(trainer: Trainer) -> dict[str, float]:
     (``gather_trials x R E N x max_decisions`` rows of ``F`` float32 in each room, the ``mix`` rooms' included,
     :data:`GATHER_COPIES` copies), one k-means
     fit (``vq.max_states`` states, :data:`KMEANS_COPIES` copies, and a ``chunk_size x K`` block of scores) and
-    one decision of the room (:meth:`pedrl.sim.RoomEnv.step_memory`).
+    one decision of the largest room (:meth:`pedrl.sim.RoomEnv.step_memory`).
     """
     tables = gathered = kmeans = room = 0
     chunk = trainer.vq.chunk_size or default_chunk_size(trainer.device)
@@ -35,12 +35,12 @@ def memory_needs(trainer: Trainer) -> dict[str, float]:
         entries = trainer.processes * trainer.num_tables(phase) * trainer.max_prototypes(phase) * env.num_actions
         tables = max(tables, TABLE_COPIES * entries * 4)
         rooms = trainer.processes * trainer.rooms_per_process
-        agents = phase.num_agents + sum(entry.num_agents for entry in trainer.mix)  # gathered in every room
-        rows = phase.gather_trials * rooms * agents * env.max_decisions
+        trained_in = [room for _, room in trainer.rooms(env)]  # the phase's room and the mix rooms
+        rows = phase.gather_trials * rooms * sum(room.num_agents for room in trained_in) * env.max_decisions
         gathered = max(gathered, rows * (GATHER_COPIES * env.num_features * 4 + 16))
         fit_rows = min(rows, trainer.vq.max_states)
         kmeans = max(kmeans, (KMEANS_COPIES * fit_rows * env.num_features + chunk * trainer.vq.num_prototypes) * 4)
-        room = max(room, env.step_memory())
+        room = max(room, *(room_env.step_memory() for room_env in trained_in))
     return {"Q tables": tables, "gathered states": gathered, "k-means": kmeans, "room": room}
 
 

@@ -105,8 +105,7 @@ def build_trainer(cfg: DictConfig, run_dir: str | Path, *, files: bool = True) -
     scenario = config.get("scenario") or {}
     home = str(scenario.get("name", "paper_room"))
     mix = mix_rooms(config["env"], config.get("mix"), home=home, files=files)
-    if mix:
-        config["mix"] = [room.config for room in mix]  # a WKT file's text, not its name
+    config["mix"] = [room.config for room in mix]  # a WKT file's text, not its name; null is []
     return trainer(
         **settings,
         env=env_factory(config["env"], config.get("scenario"), files=files),

@@ -194,7 +194,8 @@ class ScalingStats:
         self.fails_pct.extend((100.0 * (1.0 - reached.mean(axis=1))).tolist())
         self.crashes_per_agent.extend((record.crashes[:keep].sum(axis=1) / num_agents).tolist())
         self.wall_crashes_per_agent.extend((record.wall_crashes[:keep].sum(axis=1) / num_agents).tolist())
-        self.stuck_pct.extend((100.0 * stuck_agents(record.positions[:keep], reached).mean(axis=1)).tolist())
+        in_room = record.active[:keep, -1] & ~reached  # acted in the trial's last decision and did not reach
+        self.stuck_pct.extend((100.0 * stuck_agents(record.positions[:keep], in_room).mean(axis=1)).tolist())
         self.speed_sum += float(record.speed_sum[:keep].sum())
         self.speed_sq_sum += float(record.speed_sq_sum[:keep].sum())
         self.speed_count += int(record.speed_count[:keep].sum())
@@ -228,20 +229,20 @@ class ScalingStats:
         }
 
 
-def stuck_agents(positions: np.ndarray, reached: np.ndarray) -> np.ndarray:
+def stuck_agents(positions: np.ndarray, in_room: np.ndarray) -> np.ndarray:
     """Agents still in the room at the end whose last ``STUCK_WINDOW`` decisions moved them less than ``STUCK_PATH``.
 
     Args:
-        positions: ``(R, T, N, 2)`` centres (m), frame 0 the initial state; an agent that did not reach the door
-            was in the room until the last frame (its trial was cut by the clock).
-        reached: ``(R, N)`` bool, the agent passed the door.
+        positions: ``(R, T, N, 2)`` centres (m), frame 0 the initial state.
+        in_room: ``(R, N)`` bool, the agent was still in the room when the clock cut the trial (it neither reached
+            its goal nor left through another group's exit).
 
     Returns:
         ``(R, N)`` bool.
     """
     window = positions[:, -(STUCK_WINDOW + 1) :]  # the last 20 decisions (all of them in shorter trials)
     path = np.linalg.norm(np.diff(window, axis=1), axis=-1).sum(axis=1)  # (R, N) m
-    return ~reached & (path < STUCK_PATH)
+    return in_room & (path < STUCK_PATH)
 
 
 # ---------------------------------------------------------------------- the evaluation

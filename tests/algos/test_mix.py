@@ -125,3 +125,44 @@ def test_a_bad_mix_stops_pedrl_train_before_any_compute(train_config, tmp_path):
     with pytest.raises(ValueError, match=r"mix\[0\]\.agents=-1 is invalid"):
         train(cfg, run_dir=tmp_path)
     assert not (tmp_path / "checkpoints").exists()
+
+
+def test_a_mixed_checkpoint_loads_as_a_policy_and_acts_as_trained(train_config, tmp_path):
+    """The corridor is longer than the debug room: its encoder's longest distance is the corridor's, and loading
+    the checkpoint (evaluation, export) derives the same from the stored mix."""
+    import pedrl
+
+    train(train_config("algo=vqql", "algo.iterations=1", "algo.trials=2", "logger=none", MIX), run_dir=tmp_path)
+    path = tmp_path / "checkpoints" / "last.safetensors"
+    stored = load_checkpoint(path).metadata["encoder"]["max_distance"]
+    policy = pedrl.load_policy(path)
+    assert (
+        policy.encoder.settings.max_distance
+        == stored
+        > pedrl.room_factory(policy)(num_replicas=1, num_agents=1).max_distance
+    )
+    exported = pedrl.export_policy(path, tmp_path / "policy.safetensors")
+    assert pedrl.load_policy(exported).encoder.settings == policy.encoder.settings
+
+
+def test_a_mix_room_too_small_for_its_agents_is_named():
+    with pytest.raises(ValueError, match=r"^mix\[1\]: num_agents=500 is invalid: 500 bodies") as info:
+        mix_rooms(ENV, [{"name": "corner", "agents": 3}, {"name": "corner", "agents": 500}])
+    assert "\n" not in str(info.value)
+
+
+def test_mix_null_is_an_empty_mix(train_config, tmp_path):
+    trainer = build_trainer(train_config("algo=vqql", "mix=null"), tmp_path)
+    assert trainer.mix == [] and trainer.config["mix"] == []
+
+
+def test_a_stored_config_with_too_many_mix_rooms_is_refused(train_config, tmp_path):
+    from pedrl.configs import checked_config
+    from pedrl.io import CheckpointError
+
+    config = build_trainer(train_config("algo=vqql"), tmp_path).config
+    with pytest.raises(CheckpointError, match=r"mix holds 17 rooms: at most 16"):
+        checked_config({**config, "mix": [{"name": "corner", "agents": 1}] * 17}, "checkpoint 'x'")
+    long_text = "x" * 5000
+    with pytest.raises(CheckpointError, match=r"mix\[0\]\.exits\.geometry=.* at most 4096 characters"):
+        checked_config({**config, "mix": [{"name": "corner", "agents": 1, "exits": {"geometry": long_text}}]}, "c")

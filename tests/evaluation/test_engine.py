@@ -290,9 +290,9 @@ def test_stuck_agents_are_those_left_in_the_room_that_did_not_move_in_the_last_2
     positions[0, :20, 1, 0] = np.arange(20) * 1.0  # walked, then stood still for the last 21 frames: stuck
     positions[0, 20:, 1, 0] = 19.0
     positions[0, :, 2, 0] = np.arange(frames) * 0.01  # crept 0.2 m in the last 20 decisions: stuck
-    positions[0, :, 3, 0] = 5.0  # stood still, but it passed the door (its row is padding): not stuck
-    reached = np.array([[False, False, False, True]])
-    assert stuck_agents(positions, reached).tolist() == [[False, True, True, False]]
+    positions[0, :, 3, 0] = 5.0  # stood still, but it left the room (its row is padding): not stuck
+    in_room = np.array([[True, True, True, False]])
+    assert stuck_agents(positions, in_room).tolist() == [[False, True, True, False]]
 
 
 def test_evaluation_reports_stuck_agents_and_evacuated_trials(checkpoints, tmp_path):
