@@ -68,12 +68,14 @@ MAX_CONFIG_VALUES: Final = 100_000
 
 class TrainingRoom(NamedTuple):
     """A room a run trains in besides its scenario's (``mix``): its label, its factory (:func:`env_factory`), its
-    agents, and its ``mix`` entry as a checkpoint stores it (a WKT file replaced by its text)."""
+    agents, its ``mix`` entry as a checkpoint stores it (a WKT file replaced by its text) and its longest distance
+    (m, the room's diagonal)."""
 
     label: str
     factory: Callable[..., RoomEnv]
     num_agents: int
     config: dict[str, Any]
+    max_distance: float
 
 
 def check_names_no_code(config: Mapping[str, Any], *, stored: bool = False) -> None:
@@ -247,13 +249,13 @@ def mix_rooms(env: Mapping[str, Any], mix: Any, *, home: str = "room", files: bo
         try:
             scenario = inline_geometry({key: value for key, value in entry.items() if key != "agents"}, files=files)
             factory = env_factory(env, scenario, files=files)
-            factory(num_replicas=1, num_agents=agents)  # the agents must fit its spawn areas
+            max_distance = factory(num_replicas=1, num_agents=agents).max_distance  # the agents must fit
         except ValueError as err:
             raise ValueError(f"{where}: {err}") from None
         label = f"{scenario['name']}_{agents}"
         label = label if label not in labels else f"{label}_{index}"
         labels.add(label)
-        rooms.append(TrainingRoom(label, factory, agents, {**scenario, "agents": agents}))
+        rooms.append(TrainingRoom(label, factory, agents, {**scenario, "agents": agents}, max_distance))
     return rooms
 
 

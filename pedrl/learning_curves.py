@@ -51,8 +51,7 @@ def read_learning_curve(path: str | Path, *, metric: str = "success_rate", smoot
     rooms = curve_rooms(rows)
     if room is not None and room not in rooms:
         raise ValueError(f"room={room!r} is not in {str(path)!r}: one of {', '.join(rooms) or 'none (no room column)'}")
-    if len(rooms) > 1:
-        rows = [r for r in rows if r["room"] == (room if room is not None else rows[-1]["room"])]
+    rows = room_rows(rows, room)
     if f"{metric}_mean" not in rows[0]:
         known = sorted(k[: -len("_mean")] for k in rows[0] if k.endswith("_mean"))
         raise ValueError(f"metric={metric!r} is not in {str(path)!r}: one of {', '.join(known)}")
@@ -67,6 +66,15 @@ def read_learning_curve(path: str | Path, *, metric: str = "success_rate", smoot
     if smooth > 1:
         mean, std = _moving_average(mean, phases, smooth), _moving_average(std, phases, smooth)
     return trials, mean, std, boundaries
+
+
+def room_rows(rows: Sequence[dict[str, str]], room: str | None = None) -> list[dict[str, str]]:
+    """The rows of a learning curve played in ``room``; None: in the room of the last row, the run's own once a phase
+    is complete. Every row for a run in one room (or written before rooms were logged)."""
+    if len(curve_rooms(rows)) <= 1:
+        return list(rows)
+    room = room if room is not None else rows[-1]["room"]
+    return [r for r in rows if r["room"] == room]
 
 
 def curve_rooms(rows: Sequence[dict[str, str]]) -> list[str]:

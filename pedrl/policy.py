@@ -27,7 +27,6 @@ from __future__ import annotations
 import math
 import weakref
 from collections.abc import Callable, Mapping
-from dataclasses import replace
 from pathlib import Path
 from typing import Any, Final
 
@@ -237,10 +236,7 @@ def _encoder_settings(stored: EncoderSettings | None, config: Mapping[str, Any],
         void_features=algo.get("void_features", VOID_FEATURES_DEFAULTS[ALGO_TARGETS[algo["_target_"]]]),
         void_draws=stored_value(config, "algo.void_draws"),
         distance_transform=stored_value(config, "vq.distance_transform"),
-    )
-    mix = mix_rooms(config["env"], config.get("mix"), files=False)  # trained across scenarios: the largest room
-    longest = max([derived.max_distance] + [entry.factory(num_replicas=1, num_agents=1).max_distance for entry in mix])
-    derived = replace(derived, max_distance=longest)
+    ).spanning(mix_rooms(config["env"], config.get("mix"), files=False))  # trained across scenarios: every room
     if stored is not None and stored != derived:
         raise ValueError(f"metadata encoder={stored.to_metadata()!r} disagrees with its config: must be {derived}")
     return derived

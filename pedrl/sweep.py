@@ -26,6 +26,8 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from omegaconf import OmegaConf
 
+from pedrl.learning_curves import room_rows
+
 SUMMARY_CSV: Final = "sweep_summary.csv"
 FIGURE: Final = "sweep_k.png"
 DEFAULT_PARAMETER: Final = "vq.num_prototypes"
@@ -252,8 +254,7 @@ def _last_trials_success(path: Path) -> float | str:
     if not path.is_file():
         return ""
     with open(path, newline="") as handle:
-        rows = list(csv.DictReader(handle))
-    rows = [r for r in rows if r.get("room") == rows[-1].get("room")][-LAST_TRIALS:] if rows else rows
+        rows = room_rows(list(csv.DictReader(handle)))[-LAST_TRIALS:]
     try:
         return sum(float(r["success_rate_mean"]) for r in rows) / len(rows) if rows else ""
     except (KeyError, ValueError):

@@ -21,7 +21,6 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import replace
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -149,15 +148,12 @@ class Trainer:
         self.home, self.mix = home, list(mix)
         replicas = self.processes * self.rooms_per_process  # the same env settings: the same observations and actions
         self._mix_envs = [e.factory(num_replicas=replicas, num_agents=e.num_agents, device=self.device) for e in mix]
-        settings = EncoderSettings.for_room(
+        self.encoder_settings = EncoderSettings.for_room(
             room,
             void_features=void_features,
             void_draws=void_draws,
             distance_transform=self.vq.distance_transform,
-        )
-        # random void fillings span the largest room trained in
-        longest = max([settings.max_distance] + [env.max_distance for env in self._mix_envs])
-        self.encoder_settings = replace(settings, max_distance=longest)
+        ).spanning(self.mix)
         check_memory(
             memory_needs(self),
             device=self.device,

@@ -18,8 +18,8 @@ units), so they travel with it.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from dataclasses import asdict, dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, dataclass, replace
 from typing import Any, Final
 
 import torch
@@ -75,6 +75,11 @@ class EncoderSettings:
         distance and top speed) with ``choices`` (``void_features``, ``void_draws``, ``distance_transform``)."""
         sizes = ("num_neighbours", "num_walls", "max_distance", "max_speed")
         return cls(**{name: getattr(room, name) for name in sizes}, **choices)
+
+    def spanning(self, rooms: Sequence[Any]) -> EncoderSettings:
+        """These settings over ``rooms`` too (anything with a ``max_distance``, e.g. the rooms of a run trained
+        across scenarios): random void fillings span the longest distance of them all."""
+        return replace(self, max_distance=max([self.max_distance, *(room.max_distance for room in rooms)]))
 
     @property
     def num_features(self) -> int:
