@@ -23,7 +23,7 @@ from pedrl._numba import cached_njit
 from pedrl.sim.geometry import Geometry
 from pedrl.sim.movement import PAIR_MARGIN, Movement
 
-__all__ = ["sequential_substeps", "sliding_substeps"]
+__all__ = ["sequential_room", "sequential_substeps", "sliding_room", "sliding_substeps"]
 
 
 @cached_njit(nogil=True, inline="always")
@@ -56,72 +56,86 @@ def _sequential(
     order, contact_sq, out, blocked, crashed_wall, reached,
 ):  # fmt: skip
     num_replicas, num_agents = going.shape
-    num_substeps = walls.shape[0]
-    own_walls = low.shape[0] > 0  # axis-aligned walls: tested here, else ``walls`` holds the tests
     moved = np.zeros(num_agents, dtype=np.float32)  # sub-steps moved, per agent of the replica
     acted_moved = np.zeros(num_agents, dtype=np.bool_)  # moved in this sub-step (it acted already)
     passed = np.zeros(num_agents, dtype=np.bool_)
     current = np.empty((num_agents, 2), dtype=np.float32)
     for r in range(num_replicas):
+        sequential_room(
+            r, positions, step, going, present, depth, walls, low, high, radius_sq, start, normal, tangent, span,
+            order, contact_sq, out, blocked, crashed_wall, reached, moved, acted_moved, passed, current,
+        )  # fmt: skip
+
+
+@cached_njit(nogil=True)
+def sequential_room(
+    r, positions, step, going, present, depth, walls, low, high, radius_sq, start, normal, tangent, span,
+    order, contact_sq, out, blocked, crashed_wall, reached, moved, acted_moved, passed, current,
+):  # fmt: skip
+    """The sub-steps of replica ``r`` (of :func:`sequential_substeps`); ``moved``, ``acted_moved``, ``passed`` ``(N,)``
+    and ``current`` ``(N, 2)`` are scratch."""
+    num_agents = going.shape[1]
+    num_substeps = walls.shape[0]
+    own_walls = low.shape[0] > 0  # axis-aligned walls: tested here, else ``walls`` holds the tests
+    for i in range(num_agents):
+        moved[i] = 0.0
+        current[i, 0] = positions[r, i, 0]
+        current[i, 1] = positions[r, i, 1]
+    for k in range(num_substeps):
+        anyone = False
         for i in range(num_agents):
-            moved[i] = 0.0
-            current[i, 0] = positions[r, i, 0]
-            current[i, 1] = positions[r, i, 1]
-        for k in range(num_substeps):
-            anyone = False
-            for i in range(num_agents):
-                anyone |= going[r, i]
-            if not anyone:
-                break
-            scale = np.float32(k + 1)
-            for i in range(num_agents):
-                acted_moved[i] = False
-                passed[i] = False
-            for rank in range(num_agents):
-                i = order[r, rank]
-                if not going[r, i]:
-                    continue
-                proposal_x = positions[r, i, 0] + scale * step[r, i, 0]
-                proposal_y = positions[r, i, 1] + scale * step[r, i, 1]
-                if _touches_walls(proposal_x, proposal_y, low, high, radius_sq) if own_walls else walls[k, r, i]:
-                    blocked[r, i] = True
-                    crashed_wall[r, i] = True
-                    going[r, i] = False
-                    continue
-                hit = False
-                for j in range(num_agents):
-                    if j == i or not present[r, j]:
-                        continue
-                    if acted_moved[j]:  # acted before i and moved: it stands on its proposal
-                        other_x = positions[r, j, 0] + scale * step[r, j, 0]
-                        other_y = positions[r, j, 1] + scale * step[r, j, 1]
-                    else:  # still to act, or stopped: where it stands
-                        other_x = current[j, 0]
-                        other_y = current[j, 1]
-                    gap_x = proposal_x - other_x
-                    gap_y = proposal_y - other_y
-                    if gap_x * gap_x + gap_y * gap_y < contact_sq:
-                        hit = True
-                        break
-                if hit:
-                    blocked[r, i] = True
-                    going[r, i] = False
-                    continue
-                acted_moved[i] = True
-                if _passes_exits(proposal_x, proposal_y, depth[r, i], start, normal, tangent, span):
-                    reached[r, i] = True
-                    passed[i] = True
-                    going[r, i] = False
-            for i in range(num_agents):
-                if acted_moved[i]:
-                    moved[i] += np.float32(1.0)
-                if passed[i]:
-                    present[r, i] = False
-                current[i, 0] = positions[r, i, 0] + moved[i] * step[r, i, 0]
-                current[i, 1] = positions[r, i, 1] + moved[i] * step[r, i, 1]
+            anyone |= going[r, i]
+        if not anyone:
+            break
+        scale = np.float32(k + 1)
         for i in range(num_agents):
-            out[r, i, 0] = current[i, 0]
-            out[r, i, 1] = current[i, 1]
+            acted_moved[i] = False
+            passed[i] = False
+        for rank in range(num_agents):
+            i = order[r, rank]
+            if not going[r, i]:
+                continue
+            proposal_x = positions[r, i, 0] + scale * step[r, i, 0]
+            proposal_y = positions[r, i, 1] + scale * step[r, i, 1]
+            if _touches_walls(proposal_x, proposal_y, low, high, radius_sq) if own_walls else walls[k, r, i]:
+                blocked[r, i] = True
+                crashed_wall[r, i] = True
+                going[r, i] = False
+                continue
+            hit = False
+            for j in range(num_agents):
+                if j == i or not present[r, j]:
+                    continue
+                if acted_moved[j]:  # acted before i and moved: it stands on its proposal
+                    other_x = positions[r, j, 0] + scale * step[r, j, 0]
+                    other_y = positions[r, j, 1] + scale * step[r, j, 1]
+                else:  # still to act, or stopped: where it stands
+                    other_x = current[j, 0]
+                    other_y = current[j, 1]
+                gap_x = proposal_x - other_x
+                gap_y = proposal_y - other_y
+                if gap_x * gap_x + gap_y * gap_y < contact_sq:
+                    hit = True
+                    break
+            if hit:
+                blocked[r, i] = True
+                going[r, i] = False
+                continue
+            acted_moved[i] = True
+            if _passes_exits(proposal_x, proposal_y, depth[r, i], start, normal, tangent, span):
+                reached[r, i] = True
+                passed[i] = True
+                going[r, i] = False
+        for i in range(num_agents):
+            if acted_moved[i]:
+                moved[i] += np.float32(1.0)
+            if passed[i]:
+                present[r, i] = False
+            current[i, 0] = positions[r, i, 0] + moved[i] * step[r, i, 0]
+            current[i, 1] = positions[r, i, 1] + moved[i] * step[r, i, 1]
+    for i in range(num_agents):
+        out[r, i, 0] = current[i, 0]
+        out[r, i, 1] = current[i, 1]
 
 
 def sequential_substeps(
@@ -236,108 +250,125 @@ def _sliding(
     diameter, margin, out, blocked, cut_wall, cut_body, reached,
 ):  # fmt: skip
     num_replicas, num_agents = going.shape
-    zero = np.float32(0.0)
-    one = np.float32(1.0)
     wanted = np.empty((num_agents, 2), dtype=np.float32)
     current = np.empty((num_agents, 2), dtype=np.float32)
     factor = np.empty(num_agents, dtype=np.float32)
     rank_of = np.empty(num_agents, dtype=np.int64)
     for r in range(num_replicas):
-        if yield_order:  # each agent's place in the order of action, for the right of way
-            for k in range(num_agents):
-                rank_of[order[r, k]] = k
+        sliding_room(
+            r, positions, velocities, going, present, order, starts, directions, inverse, exit_start, exit_normal,
+            exit_tangent, exit_span, radius_sq, contact_sq, substep_length, num_substeps, headway, yield_order,
+            time_gap, diameter, margin, out, blocked, cut_wall, cut_body, reached, wanted, current, factor, rank_of,
+        )  # fmt: skip
+
+
+@cached_njit(nogil=True)
+def sliding_room(
+    r, positions, velocities, going, present, order, starts, directions, inverse, exit_start, exit_normal,
+    exit_tangent, exit_span, radius_sq, contact_sq, substep_length, num_substeps, headway, yield_order, time_gap,
+    diameter, margin, out, blocked, cut_wall, cut_body, reached,
+    wanted, current, factor, rank_of,
+):  # fmt: skip
+    """The sub-steps of replica ``r`` (of :func:`sliding_substeps`); ``wanted``, ``current`` ``(N, 2)``, ``factor`` and
+    ``rank_of`` ``(N,)`` are scratch."""
+    num_agents = going.shape[1]
+    zero = np.float32(0.0)
+    one = np.float32(1.0)
+    if yield_order:  # each agent's place in the order of action, for the right of way
+        for k in range(num_agents):
+            rank_of[order[r, k]] = k
+    for i in range(num_agents):
+        current[i, 0] = positions[r, i, 0]
+        current[i, 1] = positions[r, i, 1]
+        wanted[i, 0] = velocities[r, i, 0] if present[r, i] else zero
+        wanted[i, 1] = velocities[r, i, 1] if present[r, i] else zero
+    for _ in range(num_substeps):
+        anyone = False
         for i in range(num_agents):
-            current[i, 0] = positions[r, i, 0]
-            current[i, 1] = positions[r, i, 1]
-            wanted[i, 0] = velocities[r, i, 0] if present[r, i] else zero
-            wanted[i, 1] = velocities[r, i, 1] if present[r, i] else zero
-        for _ in range(num_substeps):
-            anyone = False
-            for i in range(num_agents):
-                anyone |= going[r, i]
-            if not anyone:
-                break
-            for i in range(num_agents):  # headway_factors, from the positions at the start of the sub-step
-                factor[i] = one
-                if not headway:
+            anyone |= going[r, i]
+        if not anyone:
+            break
+        for i in range(num_agents):  # headway_factors, from the positions at the start of the sub-step
+            factor[i] = one
+            if not headway:
+                continue
+            speed = np.sqrt(wanted[i, 0] * wanted[i, 0] + wanted[i, 1] * wanted[i, 1])
+            if not speed > zero:
+                continue
+            ex = wanted[i, 0] / speed
+            ey = wanted[i, 1] / speed
+            spacing = np.float32(np.inf)
+            for j in range(num_agents):
+                if j == i or not present[r, j] or (yield_order and rank_of[j] > rank_of[i]):
                     continue
-                speed = np.sqrt(wanted[i, 0] * wanted[i, 0] + wanted[i, 1] * wanted[i, 1])
-                if not speed > zero:
-                    continue
-                ex = wanted[i, 0] / speed
-                ey = wanted[i, 1] / speed
-                spacing = np.float32(np.inf)
-                for j in range(num_agents):
-                    if j == i or not present[r, j] or (yield_order and rank_of[j] > rank_of[i]):
-                        continue
-                    ox = current[j, 0] - current[i, 0]
-                    oy = current[j, 1] - current[i, 1]
-                    if ox * ex + oy * ey >= zero and abs(ox * ey - oy * ex) <= diameter:
-                        spacing = min(spacing, np.sqrt(ox * ox + oy * oy) - diameter)
-                factor[i] = min(speed, max(spacing / time_gap, zero)) / speed
-            for rank in range(num_agents):
-                i = order[r, rank]
-                if not going[r, i]:
-                    continue
-                here_x = current[i, 0]
-                here_y = current[i, 1]
-                vx = wanted[i, 0]
-                vy = wanted[i, 1]
-                scale = factor[i] * substep_length
+                ox = current[j, 0] - current[i, 0]
+                oy = current[j, 1] - current[i, 1]
+                if ox * ex + oy * ey >= zero and abs(ox * ey - oy * ex) <= diameter:
+                    spacing = min(spacing, np.sqrt(ox * ox + oy * oy) - diameter)
+            factor[i] = min(speed, max(spacing / time_gap, zero)) / speed
+        for rank in range(num_agents):
+            i = order[r, rank]
+            if not going[r, i]:
+                continue
+            here_x = current[i, 0]
+            here_y = current[i, 1]
+            vx = wanted[i, 0]
+            vy = wanted[i, 1]
+            scale = factor[i] * substep_length
+            target_x = here_x + vx * scale
+            target_y = here_y + vy * scale
+            wall_sq, wall = _nearest_wall_kernel(target_x, target_y, starts, directions, inverse)
+            body_sq, body = _nearest_body(target_x, target_y, i, current, present[r])
+            hits_wall = wall_sq < radius_sq
+            hits_body = body_sq < contact_sq
+            if hits_wall or hits_body:
+                if hits_wall:  # closest point of that wall to the mover's centre
+                    along = (
+                        (here_x - starts[wall, 0]) * directions[wall, 0]
+                        + (here_y - starts[wall, 1]) * directions[wall, 1]
+                    ) * inverse[wall]
+                    along = min(max(along, zero), one)
+                    normal_x = here_x - (starts[wall, 0] + along * directions[wall, 0])
+                    normal_y = here_y - (starts[wall, 1] + along * directions[wall, 1])
+                else:
+                    normal_x = here_x - current[body, 0]
+                    normal_y = here_y - current[body, 1]
+                norm = np.sqrt(normal_x * normal_x + normal_y * normal_y)
+                if not norm > zero:
+                    norm = one
+                normal_x = normal_x / norm
+                normal_y = normal_y / norm
+                inward = min(vx * normal_x + vy * normal_y, zero)
+                vx = vx - inward * normal_x
+                vy = vy - inward * normal_y
+                wanted[i, 0] = vx
+                wanted[i, 1] = vy
                 target_x = here_x + vx * scale
                 target_y = here_y + vy * scale
-                wall_sq, wall = _nearest_wall_kernel(target_x, target_y, starts, directions, inverse)
-                body_sq, body = _nearest_body(target_x, target_y, i, current, present[r])
-                hits_wall = wall_sq < radius_sq
-                hits_body = body_sq < contact_sq
-                if hits_wall or hits_body:
-                    if hits_wall:  # closest point of that wall to the mover's centre
-                        along = (
-                            (here_x - starts[wall, 0]) * directions[wall, 0]
-                            + (here_y - starts[wall, 1]) * directions[wall, 1]
-                        ) * inverse[wall]
-                        along = min(max(along, zero), one)
-                        normal_x = here_x - (starts[wall, 0] + along * directions[wall, 0])
-                        normal_y = here_y - (starts[wall, 1] + along * directions[wall, 1])
-                    else:
-                        normal_x = here_x - current[body, 0]
-                        normal_y = here_y - current[body, 1]
-                    norm = np.sqrt(normal_x * normal_x + normal_y * normal_y)
-                    if not norm > zero:
-                        norm = one
-                    normal_x = normal_x / norm
-                    normal_y = normal_y / norm
-                    inward = min(vx * normal_x + vy * normal_y, zero)
-                    vx = vx - inward * normal_x
-                    vy = vy - inward * normal_y
-                    wanted[i, 0] = vx
-                    wanted[i, 1] = vy
-                    target_x = here_x + vx * scale
-                    target_y = here_y + vy * scale
-                    slid_sq, _ = _nearest_wall_kernel(target_x, target_y, starts, directions, inverse)
-                    slid_body_sq, _ = _nearest_body(target_x, target_y, i, current, present[r])
-                    slid_wall = slid_sq < radius_sq
-                    slid_body = slid_body_sq < contact_sq
-                    if hits_wall or slid_wall:
-                        cut_wall[r, i] = True
-                    if hits_body or slid_body:
-                        cut_body[r, i] = True
-                    if slid_wall or slid_body:
-                        blocked[r, i] = True
-                        going[r, i] = False
-                        continue
-                current[i, 0] = target_x
-                current[i, 1] = target_y
-                step_x = target_x - here_x
-                step_y = target_y - here_y
-                depth = np.sqrt(step_x * step_x + step_y * step_y) + margin
-                if _passes_exits(target_x, target_y, depth, exit_start, exit_normal, exit_tangent, exit_span):
-                    reached[r, i] = True
-                    present[r, i] = False
+                slid_sq, _ = _nearest_wall_kernel(target_x, target_y, starts, directions, inverse)
+                slid_body_sq, _ = _nearest_body(target_x, target_y, i, current, present[r])
+                slid_wall = slid_sq < radius_sq
+                slid_body = slid_body_sq < contact_sq
+                if hits_wall or slid_wall:
+                    cut_wall[r, i] = True
+                if hits_body or slid_body:
+                    cut_body[r, i] = True
+                if slid_wall or slid_body:
+                    blocked[r, i] = True
                     going[r, i] = False
-        for i in range(num_agents):
-            out[r, i, 0] = current[i, 0]
-            out[r, i, 1] = current[i, 1]
+                    continue
+            current[i, 0] = target_x
+            current[i, 1] = target_y
+            step_x = target_x - here_x
+            step_y = target_y - here_y
+            depth = np.sqrt(step_x * step_x + step_y * step_y) + margin
+            if _passes_exits(target_x, target_y, depth, exit_start, exit_normal, exit_tangent, exit_span):
+                reached[r, i] = True
+                present[r, i] = False
+                going[r, i] = False
+    for i in range(num_agents):
+        out[r, i, 0] = current[i, 0]
+        out[r, i, 1] = current[i, 1]
 
 
 def sliding_substeps(

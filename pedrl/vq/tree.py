@@ -159,40 +159,48 @@ def _search(
     nodes = np.empty(_STACK, dtype=np.int64)
     point = np.empty(dim, dtype=np.float32)
     sums = np.empty(LEAF_SIZE, dtype=np.float32)
-    shrink = np.float32(_BOUND_SHRINK)
     for row in range(points.shape[0]):
         t = tree[row]
         for c in range(dim):
             point[c] = points[row, columns[t, c]]
-        best = np.float32(np.inf)
-        best_id = ids_of.shape[1] * LEAF_SIZE
-        nodes[0] = 0
-        top = 1
-        while top > 0:
-            top -= 1
-            node = nodes[top]
-            if node and _box_distance(point, low, high, t, node) * shrink > best:
-                continue
-            first_child = left[node]
-            if first_child < 0:  # a leaf: its distances 8 at a time, one vector lane per prototype
-                leaf = leaf_of[node]
-                for first in range(0, LEAF_SIZE, 8):
-                    _eight_distances(point, prototypes, t, leaf, first, sums)
-                for j in range(LEAF_SIZE):
-                    index = ids_of[t, leaf, j]
-                    if sums[j] < best or (sums[j] == best and index < best_id):
-                        best = sums[j]
-                        best_id = index
-                continue
-            second_child = right[node]
-            # the child on the point's side of the split plane first; bounds are computed when popped
-            if point[split_dim[t, node]] >= split_value[t, node]:
-                first_child, second_child = second_child, first_child
-            nodes[top] = second_child
-            nodes[top + 1] = first_child
-            top += 2
-        ids[row] = best_id if best_id < ids_of.shape[1] * LEAF_SIZE else 0  # a NaN point: id 0
-        sq_dist[row] = best
+        ids[row], sq_dist[row] = search_point(
+            point, t, prototypes, ids_of, leaf_of, left, right, split_dim, split_value, low, high, nodes, sums
+        )
+
+
+@cached_njit(nogil=True)
+def search_point(point, t, prototypes, ids_of, leaf_of, left, right, split_dim, split_value, low, high, nodes, sums):
+    """The nearest prototype of set ``t`` to ``point`` (its columns already in the set's order): ``(id, sq_dist)``,
+    id 0 for a NaN point. ``nodes`` (``_STACK``) and ``sums`` (``LEAF_SIZE``) are scratch."""
+    shrink = np.float32(_BOUND_SHRINK)
+    best = np.float32(np.inf)
+    best_id = ids_of.shape[1] * LEAF_SIZE
+    nodes[0] = 0
+    top = 1
+    while top > 0:
+        top -= 1
+        node = nodes[top]
+        if node and _box_distance(point, low, high, t, node) * shrink > best:
+            continue
+        first_child = left[node]
+        if first_child < 0:  # a leaf: its distances 8 at a time, one vector lane per prototype
+            leaf = leaf_of[node]
+            for first in range(0, LEAF_SIZE, 8):
+                _eight_distances(point, prototypes, t, leaf, first, sums)
+            for j in range(LEAF_SIZE):
+                index = ids_of[t, leaf, j]
+                if sums[j] < best or (sums[j] == best and index < best_id):
+                    best = sums[j]
+                    best_id = index
+            continue
+        second_child = right[node]
+        # the child on the point's side of the split plane first; bounds are computed when popped
+        if point[split_dim[t, node]] >= split_value[t, node]:
+            first_child, second_child = second_child, first_child
+        nodes[top] = second_child
+        nodes[top + 1] = first_child
+        top += 2
+    return (best_id if best_id < ids_of.shape[1] * LEAF_SIZE else 0), best  # a NaN point: id 0
 
 
 class TreeIndex:
@@ -243,6 +251,26 @@ class TreeIndex:
             self._ids[index] = ids
             block = np.where(real[..., None], values[index][np.minimum(ids, self.num_prototypes - 1)], _FAR)
             self._prototypes[index] = block.transpose(0, 2, 1)
+
+    def kernel_arrays(self) -> tuple[np.ndarray, ...]:
+        """What :func:`search_point` reads after the point and its set: ``(prototypes, ids_of, leaf_of, left, right,
+        split_dim, split_value, low, high)``; ``columns`` ``(T, d)`` (:attr:`columns`) orders a point's values."""
+        return (
+            self._prototypes,
+            self._ids,
+            self._leaf_of,
+            self._left,
+            self._right,
+            self._split_dim,
+            self._split_value,
+            self._low,
+            self._high,
+        )
+
+    @property
+    def columns(self) -> np.ndarray:
+        """``(T, d)`` int64: the columns of set ``t`` in the order the tree reads them."""
+        return self._columns
 
     def search(self, points: torch.Tensor, sets: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """Nearest prototype of every point within its set.

@@ -1,0 +1,284 @@
+"""The fused trial: a whole trial of every room as one compiled pass per learning process, on every core.
+
+:func:`run_trial_fused` is :func:`pedrl.algos.rollout.run_trial` on the CPU without a torch operation per
+decision: one call of :func:`pedrl.algos.fused_kernels.fused_trial` runs every decision of the trial (step with the
+room's contact rule, rewards, sensing, void filling, distance transform, k-d tree encoding, TD update,
+epsilon-greedy choice), the learning processes in parallel over numba's threads. The torch loop stays the
+reference (and the path on a GPU, or with ``fused=false``); this one matches it within stated tolerances
+(``tests/algos/test_fused.py``) and equals itself for a seed at any thread count. :func:`fused_reason` says which
+rooms and quantizers it runs: every contact rule and geometry of ``collision_rule=sequential`` (``stop`` with
+axis-aligned walls), rooms without waypoint routes, and every quantizer kind (shared, per process, IN-VQQL's
+union).
+"""
+
+from __future__ import annotations
+
+import weakref
+from typing import Any, Final
+
+import numpy as np
+import torch
+
+from pedrl._numba import numba, numba_available
+from pedrl.algos.rollout import TOTALS, TrialStats
+from pedrl.rl.policy import TabularPolicy
+from pedrl.sim import RoomEnv
+from pedrl.vq.encoder import StateEncoder
+from pedrl.vq.quantizer import ProcessQuantizers, Quantizer, UnionQuantizer
+
+__all__ = ["fused_reason", "run_trial_fused", "set_kernel_threads"]
+
+CONTACTS: Final = ("stop", "slide", "headway", "yield")
+"""The contact rules in :mod:`pedrl.algos.fused_kernels`' numbering."""
+MIN_VOID_DISTANCE: Final = np.float32(0.8)
+"""``fill_void_neighbours``' default ``min_distance``, which the encoder uses."""
+_PACKED: weakref.WeakKeyDictionary[Any, tuple[Any, ...]] = weakref.WeakKeyDictionary()
+
+
+def fused_reason(env: RoomEnv, policy: TabularPolicy) -> str | None:
+    """Why the fused trial cannot run ``policy`` in ``env`` (one phrase), or None when it can."""
+    if env.device.type != "cpu" or policy.device.type != "cpu":
+        return f"it runs on the CPU, not {env.device.type}"
+    if not numba_available():
+        return "numba is off (PEDRL_NO_NUMBA) or missing"
+    if env.collision_rule != "sequential":
+        return f"collision_rule={env.collision_rule} (it runs the sequential rule)"
+    if env.contact == "stop" and not env.geometry.axis_aligned:
+        return "contact=stop in a room whose walls are not all axis-aligned"
+    if env.spawns.has_routes:
+        return "the room's agents follow waypoint routes"
+    if env.compile_sensing:
+        return "env.compile_sensing=true"
+    if (env.num_neighbours, env.num_walls) != (
+        policy.encoder.settings.num_neighbours,
+        policy.encoder.settings.num_walls,
+    ):
+        return "the room senses other neighbour or wall slots than the encoder reads"
+    if policy.encoder.quantizer is None:
+        return "the encoder has no quantizer"
+    return None
+
+
+def set_kernel_threads(threads: int) -> None:
+    """Run numba's parallel kernels on ``threads`` threads (at most the cores numba started with), in its
+    ``workqueue`` layer, whose idle threads sleep instead of spinning against torch's."""
+    module = numba()
+    if module.config.THREADING_LAYER == "default":
+        module.config.THREADING_LAYER = "workqueue"
+    module.set_num_threads(max(1, min(threads, module.config.NUMBA_NUM_THREADS)))
+
+
+def run_trial_fused(
+    env: RoomEnv,
+    policy: TabularPolicy,
+    *,
+    epsilon: float,
+    generator: torch.Generator,
+    learn: bool,
+    alpha: float = 0.0,
+    gamma: float = 0.0,
+) -> TrialStats:
+    """:func:`pedrl.algos.rollout.run_trial` as one compiled pass (module docstring): the same arguments and
+    statistics. ``generator`` gives the trial's seed (one draw); the room's resets draw from ``env.generator``."""
+    from pedrl.algos.fused_kernels import fused_trial, seed_streams
+
+    reason = fused_reason(env, policy)
+    if reason is not None:
+        raise ValueError(f"the fused trial cannot run here: {reason}")
+    set_kernel_threads(torch.get_num_threads())
+    env.reset()
+    rooms, agents = env.num_replicas, env.num_agents
+    layout = policy.layout
+    process, base_rows = layout.of(rooms, agents, env.device)
+    group = layout.rooms_per_process if layout.blocks(rooms) else rooms  # rooms sharing tables run in one thread
+    state = tuple(t.contiguous().numpy() for t in _state(env))
+    streams = np.empty(rooms, np.uint64)
+    seed_streams(np.uint64(int(torch.randint(0, 2**62, (1,), generator=generator))), streams)
+    totals = np.zeros((len(TOTALS), rooms, agents))
+    td_sums = np.zeros((rooms // group, 2))
+    steps = np.zeros(rooms // group, np.int64)
+    settings = policy.encoder.settings
+    random_void = settings.void_features == "random"
+    fused_trial(
+        group,
+        state,
+        _room(env),
+        _walls(env),
+        _exits(env),
+        (env.num_neighbours, env.num_walls),
+        *_packed(policy.encoder, policy.num_processes),
+        (
+            settings.num_neighbours,
+            np.float32(settings.max_distance),
+            np.float32(settings.max_speed),
+            MIN_VOID_DISTANCE,
+            random_void,
+            settings.distance_transform == "log",
+        ),
+        (np.float32(epsilon), learn, np.float32(alpha), np.float32(gamma), settings.void_draws == "decision"),
+        policy.q_values.view(-1, policy.num_actions).numpy(),
+        base_rows.view(rooms, agents).numpy(),
+        process.view(rooms, agents)[:, 0].contiguous().numpy(),
+        streams,
+        _work(env),
+        _events(rooms, agents),
+        _observed(rooms, agents, env.num_features),
+        np.zeros((rooms, agents, 3 * settings.num_neighbours + 1 if random_void else 1), np.float32),
+        totals,
+        td_sums,
+        steps,
+    )
+    _write_back(env, state, int(steps.max()))
+    return _stats(torch.from_numpy(totals).float(), td_sums, steps, policy.num_processes, learn)
+
+
+def _state(env: RoomEnv) -> tuple[torch.Tensor, ...]:
+    return (
+        env.positions,
+        env.velocities,
+        env.headings,
+        env.speeds,
+        env.active,
+        env.exit_index,
+        env.targets(),
+        env.decisions,
+    )
+
+
+def _write_back(env: RoomEnv, state: tuple[np.ndarray, ...], steps: int) -> None:
+    """The rooms' state after the trial, into ``env`` (its clock advanced by the trial's decisions)."""
+    positions, velocities, headings, speeds, active, _, _, decisions = (torch.from_numpy(a) for a in state)
+    env.positions, env.velocities, env.headings, env.speeds = positions, velocities, headings, speeds
+    env.active, env.decisions = active, decisions
+    env._steps_taken += steps
+
+
+def _room(env: RoomEnv) -> tuple[Any, ...]:
+    rewards = env.rewards
+    return (
+        env.speed_changes.to(torch.float32).numpy(),
+        env.turn_changes.to(torch.float32).numpy(),
+        np.float32(env.max_speed),
+        float(env.decision_length),
+        int(env.num_substeps),
+        float(env.agent_radius),
+        CONTACTS.index(env.contact),
+        env.collision_order == "door_first",
+        float(env.time_gap),
+        int(env.max_decisions),
+        np.array([rewards.goal, rewards.crash_wall, rewards.crash_agent, rewards.default], np.float32),
+        np.float32(env.reward_progress),
+        env.spawns.assigned_exit.expand(env.num_replicas, env.num_agents).contiguous().numpy(),
+        env.geometry.exit_goals.contiguous().numpy(),
+    )
+
+
+def _walls(env: RoomEnv) -> tuple[np.ndarray, ...]:
+    from pedrl.sim.dynamics import _wall_segments
+
+    geometry = env.geometry
+    starts, directions, inverse = _wall_segments(geometry)
+    aligned = torch.full((starts.shape[0],), True) if geometry.axis_aligned else (directions == 0).any(-1)
+    low, high = geometry.box_low, geometry.box_high
+    return tuple(t.contiguous().numpy() for t in (starts, directions, inverse, aligned, low, high))
+
+
+def _exits(env: RoomEnv) -> tuple[np.ndarray, ...]:
+    geometry = env.geometry
+    parts = (geometry.exits[:, 0], geometry.exit_normals, geometry.exit_tangents, geometry.exit_spans)
+    return tuple(t.contiguous().numpy() for t in parts)
+
+
+def _work(env: RoomEnv) -> tuple[np.ndarray, ...]:
+    """Scratch of :func:`pedrl.algos.fused_kernels.act_room`, one row per room."""
+    shape = (env.num_replicas, env.num_agents)
+    flags = [np.zeros(shape, np.bool_) for _ in range(6)]
+    floats = (np.zeros((*shape, 2), np.float32), np.zeros((*shape, 2), np.float32))
+    return (
+        *floats,
+        flags[0],
+        flags[1],
+        np.zeros(shape, np.int64),
+        np.zeros(shape, np.float32),
+        *flags[2:],
+        np.zeros((env.num_substeps, 1, 1), np.bool_),
+    )
+
+
+def _events(rooms: int, agents: int) -> tuple[np.ndarray, ...]:
+    """``(reward, left, goal, crashed_wall, crashed_agent, acting, in_room)`` of the latest decision."""
+    return (np.zeros((rooms, agents), np.float32), *(np.zeros((rooms, agents), np.bool_) for _ in range(6)))
+
+
+def _observed(rooms: int, agents: int, features: int) -> tuple[np.ndarray, ...]:
+    """``(features, num_sensed, rows, next_rows, actions)``."""
+    shape = (rooms, agents)
+    return (np.zeros((*shape, features), np.float32), *(np.zeros(shape, np.int64) for _ in range(4)))
+
+
+def _stats(totals: torch.Tensor, td_sums: np.ndarray, steps: np.ndarray, processes: int, learn: bool) -> TrialStats:
+    returns, crashes_agent, crashes_wall, reached, speed_sum, moves = totals.view(len(TOTALS), processes, -1)
+    updates = float(td_sums[:, 1].sum())
+    td_error = torch.full((processes,), float(td_sums[:, 0].sum()) / max(updates, 1.0)) if learn else None
+    return TrialStats(
+        success_rate=reached.mean(1),
+        episodic_return=returns.mean(1),
+        crashes_agent=crashes_agent.mean(1),
+        crashes_wall=crashes_wall.mean(1),
+        mean_speed=speed_sum.sum(1) / moves.sum(1).clamp_min(1),
+        td_error=td_error if td_error is not None else torch.zeros(processes),
+        decisions=int(steps.max()),
+        agent_decisions=int(moves.sum()),
+    )
+
+
+def _packed(encoder: StateEncoder, processes: int) -> tuple[Any, Any]:
+    """``(encoder, tree)`` tuples of :func:`pedrl.algos.fused_kernels.encode_agent` for ``encoder``'s quantizer,
+    built once per quantizer."""
+    quantizer = encoder.quantizer
+    if quantizer not in _PACKED:
+        _PACKED[quantizer] = _pack(encoder, processes)
+    return _PACKED[quantizer]
+
+
+def _pack(encoder: StateEncoder, processes: int) -> tuple[Any, Any]:
+    """Every prototype set as a full-width set: a plain quantizer is one set, a union one set per part (its
+    features kept, the others 0), padded to the largest set with copies of its first prototype (a tie goes to the
+    lower id, so a copy never wins)."""
+    from pedrl.sim.sensing import distance_indices
+    from pedrl.vq.tree import TreeIndex
+
+    settings = encoder.settings
+    width, k = settings.num_features, settings.num_neighbours
+    sets: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, int]] = []
+
+    def add(part: Quantizer | UnionQuantizer) -> list[int]:
+        """The sets of ``part``, appended; returns the set of each number of sensed neighbours ``0 .. k``."""
+        if isinstance(part, Quantizer):
+            sets.append((part.mean, part.std, torch.ones(width, dtype=torch.bool), part.prototypes, 0))
+            return [len(sets) - 1] * (k + 1)
+        first = len(sets)
+        for sensed in part.num_sensed:
+            index, sub = part.part(sensed)
+            mean, std, keep = torch.zeros(width), torch.ones(width), torch.zeros(width, dtype=torch.bool)
+            mean[index], std[index], keep[index] = sub.mean, sub.std, True
+            prototypes = torch.zeros(sub.num_prototypes, width)
+            prototypes[:, index] = sub.prototypes
+            sets.append((mean, std, keep, prototypes, part.offsets[sensed]))
+        return (first + part.part_of(torch.arange(k + 1))).tolist()
+
+    parts = quantizer.parts if isinstance(quantizer := encoder.quantizer, ProcessQuantizers) else None
+    set_of = [add(part) for part in parts] if parts is not None else [add(quantizer)] * processes
+    size = max(s[3].shape[0] for s in sets)
+    padded = [torch.cat((s[3], s[3][:1].expand(size - s[3].shape[0], -1))) for s in sets]
+    tree = TreeIndex(torch.stack(padded).float())
+    packed = (
+        torch.stack([s[0] for s in sets]).float().numpy(),
+        torch.stack([s[1] for s in sets]).float().numpy(),
+        torch.stack([s[2] for s in sets]).numpy(),
+        np.array([s[4] for s in sets], np.int64),
+        np.ascontiguousarray(tree.columns),
+        distance_indices(k, settings.num_walls).numpy(),
+        np.array(set_of, np.int64),
+    )
+    return packed, tree.kernel_arrays()
