@@ -47,9 +47,11 @@ HISTORICAL_VALUES: Final = {
     "algo.void_draws": "decision",
     "vq.distance_transform": "none",
     "mix": [],
+    "fused": False,
 }
 """Keys added after checkpoints were first written, with the value the runs of older checkpoints had (one table per
-agent, raw distances and void fillings drawn at every encode came before their keys)."""
+agent, raw distances and void fillings drawn at every encode came before their keys; every trial ran the torch loop
+before the fused one)."""
 VOID_FEATURES_DEFAULTS: Final = {"vqql": "zero", "it_vqql": "random", "in_vqql": "zero"}
 """``algo.void_features`` of each algorithm when its config does not say (IT-VQQL fills void slots, section 5.1)."""
 ENV_RUN_ARGUMENTS: Final = ("num_replicas", "num_agents", "device", "geometry")

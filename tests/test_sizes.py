@@ -19,6 +19,7 @@ LITERAL_LOOPS = {
     "pedrl/sim/kernels.py": "*",
     "pedrl/rl/kernels.py": "*",
     "pedrl/vq/tree.py": "*",
+    "pedrl/algos/fused_kernels.py": "*",
     "pedrl/sim/dynamics.py": {"move_agents_sliding_torch", "move_agents_sequential_torch"},
 }
 """Files (or functions of a file) whose loops are exempt from :data:`MAX_FUNCTION`."""

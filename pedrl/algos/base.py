@@ -81,6 +81,9 @@ class Trainer:
         mix: rooms of other scenarios that take turns with each phase's room, trial by trial
             (:mod:`pedrl.algos.mix`); their states are gathered too, and they learn into the same tables.
         home: the label of the phase's own room in ``learning_curve.csv`` and TensorBoard (its scenario's name).
+        fused: run each trial as one compiled pass per process (:mod:`pedrl.algos.fused`: on the CPU, the processes
+            in parallel over the threads), or as the torch loop, the reference (False); None: the fused pass
+            wherever it can run. True is refused in one line, before any compute, for a room it cannot run.
     """
 
     name = "base"
@@ -109,6 +112,7 @@ class Trainer:
         run_config: Mapping[str, Any] | None = None,
         mix: Sequence[TrainingRoom] = (),
         home: str = "room",
+        fused: bool | None = None,
     ) -> None:
         self.vq = vq if isinstance(vq, VQSettings) else VQSettings.from_config(vq)
         check_integer("processes", processes, minimum=1)
@@ -148,6 +152,7 @@ class Trainer:
         self.home, self.mix = home, list(mix)
         replicas = self.processes * self.rooms_per_process  # the same env settings: the same observations and actions
         self._mix_envs = [e.factory(num_replicas=replicas, num_agents=e.num_agents, device=self.device) for e in mix]
+        self.fused = check_fused(fused, [*self._envs.values(), *self._mix_envs])
         self.encoder_settings = EncoderSettings.for_room(
             room,
             void_features=void_features,
@@ -328,7 +333,14 @@ class Trainer:
             trial_tic = time.perf_counter()
             label, env = rooms[room_of_trial(trial, phase.trials, len(rooms))]
             stats = run_trial(
-                env, policy, epsilon=epsilon, generator=self.generator, learn=True, alpha=self.alpha, gamma=self.gamma
+                env,
+                policy,
+                epsilon=epsilon,
+                generator=self.generator,
+                learn=True,
+                alpha=self.alpha,
+                gamma=self.gamma,
+                fused=self.fused,
             )
             check_finite(phase.index, trial, stats, policy.q_values, last=trial + 1 == phase.trials)
             rate = stats.agent_decisions / (time.perf_counter() - trial_tic)
@@ -402,7 +414,14 @@ class Trainer:
         :func:`pedrl.algos.rollout.run_trial`)."""
         policy = self.policy(quantizer, q_values)
         return run_trial(
-            env, policy, epsilon=epsilon, generator=self.generator, learn=learn, alpha=self.alpha, gamma=self.gamma
+            env,
+            policy,
+            epsilon=epsilon,
+            generator=self.generator,
+            learn=learn,
+            alpha=self.alpha,
+            gamma=self.gamma,
+            fused=self.fused,
         )
 
     def env_for(self, num_agents: int) -> RoomEnv:
@@ -447,3 +466,22 @@ class Trainer:
             "final": final_figures(stats) if stats is not None else {},
         }
         record.save(tensors, metadata, phase, iteration=iteration)
+
+
+def check_fused(fused: Any, rooms: Sequence[RoomEnv]) -> bool | None:
+    """``fused`` (None, True or False), refused in one line unless a boolean or null, or when True for a room the
+    fused trial cannot run (:func:`pedrl.algos.fused.room_reason`)."""
+    if fused is not None:
+        check_bool("fused", fused)
+    if fused and rooms[0].device.type != "cpu":
+        raise ValueError(
+            f"fused=true is invalid on {rooms[0].device.type}: the fused trial runs on the CPU (false or null)"
+        )
+    if fused:
+        from pedrl.algos.fused import room_reason  # imports numba: only where it is used
+
+        for room in rooms:
+            reason = room_reason(room)
+            if reason is not None:
+                raise ValueError(f"fused=true is invalid: the fused trial cannot run {reason} (false or null)")
+    return fused

@@ -6,9 +6,8 @@ room's contact rule, rewards, sensing, void filling, distance transform, k-d tre
 epsilon-greedy choice), the learning processes in parallel over numba's threads. The torch loop stays the
 reference (and the path on a GPU, or with ``fused=false``); this one matches it within stated tolerances
 (``tests/algos/test_fused.py``) and equals itself for a seed at any thread count. :func:`fused_reason` says which
-rooms and quantizers it runs: every contact rule and geometry of ``collision_rule=sequential`` (``stop`` with
-axis-aligned walls), rooms without waypoint routes, and every quantizer kind (shared, per process, IN-VQQL's
-union).
+rooms and quantizers it runs: every contact rule, geometry and route of ``collision_rule=sequential`` (``stop``
+with axis-aligned walls), and every quantizer kind (shared, per process, IN-VQQL's union).
 """
 
 from __future__ import annotations
@@ -20,13 +19,13 @@ import numpy as np
 import torch
 
 from pedrl._numba import numba, numba_available
-from pedrl.algos.rollout import TOTALS, TrialStats
+from pedrl.algos.stats import TOTALS, TrialStats
 from pedrl.rl.policy import TabularPolicy
 from pedrl.sim import RoomEnv
 from pedrl.vq.encoder import StateEncoder
 from pedrl.vq.quantizer import ProcessQuantizers, Quantizer, UnionQuantizer
 
-__all__ = ["fused_reason", "run_trial_fused", "set_kernel_threads"]
+__all__ = ["fused_reason", "room_reason", "run_trial_fused", "set_kernel_threads"]
 
 CONTACTS: Final = ("stop", "slide", "headway", "yield")
 """The contact rules in :mod:`pedrl.algos.fused_kernels`' numbering."""
@@ -37,25 +36,28 @@ _PACKED: weakref.WeakKeyDictionary[Any, tuple[Any, ...]] = weakref.WeakKeyDictio
 
 def fused_reason(env: RoomEnv, policy: TabularPolicy) -> str | None:
     """Why the fused trial cannot run ``policy`` in ``env`` (one phrase), or None when it can."""
-    if env.device.type != "cpu" or policy.device.type != "cpu":
-        return f"it runs on the CPU, not {env.device.type}"
-    if not numba_available():
-        return "numba is off (PEDRL_NO_NUMBA) or missing"
-    if env.collision_rule != "sequential":
-        return f"collision_rule={env.collision_rule} (it runs the sequential rule)"
-    if env.contact == "stop" and not env.geometry.axis_aligned:
-        return "contact=stop in a room whose walls are not all axis-aligned"
-    if env.spawns.has_routes:
-        return "the room's agents follow waypoint routes"
-    if env.compile_sensing:
-        return "env.compile_sensing=true"
-    if (env.num_neighbours, env.num_walls) != (
-        policy.encoder.settings.num_neighbours,
-        policy.encoder.settings.num_walls,
-    ):
-        return "the room senses other neighbour or wall slots than the encoder reads"
+    if policy.device.type != "cpu":
+        return f"on {policy.device.type}: it runs on the CPU"
+    settings = policy.encoder.settings
+    if (env.num_neighbours, env.num_walls) != (settings.num_neighbours, settings.num_walls):
+        return "in a room that senses other neighbour or wall slots than the encoder reads"
     if policy.encoder.quantizer is None:
-        return "the encoder has no quantizer"
+        return "with an encoder that has no quantizer"
+    return room_reason(env)
+
+
+def room_reason(env: RoomEnv) -> str | None:
+    """Why the fused trial cannot run in ``env`` (one phrase), or None when it can."""
+    if env.device.type != "cpu":
+        return f"on {env.device.type}: it runs on the CPU"
+    if not numba_available():
+        return "without numba (PEDRL_NO_NUMBA is set, or numba is missing)"
+    if env.collision_rule != "sequential":
+        return f"with collision_rule={env.collision_rule} (it runs the sequential rule)"
+    if env.contact == "stop" and not env.geometry.axis_aligned:
+        return "with contact=stop in a room whose walls are not all axis-aligned"
+    if env.compile_sensing:
+        return "with env.compile_sensing=true"
     return None
 
 
@@ -84,7 +86,7 @@ def run_trial_fused(
 
     reason = fused_reason(env, policy)
     if reason is not None:
-        raise ValueError(f"the fused trial cannot run here: {reason}")
+        raise ValueError(f"the fused trial cannot run {reason}")
     set_kernel_threads(torch.get_num_threads())
     env.reset()
     rooms, agents = env.num_replicas, env.num_agents
@@ -142,14 +144,15 @@ def _state(env: RoomEnv) -> tuple[torch.Tensor, ...]:
         env.exit_index,
         env.targets(),
         env.decisions,
+        env.stage,
     )
 
 
 def _write_back(env: RoomEnv, state: tuple[np.ndarray, ...], steps: int) -> None:
     """The rooms' state after the trial, into ``env`` (its clock advanced by the trial's decisions)."""
-    positions, velocities, headings, speeds, active, _, _, decisions = (torch.from_numpy(a) for a in state)
+    positions, velocities, headings, speeds, active, _, targets, decisions, stage = (torch.from_numpy(a) for a in state)
     env.positions, env.velocities, env.headings, env.speeds = positions, velocities, headings, speeds
-    env.active, env.decisions = active, decisions
+    env.active, env.decisions, env.stage, env._targets = active, decisions, stage, targets
     env._steps_taken += steps
 
 
@@ -170,6 +173,9 @@ def _room(env: RoomEnv) -> tuple[Any, ...]:
         np.float32(env.reward_progress),
         env.spawns.assigned_exit.expand(env.num_replicas, env.num_agents).contiguous().numpy(),
         env.geometry.exit_goals.contiguous().numpy(),
+        env.spawns.waypoints.to(torch.float32).contiguous().numpy(),
+        env.spawns.route_length.contiguous().numpy(),
+        np.float32(env.geometry.waypoint_radius),
     )
 
 
@@ -202,6 +208,7 @@ def _work(env: RoomEnv) -> tuple[np.ndarray, ...]:
         np.zeros(shape, np.float32),
         *flags[2:],
         np.zeros((env.num_substeps, 1, 1), np.bool_),
+        np.zeros(shape, np.float32),
     )
 
 

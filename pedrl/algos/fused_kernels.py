@@ -105,7 +105,7 @@ def sense_room(r, state, present, walls, k, w, features, num_sensed, distances, 
     float32 but ``aligned`` (bool); ``state`` is :func:`fused_trial`'s. ``distances`` float32 and ``indices`` int64
     ``(2, max(N, S))`` are scratch.
     """
-    positions, velocities, headings, speeds, _, _, goals, _ = state
+    positions, velocities, headings, speeds, _, _, goals, _, _ = state
     num_agents = positions.shape[1]
     slots = min(k, num_agents - 1)
     near_d, wall_d, near_j, wall_s = distances[0], distances[1], indices[0], indices[1]
@@ -190,19 +190,23 @@ def encode_agent(r, i, process, features, num_sensed, void, settings, encoder, t
 
 
 @cached_njit(nogil=True)
-def act_room(r, state, actions, room, walls, exits, streams, work, events, scratch):
+def act_room(r, state, actions, room, walls, exits, work, events, scratch):
     """One decision of room ``r`` (:meth:`pedrl.sim.RoomEnv.step` without the observation): the ``actions``, the
     move by the room's contact rule, the exits, the clock and the rewards; ``state`` is updated in place.
 
     ``room`` is ``(speed_changes (9,), turn_changes (9,), max_speed, decision_length, num_substeps, radius, contact,
     door_first, time_gap, max_decisions, rewards (4,): goal, wall, agent, default, reward_progress, assigned (R, N),
-    exit_goals (X, 2))``; ``exits`` ``(start, normal, tangent, span)``; ``work`` ``(R, N)``-shaped arrays of the
-    move; ``events`` ``(reward, left, goal, crashed_wall, crashed_agent, acting, in_room)``, written for room ``r``.
+    exit_goals (X, 2), waypoints (N, W, 2), route_length (N,), waypoint_radius)``, the last three the routes (flat:
+    a parallel kernel takes no tuple in a tuple);
+    ``exits`` ``(start, normal, tangent, span)``; ``work`` ``(R, N)``-shaped arrays of the move, the last the
+    uniform draws that order the movers (``RoomEnv``'s ``priority``); ``events`` ``(reward, left, goal,
+    crashed_wall, crashed_agent, acting, in_room)``, written for room ``r``.
     """
-    positions, velocities, headings, speeds, active, exit_index, targets, decisions = state
+    positions, velocities, headings, speeds, active, exit_index, targets, decisions, stage = state
     speed_changes, turn_changes, max_speed, length, substeps, radius, contact, door_first, time_gap = room[:9]
-    max_decisions, rewards, reward_progress, assigned, exit_goals = room[9:]
-    moved_to, step, going, present, order, depth, blocked, cut_wall, cut_body, reached, no_walls = work
+    max_decisions, rewards, reward_progress, assigned, exit_goals = room[9:14]
+    routes = room[14:]
+    moved_to, step, going, present, order, depth, blocked, cut_wall, cut_body, reached, no_walls, draws = work
     reward, left, goal, crashed_wall, crashed_agent, acting, in_room = events
     priority, old_x, old_y, moved, flags, current, rank_of = scratch
     starts, directions, inverse, _, low, high = walls
@@ -217,7 +221,7 @@ def act_room(r, state, actions, room, walls, exits, streams, work, events, scrat
         velocities[r, i, 0] = speeds[r, i] * np.cos(headings[r, i])
         velocities[r, i, 1] = speeds[r, i] * np.sin(headings[r, i])
         old_x[i], old_y[i] = positions[r, i, 0], positions[r, i, 1]
-        priority[i] = _uniform(streams, r)
+        priority[i] = draws[r, i]
         if door_first:  # metres dominate, the uniform draw breaks ties
             distance = np.hypot(old_x[i] - targets[r, i, 0], old_y[i] - targets[r, i, 1])
             priority[i] = distance + priority[i] * np.float32(1e-3)
@@ -288,6 +292,37 @@ def act_room(r, state, actions, room, walls, exits, streams, work, events, scrat
         else:
             reward[r, i] = zero
         positions[r, i, 0], positions[r, i, 1] = new_x, new_y
+        if routes[0].shape[1] > 0:
+            _advance(r, i, positions, stage, exit_index, targets, routes, exit_goals)
+
+
+@cached_njit(nogil=True, inline="always")
+def _route_point(i, stage, exit_index, routes, exit_goals):
+    """``Spawns.route_point`` of agent ``i``: waypoint ``stage`` of its route, or its exit's goal point past it."""
+    waypoints, route_length, _ = routes
+    if stage < route_length[i]:
+        return waypoints[i, stage, 0], waypoints[i, stage, 1]
+    return exit_goals[exit_index, 0], exit_goals[exit_index, 1]
+
+
+@cached_njit(nogil=True)
+def _advance(r, i, positions, stage, exit_index, targets, routes, exit_goals):
+    """``Spawns.advance`` of agent ``i`` of room ``r``: past each waypoint it reached (within the radius, or beyond
+    the line through it across the way on), it aims at the next point."""
+    route_length, radius = routes[1], routes[2]
+    while stage[r, i] < route_length[i]:
+        x, y = _route_point(i, stage[r, i], exit_index[r, i], routes, exit_goals)
+        next_x, next_y = _route_point(i, stage[r, i] + 1, exit_index[r, i], routes, exit_goals)
+        norm = max(np.sqrt((next_x - x) ** 2 + (next_y - y) ** 2), np.float32(1e-9))
+        along_x, along_y = (next_x - x) / norm, (next_y - y) / norm
+        off_x, off_y = positions[r, i, 0] - x, positions[r, i, 1] - y
+        ahead = off_x * along_x + off_y * along_y
+        side = off_x * along_y - off_y * along_x
+        if off_x * off_x + off_y * off_y < radius * radius or (ahead >= 0 and abs(side) < radius):
+            stage[r, i] += 1
+        else:
+            break
+    targets[r, i, 0], targets[r, i, 1] = _route_point(i, stage[r, i], exit_index[r, i], routes, exit_goals)
 
 
 @cached_njit(nogil=True, inline="always")
@@ -376,7 +411,7 @@ def _run_process(
 ):  # fmt: skip
     """Every decision of process ``p``'s rooms ``p E .. p E + E - 1`` until they are empty; returns the decisions
     taken."""
-    positions, _, _, speeds, active, _, _, _ = state
+    positions, _, _, speeds, active, _, _, _, _ = state
     k, w = sensing
     epsilon, learn, alpha, gamma, void_each_decision = learning
     features, num_sensed, rows, next_rows, actions = observed
@@ -407,7 +442,9 @@ def _run_process(
     steps = 0
     while active[first : first + rooms].any():
         for r in range(first, first + rooms):
-            act_room(r, state, actions, room, walls, exits, streams, work, events, scratch)
+            for i in range(num_agents):
+                work[-1][r, i] = _uniform(streams, r)
+            act_room(r, state, actions, room, walls, exits, work, events, scratch)
             if settings[4] and void_each_decision:
                 _draw_void(r, void, streams)
             sense_room(r, state, in_room, walls, k, w, features, num_sensed, distances, indices)
@@ -443,9 +480,9 @@ def fused_trial(
     parallel, each by :func:`_run_process`; ``steps[p]`` gets its decisions.
 
     ``state`` is the rooms' ``(positions (R, N, 2), velocities (R, N, 2), headings (R, N), speeds (R, N), active
-    (R, N), exit_index (R, N), targets (R, N, 2), decisions (R,))``, updated in place; ``learning`` is ``(epsilon,
-    learn, alpha, gamma, void_each_decision)``; ``totals`` ``(6, R, N)`` float64 gets each agent's return, body
-    contacts, wall contacts, goal, speed sum and decisions; ``td_sums`` ``(P, 2)`` float64 the sum of ``|TD
+    (R, N), exit_index (R, N), targets (R, N, 2), decisions (R,), stage (R, N))``, updated in place; ``learning``
+    is ``(epsilon, learn, alpha, gamma, void_each_decision)``; ``totals`` ``(6, R, N)`` float64 gets each agent's
+    return, body contacts, wall contacts, goal, speed sum and decisions; ``td_sums`` ``(P, 2)`` float64 the sum of ``|TD
     error|`` and the updates. The other tuples are those of :func:`act_room`, :func:`sense_room` and
     :func:`encode_agent`.
     """

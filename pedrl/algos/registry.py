@@ -66,6 +66,7 @@ TRAINER_RUN_ARGUMENTS: Final = (
     "tensorboard",
     "progress",
     "run_config",
+    "fused",
 )
 """Trainer arguments that come from other parts of the config than ``algo``."""
 
@@ -121,6 +122,7 @@ def build_trainer(cfg: DictConfig, run_dir: str | Path, *, files: bool = True) -
         tensorboard=config["logger"]["tensorboard"],
         progress=config["progress"],
         run_config=config,
+        fused=config.get("fused"),
     )
 
 

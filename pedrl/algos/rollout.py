@@ -6,11 +6,11 @@ room ``r`` belonging to process ``r // E`` (:class:`pedrl.rl.TableLayout`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Final, NamedTuple
 
 import torch
 
+from pedrl.algos.stats import TOTALS, TrialStats
 from pedrl.rl import epsilon_greedy, td_update
 from pedrl.rl.policy import TableLayout, TabularPolicy
 from pedrl.sim import RoomEnv
@@ -18,22 +18,6 @@ from pedrl.vq.encoder import StateEncoder
 
 DEVICE_CHECK_EVERY: Final = 8
 """Decisions between two reads of "is any room still occupied" by the trial loop on a GPU (each read waits)."""
-TOTALS: Final = ("return", "crashes_agent", "crashes_wall", "reached", "speed_sum", "decisions")
-"""Per-agent totals a trial accumulates, in the order of the rows of :func:`run_trial`'s accumulator."""
-
-
-@dataclass
-class TrialStats:
-    """Per-process statistics of one trial, each ``(P,)``."""
-
-    success_rate: torch.Tensor
-    episodic_return: torch.Tensor
-    crashes_agent: torch.Tensor
-    crashes_wall: torch.Tensor
-    mean_speed: torch.Tensor
-    td_error: torch.Tensor
-    decisions: int = 0
-    agent_decisions: int = 0
 
 
 class Gathered(NamedTuple):
@@ -103,14 +87,29 @@ def run_trial(
     learn: bool,
     alpha: float = 0.0,
     gamma: float = 0.0,
+    fused: bool | None = None,
 ) -> TrialStats:
     """Run one trial in every room, acting epsilon-greedily and (if ``learn``) applying equation 1 to
     ``policy.q_values`` in place with learning rate ``alpha`` and discount ``gamma``.
+
+    ``fused``: run the trial as one compiled pass (:func:`pedrl.algos.fused.run_trial_fused`; a one-line
+    ``ValueError`` where it cannot run), or the torch loop below, the reference (False); None: the fused pass
+    wherever it can run (on the CPU with numba).
 
     Only the agents still in a room are encoded. On CPU the loop ends as soon as every room is empty; on other
     devices it reads that flag only every :data:`DEVICE_CHECK_EVERY` decisions, so that no decision waits for the
     host (the extra decisions of empty rooms change nothing).
     """
+    if fused is not False and env.device.type == "cpu":
+        from pedrl.algos.fused import fused_reason, run_trial_fused  # imports numba: only where it is used
+
+        reason = fused_reason(env, policy)
+        if reason is None:
+            return run_trial_fused(
+                env, policy, epsilon=epsilon, generator=generator, learn=learn, alpha=alpha, gamma=gamma
+            )
+        if fused:
+            raise ValueError(f"fused=true is invalid: the fused trial cannot run {reason} (false or null)")
     rooms, num_agents = env.num_replicas, env.num_agents
     processes, q_values = policy.num_processes, policy.q_values
     on_cpu = env.device.type == "cpu"

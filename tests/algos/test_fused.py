@@ -1,0 +1,257 @@
+"""The fused trial (`pedrl.algos.fused`) against the torch reference, within the tolerances the docs state:
+
+- features: distances, speeds and relative speeds within 1e-5 relative (1e-5 absolute below 1), angles within 1e-5
+  rad (modulo 2 pi), the numbers of sensed neighbours equal;
+- one decision from the same state, actions and order of action: positions within 1e-4 m, speeds within 1e-4 m/s,
+  rewards within 1e-3, and the contact, exit and goal flags equal for at least 99 % of the agents (a move that
+  grazes a body or a wall within float32 rounding can go either way);
+- encoding: the prepared features within the feature tolerance, the state ids equal for at least 99 % of the states
+  (near-ties of two prototypes can go either way);
+- a seed gives the same trial, bit for bit, at 1 and 2 threads.
+
+The learning curves of the two paths agree within the seed spread: the slow test at the end.
+"""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from omegaconf import open_dict
+
+from pedrl._numba import numba_available
+from pedrl.algos import fused
+from pedrl.algos.registry import env_factory
+from pedrl.algos.rollout import gather, run_trial
+from pedrl.io import read_csv
+from pedrl.rl.policy import TabularPolicy
+from pedrl.sim import RoomEnv
+from pedrl.sim.sensing import observe
+from pedrl.train import train as train_run
+from pedrl.vq.encoder import EncoderSettings, StateEncoder
+from pedrl.vq.quantizer import ProcessQuantizers, Quantizer, UnionQuantizer
+from tests.conftest import compose_config
+
+pytestmark = pytest.mark.skipif(not numba_available(), reason="numba is off (PEDRL_NO_NUMBA)")
+
+SCENES = [("paper_room", 20, "stop"), ("paper_room", 20, "yield"), ("bottleneck", 30, "headway"),
+          ("corner", 7, "slide"), ("corridor", 30, "yield"), ("four_exits", 40, "stop")]  # fmt: skip
+ANGLE_COLUMNS = [1] + [5 + 3 * i for i in range(7)] + [25, 27]
+
+
+def scene(name: str, agents: int, contact: str, seed: int, replicas: int = 4) -> RoomEnv:
+    """A room of the scenario after a reset and 3 random decisions, with random speeds and headings."""
+    env = env_factory({"_target_": "pedrl.sim.RoomEnv", "contact": contact}, {"name": name})(
+        num_replicas=replicas, num_agents=agents
+    )
+    env.reset(seed=seed)
+    generator = torch.Generator().manual_seed(seed)
+    for _ in range(3):
+        env.step(torch.randint(81, (replicas, agents), generator=generator))
+    env.speeds = torch.rand(env.speeds.shape, generator=generator) * env.max_speed
+    env.headings = (torch.rand(env.headings.shape, generator=generator) * 2 - 1) * math.pi
+    env.velocities = torch.stack((env.speeds * env.headings.cos(), env.speeds * env.headings.sin()), -1)
+    return env
+
+
+def fused_features(env: RoomEnv, present: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
+    from pedrl.algos.fused_kernels import sense_room
+
+    rooms, agents = env.num_replicas, env.num_agents
+    features = np.zeros((rooms, agents, env.num_features), np.float32)
+    num_sensed = np.zeros((rooms, agents), np.int64)
+    size = max(agents, env.geometry.num_walls)
+    state = tuple(t.contiguous().numpy() for t in fused._state(env))
+    for r in range(rooms):
+        sense_room(r, state, present.numpy(), fused._walls(env), env.num_neighbours, env.num_walls, features,
+                   num_sensed, np.empty((2, size), np.float32), np.empty((2, size), np.int64))  # fmt: skip
+    return features, num_sensed
+
+
+def assert_features_close(actual: torch.Tensor, expected: torch.Tensor) -> None:
+    """Distances and speeds within 1e-5 relative (absolute below 1), angles within 1e-5 rad modulo 2 pi."""
+    difference = (actual - expected).abs()
+    angles = torch.zeros(actual.shape[-1], dtype=torch.bool)
+    angles[[c for c in ANGLE_COLUMNS if c < actual.shape[-1]]] = True
+    difference[..., angles] = torch.minimum(difference[..., angles], 2 * math.pi - difference[..., angles])
+    bound = torch.where(angles, torch.full_like(expected, 1e-5), 1e-5 * expected.abs().clamp_min(1.0))
+    worst = (difference - bound).max()
+    assert worst <= 0, f"a feature differs by {float(difference.max())} (over its bound by {float(worst)})"
+
+
+@pytest.mark.parametrize(("name", "agents", "contact"), SCENES)
+@pytest.mark.parametrize("seed", [0, 1])
+def test_features_match_the_torch_sensing(name, agents, contact, seed):
+    env = scene(name, agents, contact, seed)
+    present = env.active & (torch.rand(env.active.shape, generator=torch.Generator().manual_seed(seed)) < 0.8)
+    expected = observe(
+        positions=env.positions, velocities=env.velocities, headings=env.headings, speeds=env.speeds,
+        observers=present, sensed=present, geometry=env.geometry, goals=env.targets(),
+        num_neighbours=env.num_neighbours, num_walls=env.num_walls,
+    )  # fmt: skip
+    features, num_sensed = fused_features(env, present)
+    assert int(present.sum()) > agents  # a real scene
+    assert torch.equal(torch.from_numpy(num_sensed), expected.num_sensed)
+    assert_features_close(torch.from_numpy(features), expected.features)
+
+
+def test_the_feature_check_fails_on_a_wrong_feature():
+    """Control: a distance off by 1e-3 relative, or an angle off by 1e-4 rad, fails the tolerance."""
+    expected = torch.tensor([[1.0, 0.5, 20.0]])
+    for column, error in ((2, 0.02), (1, 1e-4)):
+        actual = expected.clone()
+        actual[0, column] += error
+        with pytest.raises(AssertionError):
+            assert_features_close(actual, expected)
+    assert_features_close(expected + torch.tensor([[0.0, 2 * math.pi, 0.0]]) * 0, expected)
+
+
+def fused_step(env: RoomEnv, actions: torch.Tensor, draws: torch.Tensor) -> tuple[tuple, tuple]:
+    """One decision of every room by ``act_room`` from ``env``'s state: the state and the events after it."""
+    from pedrl.algos.fused_kernels import act_room
+
+    rooms, agents = env.num_replicas, env.num_agents
+    state = tuple(t.clone().contiguous().numpy() for t in fused._state(env))
+    work = list(fused._work(env))
+    work[-1] = draws.numpy()
+    events = fused._events(rooms, agents)
+    scratch = (*(np.empty(agents, np.float32) for _ in range(4)), np.empty((2, agents), np.bool_),
+               np.empty((agents, 2), np.float32), np.empty(agents, np.int64))  # fmt: skip
+    for r in range(rooms):
+        act_room(r, state, actions.numpy(), fused._room(env), fused._walls(env), fused._exits(env), tuple(work),
+                 events, scratch)  # fmt: skip
+    return state, events
+
+
+@pytest.mark.parametrize(("name", "agents", "contact"), SCENES)
+def test_a_decision_matches_the_room_step(name, agents, contact):
+    """From 8 random states, the same actions and the same order of action (torch's draws of the step)."""
+    mismatched, total = 0, 0
+    for seed in range(8):
+        env = scene(name, agents, contact, seed)
+        actions = torch.randint(81, env.active.shape, generator=torch.Generator().manual_seed(seed))
+        draws = torch.rand(env.active.shape, generator=torch.Generator().set_state(env.generator.get_state()))
+        state, events = fused_step(env, actions, draws)
+        acting = env.active.clone()
+        _, reward, terminated, truncated, info = env.step(actions)
+        flags = (info["crashed_wall"], info["crashed_agent"], terminated, info["reached"])
+        agree = acting.clone()
+        for flag, mine in zip(flags, (events[3], events[4], events[1], events[2]), strict=True):
+            agree &= flag == torch.from_numpy(mine)
+        mismatched += int((acting & ~agree).sum())
+        total += int(acting.sum())
+        close = agree.unsqueeze(-1)
+        assert torch.allclose(torch.from_numpy(state[0]) * close, env.positions * close, atol=1e-4, rtol=0)
+        assert torch.allclose(torch.from_numpy(state[3]) * agree, env.speeds * agree, atol=1e-4, rtol=0)
+        assert torch.allclose(torch.from_numpy(events[0]) * agree, reward * agree, atol=1e-3, rtol=0)
+        assert torch.equal(torch.from_numpy(state[4]), env.active)
+        assert torch.equal(torch.from_numpy(state[8]), env.stage)
+        assert torch.allclose(torch.from_numpy(state[6]), env.targets(), atol=1e-5, rtol=0)
+    assert mismatched <= 0.01 * total, f"{mismatched} of {total} agents' flags differ"
+    assert total > 100
+
+
+def policies(env: RoomEnv, processes: int) -> dict[str, TabularPolicy]:
+    """A policy of each quantizer kind over ``env``'s observations (random void fillings, log distances)."""
+    settings = EncoderSettings.for_room(env, void_features="random", distance_transform="log")
+    generator = torch.Generator().manual_seed(0)
+    env.reset(seed=0)
+    states = gather(env, StateEncoder(settings), None, trials=1, epsilon=1.0, processes=processes, generator=generator)
+    shared, _ = Quantizer.fit(states.states, 300, generator=generator, max_iterations=10)
+    parts = [Quantizer.fit(states.states, 300, generator=generator, max_iterations=5)[0] for _ in range(processes)]
+    union = UnionQuantizer()
+    for sensed in (0, 3, 7):
+        index = torch.cat((torch.arange(3 + 3 * sensed), torch.arange(24, 28)))
+        union = union.unite(sensed, index, Quantizer.fit(states.states[:, index], 40 + sensed, generator=generator,
+                                                        max_iterations=5)[0])  # fmt: skip
+    kinds = {"shared": shared, "per_process": ProcessQuantizers(parts), "union": union}
+    return {
+        kind: TabularPolicy(StateEncoder(settings, q), torch.randn(processes, 1, q.num_prototypes, 81))
+        for kind, q in kinds.items()
+    }
+
+
+@pytest.mark.parametrize("kind", ["shared", "per_process", "union"])
+def test_encoding_matches_the_encoder(kind):
+    from pedrl.algos.fused_kernels import encode_agent
+
+    policy = policies(scene("paper_room", 20, "yield", 0), 4)[kind]
+    env = scene("paper_room", 20, "yield", 0)
+    present = env.active
+    assert int(present.sum()) > 40
+    features, num_sensed = fused_features(env, present)
+    void = torch.rand(env.num_replicas * env.num_agents, 3 * 7 + 1, generator=torch.Generator().manual_seed(1))
+    encoder = policy.encoder
+    encoder._void_uniform = void
+    info = {"num_sensed": torch.from_numpy(num_sensed), "decision": 1}
+    expected = policy.rows(torch.from_numpy(features), info, torch.Generator()).view(env.num_replicas, -1)
+    base = policy.layout.of(env.num_replicas, env.num_agents, env.device)[1].view(env.num_replicas, -1)
+    packed, tree = fused._packed(encoder, policy.num_processes)
+    settings = encoder.settings
+    void_settings = (7, np.float32(settings.max_distance), np.float32(settings.max_speed), fused.MIN_VOID_DISTANCE,
+                     True, True)  # fmt: skip
+    buffers = (np.empty(28, np.float32), np.empty(28, np.float32), np.empty(128, np.int64), np.empty(16, np.float32))
+    ids = torch.zeros_like(expected)
+    for r in range(env.num_replicas):
+        for i in range(env.num_agents):
+            if present[r, i]:
+                ids[r, i] = base[r, i] + encode_agent(r, i, r, features, num_sensed, void.view(env.num_replicas, -1, 22)
+                                                      .numpy(), void_settings, packed, tree, *buffers)  # fmt: skip
+    same = (ids == expected)[present]
+    assert same.float().mean() >= 0.99, f"{int((~same).sum())} of {same.numel()} ids differ"
+
+
+def train(fused_trial: bool, seed: int, trials: int, threads: int = 1) -> tuple[list[float], torch.Tensor]:
+    """Success rates of ``trials`` learning trials in 8 small rooms, and the tables after them."""
+    env = RoomEnv(num_replicas=8, num_agents=10, width=12, length=12, door_width=3, contact="yield")
+    policy = policies(env, 8)["shared"]
+    policy.q_values.zero_()
+    generator = torch.Generator().manual_seed(seed)
+    env.reset(seed=seed)
+    previous = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        rates = [float(run_trial(env, policy, epsilon=0.2, generator=generator, learn=True, alpha=0.3, gamma=0.9,
+                                 fused=fused_trial).success_rate.mean()) for _ in range(trials)]  # fmt: skip
+    finally:
+        torch.set_num_threads(previous)
+    return rates, policy.q_values
+
+
+def test_a_seed_gives_the_same_trial_at_any_thread_count():
+    one, tables_one = train(True, 3, 4, threads=1)
+    two, tables_two = train(True, 3, 4, threads=2)
+    assert one == two and torch.equal(tables_one, tables_two)
+    other, _ = train(True, 4, 4, threads=2)
+    assert other != one  # control: another seed, another run
+
+
+def test_fused_true_is_refused_in_one_line_where_it_cannot_run():
+    env = RoomEnv(num_replicas=2, num_agents=4, width=10, length=10, collision_rule="simultaneous")
+    policy = policies(RoomEnv(num_replicas=2, num_agents=4, width=10, length=10), 2)["shared"]
+    with pytest.raises(ValueError, match=r"^fused=true is invalid: .*collision_rule=simultaneous"):
+        run_trial(env, policy, epsilon=0.1, generator=torch.Generator(), learn=False, fused=True)
+    stats = run_trial(env, policy, epsilon=0.1, generator=torch.Generator(), learn=False)  # null: the torch loop
+    assert stats.agent_decisions > 0
+
+
+@pytest.mark.slow
+def test_learning_curves_of_the_two_paths_agree_within_the_seed_spread(tmp_path):
+    """experiment=quick_vqql (one iteration of 150 trials), seeds 0, 1, 2 on each path: both learn (the success of
+    the last 20 trials beats the first 5 by 0.1), and their final successes differ by less than twice the larger
+    seed spread (at least 0.03)."""
+    finals = {}
+    for path in ("true", "false"):
+        runs = []
+        for seed in range(3):
+            cfg = compose_config("train", ["experiment=quick_vqql", "algo.iterations=1", f"fused={path}",
+                                           f"seed={seed}", "logger=none", "threads=1"])  # fmt: skip
+            with open_dict(cfg):
+                cfg.progress = False
+            train_run(cfg, run_dir=tmp_path / f"{path}{seed}")
+            rates = [float(row["success_rate_mean"]) for row in read_csv(tmp_path / f"{path}{seed}/learning_curve.csv")]
+            assert np.mean(rates[-20:]) > np.mean(rates[:5]) + 0.1, (path, seed)
+            runs.append(float(np.mean(rates[-20:])))
+        finals[path] = runs
+    spread = max(np.std(finals["true"]), np.std(finals["false"]), 0.03)
+    assert abs(np.mean(finals["true"]) - np.mean(finals["false"])) < 2 * spread, finals
