@@ -23,6 +23,7 @@ NAMES = {"pedrl.algos.VQQL": "vqql", "pedrl.algos.ITVQQL": "it_vqql", "pedrl.alg
 K_VALUES = [512, 1024, 2048, 4096, 8192, 16384]
 REWARDS = {"paper_vqql": "paper", "paper_it": "paper", "paper_in": "paper", "main": "tuned", "tuned_it": "tuned"}
 REWARDS |= {"tuned_in": "tuned", "pedestrian": "tuned", "pedestrian_mix": "tuned"}
+REWARDS |= {"paper_it_full": "paper", "paper_in_full": "paper"}
 RESULTS = Path(CONFIG_DIR).parent / "docs" / "results.md"
 FORMER_COMMENTS = "## Measured figures formerly in the config comments"
 

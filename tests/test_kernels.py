@@ -58,8 +58,9 @@ def test_each_kernel_is_compiled_once_for_trials_of_any_size():
 
 
 def test_numba_can_be_switched_off_for_the_torch_code(tmp_path):
-    """PEDRL_NO_NUMBA=1 runs the torch code on the CPU: a seeded run gives the same numbers either way (the kernels
-    are exact; the tree can differ from the matrix search only at float32 ties, which this run has none of)."""
+    """PEDRL_NO_NUMBA=1 runs the torch code on the CPU: a seeded run of the torch trial loop (fused=False) gives the
+    same numbers either way (its kernels are exact; the tree can differ from the matrix search only at float32 ties,
+    which this run has none of). The fused trial is held to it within tolerances instead (tests/algos/test_fused.py)."""
     import json
     import os
     import subprocess
@@ -71,7 +72,7 @@ def test_numba_can_be_switched_off_for_the_torch_code(tmp_path):
         "from pedrl.sim import RoomEnv\n"
         "t = VQQL(env=functools.partial(RoomEnv, width=12.0, length=12.0, door_width=3.0, max_decisions=40),"
         " vq={'num_prototypes': 256, 'max_iterations': 2}, num_agents=6, trials=6, gather_trials=2, processes=2,"
-        " progress=False, tensorboard=False, seed=3)\n"
+        " progress=False, tensorboard=False, seed=3, fused=False)\n"
         "r = t.fit()\n"
         "print(json.dumps(r.final))\n"
     )
