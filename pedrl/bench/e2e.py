@@ -77,7 +77,7 @@ def measure(*, rooms: Sequence[int], trials: int, quick: bool, device: str) -> l
             vq={"num_prototypes": prototypes, "max_iterations": 3, "max_states": 100_000},
             num_agents=AGENTS,
             trials=1,
-            gather_trials=1,
+            gather_trials=2,  # 2 x 20 agents x 200 decisions: enough states per process for K = 4096
             processes=PROCESSES,
             rooms_per_process=rooms_per_process,
             device=device,
