@@ -287,5 +287,6 @@ def _pack(encoder: StateEncoder, processes: int) -> tuple[Any, Any]:
         np.ascontiguousarray(tree.columns),
         distance_indices(k, settings.num_walls).numpy(),
         np.array(set_of, np.int64),
+        tree.scans,
     )
     return packed, tree.kernel_arrays()

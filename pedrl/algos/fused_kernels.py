@@ -23,7 +23,7 @@ from pedrl._numba import cached_njit
 from pedrl.rl.kernels import _row_max
 from pedrl.sim.kernels import sequential_room, sliding_room
 from pedrl.sim.movement import PAIR_MARGIN
-from pedrl.vq.tree import _STACK, LEAF_SIZE, search_point
+from pedrl.vq.tree import _STACK, LEAF_SIZE, scan_point, search_point
 
 __all__ = ["act_room", "encode_agent", "fused_trial", "seed_streams", "sense_room"]
 
@@ -152,13 +152,15 @@ def encode_agent(r, i, process, features, num_sensed, void, settings, encoder, t
     standardised by the set of its process and neighbours, and that set's nearest prototype plus its offset.
 
     ``settings`` is ``(k, max_distance, max_speed, min_distance, random_void, log_distances)``; ``encoder``
-    ``(mean (T, F), std (T, F), keep (T, F), offsets (T,), columns (T, F), distance_index (D,), set_of (P, k + 1))``:
+    ``(mean (T, F), std (T, F), keep (T, F), offsets (T,), columns (T, F), distance_index (D,), set_of (P, k + 1),
+    scan)``:
     a union's part reads only the features it ``keep``s (the others are 0 in its prototypes and in the point);
-    ``tree`` is :meth:`pedrl.vq.tree.TreeIndex.kernel_arrays`. ``x``, ``point`` ``(F,)``, ``nodes`` and ``sums`` are
-    scratch.
+    ``tree`` is :meth:`pedrl.vq.tree.TreeIndex.kernel_arrays`, searched by the tree or, with ``scan``
+    (:attr:`pedrl.vq.tree.TreeIndex.scans`), by a scan of its leaves. ``x``, ``point`` ``(F,)``, ``nodes`` and
+    ``sums`` are scratch.
     """
     k, max_distance, max_speed, min_distance, random_void, log_distances = settings
-    mean, std, keep, offsets, columns, distance_index, set_of = encoder
+    mean, std, keep, offsets, columns, distance_index, set_of, scan = encoder
     sensed = num_sensed[r, i]
     for f in range(features.shape[2]):
         x[f] = features[r, i, f]
@@ -183,9 +185,12 @@ def encode_agent(r, i, process, features, num_sensed, void, settings, encoder, t
         column = columns[t, c]
         point[c] = (x[column] - mean[t, column]) / std[t, column] if keep[t, column] else np.float32(0.0)
     (prototypes, ids_of, leaf_of, left, right, split_dim, split_value, low_box, high_box) = tree
-    found, _ = search_point(
-        point, t, prototypes, ids_of, leaf_of, left, right, split_dim, split_value, low_box, high_box, nodes, sums
-    )
+    if scan:
+        found, _ = scan_point(point, t, prototypes, ids_of, sums)
+    else:
+        found, _ = search_point(
+            point, t, prototypes, ids_of, leaf_of, left, right, split_dim, split_value, low_box, high_box, nodes, sums
+        )
     return found + offsets[t]
 
 

@@ -88,3 +88,22 @@ def test_quantizers_encode_with_the_tree_as_with_the_matrix_search():
     assert torch.equal(per_process.encode(queries), expected)  # the trainers' layout: 300 rows per process
     shuffled = torch.randperm(900, generator=generator)
     assert torch.equal(per_process.encode(queries[shuffled], process=process[shuffled]), expected[shuffled])
+
+
+@pytest.mark.parametrize("data", ["clustered", "isotropic"])
+def test_the_leaf_scan_gives_the_tree_search_s_answers(data):
+    """``scans`` searches by a scan of every leaf: the same ids and float32 distances, ties included; the tree
+    chooses it for states spread over all 28 columns (its splits then use them all), not for nearly 3-D ones."""
+    generator = torch.Generator().manual_seed(7)
+    make = clustered if data == "clustered" else (lambda n, g: torch.randn(n, 28, generator=g))
+    prototypes = make(1000, generator)
+    prototypes = torch.cat([prototypes, prototypes[:40]])  # ties: ids 1000.. duplicate 0..39
+    points = torch.cat([make(400, generator), prototypes[:40]])
+    index = TreeIndex(prototypes)
+    assert index.scans == (data == "isotropic")
+    answers = []
+    for scans in (False, True):
+        index.scans = scans
+        answers.append(index.search(points))
+    assert torch.equal(answers[0][0], answers[1][0]) and torch.equal(answers[0][1], answers[1][1])
+    assert torch.equal(answers[1][0], brute_force(points, prototypes)[0])
