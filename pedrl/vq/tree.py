@@ -173,7 +173,8 @@ def search_point(point, t, prototypes, ids_of, leaf_of, left, right, split_dim, 
         first_child = left[node]
         if first_child < 0:  # a leaf: its distances 8 at a time, one vector lane per prototype
             leaf = leaf_of[node]
-            _leaf_distances(point, prototypes, t, leaf, sums)
+            if _leaf_distances(point, prototypes, t, leaf, sums) > best:  # no prototype of it can win, or tie
+                continue
             for j in range(LEAF_SIZE):
                 index = ids_of[t, leaf, j]
                 if sums[j] < best or (sums[j] == best and index < best_id):
@@ -198,7 +199,8 @@ def scan_point(point, t, prototypes, ids_of, sums):
     best = np.float32(np.inf)
     best_id = ids_of.shape[1] * LEAF_SIZE
     for leaf in range(ids_of.shape[1]):
-        _leaf_distances(point, prototypes, t, leaf, sums)
+        if _leaf_distances(point, prototypes, t, leaf, sums) > best:  # no prototype of it can win, or tie
+            continue
         for j in range(LEAF_SIZE):
             index = ids_of[t, leaf, j]
             if sums[j] < best or (sums[j] == best and index < best_id):
@@ -209,9 +211,10 @@ def scan_point(point, t, prototypes, ids_of, sums):
 
 @cached_njit(nogil=True, inline="always")
 def _leaf_distances(point, prototypes, t, leaf, sums):
-    """Squared distances from ``point`` to the ``LEAF_SIZE`` (16) prototypes of a leaf, into ``sums``: sixteen
-    independent chains over the columns, each column's sixteen values loaded first (the SLP vectorizer then packs
-    loads, differences and sums into vectors; this order ran twice as fast as loading inside each chain)."""
+    """Squared distances from ``point`` to the ``LEAF_SIZE`` (16) prototypes of a leaf, into ``sums``, and the least
+    of them: sixteen independent chains over the columns, each column's sixteen values loaded first (the SLP
+    vectorizer then packs loads, differences and sums into vectors). A leaf whose least distance exceeds the best
+    so far is passed over with one comparison instead of sixteen."""
     s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = s8 = s9 = s10 = s11 = s12 = s13 = s14 = s15 = np.float32(0.0)
     for c in range(point.shape[0]):
         value = point[c]
@@ -279,6 +282,9 @@ def _leaf_distances(point, prototypes, t, leaf, sums):
     sums[13] = s13
     sums[14] = s14
     sums[15] = s15
+    low0 = min(min(min(s0, s1), min(s2, s3)), min(min(s4, s5), min(s6, s7)))
+    low1 = min(min(min(s8, s9), min(s10, s11)), min(min(s12, s13), min(s14, s15)))
+    return min(low0, low1)
 
 
 class TreeIndex:

@@ -226,6 +226,17 @@ def test_a_seed_gives_the_same_trial_at_any_thread_count():
     assert other != one  # control: another seed, another run
 
 
+def test_kernel_threads_follow_torch_s_and_sleep_when_idle():
+    """The fused trial runs on torch's thread count (``threads``, or a parallel sweep's share of the cores), in
+    numba's workqueue layer, whose idle threads sleep instead of spinning against torch's or another job's."""
+    import numba
+
+    train(True, 0, 1, threads=1)
+    assert numba.get_num_threads() == 1 and numba.threading_layer() == "workqueue"
+    train(True, 0, 1, threads=2)
+    assert numba.get_num_threads() == min(2, numba.config.NUMBA_NUM_THREADS)
+
+
 def test_fused_true_is_refused_in_one_line_where_it_cannot_run():
     env = RoomEnv(num_replicas=2, num_agents=4, width=10, length=10, collision_rule="simultaneous")
     policy = policies(RoomEnv(num_replicas=2, num_agents=4, width=10, length=10), 2)["shared"]
