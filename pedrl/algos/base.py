@@ -471,8 +471,8 @@ class Trainer:
 def check_fused(fused: Any, rooms: Sequence[RoomEnv]) -> bool | None:
     """``fused`` (None, True or False), refused in one line unless a boolean or null, or when True for a room the
     fused trial cannot run (:func:`pedrl.algos.fused.room_reason`)."""
-    if fused is not None:
-        check_bool("fused", fused)
+    if fused is not None and not isinstance(fused, bool):
+        raise ValueError(f"fused={fused!r} is invalid: must be true, false or null")
     if fused and rooms[0].device.type != "cpu":
         raise ValueError(
             f"fused=true is invalid on {rooms[0].device.type}: the fused trial runs on the CPU (false or null)"

@@ -31,7 +31,8 @@ CONTACTS: Final = ("stop", "slide", "headway", "yield")
 """The contact rules in :mod:`pedrl.algos.fused_kernels`' numbering."""
 MIN_VOID_DISTANCE: Final = np.float32(0.8)
 """``fill_void_neighbours``' default ``min_distance``, which the encoder uses."""
-_PACKED: weakref.WeakKeyDictionary[Any, tuple[Any, ...]] = weakref.WeakKeyDictionary()
+_PACKED: weakref.WeakKeyDictionary[Any, tuple[Any, tuple[Any, Any]]] = weakref.WeakKeyDictionary()
+"""Each quantizer's packed sets and tree, with the encoder settings and process count they were packed for."""
 
 
 def fused_reason(env: RoomEnv, policy: TabularPolicy) -> str | None:
@@ -41,8 +42,14 @@ def fused_reason(env: RoomEnv, policy: TabularPolicy) -> str | None:
     settings = policy.encoder.settings
     if (env.num_neighbours, env.num_walls) != (settings.num_neighbours, settings.num_walls):
         return "in a room that senses other neighbour or wall slots than the encoder reads"
-    if policy.encoder.quantizer is None:
+    quantizer = policy.encoder.quantizer
+    if quantizer is None:
         return "with an encoder that has no quantizer"
+    parts = getattr(quantizer, "num_processes", policy.num_processes)
+    if parts != policy.num_processes or quantizer.num_prototypes != policy.q_values.shape[2]:
+        return "with tables that do not match the quantizer (processes or prototypes)"
+    if policy.q_values.dtype != torch.float32 or not policy.q_values.is_contiguous():
+        return "with tables that are not contiguous float32"
     return room_reason(env)
 
 
@@ -149,10 +156,11 @@ def _state(env: RoomEnv) -> tuple[torch.Tensor, ...]:
 
 
 def _write_back(env: RoomEnv, state: tuple[np.ndarray, ...], steps: int) -> None:
-    """The rooms' state after the trial, into ``env`` (its clock advanced by the trial's decisions)."""
+    """The rooms' state after the trial, into ``env``: every room's clock at the trial's decisions (as the torch loop,
+    which steps every room until all are empty), the trial clock advanced by them."""
     positions, velocities, headings, speeds, active, _, targets, decisions, stage = (torch.from_numpy(a) for a in state)
     env.positions, env.velocities, env.headings, env.speeds = positions, velocities, headings, speeds
-    env.active, env.decisions, env.stage, env._targets = active, decisions, stage, targets
+    env.active, env.decisions, env.stage, env._targets = active, decisions.fill_(steps), stage, targets
     env._steps_taken += steps
 
 
@@ -241,11 +249,11 @@ def _stats(totals: torch.Tensor, td_sums: np.ndarray, steps: np.ndarray, process
 
 def _packed(encoder: StateEncoder, processes: int) -> tuple[Any, Any]:
     """``(encoder, tree)`` tuples of :func:`pedrl.algos.fused_kernels.encode_agent` for ``encoder``'s quantizer,
-    built once per quantizer."""
-    quantizer = encoder.quantizer
-    if quantizer not in _PACKED:
-        _PACKED[quantizer] = _pack(encoder, processes)
-    return _PACKED[quantizer]
+    built once per quantizer (and again if it is used with other settings or processes)."""
+    quantizer, key = encoder.quantizer, (encoder.settings, processes)
+    if quantizer not in _PACKED or _PACKED[quantizer][0] != key:
+        _PACKED[quantizer] = (key, _pack(encoder, processes))
+    return _PACKED[quantizer][1]
 
 
 def _pack(encoder: StateEncoder, processes: int) -> tuple[Any, Any]:

@@ -80,6 +80,8 @@ def _wall_offset(x, y, s, walls):
 def _insert(values, index, count, size, value, item):
     """Insert ``value`` (of ``item``) into the ascending ``values[:count]`` kept to ``size`` entries (a later equal
     value goes after); returns the new count."""
+    if size == 0:
+        return count
     if count < size:
         place = count
         count += 1

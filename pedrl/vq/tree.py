@@ -171,7 +171,7 @@ def search_point(point, t, prototypes, ids_of, leaf_of, left, right, split_dim, 
         if node and _box_distance(point, low, high, t, node) * shrink > best:
             continue
         first_child = left[node]
-        if first_child < 0:  # a leaf: its distances 8 at a time, one vector lane per prototype
+        if first_child < 0:  # a leaf: its 16 distances, one vector lane per prototype
             leaf = leaf_of[node]
             if _leaf_distances(point, prototypes, t, leaf, sums) > best:  # no prototype of it can win, or tie
                 continue
@@ -292,9 +292,10 @@ class TreeIndex:
 
     Each set's columns are reordered by decreasing variance, so that the box bounds need only the leading columns
     (up to the last one some node splits on). Leaves hold ``LEAF_SIZE`` prototypes as a ``(d, LEAF_SIZE)`` block
-    (padded with far-away dummies), whose distances are computed 8 at a time in vector lanes. A search visits nodes
+    (padded with far-away dummies), whose distances are computed 16 at a time in vector lanes. A search visits nodes
     depth first, the child on the point's side of the split first, and skips a node whose box lies farther than
-    the best distance found.
+    the best distance found. A tree whose splits use more than ``SCAN_ABOVE_COLUMNS`` columns prunes little, and is
+    searched by a scan of its leaves instead (``scans``; the same answers).
 
     Args:
         prototypes: ``(K, d)`` (one set) or ``(T, K, d)`` float32 on the CPU.

@@ -201,11 +201,14 @@ def test_encoding_matches_the_encoder(kind):
     assert same.float().mean() >= 0.99, f"{int((~same).sum())} of {same.numel()} ids differ"
 
 
-def train(fused_trial: bool, seed: int, trials: int, threads: int = 1) -> tuple[list[float], torch.Tensor]:
-    """Success rates of ``trials`` learning trials in 8 small rooms, and the tables after them."""
+def train(
+    fused_trial: bool, seed: int, trials: int, threads: int = 1, rooms_per_process: int = 1
+) -> tuple[list[float], torch.Tensor]:
+    """Success rates of ``trials`` learning trials in 8 small rooms (``rooms_per_process`` E of them learning into
+    each process's tables), and the tables after them."""
     env = RoomEnv(num_replicas=8, num_agents=10, width=12, length=12, door_width=3, contact="yield")
-    policy = policies(env, 8)["shared"]
-    policy.q_values.zero_()
+    shared = policies(env, 8 // rooms_per_process)["shared"]
+    policy = TabularPolicy(shared.encoder, shared.q_values.zero_(), rooms_per_process=rooms_per_process)
     generator = torch.Generator().manual_seed(seed)
     env.reset(seed=seed)
     previous = torch.get_num_threads()
@@ -218,12 +221,48 @@ def train(fused_trial: bool, seed: int, trials: int, threads: int = 1) -> tuple[
     return rates, policy.q_values
 
 
-def test_a_seed_gives_the_same_trial_at_any_thread_count():
-    one, tables_one = train(True, 3, 4, threads=1)
-    two, tables_two = train(True, 3, 4, threads=2)
+@pytest.mark.parametrize("rooms_per_process", [1, 2])
+def test_a_seed_gives_the_same_trial_at_any_thread_count(rooms_per_process):
+    one, tables_one = train(True, 3, 4, threads=1, rooms_per_process=rooms_per_process)
+    two, tables_two = train(True, 3, 4, threads=2, rooms_per_process=rooms_per_process)
     assert one == two and torch.equal(tables_one, tables_two)
-    other, _ = train(True, 4, 4, threads=2)
+    other, _ = train(True, 4, 4, threads=2, rooms_per_process=rooms_per_process)
     assert other != one  # control: another seed, another run
+
+
+def test_the_td_update_averages_entries_as_the_torch_reference():
+    """Two rooms of one process, agents hitting the same (row, action): ``_td`` gives td_update_torch's errors and
+    tables (duplicates averaged, left agents not bootstrapping, inactive ones skipped)."""
+    from pedrl.algos.fused_kernels import _td
+    from pedrl.rl.qlearning import td_update_torch
+
+    generator = torch.Generator().manual_seed(0)
+    table = torch.randn(6, 81, generator=generator)
+    rows = torch.tensor([[1, 1, 2, 3], [1, 4, 2, 5]])
+    actions = torch.tensor([[7, 7, 0, 80], [7, 3, 0, 1]])
+    reward = torch.randn(2, 4, generator=generator)
+    next_rows = torch.tensor([[0, 5, 4, 3], [2, 2, 1, 0]])
+    left = torch.tensor([[False, True, False, False], [False, False, True, False]])
+    acting = torch.tensor([[True, True, True, False], [True, True, True, True]])
+    expected_table = table.clone()
+    expected = td_update_torch(expected_table.view(1, 1, 6, 81), rows.view(-1), actions.view(-1), reward.view(-1),
+                               next_rows.view(-1), left.view(-1), acting.view(-1), alpha=0.3, gamma=0.9)  # fmt: skip
+    events = (None, left.numpy(), None, None, None, acting.numpy(), None)
+    errors, keys, tally = np.zeros(8, np.float32), np.empty(16, np.int64), np.empty(16, np.int64)
+    total, count = _td(0, 2, table.numpy(), rows.numpy(), actions.numpy(), reward.numpy(), next_rows.numpy(), events,
+                       np.float32(0.3), np.float32(0.9), errors, keys, tally)  # fmt: skip
+    assert count == 7 and total == pytest.approx(float(expected.abs().sum()), rel=1e-6)
+    torch.testing.assert_close(torch.from_numpy(errors)[acting.view(-1)], expected[acting.view(-1)])
+    torch.testing.assert_close(table, expected_table, rtol=0, atol=1e-6)
+
+
+def test_fused_must_be_a_boolean_or_null(compose, tmp_path):
+    from pedrl.algos.registry import build_trainer
+
+    with pytest.raises(ValueError, match=r"^fused='yes' is invalid: must be true, false or null$"):
+        build_trainer(compose("train", ["debug=default", "fused=yes"]), tmp_path)
+    with pytest.raises(ValueError, match=r"^fused=true is invalid: the fused trial cannot run with collision_rule="):
+        build_trainer(compose("train", ["debug=default", "fused=true", "env.collision_rule=simultaneous"]), tmp_path)
 
 
 def test_kernel_threads_follow_torch_s_and_sleep_when_idle():
