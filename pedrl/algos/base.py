@@ -332,16 +332,7 @@ class Trainer:
             epsilon = schedule(trial)
             trial_tic = time.perf_counter()
             label, env = rooms[room_of_trial(trial, phase.trials, len(rooms))]
-            stats = run_trial(
-                env,
-                policy,
-                epsilon=epsilon,
-                generator=self.generator,
-                learn=True,
-                alpha=self.alpha,
-                gamma=self.gamma,
-                fused=self.fused,
-            )
+            stats = self._trial(env, policy, epsilon=epsilon, learn=True)
             check_finite(phase.index, trial, stats, policy.q_values, last=trial + 1 == phase.trials)
             rate = stats.agent_decisions / (time.perf_counter() - trial_tic)
             record.log_trial(
@@ -412,7 +403,10 @@ class Trainer:
     ) -> TrialStats:
         """One trial in every room with the tables ``q_values`` over ``quantizer`` (see
         :func:`pedrl.algos.rollout.run_trial`)."""
-        policy = self.policy(quantizer, q_values)
+        return self._trial(env, self.policy(quantizer, q_values), epsilon=epsilon, learn=learn)
+
+    def _trial(self, env: RoomEnv, policy: TabularPolicy, *, epsilon: float, learn: bool) -> TrialStats:
+        """:func:`pedrl.algos.rollout.run_trial` with this trainer's generator, equation 1's constants and ``fused``."""
         return run_trial(
             env,
             policy,

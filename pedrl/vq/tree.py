@@ -172,14 +172,7 @@ def search_point(point, t, prototypes, ids_of, leaf_of, left, right, split_dim, 
             continue
         first_child = left[node]
         if first_child < 0:  # a leaf: its 16 distances, one vector lane per prototype
-            leaf = leaf_of[node]
-            if _leaf_distances(point, prototypes, t, leaf, sums) > best:  # no prototype of it can win, or tie
-                continue
-            for j in range(LEAF_SIZE):
-                index = ids_of[t, leaf, j]
-                if sums[j] < best or (sums[j] == best and index < best_id):
-                    best = sums[j]
-                    best_id = index
+            best, best_id = _visit_leaf(point, prototypes, ids_of, t, leaf_of[node], sums, best, best_id)
             continue
         second_child = right[node]
         # the child on the point's side of the split plane first; bounds are computed when popped
@@ -199,14 +192,21 @@ def scan_point(point, t, prototypes, ids_of, sums):
     best = np.float32(np.inf)
     best_id = ids_of.shape[1] * LEAF_SIZE
     for leaf in range(ids_of.shape[1]):
-        if _leaf_distances(point, prototypes, t, leaf, sums) > best:  # no prototype of it can win, or tie
-            continue
-        for j in range(LEAF_SIZE):
-            index = ids_of[t, leaf, j]
-            if sums[j] < best or (sums[j] == best and index < best_id):
-                best = sums[j]
-                best_id = index
+        best, best_id = _visit_leaf(point, prototypes, ids_of, t, leaf, sums, best, best_id)
     return (best_id if best_id < ids_of.shape[1] * LEAF_SIZE else 0), best  # a NaN point: id 0
+
+
+@cached_njit(nogil=True, inline="always")
+def _visit_leaf(point, prototypes, ids_of, t, leaf, sums, best, best_id):
+    """The best squared distance and prototype so far, after the prototypes of ``leaf`` (lowest id on ties)."""
+    if _leaf_distances(point, prototypes, t, leaf, sums) > best:  # no prototype of it can win, or tie
+        return best, best_id
+    for j in range(LEAF_SIZE):
+        index = ids_of[t, leaf, j]
+        if sums[j] < best or (sums[j] == best and index < best_id):
+            best = sums[j]
+            best_id = index
+    return best, best_id
 
 
 @cached_njit(nogil=True, inline="always")
@@ -382,15 +382,7 @@ class TreeIndex:
             np.ascontiguousarray(points.detach().to(torch.float32).numpy()),
             np.ascontiguousarray(sets.numpy(), dtype=np.int64),
             self._columns,
-            self._prototypes,
-            self._ids,
-            self._leaf_of,
-            self._left,
-            self._right,
-            self._split_dim,
-            self._split_value,
-            self._low,
-            self._high,
+            *self.kernel_arrays(),
             self.scans,
             ids,
             sq_dist,
