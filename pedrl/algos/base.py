@@ -467,12 +467,8 @@ def check_fused(fused: Any, rooms: Sequence[RoomEnv]) -> bool | None:
     fused trial cannot run (:func:`pedrl.algos.fused.room_reason`)."""
     if fused is not None and not isinstance(fused, bool):
         raise ValueError(f"fused={fused!r} is invalid: must be true, false or null")
-    if fused and rooms[0].device.type != "cpu":
-        raise ValueError(
-            f"fused=true is invalid on {rooms[0].device.type}: the fused trial runs on the CPU (false or null)"
-        )
     if fused:
-        from pedrl.algos.fused import room_reason  # imports numba: only where it is used
+        from pedrl.algos.fused import room_reason
 
         for room in rooms:
             reason = room_reason(room)

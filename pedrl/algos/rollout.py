@@ -100,10 +100,8 @@ def run_trial(
     devices it reads that flag only every :data:`DEVICE_CHECK_EVERY` decisions, so that no decision waits for the
     host (the extra decisions of empty rooms change nothing).
     """
-    if fused and env.device.type != "cpu":
-        raise ValueError(f"fused=true is invalid on {env.device.type}: the fused trial runs on the CPU (false or null)")
-    if fused is not False and env.device.type == "cpu":
-        from pedrl.algos.fused import fused_reason, run_trial_fused  # imports numba: only where it is used
+    if fused is not False:
+        from pedrl.algos.fused import fused_reason, run_trial_fused
 
         reason = fused_reason(env, policy)
         if reason is None:
