@@ -22,6 +22,7 @@ from pedrl._numba import numba, numba_available
 from pedrl.algos.stats import TOTALS, TrialStats
 from pedrl.rl.policy import TabularPolicy
 from pedrl.sim import RoomEnv
+from pedrl.sim.sensing import MIN_VOID_DISTANCE, distance_indices
 from pedrl.vq.encoder import StateEncoder
 from pedrl.vq.quantizer import ProcessQuantizers, Quantizer, UnionQuantizer
 
@@ -29,8 +30,6 @@ __all__ = ["fused_reason", "room_reason", "run_trial_fused", "set_kernel_threads
 
 CONTACTS: Final = ("stop", "slide", "headway", "yield")
 """The contact rules in :mod:`pedrl.algos.fused_kernels`' numbering."""
-MIN_VOID_DISTANCE: Final = np.float32(0.8)
-"""``fill_void_neighbours``' default ``min_distance``, which the encoder uses."""
 _PACKED: weakref.WeakKeyDictionary[Any, tuple[Any, tuple[Any, Any]]] = weakref.WeakKeyDictionary()
 """Each quantizer's packed sets and tree, with the encoder settings and process count they were packed for."""
 
@@ -114,13 +113,12 @@ def run_trial_fused(
         _room(env),
         _walls(env),
         _exits(env),
-        (env.num_neighbours, env.num_walls),
         *_packed(policy.encoder, policy.num_processes),
         (
             settings.num_neighbours,
             np.float32(settings.max_distance),
             np.float32(settings.max_speed),
-            MIN_VOID_DISTANCE,
+            np.float32(MIN_VOID_DISTANCE),
             random_void,
             settings.distance_transform == "log",
         ),
@@ -192,9 +190,8 @@ def _walls(env: RoomEnv) -> tuple[np.ndarray, ...]:
 
     geometry = env.geometry
     starts, directions, inverse = _wall_segments(geometry)
-    aligned = torch.full((starts.shape[0],), True) if geometry.axis_aligned else (directions == 0).any(-1)
-    low, high = geometry.box_low, geometry.box_high
-    return tuple(t.contiguous().numpy() for t in (starts, directions, inverse, aligned, low, high))
+    parts = (starts, directions, inverse, geometry.aligned_walls, geometry.box_low, geometry.box_high)
+    return tuple(t.contiguous().numpy() for t in parts)
 
 
 def _exits(env: RoomEnv) -> tuple[np.ndarray, ...]:
@@ -260,7 +257,6 @@ def _pack(encoder: StateEncoder, processes: int) -> tuple[Any, Any]:
     """Every prototype set as a full-width set: a plain quantizer is one set, a union one set per part (its
     features kept, the others 0), padded to the largest set with copies of its first prototype (a tie goes to the
     lower id, so a copy never wins)."""
-    from pedrl.sim.sensing import distance_indices
     from pedrl.vq.tree import TreeIndex
 
     settings = encoder.settings

@@ -25,7 +25,7 @@ from pedrl.sim.kernels import sequential_room, sliding_room
 from pedrl.sim.movement import PAIR_MARGIN
 from pedrl.vq.tree import _STACK, LEAF_SIZE, scan_point, search_point
 
-__all__ = ["act_room", "encode_agent", "fused_trial", "seed_streams", "sense_room"]
+__all__ = ["act_room", "act_scratch", "encode_agent", "fused_trial", "seed_streams", "sense_room"]
 
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 _PI = np.float32(np.pi)
@@ -185,11 +185,12 @@ def encode_agent(r, i, process, features, num_sensed, void, settings, encoder, t
         low = x[4 + 3 * (sensed - 1)] if sensed > 0 else min_distance
         span = max(max_distance - low, np.float32(0.0))
         total = -np.log1p(-void[r, i, k])
-        for j in range(sensed, k):
-            total += -np.log1p(-void[r, i, j])
+        for j in range(sensed, k):  # each spacing once, in point[j] (free until the standardisation below)
+            point[j] = -np.log1p(-void[r, i, j])
+            total += point[j]
         partial = np.float32(0.0)
         for j in range(sensed, k):
-            partial += -np.log1p(-void[r, i, j])
+            partial += point[j]
             x[3 + 3 * j] = void[r, i, 2 * k + 1 + j] * np.float32(4.0 * max_speed) - np.float32(2.0 * max_speed)
             x[4 + 3 * j] = low + partial / total * span
             angle = _PI - _TWO_PI * void[r, i, k + 1 + j]
@@ -209,6 +210,15 @@ def encode_agent(r, i, process, features, num_sensed, void, settings, encoder, t
             point, t, prototypes, ids_of, leaf_of, left, right, split_dim, split_value, low_box, high_box, nodes, sums
         )
     return found + offsets[t]
+
+
+@cached_njit(nogil=True)
+def act_scratch(num_agents):
+    """The per-agent scratch of :func:`act_room`, one per thread: ``(priority, old_x, old_y, moved, flags (2, N),
+    current (N, 2), rank_of)``."""
+    return (np.empty(num_agents, np.float32), np.empty(num_agents, np.float32), np.empty(num_agents, np.float32),
+            np.empty(num_agents, np.float32), np.empty((2, num_agents), np.bool_),
+            np.empty((num_agents, 2), np.float32), np.empty(num_agents, np.int64))  # fmt: skip
 
 
 @cached_njit(nogil=True)
@@ -428,32 +438,31 @@ def _draw_void(r, void, streams):
 
 @cached_njit(nogil=True)
 def _run_process(
-    p, rooms, state, room, walls, exits, sensing, encoder, tree, settings, learning, table, base_rows, process_of,
+    p, rooms, state, room, walls, exits, encoder, tree, settings, learning, table, base_rows, process_of,
     streams, work, events, observed, void, totals, td_sums,
 ):  # fmt: skip
     """Every decision of process ``p``'s rooms ``p E .. p E + E - 1`` until they are empty; returns the decisions
     taken."""
     positions, _, _, speeds, active, _, _, _, _ = state
-    k, w = sensing
+    k, random_void = settings[0], settings[4]
     epsilon, learn, alpha, gamma, void_each_decision = learning
     features, num_sensed, rows, next_rows, actions = observed
     reward, left, goal, crashed_wall, crashed_agent, acting, in_room = events
     num_agents, num_features = positions.shape[1], features.shape[2]
+    w = (num_features - 3 - 3 * k) // 2  # the wall slots of the state's 3 + 3k + 2w features
     first = p * rooms
     size = max(num_agents, walls[0].shape[0])
     distances, indices = np.empty((2, size), np.float32), np.empty((2, size), np.int64)
     buffers = (np.empty(num_features, np.float32), np.empty(num_features, np.float32),
                np.empty(_STACK, np.int64), np.empty(LEAF_SIZE, np.float32))  # fmt: skip
-    scratch = (np.empty(num_agents, np.float32), np.empty(num_agents, np.float32), np.empty(num_agents, np.float32),
-               np.empty(num_agents, np.float32), np.empty((2, num_agents), np.bool_),
-               np.empty((num_agents, 2), np.float32), np.empty(num_agents, np.int64))  # fmt: skip
+    scratch = act_scratch(num_agents)
     slots = 1
     while slots < 2 * rooms * num_agents:
         slots *= 2
     errors = np.empty(rooms * num_agents, np.float32)
     keys, tally = np.empty(slots, np.int64), np.empty(slots, np.int64)
     for r in range(first, first + rooms):
-        if settings[4]:
+        if random_void:
             _draw_void(r, void, streams)
         sense_room(r, state, active, walls, k, w, features, num_sensed, distances, indices)
         _encode_room(r, process_of[r], active, base_rows, rows, features, num_sensed, void, settings, encoder, tree,
@@ -467,7 +476,7 @@ def _run_process(
             for i in range(num_agents):
                 work[-1][r, i] = _uniform(streams, r)
             act_room(r, state, actions, room, walls, exits, work, events, scratch)
-            if settings[4] and void_each_decision:
+            if random_void and void_each_decision:
                 _draw_void(r, void, streams)
             sense_room(r, state, in_room, walls, k, w, features, num_sensed, distances, indices)
             _encode_room(r, process_of[r], in_room, base_rows, next_rows, features, num_sensed, void, settings,
@@ -495,7 +504,7 @@ def _run_process(
 
 @cached_njit(nogil=True, parallel=True)
 def fused_trial(
-    rooms, state, room, walls, exits, sensing, encoder, tree, settings, learning, table, base_rows, process_of,
+    rooms, state, room, walls, exits, encoder, tree, settings, learning, table, base_rows, process_of,
     streams, work, events, observed, void, totals, td_sums, steps,
 ):  # fmt: skip
     """A whole trial of every room from its reset state: the processes ``p`` of ``E = rooms`` rooms each in
@@ -510,6 +519,6 @@ def fused_trial(
     """
     for p in prange(steps.shape[0]):
         steps[p] = _run_process(
-            p, rooms, state, room, walls, exits, sensing, encoder, tree, settings, learning, table, base_rows,
-            process_of, streams, work, events, observed, void, totals, td_sums,
+            p, rooms, state, room, walls, exits, encoder, tree, settings, learning, table, base_rows, process_of,
+            streams, work, events, observed, void, totals, td_sums,
         )  # fmt: skip

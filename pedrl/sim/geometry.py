@@ -197,6 +197,8 @@ class Geometry:
         box_low: Lower corner of each wall's bounding box ``(S, 2)`` (m), derived from ``walls``: an axis-aligned
             wall's closest point to ``p`` is ``p`` clamped to its box (exact).
         box_high: Upper corner of each wall's bounding box ``(S, 2)`` (m), derived from ``walls``.
+        aligned_walls: Which walls are axis-aligned ``(S,)`` bool, derived from ``walls``: their closest point is
+            the point clamped to their box.
         axis_aligned: Whether every wall (padding included) is axis-aligned, derived from ``walls``: the wall
             queries (and the sequential kernel) then clamp to the boxes alone.
         exit_tangents: ``exits[:, 1] - exits[:, 0]`` ``(E, 2)`` (m), derived from ``exits``.
@@ -218,6 +220,7 @@ class Geometry:
     name: str = "custom"
     box_low: torch.Tensor = field(init=False, repr=False)
     box_high: torch.Tensor = field(init=False, repr=False)
+    aligned_walls: torch.Tensor = field(init=False, repr=False)
     axis_aligned: bool = field(init=False, repr=False)
     exit_tangents: torch.Tensor = field(init=False, repr=False)
     exit_spans: torch.Tensor = field(init=False, repr=False)
@@ -226,8 +229,8 @@ class Geometry:
         # For an axis-aligned wall the closest point to p is p clamped to the wall's bounding box (exact).
         object.__setattr__(self, "box_low", self.walls.amin(1))  # (S, 2)
         object.__setattr__(self, "box_high", self.walls.amax(1))
-        direction = self.walls[:, 1] - self.walls[:, 0]
-        object.__setattr__(self, "axis_aligned", bool(((direction == 0).any(-1)).all()))
+        object.__setattr__(self, "aligned_walls", (self.walls[:, 1] - self.walls[:, 0] == 0).any(-1))  # (S,)
+        object.__setattr__(self, "axis_aligned", bool(self.aligned_walls.all()))
         tangents = self.exits[:, 1] - self.exits[:, 0]
         object.__setattr__(self, "exit_tangents", tangents)
         object.__setattr__(self, "exit_spans", (tangents * tangents).sum(-1))
@@ -355,8 +358,7 @@ class Geometry:
         clamped = torch.clamp(points.unsqueeze(-2), self.box_low, self.box_high)
         if self.axis_aligned:
             return clamped
-        aligned = (self.walls[:, 1] - self.walls[:, 0] == 0).any(-1).unsqueeze(-1)  # (S, 1)
-        return torch.where(aligned, clamped, closest_points_on_segments(points, self.walls))
+        return torch.where(self.aligned_walls.unsqueeze(-1), clamped, closest_points_on_segments(points, self.walls))
 
     def wall_offsets(self, points: torch.Tensor) -> torch.Tensor:
         """Closest point of each wall minus each point ``(..., S, 2)`` (m)."""

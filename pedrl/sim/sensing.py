@@ -44,6 +44,8 @@ REL_SPEED: Final = 0
 """Offset of the relative speed inside a neighbour's 3 features (then ``DISTANCE``, ``ANGLE``)."""
 DISTANCE: Final = 1
 ANGLE: Final = 2
+MIN_VOID_DISTANCE: Final = 0.8
+"""Lower end (m) of the distances :func:`fill_void_neighbours` draws when nothing is sensed: two body radii of 0.4 m."""
 
 
 def num_features(num_neighbours: int, num_walls: int) -> int:
@@ -229,7 +231,7 @@ def fill_void_neighbours(
     max_distance: float,
     max_speed: float,
     generator: torch.Generator | None = None,
-    min_distance: float = 0.8,
+    min_distance: float = MIN_VOID_DISTANCE,
     uniform: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Fill the empty neighbour slots with random valid values (IT-VQQL, paper section 5.1).

@@ -26,7 +26,7 @@ from pedrl.algos.rollout import gather, run_trial
 from pedrl.io import read_csv
 from pedrl.rl.policy import TabularPolicy
 from pedrl.sim import RoomEnv
-from pedrl.sim.sensing import observe
+from pedrl.sim.sensing import MIN_VOID_DISTANCE, observe
 from pedrl.train import train as train_run
 from pedrl.vq.encoder import EncoderSettings, StateEncoder
 from pedrl.vq.quantizer import ProcessQuantizers, Quantizer, UnionQuantizer
@@ -108,15 +108,14 @@ def test_the_feature_check_fails_on_a_wrong_feature():
 
 def fused_step(env: RoomEnv, actions: torch.Tensor, draws: torch.Tensor) -> tuple[tuple, tuple]:
     """One decision of every room by ``act_room`` from ``env``'s state: the state and the events after it."""
-    from pedrl.algos.fused_kernels import act_room
+    from pedrl.algos.fused_kernels import act_room, act_scratch
 
     rooms, agents = env.num_replicas, env.num_agents
     state = tuple(t.clone().contiguous().numpy() for t in fused._state(env))
     work = list(fused._work(env))
     work[-1] = draws.numpy()
     events = fused._events(rooms, agents)
-    scratch = (*(np.empty(agents, np.float32) for _ in range(4)), np.empty((2, agents), np.bool_),
-               np.empty((agents, 2), np.float32), np.empty(agents, np.int64))  # fmt: skip
+    scratch = act_scratch(agents)
     for r in range(rooms):
         act_room(r, state, actions.numpy(), fused._room(env), fused._walls(env), fused._exits(env), tuple(work),
                  events, scratch)  # fmt: skip
@@ -188,8 +187,8 @@ def test_encoding_matches_the_encoder(kind):
     base = policy.layout.of(env.num_replicas, env.num_agents, env.device)[1].view(env.num_replicas, -1)
     packed, tree = fused._packed(encoder, policy.num_processes)
     settings = encoder.settings
-    void_settings = (7, np.float32(settings.max_distance), np.float32(settings.max_speed), fused.MIN_VOID_DISTANCE,
-                     True, True)  # fmt: skip
+    void_settings = (7, np.float32(settings.max_distance), np.float32(settings.max_speed),
+                     np.float32(MIN_VOID_DISTANCE), True, True)  # fmt: skip
     buffers = (np.empty(28, np.float32), np.empty(28, np.float32), np.empty(128, np.int64), np.empty(16, np.float32))
     ids = torch.zeros_like(expected)
     for r in range(env.num_replicas):
