@@ -12,7 +12,7 @@ import hydra
 from omegaconf import DictConfig
 
 from pedrl.cli import checked_groups, run_reporting_errors
-from pedrl.evaluation import evaluate, print_table
+from pedrl.evaluation import controllers, evaluate, print_table
 from pedrl.evaluation.config import source
 
 CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
@@ -23,7 +23,7 @@ CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
 def main(cfg: DictConfig) -> None:
     """Evaluate a checkpoint at scale and print Tables 4/5; a bad value or file exits with code 2 and one line."""
     rows = run_reporting_errors("pedrl-eval", lambda: evaluate(cfg))
-    print_table(rows, f"{cfg.controller} controller, {source(cfg)[1]}")
+    print_table(rows, f"{' and '.join(controllers(cfg))} on the same scenes, epsilon={cfg.epsilon}, {source(cfg)[1]}")
 
 
 if __name__ == "__main__":

@@ -9,9 +9,11 @@ from __future__ import annotations
 import csv
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Final
 
 import numpy as np
 from matplotlib.axes import Axes
+from matplotlib.figure import Figure
 
 from pedrl.analysis import plot_learning_curves
 from pedrl.io import read_csv
@@ -158,17 +160,30 @@ def _default_labels(runs: Sequence[Path]) -> list[str]:
     return ["/".join(p) for p in parts]
 
 
+CROWD_PANELS: Final = (
+    ("success_rate", "success rate (fraction of agents out)"),
+    ("evacuation_time", "evacuation time (s, last agent out)"),
+    ("crashes_agent", "contacts per agent and trial"),
+    ("door_flow", "door flow (persons/s)"),
+)
+"""The panels of a run's ``learning_curve.png``: what a crowd does, trial after trial (metric, axis label)."""
+
+
 def plot_learning_curve_file(csv_path: str | Path, output: str | Path, *, label: str, smooth: int = 1) -> Path:
-    """``learning_curve.png`` of one run: one curve, or one per room for a run trained across scenarios."""
+    """``learning_curve.png`` of one run: a panel per figure of :data:`CROWD_PANELS` that the CSV holds (an older
+    run's holds only the first ones), one curve per room for a run trained across scenarios."""
     rows = read_csv(csv_path)
-    rooms = curve_rooms(rows)
-    if len(rooms) <= 1:
-        return plot_runs([csv_path], output, labels=[label], smooth=smooth)
-    curves = {}
-    for room in rooms:
-        trials, mean, std, _ = read_learning_curve(csv_path, smooth=smooth, room=room)
-        curves[f"{label}: {room}"] = (trials, mean, std)
-    starts = [float(b["global_trial"]) for a, b in zip(rows, rows[1:], strict=False) if a["phase"] != b["phase"]]
-    axes = plot_learning_curves(curves, boundaries=starts, ylabel="success rate (fraction of agents reaching an exit)")
-    axes.figure.savefig(output, dpi=120)
+    rooms = curve_rooms(rows) or [None]
+    panels = [(metric, ylabel) for metric, ylabel in CROWD_PANELS if f"{metric}_mean" in rows[0]]
+    figure = Figure(figsize=(12.0, 7.5) if len(panels) > 1 else (8.0, 4.5), layout="constrained")
+    grid = figure.subplots(2, 2).ravel() if len(panels) > 1 else [figure.add_subplot()]
+    for axes, (metric, ylabel) in zip(grid, panels, strict=False):
+        curves, boundaries = {}, []
+        for room in rooms:
+            trials, mean, std, boundaries = read_learning_curve(csv_path, metric=metric, smooth=smooth, room=room)
+            curves[label if room is None or len(rooms) == 1 else f"{label}: {room}"] = (trials, mean, std)
+        plot_learning_curves(curves, axes=axes, boundaries=boundaries, ylabel=ylabel)
+    for axes in list(grid)[len(panels) :]:
+        axes.set_visible(False)
+    figure.savefig(output, dpi=120)
     return Path(output)

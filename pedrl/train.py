@@ -6,6 +6,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import Any
 
@@ -71,7 +72,8 @@ def _write_outputs(result: TrainResult, trainer: Trainer) -> None:
         "phases": result.phases,
         "checkpoint": str(result.checkpoint),
     }
-    text = json.dumps(summary, indent=2)
+    final = {k: None if isinstance(v, float) and math.isnan(v) else v for k, v in (result.final or {}).items()}
+    text = json.dumps(summary | {"final": final}, indent=2)  # NaN (no door flow measured) is not JSON: null
     replace_atomically(result.run_dir / "summary.json", lambda temporary: temporary.write_text(text))
 
 
@@ -82,6 +84,12 @@ def _stored_final(summary_path: Path) -> dict[str, float]:
     except (OSError, ValueError, AttributeError):
         return {}
     return final if isinstance(final, dict) else {}
+
+
+def _figure(final: dict[str, Any], key: str) -> float:
+    """A final figure, NaN when absent or null (a summary.json of an older run, no door flow measured)."""
+    value = final.get(key)
+    return float("nan") if value is None else float(value)
 
 
 def print_summary(result: TrainResult, name: str) -> None:
@@ -96,6 +104,8 @@ def print_summary(result: TrainResult, name: str) -> None:
         ("crashes with agents / agent", f"{f.get('crashes_agent_mean', float('nan')):.2f}"),
         ("crashes with walls / agent", f"{f.get('crashes_wall_mean', float('nan')):.2f}"),
         ("mean speed (m/s)", f"{f.get('mean_speed_mean', float('nan')):.2f}"),
+        ("evacuation time (s)", f"{_figure(f, 'evacuation_time_mean'):.1f}"),
+        ("door flow (persons/s)", f"{_figure(f, 'door_flow_mean'):.2f}"),
         ("wall time (s)", f"{result.wall_time_s:.1f}"),
         ("outputs", str(result.run_dir)),
         ("checkpoint", str(result.checkpoint)),

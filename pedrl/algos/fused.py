@@ -136,7 +136,7 @@ def run_trial_fused(
         steps,
     )
     _write_back(env, state, int(steps.max()))
-    return _stats(torch.from_numpy(totals).float(), td_sums, steps, policy.num_processes, learn)
+    return _stats(env, torch.from_numpy(totals).float(), td_sums, steps, policy.num_processes, learn)
 
 
 def _state(env: RoomEnv) -> tuple[torch.Tensor, ...]:
@@ -174,6 +174,7 @@ def _room(env: RoomEnv) -> tuple[Any, ...]:
         CONTACTS.index(env.contact),
         env.collision_order == "door_first",
         float(env.time_gap),
+        env.action_frame == "goal",
         int(env.max_decisions),
         np.array([rewards.goal, rewards.crash_wall, rewards.crash_agent, rewards.default], np.float32),
         np.float32(env.reward_progress),
@@ -228,19 +229,17 @@ def _observed(rooms: int, agents: int, features: int) -> tuple[np.ndarray, ...]:
     return (np.zeros((*shape, features), np.float32), *(np.zeros(shape, np.int64) for _ in range(4)))
 
 
-def _stats(totals: torch.Tensor, td_sums: np.ndarray, steps: np.ndarray, processes: int, learn: bool) -> TrialStats:
-    returns, crashes_agent, crashes_wall, reached, speed_sum, moves = totals.view(len(TOTALS), processes, -1)
+def _stats(env: RoomEnv, totals: torch.Tensor, td_sums: np.ndarray, steps: np.ndarray, processes: int,
+           learn: bool) -> TrialStats:  # fmt: skip
     updates = float(td_sums[:, 1].sum())
-    td_error = torch.full((processes,), float(td_sums[:, 0].sum()) / max(updates, 1.0)) if learn else None
-    return TrialStats(
-        success_rate=reached.mean(1),
-        episodic_return=returns.mean(1),
-        crashes_agent=crashes_agent.mean(1),
-        crashes_wall=crashes_wall.mean(1),
-        mean_speed=speed_sum.sum(1) / moves.sum(1).clamp_min(1),
-        td_error=td_error if td_error is not None else torch.zeros(processes),
+    td_error = torch.full((processes,), float(td_sums[:, 0].sum()) / max(updates, 1.0) if learn else 0.0)
+    return TrialStats.from_totals(
+        totals,
+        processes=processes,
+        num_agents=env.num_agents,
+        decision_length=env.decision_length,
+        td_error=td_error,
         decisions=int(steps.max()),
-        agent_decisions=int(moves.sum()),
     )
 
 

@@ -227,17 +227,17 @@ def act_room(r, state, actions, room, walls, exits, work, events, scratch):
     move by the room's contact rule, the exits, the clock and the rewards; ``state`` is updated in place.
 
     ``room`` is ``(speed_changes (9,), turn_changes (9,), max_speed, decision_length, num_substeps, radius, contact,
-    door_first, time_gap, max_decisions, rewards (4,): goal, wall, agent, default, reward_progress, assigned (R, N),
-    exit_goals (X, 2), waypoints (N, W, 2), route_length (N,), waypoint_radius)``, the last three the routes (flat:
-    a parallel kernel takes no tuple in a tuple);
+    door_first, time_gap, goal_frame, max_decisions, rewards (4,): goal, wall, agent, default, reward_progress,
+    assigned (R, N), exit_goals (X, 2), waypoints (N, W, 2), route_length (N,), waypoint_radius)``, the last three
+    the routes (flat: a parallel kernel takes no tuple in a tuple);
     ``exits`` ``(start, normal, tangent, span)``; ``work`` ``(R, N)``-shaped arrays of the move, the last the
     uniform draws that order the movers (``RoomEnv``'s ``priority``); ``events`` ``(reward, left, goal,
     crashed_wall, crashed_agent, acting, in_room)``, written for room ``r``.
     """
     positions, velocities, headings, speeds, active, exit_index, targets, decisions, stage = state
     speed_changes, turn_changes, max_speed, length, substeps, radius, contact, door_first, time_gap = room[:9]
-    max_decisions, rewards, reward_progress, assigned, exit_goals = room[9:14]
-    routes = room[14:]
+    goal_frame, max_decisions, rewards, reward_progress, assigned, exit_goals = room[9:15]
+    routes = room[15:]
     moved_to, step, going, present, order, depth, blocked, cut_wall, cut_body, reached, no_walls, draws = work
     reward, left, goal, crashed_wall, crashed_agent, acting, in_room = events
     priority, old_x, old_y, moved, flags, current, rank_of = scratch
@@ -247,7 +247,11 @@ def act_room(r, state, actions, room, walls, exits, work, events, scratch):
     num_agents = positions.shape[1]
     for i in range(num_agents):
         acting[r, i] = active[r, i]
-        if active[r, i]:
+        if active[r, i] and goal_frame:  # pedrl.sim.dynamics.apply_actions with bearings
+            bearing = np.arctan2(targets[r, i, 1] - positions[r, i, 1], targets[r, i, 0] - positions[r, i, 0])
+            speeds[r, i] = min(max(speed_changes[actions[r, i] // 9], zero), max_speed)
+            headings[r, i] = _wrap(bearing + turn_changes[actions[r, i] % 9])
+        elif active[r, i]:
             speeds[r, i] = min(max(speeds[r, i] + speed_changes[actions[r, i] // 9], zero), max_speed)
             headings[r, i] = _wrap(headings[r, i] + turn_changes[actions[r, i] % 9])
         velocities[r, i, 0] = speeds[r, i] * np.cos(headings[r, i])

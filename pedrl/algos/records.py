@@ -13,7 +13,16 @@ from pedrl.algos.phase import Phase
 from pedrl.algos.rollout import Gathered, TrialStats
 from pedrl.io import CsvWriter, RunLogger, save_checkpoint
 
-CURVE_METRICS: Final = ("success_rate", "episodic_return", "crashes_agent", "crashes_wall", "mean_speed", "td_error")
+CURVE_METRICS: Final = (
+    "success_rate",
+    "episodic_return",
+    "crashes_agent",
+    "crashes_wall",
+    "mean_speed",
+    "td_error",
+    "evacuation_time",
+    "door_flow",
+)
 CURVE_COLUMNS: Final = (
     "phase",
     "agents",
@@ -138,12 +147,14 @@ def report_phase(description: str, trials: int, tic: float, stats: TrialStats | 
 
 
 def final_figures(stats: TrialStats) -> dict[str, float]:
-    """Mean and spread over the processes of every curve metric of a trial: ``{metric}_mean``, ``{metric}_std``."""
+    """Mean and spread over the processes of every curve metric of a trial: ``{metric}_mean``, ``{metric}_std``
+    (over the processes where it was measured; NaN where none was)."""
     figures = {}
     for metric in CURVE_METRICS:
         values = getattr(stats, metric).double()
-        figures[f"{metric}_mean"] = float(values.mean())
-        figures[f"{metric}_std"] = float(values.std(unbiased=False))
+        values = values[~values.isnan()]  # door_flow: processes with no flow measured
+        figures[f"{metric}_mean"] = float(values.mean()) if values.numel() else float("nan")
+        figures[f"{metric}_std"] = float(values.std(unbiased=False)) if values.numel() else float("nan")
     return figures
 
 

@@ -139,18 +139,14 @@ def run_trial(
         step += 1
         if (on_cpu or step % DEVICE_CHECK_EVERY == 0) and not bool(env.active.any()):
             break
-    returns, crashes_agent, crashes_wall, reached, speed_sum, moves = totals.view(len(TOTALS), processes, -1)
-    speed = speed_sum.sum(1) / moves.sum(1).clamp_min(1)
     td_error = (td_total[0] / td_total[1].clamp_min(1)).expand(processes) if learn else torch.zeros(processes)
-    return TrialStats(
-        success_rate=reached.mean(1).cpu(),
-        episodic_return=returns.mean(1).cpu(),
-        crashes_agent=crashes_agent.mean(1).cpu(),
-        crashes_wall=crashes_wall.mean(1).cpu(),
-        mean_speed=speed.cpu(),
-        td_error=td_error.cpu(),
+    return TrialStats.from_totals(
+        totals,
+        processes=processes,
+        num_agents=num_agents,
+        decision_length=env.decision_length,
+        td_error=td_error,
         decisions=int(decisions),
-        agent_decisions=int(moves.sum()),
     )
 
 

@@ -13,7 +13,13 @@ TOTALS: Final = ("return", "crashes_agent", "crashes_wall", "reached", "speed_su
 
 @dataclass
 class TrialStats:
-    """Per-process statistics of one trial, each ``(P,)``."""
+    """Per-process statistics of one trial, each ``(P,)``.
+
+    Besides the agents' own figures, two figures of the crowd, per room and then averaged over the process's rooms:
+    ``evacuation_time`` (s), when the room's last agent left (the trial's length when some never did), and
+    ``door_flow`` (persons/s), ``(n - 1) / (t_last - t_first)`` over the ``n`` agents that reached their goal, as
+    ``pedrl-eval``'s column (NaN for a process none of whose rooms saw two agents leave at different times).
+    """
 
     success_rate: torch.Tensor
     episodic_return: torch.Tensor
@@ -21,5 +27,48 @@ class TrialStats:
     crashes_wall: torch.Tensor
     mean_speed: torch.Tensor
     td_error: torch.Tensor
+    evacuation_time: torch.Tensor
+    door_flow: torch.Tensor
     decisions: int = 0
     agent_decisions: int = 0
+
+    @classmethod
+    def from_totals(
+        cls,
+        totals: torch.Tensor,
+        *,
+        processes: int,
+        num_agents: int,
+        decision_length: float,
+        td_error: torch.Tensor,
+        decisions: int,
+    ) -> TrialStats:
+        """The statistics of a trial from its per-agent ``totals`` ``(len(TOTALS), R * N)`` (rooms process-major),
+        ``td_error`` ``(P,)`` and the ``decisions`` the longest room took.
+
+        An agent's ``decisions`` total is the decisions it took in the room: for one that reached its goal, the
+        decision at which it left.
+        """
+        totals = totals.float().cpu()
+        returns, crashes_agent, crashes_wall, reached, speed_sum, moves = totals.view(len(TOTALS), processes, -1)
+        # per room (P, E, N): the times at which its agents left
+        left = reached.view(processes, -1, num_agents) > 0
+        times = moves.view(processes, -1, num_agents) * decision_length
+        last = times.amax(-1)  # every agent's clock ends when it leaves or when the trial ends
+        first = torch.where(left, times, torch.inf).amin(-1)
+        last_exit = torch.where(left, times, -torch.inf).amax(-1)
+        count = left.sum(-1)
+        measured = (count >= 2) & (last_exit > first)
+        flow = torch.where(measured, (count - 1) / torch.where(measured, last_exit - first, 1.0), torch.nan)
+        return cls(
+            success_rate=reached.mean(1),
+            episodic_return=returns.mean(1),
+            crashes_agent=crashes_agent.mean(1),
+            crashes_wall=crashes_wall.mean(1),
+            mean_speed=speed_sum.sum(1) / moves.sum(1).clamp_min(1),
+            td_error=td_error.float().cpu(),
+            evacuation_time=last.mean(1),
+            door_flow=flow.nanmean(1),
+            decisions=decisions,
+            agent_decisions=int(moves.sum()),
+        )

@@ -25,10 +25,13 @@ so both controllers face the same scenarios.
 
 Outputs, under the run directory:
 
-- ``scaling.csv`` (and ``scaling.json``): one row per agent count, the columns of ``SCALING_COLUMNS``:
+- ``scaling.csv`` (and ``scaling.json``): one row per controller and agent count, the columns of
+  ``SCALING_COLUMNS``:
 
-  ``agents``; ``fails_pct`` and ``fails_std``: mean and standard deviation over the simulated trials of the
-  percentage of agents that did not reach the door (Tables 4/5); ``mean_speed`` and ``speed_std`` (m/s): mean and
+  ``controller``: ``learned``, ``greedy`` or ``jupedsim``, the config's ``controller`` first, then each of its
+  ``references`` (``[greedy]`` by default: the non-learned walker on the same scenes, bodies, contact rule and
+  ``epsilon``); ``agents``; ``fails_pct`` and ``fails_std``: mean and standard deviation over the simulated trials of
+  the percentage of agents that did not reach the door (Tables 4/5); ``mean_speed`` and ``speed_std`` (m/s): mean and
   standard deviation of the speed of every agent after every decision it took; ``evacuation_time_s``: mean time
   until the last agent passed the door, over the ``evacuated_trials`` trials in which every agent did;
   ``evacuated_pct``: the share of trials (%) in which every agent passed the door; ``stuck_pct``: the share of
@@ -50,12 +53,21 @@ Outputs, under the run directory:
 - ``animation_<agents>.gif``: the first simulated trial, agents coloured by speed.
 - ``tb/``: TensorBoard scalars ``eval/<column>`` (step = agent count), the figures as images, the config as text.
 
+A reference's own outputs (all of the above but the joint ``scaling.csv``) go under ``<run dir>/<reference>/``.
+
 Frames: frame 0 is the initial state and frame ``t`` the state after decision ``t``; an agent is in frame ``t``
 when it took decision ``t`` (so it appears in the frame where it passes the door, beyond the door line, and in
 the last frame of a trial cut by ``max_decisions``).
 """
 
-from pedrl.evaluation.config import CONTROLLERS, check_against_room, evaluate, settings_from_config, validate_config
+from pedrl.evaluation.config import (
+    CONTROLLERS,
+    check_against_room,
+    controllers,
+    evaluate,
+    settings_from_config,
+    validate_config,
+)
 from pedrl.evaluation.engine import (
     CONTROLLER_SEED_STRIDE,
     ENV_SEED_STRIDE,
@@ -74,6 +86,7 @@ from pedrl.evaluation.engine import (
     room_geometry,
     simulate_agent_count,
     stuck_agents,
+    write_scaling,
 )
 from pedrl.evaluation.jupedsim import JuPedSimReference
 from pedrl.evaluation.report import (
@@ -100,6 +113,7 @@ __all__ = [
     "ScalingStats",
     "build_rooms",
     "check_against_room",
+    "controllers",
     "evaluate",
     "evaluate_policy",
     "load_controller",
@@ -112,5 +126,6 @@ __all__ = [
     "validate_config",
     "write_density_map",
     "write_fundamental_diagram",
+    "write_scaling",
     "write_scaling_json",
 ]

@@ -8,6 +8,7 @@ the checkpoint's room is known. :func:`evaluate` then hands plain values (:class
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Final
 
@@ -24,6 +25,7 @@ from pedrl.evaluation.engine import (
     load_controller,
     measurement_point,
     room_geometry,
+    write_scaling,
 )
 from pedrl.integrations.jupedsim import INSTALL_HINT, JuPedSimModel, installed, model_from_settings
 from pedrl.runtime import set_threads
@@ -49,25 +51,57 @@ device, stacked on the host and again as trajectories, and the activity flags.""
 
 # ---------------------------------------------------------------------- the evaluation
 def evaluate(cfg: DictConfig, *, run_dir: str | Path | None = None) -> list[dict[str, Any]]:
-    """Evaluate ``cfg.checkpoint`` (or the exported ``cfg.policy``) at every agent count of ``cfg.agents``; returns
-    the ``scaling.csv`` rows.
+    """Evaluate ``cfg.checkpoint`` (or the exported ``cfg.policy``) at every agent count of ``cfg.agents`` with
+    ``cfg.controller``, then with each controller of ``cfg.references`` on the same scenes and rules; returns the
+    ``scaling.csv`` rows of all of them, the controller's first.
 
-    Every output goes under ``run_dir`` (default: Hydra's output dir); see the :mod:`pedrl.evaluation` docstring.
+    Every output goes under ``run_dir`` (default: Hydra's output dir), a reference's under ``run_dir/<reference>/``,
+    and ``run_dir/scaling.csv`` holds every controller's rows; see the :mod:`pedrl.evaluation` docstring.
 
     Raises:
         ValueError: one line, for an invalid config value (before any compute).
         CheckpointError: one line, for a checkpoint that cannot be used.
     """
-    # ---- validation and setup: every check before any compute
+    # ---- validation and setup: every check before any compute, for every controller
     validate_config(cfg)
     set_threads(cfg.get("threads"))
     run_dir = Path(run_dir) if run_dir is not None else hydra_output_dir()
     device = torch.device(cfg.device)
+    runs = [(name, *_prepare(cfg, name, device)) for name in controllers(cfg)]
+
+    # ---- the evaluations, from plain values
+    settings = settings_from_config(cfg)
+    rows: list[dict[str, Any]] = []
+    for index, (name, policy, envs, geometry) in enumerate(runs):
+        rows += evaluate_policy(
+            policy,
+            envs,
+            geometry,
+            replace(settings, controller=name),
+            run_dir=run_dir if index == 0 else run_dir / name,
+            config_text=OmegaConf.to_yaml(cfg),
+        )
+    if len(runs) > 1:  # every controller's rows side by side in the run's own table
+        write_scaling(run_dir, rows)
+    return rows
+
+
+def controllers(cfg: DictConfig) -> list[str]:
+    """The controllers a validated eval config runs: ``controller``, then each of ``references`` that differs."""
+    names = [str(cfg.controller)]
+    for name in cfg.get("references") or []:
+        if name not in names:
+            names.append(str(name))
+    return names
+
+
+def _prepare(cfg: DictConfig, controller: str, device: torch.device) -> tuple[Any, dict[int, RoomEnv], Geometry]:
+    """The policy file made ready for ``controller``, its rooms and their area, checked against the config."""
     kind, path = source(cfg)
     policy = load_controller(
         path,
         kind=kind,
-        controller=cfg.controller,
+        controller=controller,
         epsilon=float(cfg.epsilon),
         device=device,
         max_decisions=cfg.max_decisions,
@@ -81,10 +115,7 @@ def evaluate(cfg: DictConfig, *, run_dir: str | Path | None = None) -> list[dict
     if isinstance(policy.controller, Recorder):
         for env in envs.values():
             policy.controller.check(env)
-
-    # ---- the evaluation, from plain values
-    settings = settings_from_config(cfg)
-    return evaluate_policy(policy, envs, geometry, settings, run_dir=run_dir, config_text=OmegaConf.to_yaml(cfg))
+    return policy, envs, geometry
 
 
 def source(cfg: DictConfig) -> tuple[str, str]:
@@ -161,9 +192,19 @@ def _validate_values(cfg: DictConfig) -> None:
     check_integer("trials", cfg.get("trials"), minimum=1)
     check_integer("trials_per_batch", cfg.get("trials_per_batch"), minimum=1)
     check_choice("controller", cfg.get("controller"), CONTROLLERS)
+    references = cfg.get("references")
+    if references is None:
+        references = []
+    if not isinstance(references, ListConfig | list | tuple):
+        raise ValueError(
+            f"references={references!r} is invalid: must be a list of {', '.join(CONTROLLERS[1:])} (or [] for none)"
+        )
+    for name in references:
+        check_choice("references", name, CONTROLLERS[1:])
     jupedsim_model(cfg)
-    if cfg.controller == "jupedsim" and not installed():
-        raise ValueError(f"controller=jupedsim is invalid here: {INSTALL_HINT}")
+    if "jupedsim" in (cfg.controller, *references) and not installed():
+        which = "controller" if cfg.controller == "jupedsim" else "references"
+        raise ValueError(f"{which}=jupedsim is invalid here: {INSTALL_HINT}")
     check_number("epsilon", cfg.get("epsilon"), low=0.0, high=1.0)
     if cfg.get("max_decisions") is not None:
         check_integer("max_decisions", cfg.max_decisions, minimum=1)

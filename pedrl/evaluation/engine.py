@@ -40,6 +40,7 @@ from pedrl.sim.checks import first_line
 from pedrl.sim.controllers import Controller, GreedyDoorController
 
 SCALING_COLUMNS: Final = (
+    "controller",
     "agents",
     "fails_pct",
     "fails_std",
@@ -206,13 +207,14 @@ class ScalingStats:
             if times.size >= 2 and times.max() > times.min():
                 self.door_flows.append(float((times.size - 1) / (times.max() - times.min())))
 
-    def row(self, agents: int) -> dict[str, Any]:
-        """The ``scaling.csv`` row (see the :mod:`pedrl.evaluation` docstring)."""
+    def row(self, agents: int, controller: str) -> dict[str, Any]:
+        """The ``scaling.csv`` row of ``controller`` at ``agents`` (see the :mod:`pedrl.evaluation` docstring)."""
         fails = np.asarray(self.fails_pct)
         count = max(self.speed_count, 1)
         mean_speed = self.speed_sum / count
         variance = max(self.speed_sq_sum / count - mean_speed**2, 0.0)
         return {
+            "controller": controller,
             "agents": agents,
             "fails_pct": float(fails.mean()),
             "fails_std": float(fails.std()),
@@ -350,14 +352,14 @@ def evaluate_policy(
             if isinstance(policy.controller, PolicyController | GreedyDoorController):
                 policy.controller.generator.manual_seed(settings.seed * CONTROLLER_SEED_STRIDE + agents)
             stats, diagram, density = simulate_agent_count(env, policy, settings, geometry, point, run_dir)
-            row = stats.row(agents)
+            row = stats.row(agents, settings.controller)
             rows.append(row)
             table.write(row)
             diagrams[agents] = diagram
             title = f"{label}: {agents} agents, {row['trials']} trials"
             figure = write_density_map(run_dir, density, geometry, agents=agents, title=title)
             logger.log_figure(f"eval/density_map_{agents}", figure)
-            logger.log_scalars(agents, {f"eval/{k}": v for k, v in row.items() if k != "agents"})
+            logger.log_scalars(agents, {f"eval/{k}": v for k, v in row.items() if k not in ("agents", "controller")})
             print(
                 f"  {agents:>4} agents: fails {row['fails_pct']:5.1f} ± {row['fails_std']:4.1f} %, "
                 f"speed {row['mean_speed']:.2f} ± {row['speed_std']:.2f} m/s, stuck {row['stuck_pct']:.1f} %, "
@@ -382,6 +384,17 @@ def evaluate_policy(
         logger.close()
     write_scaling_json(run_dir, rows)
     return rows
+
+
+def write_scaling(run_dir: str | Path, rows: list[dict[str, Any]]) -> None:
+    """``scaling.csv`` (replaced atomically) and ``scaling.json`` of ``run_dir``, holding ``rows``."""
+    table = CsvWriter(Path(run_dir) / "scaling.csv", SCALING_COLUMNS)
+    try:
+        for row in rows:
+            table.write(row)
+    finally:
+        table.close()
+    write_scaling_json(Path(run_dir), rows)
 
 
 def simulate_agent_count(

@@ -152,16 +152,19 @@ def write_scaling_json(run_dir: Path, rows: list[dict[str, Any]]) -> None:
 
 # ---------------------------------------------------------------------- console
 def print_table(rows: list[dict[str, Any]], label: str) -> None:
-    """Tables 4/5 (and the extra columns) on the console."""
+    """Tables 4/5 (and the extra columns) on the console: one row per agent count and controller, the controllers
+    of an agent count side by side, in the order of ``rows``."""
     header = (
-        f"{'agents':>6} | {'fails % (std)':>14} | {'speed m/s (std)':>15} | {'evacuation s (trials)':>21} | "
-        f"{'stuck %':>7} | {'door flow 1/s':>13} | {'contacts/agent':>14} | {'wall contacts':>13}"
+        f"{'agents':>6} | {'controller':>10} | {'fails % (std)':>14} | {'speed m/s (std)':>15} | "
+        f"{'evacuation s (trials)':>21} | {'stuck %':>7} | {'door flow 1/s':>13} | {'contacts/agent':>14} | "
+        f"{'wall contacts':>13}"
     )
     print(f"\n  {label}\n  {header}\n  {'-' * len(header)}")
-    for r in rows:
+    counts = list(dict.fromkeys(r["agents"] for r in rows))
+    for r in sorted(rows, key=lambda r: counts.index(r["agents"])):  # stable: the controllers keep their order
         evacuation = f"{r['evacuation_time_s']:.1f} ({r['evacuated_trials']}/{r['trials']})"
         print(
-            f"  {r['agents']:>6} | {r['fails_pct']:6.2f} ({r['fails_std']:5.2f}) | "
+            f"  {r['agents']:>6} | {r.get('controller', ''):>10} | {r['fails_pct']:6.2f} ({r['fails_std']:5.2f}) | "
             f"{r['mean_speed']:7.2f} ({r['speed_std']:4.2f}) | {evacuation:>21} | {r['stuck_pct']:7.1f} | "
             f"{_number(r['door_flow'], '13.3f')} | "
             f"{_number(r['crashes_per_agent'], '14.2f')} | {_number(r['wall_crashes_per_agent'], '13.2f')}"

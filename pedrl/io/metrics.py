@@ -2,7 +2,7 @@
 
 Metric name spaces (documented in the README):
     charts/   what the agents achieve (success_rate, episodic_return, crashes_agent, crashes_wall, mean_speed,
-              decisions_per_s, epsilon)
+              evacuation_time, door_flow, decisions_per_s, epsilon)
     vq/       the quantizer (distortion, prototypes)
     losses/   the learning signal (td_error)
     eval/     scaled evaluation
@@ -65,10 +65,14 @@ class RunLogger:
             self._writer.add_scalar(tag, float(value), step)
 
     def log_spread(self, step: int, tag: str, per_process: torch.Tensor) -> None:
-        """Log the mean of ``per_process (R,)`` under ``tag`` and its std under ``spread/<name>_std``."""
+        """Log the mean of ``per_process (R,)`` under ``tag`` and its std under ``spread/<name>_std``, over the
+        values that are not NaN (nothing when none is)."""
         if self._writer is None:
             return
         values = per_process.detach().double().cpu()
+        values = values[~values.isnan()]  # a figure some processes did not measure (a door flow)
+        if values.numel() == 0:
+            return
         mean = float(values.mean())
         std = float(values.std(unbiased=False)) if values.numel() > 1 else 0.0
         name = tag.split("/")[-1]

@@ -28,7 +28,8 @@ class GreedyDoorController:
     """The non-learned reference: turn towards the door as far as one decision allows, at full speed.
 
     Every decision it takes the largest speed increase (full speed from standstill in one decision with the
-    default ratios) and the turn that leaves the smallest angle between heading and the line to the door centre.
+    default ratios) and the turn that leaves the smallest angle between heading and the line to the door centre;
+    in the ``goal`` action frame, the top speed straight at the door (or waypoint), whatever its heading was.
     It has no collision avoidance: the room's collision rule stops it on contact (speed 0 for the rest of the
     decision), as it stops learned agents, and it accelerates again at the next decision. With ``epsilon > 0`` a
     fraction ``epsilon`` of its actions are uniform random ones, as the learned controller's are: a push to the
@@ -46,9 +47,12 @@ class GreedyDoorController:
 
     def act(self, env: RoomEnv, obs: torch.Tensor, info: Mapping[str, Any]) -> torch.Tensor:
         """Actions ``(R, N)`` int64 for observations ``obs (R, N, F)`` of ``env``."""
-        velocity_angle = obs[..., 1]  # heading relative to the line to the door, rad, in (-pi, pi]
         turns = torch.as_tensor(env.turn_ratios, dtype=obs.dtype, device=obs.device) * math.pi
-        residual = torch.remainder(velocity_angle.unsqueeze(-1) + turns + math.pi, 2 * math.pi) - math.pi
+        if env.action_frame == "goal":  # the turn index sets the heading relative to the line to the door
+            residual = turns.expand(*obs.shape[:-1], -1)
+        else:
+            velocity_angle = obs[..., 1]  # heading relative to the line to the door, rad, in (-pi, pi]
+            residual = torch.remainder(velocity_angle.unsqueeze(-1) + turns + math.pi, 2 * math.pi) - math.pi
         turn_index = residual.abs().argmin(dim=-1)
         speed_index = int(torch.as_tensor(env.speed_ratios).argmax())
         actions = speed_index * len(env.turn_ratios) + turn_index

@@ -47,6 +47,16 @@ error falls to at most 2.25 degrees, so a full-speed step of 2.5 m lands within 
 clearance of a 0.4 m body in a 1 m opening); ``COARSE_TURN_RATIOS`` left up to 9 degrees (0.39 m)."""
 COARSE_TURN_RATIOS: Final = (-0.75, -0.5, -0.25, -0.1, 0.0, 0.1, 0.25, 0.5, 0.75)
 """The turn ratios before issue 19 (smallest turn 18 degrees), kept for old runs and the golden trajectories."""
+ACTION_FRAMES: Final = ("heading", "goal")
+"""What an action changes. ``heading`` (the paper): the speed and the heading change by the ratios from their
+current values. ``goal``: the speed index sets the speed to ``speed_ratios[i] * max_speed`` and the turn index sets
+the heading to the bearing of the agent's goal point (its door or waypoint) plus ``turn_ratios[j] * pi``: the
+greedy walker is one action, and an action means the same whatever the heading before it."""
+GOAL_SPEED_RATIOS: Final = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.8, 1.0)
+"""Speeds of the ``goal`` frame's 9 speed indices, as fractions of ``max_speed``."""
+GOAL_TURN_RATIOS: Final = (-0.75, -0.5, -0.25, -0.1, 0.0, 0.1, 0.25, 0.5, 0.75)
+"""Headings of the ``goal`` frame's 9 turn indices, relative to the bearing of the goal, as fractions of pi: 0,
++-18, +-45, +-90 and +-135 degrees."""
 
 
 def decode_actions(actions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -75,11 +85,14 @@ def apply_actions(
     turn_changes: torch.Tensor,
     max_speed: float,
     active: torch.Tensor,
+    bearings: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Apply one decision's actions to speeds and headings.
 
-    ``s <- clip(s + speed_changes[speed_index], 0, max_speed)`` and
-    ``theta <- wrap(theta + turn_changes[turn_index])``; inactive agents keep their values.
+    The ``heading`` frame (``bearings`` None): ``s <- clip(s + speed_changes[speed_index], 0, max_speed)`` and
+    ``theta <- wrap(theta + turn_changes[turn_index])``. The ``goal`` frame (``bearings`` given):
+    ``s <- clip(speed_changes[speed_index], 0, max_speed)`` and ``theta <- wrap(bearing + turn_changes[turn_index])``
+    (``ACTION_FRAMES``). Inactive agents keep their values.
 
     Args:
         speeds: Speeds ``(R, N)`` (m/s).
@@ -89,6 +102,7 @@ def apply_actions(
         turn_changes: Heading change of each turn index ``(9,)`` (rad), i.e. ``turn_ratios * pi``.
         max_speed: Maximum speed (m/s).
         active: Agents that act ``(R, N)`` bool.
+        bearings: The ``goal`` frame: the world angle ``(R, N)`` (rad) from each agent to its goal point.
 
     Returns:
         New ``speeds`` ``(R, N)`` (m/s) and ``headings`` ``(R, N)`` (rad).
@@ -97,8 +111,12 @@ def apply_actions(
     # index_select: plain indexing opens a parallel region for a few thousand indices already
     speed_change = speed_changes.index_select(0, speed_index).view_as(speeds)
     turn_change = turn_changes.index_select(0, turn_index).view_as(headings)
-    new_speeds = (speeds + speed_change).clamp_(0.0, max_speed)
-    new_headings = wrap_angle(headings + turn_change)
+    if bearings is None:
+        new_speeds = (speeds + speed_change).clamp_(0.0, max_speed)
+        new_headings = wrap_angle(headings + turn_change)
+    else:
+        new_speeds = speed_change.clamp(0.0, max_speed)
+        new_headings = wrap_angle(bearings + turn_change)
     return torch.where(active, new_speeds, speeds), torch.where(active, new_headings, headings)
 
 

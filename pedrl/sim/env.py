@@ -15,8 +15,17 @@ from typing import Any, Final
 
 import torch
 
-from pedrl.sim.checks import check_bool, check_device, check_integer, check_memory, check_number, check_real
+from pedrl.sim.checks import (
+    check_bool,
+    check_choice,
+    check_device,
+    check_integer,
+    check_memory,
+    check_number,
+    check_real,
+)
 from pedrl.sim.dynamics import (
+    ACTION_FRAMES,
     DEFAULT_SPEED_RATIOS,
     DEFAULT_TURN_RATIOS,
     NUM_ACTIONS,
@@ -131,6 +140,7 @@ class RoomEnv:
         compile_sensing: bool = False,
         contact: str = "stop",
         time_gap: float = 1.0,
+        action_frame: str = "heading",
         geometry: Geometry | None = None,
     ) -> None:
         """Validate the configuration and allocate the state (call :meth:`reset` before :meth:`step`).
@@ -148,8 +158,10 @@ class RoomEnv:
             max_decisions: Decisions per trial before the remaining agents are truncated.
             num_neighbours: Number k of sensed neighbours.
             num_walls: Number w of sensed walls, at most 5.
-            speed_ratios: Speed change of each of the 9 speed indices, as a fraction of ``max_speed``.
-            turn_ratios: Heading change of each of the 9 turn indices, as a fraction of pi (rad).
+            speed_ratios: Speed change of each of the 9 speed indices, as a fraction of ``max_speed`` (index 4, the
+                no-op, 0); in the ``goal`` frame the speed itself, each in ``[0, 1]``.
+            turn_ratios: Heading change of each of the 9 turn indices, as a fraction of pi (rad) (index 4, the no-op,
+                0); in the ``goal`` frame the heading relative to the bearing of the goal point.
             reward_goal: Reward for reaching the door.
             reward_crash_wall: Reward for a decision in which the agent hit a wall.
             reward_crash_agent: Reward for a decision in which the agent hit another (and no wall).
@@ -196,6 +208,9 @@ class RoomEnv:
                 an agent is never flagged for both.
             time_gap: ``T`` of the ``headway`` and ``yield`` rules (s, ``> 0``; 1 s as JuPedSim's default); unused
                 otherwise.
+            action_frame: What an action changes (``pedrl.sim.dynamics.ACTION_FRAMES``): ``"heading"`` (the
+                paper: speed and heading change from their current values) or ``"goal"`` (the action sets the speed
+                and the heading relative to the bearing of the agent's goal point, its door or waypoint).
             geometry: Any walkable area (``pedrl.scenarios`` builds one from polygons); ``None`` is the paper's
                 room of ``width``, ``length`` and ``door_width`` (:meth:`Geometry.rectangle`), which are then
                 ignored except as the extent of the area. Its ``goal_depth`` is the geometry's own.
@@ -217,8 +232,12 @@ class RoomEnv:
         self.num_neighbours = check_integer("num_neighbours", num_neighbours, minimum=0)
         wall_count = NUM_WALLS if geometry is None else geometry.num_walls
         self.num_walls = check_integer("num_walls", num_walls, minimum=0, maximum=wall_count)
-        self.speed_ratios = check_ratios("speed_ratios", speed_ratios, unit="fraction of max_speed")
-        self.turn_ratios = check_ratios("turn_ratios", turn_ratios, unit="fraction of pi")
+        self.action_frame = check_choice("action_frame", action_frame, ACTION_FRAMES)
+        goal_frame = self.action_frame == "goal"
+        self.speed_ratios = check_ratios(
+            "speed_ratios", speed_ratios, unit="fraction of max_speed", bounds=(0.0, 1.0) if goal_frame else None
+        )
+        self.turn_ratios = check_ratios("turn_ratios", turn_ratios, unit="fraction of pi", noop=not goal_frame)
         self.rewards = check_rewards(reward_goal, reward_crash_wall, reward_crash_agent, reward_default)
         self.substep_length = check_substep_length(substep_length, agent_radius)
         self.collision_rule, self.collision_order, self.contact = check_rules(collision_rule, collision_order, contact)
@@ -398,6 +417,10 @@ class RoomEnv:
         targets = self.targets()  # this decision's targets, for the order of action and the progress
 
         # ---- decide: new speeds and headings
+        bearings = None
+        if self.action_frame == "goal":
+            to_goal = targets - self.positions
+            bearings = torch.atan2(to_goal[..., Y], to_goal[..., X])
         speeds, headings = apply_actions(
             speeds=self.speeds,
             headings=self.headings,
@@ -406,6 +429,7 @@ class RoomEnv:
             turn_changes=self.turn_changes,
             max_speed=self.max_speed,
             active=acting,
+            bearings=bearings,
         )
         movement, speeds, velocities = self._move(acting, speeds, headings, targets)
         progress = self._goal_distance(self.positions, targets) - self._goal_distance(movement.positions, targets)

@@ -60,8 +60,11 @@ def check_extent(
     return checked_width, checked_length, checked_door, radius
 
 
-def check_ratios(name: str, value: Any, *, unit: str) -> tuple[float, ...]:
-    """Nine finite ratios with the no-op (index 4) equal to 0, else a one-line ``ValueError``."""
+def check_ratios(
+    name: str, value: Any, *, unit: str, bounds: tuple[float, float] | None = None, noop: bool | None = None
+) -> tuple[float, ...]:
+    """Nine finite ratios, else a one-line ``ValueError``: with ``bounds``, each within them; with ``noop`` (the
+    default when there are no bounds), the no-op (index 4) equal to 0."""
     if isinstance(value, str | bytes) or not isinstance(value, Sequence | torch.Tensor):
         try:
             value = list(value)  # e.g. an OmegaConf ListConfig
@@ -71,7 +74,15 @@ def check_ratios(name: str, value: Any, *, unit: str) -> tuple[float, ...]:
     if len(items) != NUM_SPEED_CHANGES:
         raise ValueError(f"{name} has {len(items)} values: must be a sequence of 9 finite numbers ({unit})")
     ratios = tuple(check_real(f"{name}[{index}]", item, unit=unit) for index, item in enumerate(items))
-    if ratios[NOOP_INDEX] != 0.0:
+    if bounds is not None:
+        low, high = bounds
+        for index, ratio in enumerate(ratios):
+            if not low <= ratio <= high:
+                raise ValueError(
+                    f"{name}[{index}]={ratio!r} is invalid: with action_frame=goal each is a speed in [{low}, {high}]"
+                    f" ({unit})"
+                )
+    if (bounds is None if noop is None else noop) and ratios[NOOP_INDEX] != 0.0:
         raise ValueError(f"{name}[{NOOP_INDEX}]={ratios[NOOP_INDEX]!r} is invalid: the no-op (index 4) must be 0.0")
     return ratios
 

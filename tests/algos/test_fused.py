@@ -26,6 +26,7 @@ from pedrl.algos.rollout import gather, run_trial
 from pedrl.io import read_csv
 from pedrl.rl.policy import TabularPolicy
 from pedrl.sim import RoomEnv
+from pedrl.sim.dynamics import GOAL_SPEED_RATIOS, GOAL_TURN_RATIOS
 from pedrl.sim.sensing import MIN_VOID_DISTANCE, observe
 from pedrl.train import train as train_run
 from pedrl.vq.encoder import EncoderSettings, StateEncoder
@@ -39,11 +40,14 @@ SCENES = [("paper_room", 20, "stop"), ("paper_room", 20, "yield"), ("bottleneck"
 ANGLE_COLUMNS = [1] + [5 + 3 * i for i in range(7)] + [25, 27]
 
 
-def scene(name: str, agents: int, contact: str, seed: int, replicas: int = 4) -> RoomEnv:
+GOAL_FRAME = {"action_frame": "goal", "speed_ratios": GOAL_SPEED_RATIOS, "turn_ratios": GOAL_TURN_RATIOS}
+"""The ``goal`` action frame, for the decision's tests (its actions aim at the door or the waypoint)."""
+
+
+def scene(name: str, agents: int, contact: str, seed: int, replicas: int = 4, frame: str = "heading") -> RoomEnv:
     """A room of the scenario after a reset and 3 random decisions, with random speeds and headings."""
-    env = env_factory({"_target_": "pedrl.sim.RoomEnv", "contact": contact}, {"name": name})(
-        num_replicas=replicas, num_agents=agents
-    )
+    settings = {"_target_": "pedrl.sim.RoomEnv", "contact": contact} | (GOAL_FRAME if frame == "goal" else {})
+    env = env_factory(settings, {"name": name})(num_replicas=replicas, num_agents=agents)
     env.reset(seed=seed)
     generator = torch.Generator().manual_seed(seed)
     for _ in range(3):
@@ -122,12 +126,16 @@ def fused_step(env: RoomEnv, actions: torch.Tensor, draws: torch.Tensor) -> tupl
     return state, events
 
 
-@pytest.mark.parametrize(("name", "agents", "contact"), SCENES)
-def test_a_decision_matches_the_room_step(name, agents, contact):
-    """From 8 random states, the same actions and the same order of action (torch's draws of the step)."""
+@pytest.mark.parametrize(
+    ("name", "agents", "contact", "frame"),
+    [(*s, "heading") for s in SCENES] + [("paper_room", 20, "yield", "goal"), ("corner", 7, "headway", "goal")],
+)
+def test_a_decision_matches_the_room_step(name, agents, contact, frame):
+    """From 8 random states, the same actions and the same order of action (torch's draws of the step), in both
+    action frames (the goal frame's round the corner's waypoint too)."""
     mismatched, total = 0, 0
     for seed in range(8):
-        env = scene(name, agents, contact, seed)
+        env = scene(name, agents, contact, seed, frame=frame)
         actions = torch.randint(81, env.active.shape, generator=torch.Generator().manual_seed(seed))
         draws = torch.rand(env.active.shape, generator=torch.Generator().set_state(env.generator.get_state()))
         state, events = fused_step(env, actions, draws)

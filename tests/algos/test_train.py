@@ -1,6 +1,7 @@
 """End-to-end training through the real entry point, with tiny budgets."""
 
 import json
+import math
 import subprocess
 import sys
 
@@ -44,6 +45,11 @@ def test_vqql_debug_run_writes_every_output(train_config, tmp_path):
     rows = read_csv(tmp_path / "learning_curve.csv")
     assert len(rows) == 20 and [int(r["global_trial"]) for r in rows] == list(range(20))
     assert result.final["success_rate_mean"] == pytest.approx(float(rows[-1]["success_rate_mean"]), abs=1e-5)
+    # the crowd's figures per trial: within the trial's clock (debug: 30 decisions of 1 s)
+    for row in rows:
+        assert 0.0 < float(row["evacuation_time_mean"]) <= 30.0
+        flow = float(row["door_flow_mean"])
+        assert math.isnan(flow) or flow > 0.0
     checkpoint = load_checkpoint(tmp_path / "checkpoints" / "iter_0001.safetensors")
     assert checkpoint.tensors["q_values"].shape == (2, 1, 32, 81)  # algo.tables=process: one table per process
     assert checkpoint.metadata["config"]["algo"]["_target_"] == "pedrl.algos.VQQL"
@@ -76,6 +82,7 @@ def test_tensorboard_events_hold_the_documented_tags(train_config, tmp_path):
         "charts/crashes_agent",
         "charts/crashes_wall",
         "charts/mean_speed",
+        "charts/evacuation_time",
         "charts/decisions_per_s",
         "vq/distortion",
         "losses/td_error",

@@ -93,7 +93,12 @@ def test_replicated_evaluation_writes_every_output(algo, checkpoints, tmp_path):
     table = read_csv(tmp_path / "scaling.csv")
     assert list(table[0]) == list(SCALING_COLUMNS)
     assert set(REQUIRED_COLUMNS) <= set(table[0])
-    assert [int(r["agents"]) for r in table] == list(EVAL_AGENTS)
+    # the greedy reference beside the learned crowd by default, its own outputs in greedy/
+    both = [(c, n) for c in ("learned", "greedy") for n in EVAL_AGENTS]
+    assert [(r["controller"], int(r["agents"])) for r in table] == both
+    assert [(r["controller"], r["agents"]) for r in rows] == both
+    assert [r["controller"] for r in read_csv(tmp_path / "greedy" / "scaling.csv")] == ["greedy"] * len(EVAL_AGENTS)
+    assert (tmp_path / "greedy" / "fundamental_diagram.png").exists()
     for row, written in zip(rows, table, strict=True):
         assert row["trials"] == 2 * PROCESSES == int(written["trials"])
         assert 0.0 <= row["fails_pct"] <= 100.0 and row["fails_std"] >= 0.0
@@ -109,7 +114,8 @@ def test_replicated_evaluation_writes_every_output(algo, checkpoints, tmp_path):
     def reject(constant):
         raise ValueError(f"{constant} is not JSON")
 
-    assert json.loads((tmp_path / "scaling.json").read_text(), parse_constant=reject)[0]["agents"] == EVAL_AGENTS[0]
+    written = json.loads((tmp_path / "scaling.json").read_text(), parse_constant=reject)
+    assert [(r["controller"], r["agents"]) for r in written] == both
 
     diagram = read_csv(tmp_path / "fundamental_diagram.csv")
     assert (tmp_path / "fundamental_diagram.csv").read_text().splitlines()[0] == "agents,trial,frame,density,speed,flow"
@@ -188,28 +194,40 @@ def test_evaluation_is_deterministic_for_a_seed(checkpoints, tmp_path):
     assert (tmp_path / "c" / "trajectories" / "agents_5" / "trial_000.txt").read_text() != first
 
 
-def test_greedy_baseline_runs_on_the_same_scenarios(checkpoints, tmp_path):
+def test_greedy_baseline_runs_on_the_same_scenarios(checkpoints, tmp_path, capsys):
     common = ("animation.enabled=false", "tensorboard=false")
-    learned = evaluate(eval_config(checkpoints["in_vqql"], *common), run_dir=tmp_path / "learned")
-    greedy = evaluate(eval_config(checkpoints["in_vqql"], "controller=greedy", *common), run_dir=tmp_path / "greedy")
+    rows = evaluate(eval_config(checkpoints["in_vqql"], *common), run_dir=tmp_path)
     for n in EVAL_AGENTS:
         for trial in ("trial_000.txt", "trial_001.txt"):
-            a = read_pedpy_trajectory(tmp_path / "learned" / "trajectories" / f"agents_{n}" / trial)
+            a = read_pedpy_trajectory(tmp_path / "trajectories" / f"agents_{n}" / trial)
             b = read_pedpy_trajectory(tmp_path / "greedy" / "trajectories" / f"agents_{n}" / trial)
             assert np.array_equal(a[2][a[1] == 0], b[2][b[1] == 0])  # frame 0: the same initial positions
             assert len(a[2][a[1] == 0]) == n
+    greedy = [r for r in rows if r["controller"] == "greedy"]
     for row in greedy:
         assert 0.0 <= row["fails_pct"] <= 100.0 and 0.0 <= row["mean_speed"] <= 2.5
-    assert [r["agents"] for r in greedy] == [r["agents"] for r in learned]
+    # the reference alone gives the same numbers as beside the learned crowd: the same scenes and draws
+    alone = evaluate(eval_config(checkpoints["in_vqql"], "controller=greedy", *common), run_dir=tmp_path / "alone")
+    assert alone == greedy
+    # two rows per agent count on the console, learned first
+    print_table(rows, "both")
+    lines = [line.split("|")[:2] for line in capsys.readouterr().out.splitlines() if line.count("|") > 4][1:]
+    expected = [[f"{n:>6}", f"{c:>10}"] for n in EVAL_AGENTS for c in ("learned", "greedy")]
+    assert [[a.strip(), b.strip()] for a, b in lines] == [[e.strip() for e in pair] for pair in expected]
+
+
+def test_references_can_be_switched_off(checkpoints, tmp_path):
+    rows = evaluate(eval_config(checkpoints["vqql"], "references=[]", "animation.enabled=false"), run_dir=tmp_path)
+    assert {r["controller"] for r in rows} == {"learned"} and not (tmp_path / "greedy").exists()
 
 
 def test_jupedsim_runs_on_the_same_scenes_and_reports_the_table(checkpoints, tmp_path, capsys):
     pytest.importorskip("jupedsim")
     common = ("agents=[5]", "trials=1", "animation.enabled=false", "tensorboard=false")
-    evaluate(eval_config(checkpoints["vqql"], "controller=greedy", *common), run_dir=tmp_path / "greedy")
-    rows = evaluate(eval_config(checkpoints["vqql"], "controller=jupedsim", *common), run_dir=tmp_path / "jupedsim")
+    rows = evaluate(eval_config(checkpoints["vqql"], "references=[greedy,jupedsim]", *common), run_dir=tmp_path)
+    assert [r["controller"] for r in rows] == ["learned", "greedy", "jupedsim"]
 
-    (row,) = rows
+    row = rows[-1]
     assert row["agents"] == 5 and row["trials"] == PROCESSES  # one trial per process, as the other controllers
     assert 0.0 <= row["fails_pct"] <= 100.0 and row["fails_std"] >= 0.0
     assert 0.5 < row["mean_speed"] <= 1.2 + 1e-6  # JuPedSim's default desired speed
@@ -244,6 +262,8 @@ def test_jupedsim_without_jupedsim_fails_with_one_line(checkpoints, tmp_path, mo
         str(error.value)
         == "controller=jupedsim is invalid here: jupedsim is not installed: pip install 'pedrl[jupedsim]'"
     )
+    with pytest.raises(ValueError, match=r"^references=jupedsim is invalid here"):
+        evaluate(eval_config(checkpoints["vqql"], "references=[greedy,jupedsim]"), run_dir=tmp_path)
 
 
 # ---------------------------------------------------------------------- bad values (pedrl.evaluation.config)
@@ -256,6 +276,9 @@ def test_jupedsim_without_jupedsim_fails_with_one_line(checkpoints, tmp_path, mo
         ("jupedsim.model=foo", "jupedsim.model='foo' is invalid"),
         ("jupedsim.desired_speed=0", "jupedsim.desired_speed=0 is invalid"),
         ("epsilon=2", "epsilon=2 is invalid"),
+        ("references=[foo]", "references='foo' is invalid: must be one of greedy, jupedsim"),
+        ("references=[learned]", "references='learned' is invalid"),
+        ("references=greedy", "references='greedy' is invalid: must be a list"),
         ("trials=0", "trials=0 is invalid"),
         ("density_map.tile_size=0", "density_map.tile_size=0 is invalid"),
         ("agents=[1000]", "num_agents=1000 is invalid"),

@@ -12,6 +12,8 @@ from pedrl.sim import RoomEnv
 from pedrl.sim.dynamics import (
     DEFAULT_SPEED_RATIOS,
     DEFAULT_TURN_RATIOS,
+    GOAL_SPEED_RATIOS,
+    GOAL_TURN_RATIOS,
     NOOP_ACTION,
     NUM_ACTIONS,
     apply_actions,
@@ -74,6 +76,51 @@ def test_apply_actions_changes_speed_and_heading_as_documented():
     expected_headings = [0.0, 3.0 + 0.75 * math.pi - 2 * math.pi, 0.0, -3.0 - 0.75 * math.pi + 2 * math.pi, 1.0]
     torch.testing.assert_close(new_headings, torch.tensor([expected_headings]), atol=1e-5, rtol=0)
     assert (new_headings > -math.pi).all() and (new_headings <= math.pi).all()
+
+
+def test_goal_frame_actions_set_the_speed_and_the_heading_from_the_bearing_of_the_goal():
+    """In the goal frame an action means the same whatever the speed and heading before it: the speed index sets
+    the speed, the turn index the heading relative to the line to the goal."""
+    max_speed = 2.5
+    bearings = torch.tensor([[math.pi / 2, math.pi / 2, 3.0, 0.0]])
+    speeds, headings = apply_actions(
+        speeds=torch.tensor([[2.5, 0.0, 1.0, 1.0]]),
+        headings=torch.tensor([[-2.0, 1.0, 0.0, 0.0]]),
+        actions=torch.tensor([[8 * 9 + 4, 0 * 9 + 5, 5 * 9 + 8, 2 * 9 + 4]]),
+        speed_changes=torch.tensor(GOAL_SPEED_RATIOS) * max_speed,
+        turn_changes=torch.tensor(GOAL_TURN_RATIOS) * math.pi,
+        max_speed=max_speed,
+        active=torch.tensor([[True, True, True, False]]),
+        bearings=bearings,
+    )
+    torch.testing.assert_close(speeds, torch.tensor([[2.5, 0.0, 1.25, 1.0]]))  # the inactive one keeps its own
+    expected = [math.pi / 2, math.pi / 2 + 0.1 * math.pi, 3.0 + 0.75 * math.pi - 2 * math.pi, 0.0]
+    torch.testing.assert_close(headings, torch.tensor([expected]), atol=1e-5, rtol=0)
+
+
+def test_goal_frame_walkers_go_straight_out_and_bad_ratios_are_refused():
+    """Full speed at offset 0 takes every walker of an open room out by the shortest line; a speed ratio outside
+    [0, 1] is refused in one line (in the heading frame it is a change, -1 allowed)."""
+    env = RoomEnv(
+        num_replicas=2, num_agents=8, width=10.0, length=10.0, door_width=3.0, max_decisions=20,
+        action_frame="goal", speed_ratios=GOAL_SPEED_RATIOS, turn_ratios=GOAL_TURN_RATIOS,
+        contact="yield", collision_order="door_first",
+    )  # fmt: skip
+    env.reset(seed=3)
+    straight = torch.full((2, 8), 8 * 9 + 4)
+    start = env.positions.clone()
+    to_door = torch.linalg.vector_norm(env.targets() - start, dim=-1)
+    for _ in range(20):
+        _, _, terminated, _, info = env.step(straight)
+        if not env.active.any():
+            break
+    assert not env.active.any()
+    # nobody needs more decisions than the straight line at full speed allows, plus the queue at the door
+    assert env.decisions.max() <= math.ceil(float(to_door.max()) / 2.5) + 8
+    with pytest.raises(ValueError, match=r"^speed_ratios\[0\]=-1.0 is invalid: with action_frame=goal"):
+        RoomEnv(action_frame="goal")
+    with pytest.raises(ValueError, match=r"^action_frame='door' is invalid: must be one of heading, goal$"):
+        RoomEnv(action_frame="door")
 
 
 def test_half_turn_takes_two_decisions():
