@@ -21,7 +21,8 @@ EXPERIMENTS = sorted(p.stem for p in (Path(CONFIG_DIR) / "experiment").glob("*.y
 PAPER = {"paper_vqql": ("VQQL", 0.25), "paper_it": ("ITVQQL", 0.35), "paper_in": ("INVQQL", 0.35)}
 NAMES = {"pedrl.algos.VQQL": "vqql", "pedrl.algos.ITVQQL": "it_vqql", "pedrl.algos.INVQQL": "in_vqql"}
 K_VALUES = [512, 1024, 2048, 4096, 8192, 16384]
-REWARDS = {"paper_vqql": "paper", "paper_it": "paper", "paper_in": "paper", "main": "tuned", "tuned_it": "tuned"}
+REWARDS = {"paper_vqql": "paper", "paper_it": "paper", "paper_in": "paper", "main": "crowd", "tuned_it": "tuned"}
+REWARDS |= {"main_heading": "tuned"}
 REWARDS |= {"tuned_in": "tuned", "pedestrian": "tuned", "pedestrian_mix": "tuned"}
 REWARDS |= {"paper_it_full": "paper", "paper_in_full": "paper"}
 RESULTS = Path(CONFIG_DIR).parent / "docs" / "results.md"
@@ -132,6 +133,7 @@ def test_paper_experiments_are_the_paper_literally(name, compose, tmp_path):
     # sections 2 and 5: the room, the body, the senses, the trial length
     assert (cfg.env.width, cfg.env.length, cfg.env.door_width, cfg.env.max_decisions) == (60.0, 100.0, 2.0, 200)
     assert (cfg.env.agent_radius, cfg.env.num_neighbours, cfg.env.num_walls) == (0.4, 7, 2)
+    assert cfg.env.action_frame == "heading"  # section 2: actions change the speed and the heading
     # Table 2, and nothing else paid: no progress reward, no time cost
     rewards = (cfg.env.reward_goal, cfg.env.reward_crash_wall, cfg.env.reward_crash_agent, cfg.env.reward_default)
     assert rewards == (100.0, -15.0, -4.0, 0.0)
@@ -183,8 +185,8 @@ def test_tuned_experiments_keep_the_papers_room_and_table_3(name, compose):
     assert (cfg.env.width, cfg.env.length, cfg.env.door_width, cfg.env.max_decisions) == (60.0, 100.0, 2.0, 200)
     assert (cfg.algo.gamma, cfg.algo.epsilon_start, cfg.algo.alpha) == (0.91, 0.4, 0.35)
     assert (cfg.vq.num_prototypes, cfg.vq.per_process) == (4096, True)
-    # the project's choices, as the main job's
-    main = compose("train", ["experiment=main"]).env
+    # the project's choices, as the main job's before the goal action frame
+    main = compose("train", ["experiment=main_heading"]).env
     for key in ("contact", "collision_order", "reward_progress", "reward_default", "reward_crash_agent"):
         assert cfg.env[key] == main[key], key
 

@@ -65,7 +65,7 @@ def test_pedrl_eval_gives_the_same_numbers_from_the_policy_file(trained, tmp_pat
         evaluate(cfg, run_dir=tmp_path / key)
         with open(tmp_path / key / "scaling.csv") as file:
             rows[key] = list(csv.DictReader(file))
-    assert rows["checkpoint"] == rows["policy"] and len(rows["policy"]) == 2
+    assert rows["checkpoint"] == rows["policy"] and len(rows["policy"]) == 4  # 2 counts, learned and greedy
 
 
 def test_a_user_learner_trains_among_the_learned_crowd(trained):

@@ -216,6 +216,12 @@ def test_greedy_baseline_runs_on_the_same_scenarios(checkpoints, tmp_path, capsy
     assert [[a.strip(), b.strip()] for a, b in lines] == [[e.strip() for e in pair] for pair in expected]
 
 
+def test_the_headline_is_at_epsilon_zero_with_the_greedy_walker_beside_it():
+    """The eval defaults: no random actions (a share of them is a sensitivity, not the model), greedy beside."""
+    cfg = compose_config("eval", ["checkpoint=x"])
+    assert cfg.epsilon == 0.0 and list(cfg.references) == ["greedy"] and cfg.controller == "learned"
+
+
 def test_references_can_be_switched_off(checkpoints, tmp_path):
     rows = evaluate(eval_config(checkpoints["vqql"], "references=[]", "animation.enabled=false"), run_dir=tmp_path)
     assert {r["controller"] for r in rows} == {"learned"} and not (tmp_path / "greedy").exists()

@@ -43,7 +43,8 @@ def test_scenario_trains_and_evaluates(scenario, tmp_path):
              "animation.enabled=false", "tensorboard=false", "threads=1", *overrides],
         )  # fmt: skip
         rows = evaluate(eval_cfg, run_dir=tmp_path / f"eval_{where}")
-        assert len(rows) == 1 and 0.0 <= rows[0]["fails_pct"] <= 100.0
+        assert [r["controller"] for r in rows] == ["learned", "greedy"]  # the greedy walker beside, same room
+        assert all(0.0 <= r["fails_pct"] <= 100.0 for r in rows)
         with open(tmp_path / f"eval_{where}" / "scaling.csv") as handle:
-            assert len(list(csv.DictReader(handle))) == 1
+            assert len(list(csv.DictReader(handle))) == 2
         assert (tmp_path / f"eval_{where}" / "trajectories" / "geometry.wkt").exists()
