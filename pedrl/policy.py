@@ -9,7 +9,7 @@ Usage::
     obs, info = room.reset(seed=0)
     generator = torch.Generator().manual_seed(0)                                  # exploration, ties, void fillings
     while room.active.any():
-        actions = policy.act(obs, info, epsilon=0.1, generator=generator)
+        actions = policy.act(obs, info, epsilon=0.0, generator=generator)
         obs, reward, terminated, truncated, info = room.step(actions)
 
 :func:`export_policy` (``pedrl-export``) writes a policy file: the encoder and the tables with their metadata (the

@@ -92,12 +92,13 @@ class PedestrianParallelEnv(ParallelEnv):
 
     Agents are ``"pedestrian_0"`` .. ``"pedestrian_{N-1}"``, agent ``i`` being the room's agent ``i``. Each
     observes ``RoomEnv``'s ``num_features`` deictic features (``feature_names``) as a float32 array, and picks one
-    of the 81 actions (``Discrete(81)``, ``pedrl.sim.NOOP_ACTION`` keeps speed and heading).
+    of the 81 actions (``Discrete(81)``; in the paper's ``heading`` action frame ``pedrl.sim.NOOP_ACTION`` keeps speed
+    and heading, in the ``goal`` frame it walks at ``speed_ratios[4]`` of the top speed straight at the goal).
 
     ``step`` semantics, for a dict of actions keyed by agent:
 
-    - an agent of ``agents`` missing from the dict takes the no-op (``NOOP_ACTION``): it keeps its speed and
-      heading, as a pedestrian that decides nothing new would;
+    - an agent of ``agents`` missing from the dict takes ``NOOP_ACTION``: in the ``heading`` frame it keeps its speed
+      and heading, as a pedestrian that decides nothing new would;
     - actions for agents that already left ``agents`` are ignored (``RoomEnv`` ignores inactive agents); an
       unknown agent name or an action outside ``[0, 81)`` is a ``ValueError``;
     - the returned dicts are keyed by the agents active before the step; those that reached the door

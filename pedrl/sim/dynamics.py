@@ -1,7 +1,8 @@
 """Actions, speed and heading updates, and sub-stepped kinematics with collisions (torch; numba kernels on the CPU).
 
-An action ``a`` in ``[0, 81)`` is ``speed_index * 9 + turn_index``. Index 4 of each axis is the no-op, so
-``NOOP_ACTION = 40`` keeps speed and heading.
+An action ``a`` in ``[0, 81)`` is ``speed_index * 9 + turn_index``. In the paper's ``heading`` action frame index 4
+of each axis is the no-op, so ``NOOP_ACTION = 40`` keeps speed and heading; in the ``goal`` frame an action sets the
+speed and the heading relative to the goal (``ACTION_FRAMES``).
 
 A decision of ``decision_length`` seconds is integrated in ``num_substeps`` equal sub-steps. In each
 sub-step every moving agent proposes its next position; a proposal is blocked when the agent's circle
