@@ -22,7 +22,7 @@ setup: $(STAMP) ## create .venv with torch==2.13.0 (CPU) and pedrl[dev,analysis,
 
 RUN_DIR ?= outputs/main/$(shell date +%Y-%m-%d_%H-%M-%S)
 
-run: setup ## the main job: IT-VQQL in the paper's room (experiment=main, ~2 min), then its scaled evaluation
+run: setup ## the main job: IT-VQQL in the paper's room (experiment=main, ~6 min), then its evaluation beside the greedy walker
 	$(VENV)/bin/pedrl-train experiment=main hydra.run.dir=$(RUN_DIR) $(ARGS)
 	$(VENV)/bin/pedrl-eval checkpoint=$(RUN_DIR)/checkpoints/last.safetensors "agents=[20,100]" trials=10 \
 		hydra.run.dir=$(RUN_DIR)/eval

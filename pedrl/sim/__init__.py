@@ -1,9 +1,12 @@
 """Batched room simulation: geometry, dynamics, sensing, rewards and ``RoomEnv`` (pure torch, no I/O)."""
 
 from pedrl.sim.dynamics import (
+    ACTION_FRAMES,
     COARSE_TURN_RATIOS,
     DEFAULT_SPEED_RATIOS,
     DEFAULT_TURN_RATIOS,
+    GOAL_SPEED_RATIOS,
+    GOAL_TURN_RATIOS,
     NOOP_ACTION,
     NUM_ACTIONS,
     Movement,
@@ -27,7 +30,10 @@ from pedrl.sim.sensing import (
 from pedrl.sim.spawning import Spawns
 
 __all__ = [
+    "ACTION_FRAMES",
     "DEFAULT_SPEED_RATIOS",
+    "GOAL_SPEED_RATIOS",
+    "GOAL_TURN_RATIOS",
     "COARSE_TURN_RATIOS",
     "DEFAULT_TURN_RATIOS",
     "NOOP_ACTION",

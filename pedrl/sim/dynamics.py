@@ -53,11 +53,12 @@ ACTION_FRAMES: Final = ("heading", "goal")
 current values. ``goal``: the speed index sets the speed to ``speed_ratios[i] * max_speed`` and the turn index sets
 the heading to the bearing of the agent's goal point (its door or waypoint) plus ``turn_ratios[j] * pi``: the
 greedy walker is one action, and an action means the same whatever the heading before it."""
-GOAL_SPEED_RATIOS: Final = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.8, 1.0)
-"""Speeds of the ``goal`` frame's 9 speed indices, as fractions of ``max_speed``."""
-GOAL_TURN_RATIOS: Final = (-0.75, -0.5, -0.25, -0.1, 0.0, 0.1, 0.25, 0.5, 0.75)
+GOAL_SPEED_RATIOS: Final = (0.0, 0.2, 0.4, 0.6, 0.7, 0.8, 0.9, 0.95, 1.0)
+"""Speeds of the ``goal`` frame's 9 speed indices, as fractions of ``max_speed``: the main job's
+(``conf/experiment/main.yaml``), most of them near the top."""
+GOAL_TURN_RATIOS: Final = (-0.5, -0.25, -0.1, -0.05, 0.0, 0.05, 0.1, 0.25, 0.5)
 """Headings of the ``goal`` frame's 9 turn indices, relative to the bearing of the goal, as fractions of pi: 0,
-+-18, +-45, +-90 and +-135 degrees."""
++-9, +-18, +-45 and +-90 degrees (the main job's)."""
 
 
 def decode_actions(actions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

@@ -93,8 +93,8 @@ def test_goal_frame_actions_set_the_speed_and_the_heading_from_the_bearing_of_th
         active=torch.tensor([[True, True, True, False]]),
         bearings=bearings,
     )
-    torch.testing.assert_close(speeds, torch.tensor([[2.5, 0.0, 1.25, 1.0]]))  # the inactive one keeps its own
-    expected = [math.pi / 2, math.pi / 2 + 0.1 * math.pi, 3.0 + 0.75 * math.pi - 2 * math.pi, 0.0]
+    torch.testing.assert_close(speeds, torch.tensor([[2.5, 0.0, 2.0, 1.0]]))  # the inactive one keeps its own
+    expected = [math.pi / 2, math.pi / 2 + 0.05 * math.pi, 3.0 + 0.5 * math.pi - 2 * math.pi, 0.0]
     torch.testing.assert_close(headings, torch.tensor([expected]), atol=1e-5, rtol=0)
 
 
