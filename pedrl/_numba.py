@@ -1,4 +1,4 @@
-"""numba, for the CPU kernels of the simulation (`pedrl.sim.kernels`), the Q tables (`pedrl.rl.kernels`) and the
+"""numba, for the CPU kernels of the simulation (`pedrl.sim.motion.*_kernel`), the Q tables (`pedrl.rl.kernels`) and the
 quantizer (`pedrl.vq.tree`).
 
 numba compiles a kernel at its first call (about 13 s for all of them on a 2-core CPU) and keeps it in its on-disk
@@ -7,7 +7,7 @@ Kernels are declared with :func:`cached_njit`, whose cache heals itself: a kerne
 (truncated, garbage) is recompiled into a fresh cache with a one-line warning, instead of failing every run.
 The torch code stays the reference and the path on other devices: the kernels return its numbers to the bit (the
 tree search the exact argmin, which can order float32 ties differently from the matrix search). Each kernel module
-names its specification in its first line. In `pedrl.sim.dynamics` and `pedrl.rl.qlearning` a function with a
+names its specification in its first line. In `pedrl.sim.motion` and `pedrl.rl.qlearning` a function with a
 kernel is a dispatcher under the plain name (it asks :func:`use_kernels`), beside its torch twin ``*_torch``: e.g.
 ``pedrl.rl.td_update`` runs ``pedrl.rl.kernels.td_update_kernel`` or ``pedrl.rl.td_update_torch``.
 """

@@ -1,4 +1,4 @@
-"""The numba kernels (pedrl.sim.kernels, pedrl.rl.kernels, pedrl.vq.tree) are compiled once per process: trials
+"""The numba kernels (pedrl.sim.motion.*_kernel, pedrl.rl.kernels, pedrl.vq.tree) are compiled once per process: trials
 of other sizes (agents, rooms, prototypes) reuse the same machine code, as torch.compile graphs must not be
 recompiled per trial (issue 10)."""
 
@@ -12,13 +12,13 @@ from pedrl.algos import VQQL
 from pedrl.rl import kernels as rl_kernels
 from pedrl.rl import zeros_q_values
 from pedrl.sim import RoomEnv
-from pedrl.sim import kernels as sim_kernels
+from pedrl.sim.motion import sequential_kernel
 from pedrl.vq import tree
 
 pytestmark = pytest.mark.skipif(not numba_available(), reason="numba is off (PEDRL_NO_NUMBA)")
 
 KERNELS = {
-    "sequential rule": sim_kernels._sequential,
+    "sequential rule": sequential_kernel._sequential,
     "greedy": rl_kernels._greedy,
     "TD update": rl_kernels._td,
     "row prefetch": rl_kernels._prefetch,

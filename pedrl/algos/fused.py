@@ -187,7 +187,7 @@ def _room(env: RoomEnv) -> tuple[Any, ...]:
 
 
 def _walls(env: RoomEnv) -> tuple[np.ndarray, ...]:
-    from pedrl.sim.dynamics import _wall_segments
+    from pedrl.sim.motion.sliding import _wall_segments
 
     geometry = env.geometry
     starts, directions, inverse = _wall_segments(geometry)

@@ -2,7 +2,7 @@
 
 One call of :func:`fused_trial` runs a whole learning (or acting) trial of every room: per decision, each room's
 step (:meth:`pedrl.sim.RoomEnv.step`: actions, the move by the contact rule through
-:func:`pedrl.sim.kernels.sequential_room` / :func:`~pedrl.sim.kernels.sliding_room`, exits, rewards), its
+:func:`pedrl.sim.motion.sequential_kernel.sequential_room` / :func:`~pedrl.sim.motion.sliding_kernel.sliding_room`, exits, rewards), its
 observation (:func:`pedrl.sim.sensing.observe`), the encoding (:meth:`pedrl.vq.StateEncoder.prepare` and the k-d
 tree's :func:`pedrl.vq.tree.search_point`), the TD update (:func:`pedrl.rl.td_update_torch`) and the epsilon-greedy
 choice (:func:`pedrl.rl.epsilon_greedy`), with no torch operation per decision.
@@ -21,8 +21,9 @@ from numba import prange
 
 from pedrl._numba import cached_njit
 from pedrl.rl.kernels import _row_max
-from pedrl.sim.kernels import sequential_room, sliding_room
-from pedrl.sim.movement import PAIR_MARGIN
+from pedrl.sim.motion import PAIR_MARGIN
+from pedrl.sim.motion.sequential_kernel import sequential_room
+from pedrl.sim.motion.sliding_kernel import sliding_room
 from pedrl.vq.tree import _STACK, LEAF_SIZE, scan_point, search_point
 
 __all__ = ["act_room", "act_scratch", "encode_agent", "fused_trial", "seed_streams", "sense_room"]
@@ -247,7 +248,7 @@ def act_room(r, state, actions, room, walls, exits, work, events, scratch):
     num_agents = positions.shape[1]
     for i in range(num_agents):
         acting[r, i] = active[r, i]
-        if active[r, i] and goal_frame:  # pedrl.sim.dynamics.apply_actions with bearings
+        if active[r, i] and goal_frame:  # pedrl.sim.actions.apply_actions with bearings
             bearing = np.arctan2(targets[r, i, 1] - positions[r, i, 1], targets[r, i, 0] - positions[r, i, 0])
             speeds[r, i] = min(max(speed_changes[actions[r, i] // 9], zero), max_speed)
             headings[r, i] = _wrap(bearing + turn_changes[actions[r, i] % 9])

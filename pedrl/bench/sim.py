@@ -16,7 +16,7 @@ from typing import Final
 import torch
 
 from pedrl.sim import RoomEnv
-from pedrl.sim.dynamics import NUM_ACTIONS
+from pedrl.sim.actions import NUM_ACTIONS
 
 __all__ = ["SIZES", "run", "time_stepping"]
 

@@ -1,6 +1,6 @@
 """Batched room simulation: geometry, dynamics, sensing, rewards and ``RoomEnv`` (pure torch, no I/O)."""
 
-from pedrl.sim.dynamics import (
+from pedrl.sim.actions import (
     ACTION_FRAMES,
     COARSE_TURN_RATIOS,
     DEFAULT_SPEED_RATIOS,
@@ -9,15 +9,14 @@ from pedrl.sim.dynamics import (
     GOAL_TURN_RATIOS,
     NOOP_ACTION,
     NUM_ACTIONS,
-    Movement,
     apply_actions,
     decode_actions,
     encode_actions,
-    move_agents,
     velocities_from,
 )
 from pedrl.sim.env import PlacementError, RoomEnv
 from pedrl.sim.geometry import NUM_WALLS, WALL_NAMES, Geometry, SpawnArea, X, Y, build_walls, wrap_angle
+from pedrl.sim.motion import Movement, move_agents
 from pedrl.sim.rewards import RewardTable, compute_rewards
 from pedrl.sim.sensing import (
     Observation,

@@ -15,6 +15,14 @@ from typing import Any, Final
 
 import torch
 
+from pedrl.sim.actions import (
+    ACTION_FRAMES,
+    DEFAULT_SPEED_RATIOS,
+    DEFAULT_TURN_RATIOS,
+    NUM_ACTIONS,
+    apply_actions,
+    velocities_from,
+)
 from pedrl.sim.checks import (
     check_bool,
     check_choice,
@@ -24,19 +32,8 @@ from pedrl.sim.checks import (
     check_number,
     check_real,
 )
-from pedrl.sim.dynamics import (
-    ACTION_FRAMES,
-    DEFAULT_SPEED_RATIOS,
-    DEFAULT_TURN_RATIOS,
-    NUM_ACTIONS,
-    Movement,
-    apply_actions,
-    move_agents,
-    move_agents_sequential,
-    move_agents_sliding,
-    velocities_from,
-)
 from pedrl.sim.geometry import NUM_WALLS, Geometry, X, Y, spawn_counts
+from pedrl.sim.motion import Movement, move_agents, move_agents_sequential, move_agents_sliding
 from pedrl.sim.rewards import MAX_REWARD, compute_rewards
 from pedrl.sim.room_checks import (
     check_actions,
@@ -170,9 +167,9 @@ class RoomEnv:
                 ``agent_radius``.
             collision_rule: ``"sequential"`` (the paper's reading: only the agent whose own move would enter
                 another body stops; movers act in a random order per decision, see
-                :func:`~pedrl.sim.dynamics.move_agents_sequential`) or ``"simultaneous"`` (every mover checked
+                :func:`~pedrl.sim.motion.move_agents_sequential`) or ``"simultaneous"`` (every mover checked
                 against every other's proposal at once, both parties of a conflict stop:
-                :func:`~pedrl.sim.dynamics.move_agents`).
+                :func:`~pedrl.sim.motion.move_agents`).
             collision_order: The order in which the sequential rule lets agents act in each decision:
                 ``"random"`` (a random permutation per decision, random sequential update) or ``"door_first"``
                 (nearest to the goal point first, ties at random: a queue moves up together instead of each
@@ -191,11 +188,11 @@ class RoomEnv:
                 ``"stop"`` (default, the paper's reading): the mover stops for the rest of the decision, by
                 ``collision_rule``. ``"slide"``: it keeps the part of its move tangent to the contact for the rest of
                 the decision and stops only if even that would enter something
-                (:func:`~pedrl.sim.dynamics.move_agents_sliding`). ``"headway"``: the collision-free speed rule
+                (:func:`~pedrl.sim.motion.move_agents_sliding`). ``"headway"``: the collision-free speed rule
                 (Tordeux, Chraibi & Seyfried 2016, as JuPedSim's ``CollisionFreeSpeedModel``): the action sets the
                 heading and the wanted speed ``v``, and the speed walked is ``min(v, max(0, (s - 2 r) / time_gap))``
                 with ``s`` the distance to the nearest body ahead within the corridor of half-width ``2 r``
-                (:func:`~pedrl.sim.dynamics.headway_factors`, recomputed every sub-step); walls are slid along and
+                (:func:`~pedrl.sim.motion.headway_factors`, recomputed every sub-step); walls are slid along and
                 ``slide`` stays the safety net against bodies. ``"yield"``: ``headway`` with a right of way: only
                 bodies that act before the mover in ``collision_order`` (with ``door_first``, those nearer the goal)
                 slow it, and it slides past the others, so two bodies converging on a door never hold each other
@@ -208,7 +205,7 @@ class RoomEnv:
                 an agent is never flagged for both.
             time_gap: ``T`` of the ``headway`` and ``yield`` rules (s, ``> 0``; 1 s as JuPedSim's default); unused
                 otherwise.
-            action_frame: What an action changes (``pedrl.sim.dynamics.ACTION_FRAMES``): ``"heading"`` (the
+            action_frame: What an action changes (``pedrl.sim.actions.ACTION_FRAMES``): ``"heading"`` (the
                 paper: speed and heading change from their current values) or ``"goal"`` (the action sets the speed
                 and the heading relative to the bearing of the agent's goal point, its door or waypoint).
             geometry: Any walkable area (``pedrl.scenarios`` builds one from polygons); ``None`` is the paper's

@@ -1,4 +1,4 @@
-"""The collision rules written literally: the specifications of `pedrl.sim.dynamics` (slow loops, for the tests).
+"""The collision rules written literally: the specifications of `pedrl.sim.motion` (slow loops, for the tests).
 
 Each function here is the plainest reading of one rule of docs/design.md: a loop over sub-steps, and within each
 over rounds (the simultaneous rule) or over agents in their order of action (the sequential rule). They use the
@@ -7,8 +7,8 @@ room's own wall and exit tests (:meth:`Geometry.touches_walls <pedrl.sim.geometr
 they hold for any geometry, not only the paper's room. The fast code must return their numbers to the bit, which
 ``tests/sim/test_dynamics.py`` checks:
 
-- :func:`move_agents_literal` is the specification of :func:`pedrl.sim.dynamics.move_agents` (``simultaneous``);
-- :func:`move_agents_sequential_literal` that of :func:`pedrl.sim.dynamics.move_agents_sequential` (``sequential``,
+- :func:`move_agents_literal` is the specification of :func:`pedrl.sim.motion.move_agents` (``simultaneous``);
+- :func:`move_agents_sequential_literal` that of :func:`pedrl.sim.motion.move_agents_sequential` (``sequential``,
   the paper's reading), of its torch code and of its numba kernel.
 
 They loop in Python over sub-steps, rounds or agents, a few torch operations at a time: never use them to simulate.
@@ -18,8 +18,8 @@ from __future__ import annotations
 
 import torch
 
-from pedrl.sim.dynamics import PAIR_MARGIN, Movement
 from pedrl.sim.geometry import Geometry
+from pedrl.sim.motion import PAIR_MARGIN, Movement
 
 __all__ = ["move_agents_literal", "move_agents_sequential_literal"]
 
@@ -36,7 +36,7 @@ def move_agents_literal(
 ) -> Movement:
     """The collision rule of docs/design.md written literally: a loop over sub-steps, rounds inside each.
 
-    Same arguments and result as :func:`pedrl.sim.dynamics.move_agents`, except that ``crashed_agent`` may also be
+    Same arguments and result as :func:`pedrl.sim.motion.move_agents`, except that ``crashed_agent`` may also be
     set where ``crashed_wall`` is (the fast code clears it there).
     """
     num_replicas, num_agents, _ = positions.shape
@@ -96,7 +96,7 @@ def move_agents_sequential_literal(
     """The paper's rule written literally: sub-step after sub-step, agent after agent in priority order.
 
     Same arguments (but ``sync_free`` and ``compiled``) and result as
-    :func:`pedrl.sim.dynamics.move_agents_sequential`.
+    :func:`pedrl.sim.motion.move_agents_sequential`.
     """
     num_replicas, num_agents, _ = positions.shape
     step = velocities * (decision_length / num_substeps)

@@ -8,9 +8,10 @@ from typing import Any, Final
 
 import torch
 
+from pedrl.sim.actions import NOOP_INDEX, NUM_SPEED_CHANGES, count_substeps
 from pedrl.sim.checks import check_choice, check_number, check_real
-from pedrl.sim.dynamics import COLLISION_RULES, CONTACT_MODELS, NOOP_INDEX, NUM_SPEED_CHANGES, count_substeps
 from pedrl.sim.geometry import Geometry
+from pedrl.sim.motion import COLLISION_RULES, CONTACT_MODELS
 from pedrl.sim.rewards import MAX_REWARD, RewardTable
 
 COLLISION_ORDERS: Final = ("random", "door_first")

@@ -26,7 +26,7 @@ from pedrl.algos.rollout import gather, run_trial
 from pedrl.io import read_csv
 from pedrl.rl.policy import TabularPolicy
 from pedrl.sim import RoomEnv
-from pedrl.sim.dynamics import GOAL_SPEED_RATIOS, GOAL_TURN_RATIOS
+from pedrl.sim.actions import GOAL_SPEED_RATIOS, GOAL_TURN_RATIOS
 from pedrl.sim.sensing import MIN_VOID_DISTANCE, observe
 from pedrl.train import train as train_run
 from pedrl.vq.encoder import EncoderSettings, StateEncoder

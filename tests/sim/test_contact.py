@@ -1,6 +1,7 @@
 """The contact models of the room (``env.contact``): slide, headway and yield, their CPU kernel against the torch
 reference, their invariants on random scenes and in every scenario, and the behaviour each adds over ``stop``."""
 
+import contextlib
 import math
 from unittest import mock
 
@@ -12,10 +13,13 @@ from hypothesis import strategies as st
 from pedrl._numba import numba_available
 from pedrl.algos.registry import env_factory
 from pedrl.scenarios import SCENARIOS
-from pedrl.sim import RoomEnv, dynamics
+from pedrl.sim import RoomEnv
+from pedrl.sim.actions import NUM_ACTIONS, NUM_TURNS, velocities_from
 from pedrl.sim.controllers import GreedyDoorController
-from pedrl.sim.dynamics import NUM_ACTIONS, NUM_TURNS, move_agents_sliding, move_agents_sliding_torch
 from pedrl.sim.geometry import distances_to_segments
+from pedrl.sim.motion import move_agents_sliding, move_agents_sliding_torch
+from pedrl.sim.motion import sequential as sequential_motion
+from pedrl.sim.motion import sliding as sliding_motion
 
 TOLERANCE = 1e-4  # m, as tests/sim/test_properties.py (docs/design.md invariants)
 RULES = ("slide", "headway", "yield")
@@ -89,7 +93,7 @@ def random_scene(seed: int, num_agents: int, room: tuple[float, float, float], s
     headings = math.pi - 2 * math.pi * torch.rand(shape, generator=generator)
     active = torch.rand(shape, generator=generator) < 0.9
     priority = torch.rand(shape, generator=generator)
-    velocities = dynamics.velocities_from(speeds=speeds, headings=headings)
+    velocities = velocities_from(speeds=speeds, headings=headings)
     return env, velocities, active, priority
 
 
@@ -155,7 +159,7 @@ def test_invariants_hold_after_every_step(seed, num_agents, room, rule, compiled
     shape = (2, num_agents)
     generator = torch.Generator().manual_seed(seed)
     env.reset(seed=seed)
-    with mock.patch.object(dynamics, "use_kernels", lambda device, compiled_=None: compiled):
+    with kernels_on(compiled):
         for _ in range(60 if compiled else 20):
             if env.decision >= env.max_decisions or not env.active.any():
                 env.reset()
@@ -171,6 +175,16 @@ def test_invariants_hold_after_every_step(seed, num_agents, room, rule, compiled
             assert torch.equal(reward, torch.where(acting, event, 0.0))
 
 
+def kernels_on(compiled: bool):
+    """Force the kernels of every contact model on or off."""
+    switch = lambda device, compiled_=None: compiled  # noqa: E731
+    patches = [mock.patch.object(module, "use_kernels", switch) for module in (sequential_motion, sliding_motion)]
+    stack = contextlib.ExitStack()
+    for patch in patches:
+        stack.enter_context(patch)
+    return stack
+
+
 def walk_scenario(name: str, rule: str, *, compiled: bool, decisions: int) -> torch.Tensor:
     """Greedy walkers with noise in a scenario, checking the invariants after every step: the final positions."""
     env = env_factory({"_target_": "pedrl.sim.RoomEnv", "max_decisions": 60, "contact": rule}, {"name": name})(
@@ -178,7 +192,7 @@ def walk_scenario(name: str, rule: str, *, compiled: bool, decisions: int) -> to
     )
     controller = GreedyDoorController(epsilon=0.2, generator=torch.Generator().manual_seed(1))
     obs, info = env.reset(seed=3)
-    with mock.patch.object(dynamics, "use_kernels", lambda device, compiled_=None: compiled):
+    with kernels_on(compiled):
         for _ in range(decisions):
             start, acting = env.positions.clone(), env.active.clone()
             obs, _, terminated, _, info = env.step(controller.act(env, obs, info))

@@ -7,8 +7,8 @@ import pytest
 import torch
 
 from pedrl.sim import COARSE_TURN_RATIOS
+from pedrl.sim.actions import GOAL_SPEED_RATIOS, GOAL_TURN_RATIOS
 from pedrl.sim.controllers import GreedyDoorController
-from pedrl.sim.dynamics import GOAL_SPEED_RATIOS, GOAL_TURN_RATIOS
 
 
 def test_greedy_controller_turns_towards_the_door_at_full_speed():

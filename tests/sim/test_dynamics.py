@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from pedrl.sim import RoomEnv
-from pedrl.sim.dynamics import (
+from pedrl.sim.actions import (
     DEFAULT_SPEED_RATIOS,
     DEFAULT_TURN_RATIOS,
     GOAL_SPEED_RATIOS,
@@ -20,11 +20,10 @@ from pedrl.sim.dynamics import (
     count_substeps,
     decode_actions,
     encode_actions,
-    move_agents,
-    move_agents_sequential,
     velocities_from,
 )
 from pedrl.sim.geometry import Geometry, build_walls, distances_to_segments
+from pedrl.sim.motion import move_agents, move_agents_sequential
 from pedrl.sim.reference import move_agents_literal, move_agents_sequential_literal
 
 

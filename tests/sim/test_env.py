@@ -8,7 +8,7 @@ import torch
 
 import pedrl.sim.env as env_module
 from pedrl.sim import NOOP_ACTION, PlacementError, RoomEnv, build_walls
-from pedrl.sim.dynamics import NUM_ACTIONS
+from pedrl.sim.actions import NUM_ACTIONS
 
 UP, DOWN, RIGHT, LEFT = math.pi / 2, -math.pi / 2, 0.0, math.pi
 TABLE_2 = {"reward_progress": 0.0, "reward_default": 0.0}

@@ -7,7 +7,7 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from pedrl.sim import RoomEnv
-from pedrl.sim.dynamics import NUM_ACTIONS
+from pedrl.sim.actions import NUM_ACTIONS
 from pedrl.sim.geometry import distances_to_segments
 
 TOLERANCE = 1e-4  # m, docs/design.md invariants

@@ -53,7 +53,8 @@ def test_sequential_collision_rule_on_cuda_equals_the_cpu_on_a_hand_built_scene(
     """A queue at the door and two agents heading for one spot: the bounded, sync-free rounds of the GPU path give
     the CPU's (convergence-tested) outcome."""
     from pedrl.sim import RoomEnv
-    from pedrl.sim.dynamics import move_agents_sequential, velocities_from
+    from pedrl.sim.actions import velocities_from
+    from pedrl.sim.motion import move_agents_sequential
 
     env = RoomEnv(num_replicas=1, num_agents=4, width=8.0, length=10.0, door_width=1.5)
     positions = torch.tensor([[[4.0, 9.0], [4.0, 8.1], [3.0, 5.0], [5.0, 5.0]]])

@@ -1,0 +1,99 @@
+"""What every motion model shares: the :class:`Movement` a decision returns, the names of the collision rules and
+contact models (one enumeration, which the kernels number by position), and the pair pre-filters."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+from typing import Final
+
+import torch
+
+from pedrl.sim.geometry import X, Y
+
+PAIR_MARGIN: Final = 1e-3
+"""Slack (m) of the conservative pre-filters of :func:`move_agents`; it only widens them."""
+
+
+@dataclass(frozen=True)
+class Movement:
+    """Outcome of one decision's movement.
+
+    Attributes:
+        positions: Positions after the decision ``(R, N, 2)`` (m).
+        blocked: Agents stopped by a collision ``(R, N)`` bool; under ``stop`` their speed becomes 0.
+        crashed_wall: Agents whose move a wall cut ``(R, N)`` bool: blocked by it (``stop``), or deflected or
+            blocked by it (``slide``, ``headway``: :func:`move_agents_sliding`).
+        crashed_agent: Agents whose move another body cut, and no wall ``(R, N)`` bool (as ``crashed_wall``).
+        reached: Agents whose centre passed an exit ``(R, N)`` bool.
+    """
+
+    positions: torch.Tensor
+    blocked: torch.Tensor
+    crashed_wall: torch.Tensor
+    crashed_agent: torch.Tensor
+    reached: torch.Tensor
+
+
+COLLISION_RULES: Final = ("sequential", "simultaneous")
+"""``sequential`` (default): the paper's reading, movers resolved one after another in a random order drawn per
+decision; ``simultaneous``: every proposal checked against every other proposal at once (:func:`move_agents`)."""
+
+
+CONTACT_MODELS: Final = ("stop", "slide", "headway", "yield")
+"""What a body does when its move would enter another body or a wall (``RoomEnv(contact=...)``).
+
+``stop``: it stops for the rest of the decision (:func:`move_agents_sequential` or :func:`move_agents`, the paper's
+reading). ``slide``: it keeps the part of its move tangent to the contact (:func:`move_agents_sliding`).
+``headway``: the collision-free speed rule (Tordeux, Chraibi & Seyfried 2016) sets the speed walked from the nearest
+body ahead, and ``slide`` is the safety net (:func:`move_agents_sliding` with a ``time_gap``). ``yield``: ``headway``
+with a right of way: only the bodies that act before the mover in the order of the sequential rule (with
+``collision_order=door_first``, those nearer the goal) slow it; it slides past the others (``yield_to_earlier``).
+Two bodies converging on a door then never hold each other up: the one nearer goes, the other keeps its gap.
+"""
+
+
+# the contact models as the numba kernels number them (positions in CONTACT_MODELS)
+STOP, SLIDE, HEADWAY, YIELD = (CONTACT_MODELS.index(name) for name in ("stop", "slide", "headway", "yield"))
+
+
+def _take(values: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+    """``values[index]`` along dim 0 (``index_select``, which stays serial for small sizes)."""
+    return values.index_select(0, index)
+
+
+@lru_cache(maxsize=16)
+def _eye(num_agents: int, device: torch.device) -> torch.Tensor:
+    """``(N, N)`` bool identity: no agent collides with itself."""
+    return torch.eye(num_agents, dtype=torch.bool, device=device)
+
+
+@lru_cache(maxsize=16)
+def _upper_triangle(num_agents: int, device: torch.device) -> torch.Tensor:
+    """``(N, N)`` bool, True above the diagonal: each unordered pair once."""
+    return torch.ones(num_agents, num_agents, dtype=torch.bool, device=device).triu_(1)
+
+
+def _swept_discs(
+    positions: torch.Tensor, step: torch.Tensor, active: torch.Tensor, num_substeps: int
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Discs covering each agent's straight move of a decision: centres x, y and half the move, each ``(R, N)`` (m).
+
+    ``step (R, N, 2)`` is the move per sub-step (0 for agents that stand); inactive agents get a NaN centre, which
+    never overlaps anything.
+    """
+    half = 0.5 * num_substeps
+    half_move = half * torch.linalg.vector_norm(step, dim=-1)
+    centre_x = torch.where(active, positions[..., X] + half * step[..., X], torch.nan)
+    centre_y = positions[..., Y] + half * step[..., Y]
+    return centre_x, centre_y, half_move
+
+
+def _discs_overlap(
+    centre_x: torch.Tensor, centre_y: torch.Tensor, half_move: torch.Tensor, agent_radius: float
+) -> torch.Tensor:
+    """``(R, N, N)`` bool: the swept discs of two agents, widened by their bodies, overlap (they may touch)."""
+    gap_x = centre_x.unsqueeze(2) - centre_x.unsqueeze(1)
+    gap_y = centre_y.unsqueeze(2) - centre_y.unsqueeze(1)
+    limit = half_move.unsqueeze(2) + half_move.unsqueeze(1) + (2.0 * agent_radius + PAIR_MARGIN)
+    return gap_x * gap_x + gap_y * gap_y < limit * limit

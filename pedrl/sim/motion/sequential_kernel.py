@@ -1,0 +1,197 @@
+"""Numba kernel of the sequential rule; its specification is :func:`pedrl.sim.motion.sequential.move_agents_sequential_torch`
+(whose own specification is the literal agent-by-agent loop :func:`pedrl.sim.reference.move_agents_sequential_literal`:
+this kernel is that loop, compiled), to the bit. ``_touches_walls`` and ``_passes_exits`` are
+:meth:`Geometry.touches_walls <pedrl.sim.geometry.Geometry.touches_walls>` (axis-aligned walls) and
+:meth:`Geometry.passes_exits <pedrl.sim.geometry.Geometry.passes_exits>` of one point."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from pedrl._numba import cached_njit
+from pedrl.sim.geometry import Geometry
+
+__all__ = ["sequential_room", "sequential_substeps"]
+
+
+@cached_njit(nogil=True, inline="always")
+def _touches_walls(x, y, low, high, radius_sq):
+    """`Geometry.touches_walls` of an axis-aligned geometry: clamp to each wall's box, nearest squared gap."""
+    nearest = np.float32(np.inf)
+    for s in range(low.shape[0]):
+        gap_x = min(max(x, low[s, 0]), high[s, 0]) - x
+        gap_y = min(max(y, low[s, 1]), high[s, 1]) - y
+        nearest = min(nearest, gap_x * gap_x + gap_y * gap_y)
+    return nearest < radius_sq
+
+
+@cached_njit(nogil=True, inline="always")
+def _passes_exits(x, y, depth, start, normal, tangent, span):
+    """`Geometry.passes_exits` of one point."""
+    for e in range(start.shape[0]):
+        offset_x = x - start[e, 0]
+        offset_y = y - start[e, 1]
+        beyond = offset_x * normal[e, 0] + offset_y * normal[e, 1]
+        along = offset_x * tangent[e, 0] + offset_y * tangent[e, 1]
+        if beyond >= 0 and beyond < depth and along >= 0 and along <= span[e]:
+            return True
+    return False
+
+
+@cached_njit(nogil=True)
+def _sequential(
+    positions, step, going, present, depth, walls, low, high, radius_sq, start, normal, tangent, span,
+    order, contact_sq, out, blocked, crashed_wall, reached,
+):  # fmt: skip
+    num_replicas, num_agents = going.shape
+    moved = np.zeros(num_agents, dtype=np.float32)  # sub-steps moved, per agent of the replica
+    acted_moved = np.zeros(num_agents, dtype=np.bool_)  # moved in this sub-step (it acted already)
+    passed = np.zeros(num_agents, dtype=np.bool_)
+    current = np.empty((num_agents, 2), dtype=np.float32)
+    for r in range(num_replicas):
+        sequential_room(
+            r, positions, step, going, present, depth, walls, low, high, radius_sq, start, normal, tangent, span,
+            order, contact_sq, out, blocked, crashed_wall, reached, moved, acted_moved, passed, current,
+        )  # fmt: skip
+
+
+@cached_njit(nogil=True)
+def sequential_room(
+    r, positions, step, going, present, depth, walls, low, high, radius_sq, start, normal, tangent, span,
+    order, contact_sq, out, blocked, crashed_wall, reached, moved, acted_moved, passed, current,
+):  # fmt: skip
+    """The sub-steps of replica ``r`` (of :func:`sequential_substeps`); ``moved``, ``acted_moved``, ``passed`` ``(N,)``
+    and ``current`` ``(N, 2)`` are scratch."""
+    num_agents = going.shape[1]
+    num_substeps = walls.shape[0]
+    own_walls = low.shape[0] > 0  # axis-aligned walls: tested here, else ``walls`` holds the tests
+    for i in range(num_agents):
+        moved[i] = 0.0
+        current[i, 0] = positions[r, i, 0]
+        current[i, 1] = positions[r, i, 1]
+    for k in range(num_substeps):
+        anyone = False
+        for i in range(num_agents):
+            anyone |= going[r, i]
+        if not anyone:
+            break
+        scale = np.float32(k + 1)
+        for i in range(num_agents):
+            acted_moved[i] = False
+            passed[i] = False
+        for rank in range(num_agents):
+            i = order[r, rank]
+            if not going[r, i]:
+                continue
+            proposal_x = positions[r, i, 0] + scale * step[r, i, 0]
+            proposal_y = positions[r, i, 1] + scale * step[r, i, 1]
+            if _touches_walls(proposal_x, proposal_y, low, high, radius_sq) if own_walls else walls[k, r, i]:
+                blocked[r, i] = True
+                crashed_wall[r, i] = True
+                going[r, i] = False
+                continue
+            hit = False
+            for j in range(num_agents):
+                if j == i or not present[r, j]:
+                    continue
+                if acted_moved[j]:  # acted before i and moved: it stands on its proposal
+                    other_x = positions[r, j, 0] + scale * step[r, j, 0]
+                    other_y = positions[r, j, 1] + scale * step[r, j, 1]
+                else:  # still to act, or stopped: where it stands
+                    other_x = current[j, 0]
+                    other_y = current[j, 1]
+                gap_x = proposal_x - other_x
+                gap_y = proposal_y - other_y
+                if gap_x * gap_x + gap_y * gap_y < contact_sq:
+                    hit = True
+                    break
+            if hit:
+                blocked[r, i] = True
+                going[r, i] = False
+                continue
+            acted_moved[i] = True
+            if _passes_exits(proposal_x, proposal_y, depth[r, i], start, normal, tangent, span):
+                reached[r, i] = True
+                passed[i] = True
+                going[r, i] = False
+        for i in range(num_agents):
+            if acted_moved[i]:
+                moved[i] += np.float32(1.0)
+            if passed[i]:
+                present[r, i] = False
+            current[i, 0] = positions[r, i, 0] + moved[i] * step[r, i, 0]
+            current[i, 1] = positions[r, i, 1] + moved[i] * step[r, i, 1]
+    for i in range(num_agents):
+        out[r, i, 0] = current[i, 0]
+        out[r, i, 1] = current[i, 1]
+
+
+def sequential_substeps(
+    *,
+    positions: torch.Tensor,
+    step: torch.Tensor,
+    going: torch.Tensor,
+    active: torch.Tensor,
+    geometry: Geometry,
+    agent_radius: float,
+    num_substeps: int,
+    walls: torch.Tensor | None,
+    depth: torch.Tensor,
+    priority: torch.Tensor,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The sub-steps of :func:`pedrl.sim.motion.sequential.move_agents_sequential_torch`, agent by agent, compiled.
+
+    The float32 operations are torch's, in the same order: proposals ``p + k d``, the wall test of
+    :meth:`Geometry.touches_walls` (done here for axis-aligned walls; ``walls (S, R, N)`` bool holds it for the
+    others), :meth:`Geometry.passes_exits` with ``depth (R, N)``, and the contact test ``|gap|^2 < (2 r)^2``.
+
+    Args:
+        positions: ``(R, N, 2)`` float32 at the start of the decision.
+        step: ``(R, N, 2)`` float32 move per sub-step.
+        going: ``(R, N)`` bool, active agents with a non-zero step.
+        active: ``(R, N)`` bool, agents in the room (bodies that collide).
+        geometry: the room.
+        agent_radius: body radius (m).
+        num_substeps: ``S``.
+        walls: ``(S, R, N)`` bool wall tests of the proposals, needed only when some wall is not axis-aligned.
+        depth: ``(R, N)`` float32 depth of the exit test.
+        priority: ``(R, N)`` order of action, lowest first.
+
+    Returns:
+        ``(positions, blocked, crashed_wall, reached)``.
+    """
+    shape = going.shape
+    out = torch.empty_like(positions)
+    blocked = torch.zeros(shape, dtype=torch.bool)
+    crashed_wall = torch.zeros(shape, dtype=torch.bool)
+    reached = torch.zeros(shape, dtype=torch.bool)
+    if walls is None:
+        walls = torch.zeros((num_substeps, *shape), dtype=torch.bool)  # the kernel tests the walls (if any)
+        low, high = geometry.box_low, geometry.box_high
+    else:
+        low = high = torch.zeros((0, 2))
+    radius_sq = agent_radius * agent_radius  # both products as torch's callers write them
+    contact_sq = 4.0 * agent_radius * agent_radius
+    _sequential(
+        positions.contiguous().numpy(),
+        step.contiguous().numpy(),
+        going.numpy().copy(),
+        active.numpy().copy(),
+        depth.contiguous().numpy(),
+        walls.contiguous().numpy(),
+        low.contiguous().numpy(),
+        high.contiguous().numpy(),
+        np.float32(radius_sq),
+        geometry.exits[:, 0].contiguous().numpy(),
+        geometry.exit_normals.contiguous().numpy(),
+        geometry.exit_tangents.contiguous().numpy(),
+        geometry.exit_spans.contiguous().numpy(),
+        priority.argsort(dim=1).numpy(),
+        np.float32(contact_sq),
+        out.numpy(),
+        blocked.numpy(),
+        crashed_wall.numpy(),
+        reached.numpy(),
+    )
+    return out, blocked, crashed_wall, reached
