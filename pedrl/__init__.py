@@ -16,12 +16,12 @@ __all__ = ["TabularPolicy", "__version__", "export_policy", "load_policy", "room
 
 
 def __getattr__(name: str) -> Any:
-    """``load_policy``, ``export_policy``, ``room_factory`` (:mod:`pedrl.policy`) and ``TabularPolicy``, imported on
-    first use: ``import pedrl`` stays light (the entry points import what they need)."""
+    """``load_policy``, ``export_policy``, ``room_factory`` (:mod:`pedrl.policy_files`) and ``TabularPolicy``,
+    imported on first use: ``import pedrl`` stays light (the entry points import what they need)."""
     if name in ("load_policy", "export_policy", "room_factory"):
-        import pedrl.policy
+        import pedrl.policy_files
 
-        return getattr(pedrl.policy, name)
+        return getattr(pedrl.policy_files, name)
     if name == "TabularPolicy":
         from pedrl.rl.policy import TabularPolicy
 

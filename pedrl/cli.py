@@ -21,6 +21,8 @@ from pedrl.io import CheckpointError
 from pedrl.sim.checks import first_line
 
 T = TypeVar("T")
+CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
+"""The top-level ``conf/`` folder: the Hydra configs of every console command, and of the tests."""
 PROGRAMS = {"train": "pedrl-train", "evaluate": "pedrl-eval", "plot": "pedrl-plot", "validate": "pedrl-validate"}
 """Console command of each Hydra job name (the module's name)."""
 CONFIG_NAMES = {

@@ -6,16 +6,12 @@ package docstring describes the evaluation and lists its outputs.
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import hydra
 from omegaconf import DictConfig
 
-from pedrl.cli import checked_groups, run_reporting_errors
+from pedrl.cli import CONFIG_DIR, checked_groups, run_reporting_errors
 from pedrl.evaluation import controllers, evaluate, print_table
 from pedrl.evaluation.config import source
-
-CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
 
 
 @checked_groups("pedrl-eval", CONFIG_DIR, groups=("scenario",))

@@ -13,15 +13,13 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
-from pedrl.cli import checked_groups, run_reporting_errors
+from pedrl.cli import CONFIG_DIR, checked_groups, run_reporting_errors
 from pedrl.sim.checks import check_device
-
-CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
 
 
 def export(cfg: DictConfig) -> Path:
     """Write ``cfg.out`` from ``cfg.checkpoint``; one-line ``ValueError``/``CheckpointError`` for a bad value."""
-    from pedrl.policy import export_policy
+    from pedrl.policy_files import export_policy
 
     for key in ("checkpoint", "out"):
         value = cfg.get(key) if not OmegaConf.is_missing(cfg, key) else None

@@ -14,10 +14,8 @@ from typing import Any
 import hydra
 from omegaconf import DictConfig
 
-from pedrl.cli import checked_groups, run_reporting_errors
+from pedrl.cli import CONFIG_DIR, checked_groups, run_reporting_errors
 from pedrl.learning_curves import plot_runs
-
-CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
 
 
 @checked_groups("pedrl-plot", CONFIG_DIR, groups=())

@@ -17,6 +17,7 @@ from omegaconf import DictConfig
 from pedrl.algos import Trainer, TrainResult
 from pedrl.algos.registry import build_trainer
 from pedrl.cli import (
+    CONFIG_DIR,
     OutputDirCheck,
     checked_groups,
     describe_os_error,
@@ -28,8 +29,6 @@ from pedrl.io import CheckpointError
 from pedrl.io.files import replace_atomically
 from pedrl.io.lock import RunFolderInUseError, run_folder_lock
 from pedrl.runtime import launcher_threads, set_threads
-
-CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
 
 
 def train(cfg: DictConfig, *, run_dir: str | Path | None = None) -> TrainResult:

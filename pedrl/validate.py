@@ -14,14 +14,12 @@ import hydra
 import torch
 from omegaconf import DictConfig, ListConfig
 
-from pedrl.cli import checked_groups, hydra_output_dir, run_reporting_errors
+from pedrl.cli import CONFIG_DIR, checked_groups, hydra_output_dir, run_reporting_errors
 from pedrl.runtime import set_threads
 from pedrl.sim.checks import MAX_SEED, check_bool, check_choice, check_device, check_integer, check_number
 from pedrl.validation.report import pass_count
 from pedrl.validation.runner import CHOICES, columns, validate
 from pedrl.validation.suite import TEST_NAMES
-
-CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
 
 
 def run(cfg: DictConfig, *, run_dir: Path | None = None) -> dict[str, Any]:
@@ -56,7 +54,7 @@ def run(cfg: DictConfig, *, run_dir: Path | None = None) -> dict[str, Any]:
     set_threads(cfg.get("threads"))
     learned = None
     if checkpoint is not None:
-        from pedrl.policy import load_policy, room_settings
+        from pedrl.policy_files import load_policy, room_settings
 
         policy = load_policy(checkpoint, device=device)
         env_settings = room_settings(policy)

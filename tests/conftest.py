@@ -1,13 +1,11 @@
 """Shared fixtures: Hydra configs composed the way the entry points compose them."""
 
-from pathlib import Path
-
 import pytest
 from hydra import compose as hydra_compose
 from hydra import initialize_config_dir
 from omegaconf import DictConfig, open_dict
 
-CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
+from pedrl.cli import CONFIG_DIR
 
 
 def compose_config(name: str, overrides: list[str] | tuple[str, ...] = ()) -> DictConfig:

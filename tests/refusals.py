@@ -33,7 +33,8 @@ from omegaconf import OmegaConf, open_dict
 
 import pedrl.sweep
 from pedrl.algos.records import CURVE_COLUMNS
-from pedrl.train import CONFIG_DIR, train
+from pedrl.cli import CONFIG_DIR
+from pedrl.train import train
 
 HYDRA_OWN = {".hydra", "train.log", "evaluate.log", "plot.log", "validate.log"}
 """What Hydra writes into a run folder before the job starts: nothing else may be there after a refusal."""

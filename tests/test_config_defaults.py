@@ -21,9 +21,10 @@ from omegaconf import OmegaConf
 
 from pedrl.algos.base import Trainer, VQSettings
 from pedrl.algos.registry import ENV_RUN_ARGUMENTS, TRAINER_CLASSES, TRAINER_RUN_ARGUMENTS
+from pedrl.cli import CONFIG_DIR
 from pedrl.sim import RoomEnv
 
-CONF = Path(__file__).resolve().parent.parent / "conf"
+CONF = Path(CONFIG_DIR)
 ALGOS = ("vqql", "it_vqql", "in_vqql")
 
 # Python defaults that disagree with the YAML today; the YAML wins, and the signature is to change (the value in

@@ -14,8 +14,9 @@ from omegaconf import OmegaConf
 
 from pedrl.algos.base import Trainer
 from pedrl.algos.registry import build_trainer
+from pedrl.cli import CONFIG_DIR
 from pedrl.io import load_checkpoint, read_csv
-from pedrl.train import CONFIG_DIR, train
+from pedrl.train import train
 
 EXPERIMENTS = sorted(p.stem for p in (Path(CONFIG_DIR) / "experiment").glob("*.yaml"))
 PAPER = {"paper_vqql": ("VQQL", 0.25), "paper_it": ("ITVQQL", 0.35), "paper_in": ("INVQQL", 0.35)}

@@ -12,10 +12,11 @@ from hydra import compose, initialize_config_dir
 import pedrl
 import pedrl.evaluate
 import pedrl.export
-from pedrl.evaluation import evaluate
+from pedrl.cli import CONFIG_DIR
+from pedrl.evaluation import evaluate, load_controller
 from pedrl.io import CheckpointError
-from pedrl.policy import room_factory
-from pedrl.train import CONFIG_DIR
+from pedrl.policy_files import room_factory, room_settings
+from pedrl.sim import RoomEnv
 from tests.refusals import EVAL_BASE, assert_refused, run_hydra_main, train_checkpoint
 
 TINY_IT = (
@@ -196,6 +197,31 @@ def test_a_checkpoint_older_than_its_keys_gets_the_values_of_its_time(trained, t
 
     settings = pedrl.load_policy(_rewritten(trained[0], tmp_path, older)).encoder.settings
     assert (settings.void_draws, settings.distance_transform) == ("decision", "none")
+
+
+@pytest.mark.parametrize("which", ["checkpoint", "policy"])
+def test_an_older_room_is_built_as_trained_whatever_the_rooms_defaults_now(trained, tmp_path, monkeypatch, which):
+    """A file whose stored env config lacks contact and time_gap (written before those keys) rebuilds the room of its
+    time (pedrl.configs.HISTORICAL_VALUES: stop, 1 s) in load_policy, room_factory, room_settings (pedrl-validate) and
+    pedrl-eval's load_controller, not the room RoomEnv's current defaults would give."""
+
+    def older(tensors, metadata):
+        for key in ("contact", "time_gap"):
+            metadata["config"]["env"].pop(key)
+
+    path = _rewritten(dict(zip(("checkpoint", "policy"), trained, strict=True))[which], tmp_path, older)
+    defaults = RoomEnv.__init__.__kwdefaults__ | {"contact": "slide", "time_gap": 2.0}  # defaults changed since
+    monkeypatch.setattr(RoomEnv.__init__, "__kwdefaults__", defaults)
+    policy = pedrl.load_policy(path)
+    assert "contact" not in policy.metadata["config"]["env"]  # the stored config is kept as it was written
+    assert {key: room_settings(policy)[key] for key in ("contact", "time_gap")} == {"contact": "stop", "time_gap": 1.0}
+    loaded = load_controller(
+        path, controller="greedy", epsilon=0.0, device=torch.device("cpu"), max_decisions=5, kind=which
+    )
+    factories = (room_factory(policy), room_factory(policy, max_decisions=5), loaded.env_factory)
+    for factory in factories:
+        room = factory(num_replicas=1, num_agents=3)
+        assert (room.contact, room.time_gap) == ("stop", 1.0)
 
 
 def test_act_without_a_generator_draws_on_from_the_policys_own(trained):

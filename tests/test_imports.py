@@ -16,7 +16,7 @@ POLICY_USERS = (
     "pedrl.evaluation",
     "pedrl.validation",
     "pedrl.integrations",
-    "pedrl.policy",
+    "pedrl.policy_files",
     "pedrl.evaluate",
     "pedrl.validate",
     "pedrl.export",

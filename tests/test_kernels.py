@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from pedrl._numba import numba_available
-from pedrl.algos import VQQL
+from pedrl.algos import VQQL, fused_kernels
 from pedrl.rl import kernels as rl_kernels
 from pedrl.rl import zeros_q_values
 from pedrl.sim import RoomEnv
@@ -18,16 +18,23 @@ from pedrl.vq import tree
 pytestmark = pytest.mark.skipif(not numba_available(), reason="numba is off (PEDRL_NO_NUMBA)")
 
 KERNELS = {
-    "sequential rule": sequential_kernel._sequential,
-    "greedy": rl_kernels._greedy,
-    "TD update": rl_kernels._td,
-    "row prefetch": rl_kernels._prefetch,
-    "tree search": tree._search,
-    "tree construction": tree._build_tree,
+    False: {  # the torch trial loop's dispatchers
+        "sequential rule": sequential_kernel._sequential,
+        "greedy": rl_kernels._greedy,
+        "TD update": rl_kernels.td_batch,
+        "row prefetch": rl_kernels._prefetch,
+        "tree search": tree._search,
+        "tree construction": tree._build_tree,
+    },
+    True: {  # the fused trial (gathering, before it, steps the torch room)
+        "sequential rule": sequential_kernel._sequential,
+        "fused trial": fused_kernels.fused_trial,
+        "tree construction": tree._build_tree,
+    },
 }
 
 
-def run_trials(num_agents: int, prototypes: int, rooms_per_process: int) -> None:
+def run_trials(num_agents: int, prototypes: int, rooms_per_process: int, fused: bool) -> None:
     trainer = VQQL(
         env=functools.partial(RoomEnv, width=12.0, length=12.0, door_width=3.0, max_decisions=40),
         vq={"num_prototypes": prototypes, "max_iterations": 2},
@@ -38,6 +45,7 @@ def run_trials(num_agents: int, prototypes: int, rooms_per_process: int) -> None
         rooms_per_process=rooms_per_process,
         progress=False,
         tensorboard=False,
+        fused=fused,
     )
     env = trainer.env_for(num_agents)
     env.reset(seed=num_agents)
@@ -49,12 +57,16 @@ def run_trials(num_agents: int, prototypes: int, rooms_per_process: int) -> None
         assert stats.agent_decisions > 0
 
 
-def test_each_kernel_is_compiled_once_for_trials_of_any_size():
-    run_trials(num_agents=6, prototypes=256, rooms_per_process=1)
-    first = {name: len(kernel.signatures) for name, kernel in KERNELS.items()}
-    assert first == dict.fromkeys(KERNELS, 1), first  # every kernel ran, with one signature
-    run_trials(num_agents=9, prototypes=300, rooms_per_process=2)
-    assert {name: len(kernel.signatures) for name, kernel in KERNELS.items()} == first
+@pytest.mark.parametrize("fused", [False, True])
+def test_each_kernel_is_compiled_once_for_trials_of_any_size(fused):
+    """Whatever ran before (the test holds in any order): the trials of one size compile each kernel of their path,
+    and trials of other sizes add no signature."""
+    kernels = KERNELS[fused]
+    run_trials(num_agents=6, prototypes=256, rooms_per_process=1, fused=fused)
+    first = {name: len(kernel.signatures) for name, kernel in kernels.items()}
+    assert min(first.values()) >= 1, first  # every kernel of the path ran
+    run_trials(num_agents=9, prototypes=300, rooms_per_process=2, fused=fused)
+    assert {name: len(kernel.signatures) for name, kernel in kernels.items()} == first
 
 
 def test_numba_can_be_switched_off_for_the_torch_code(tmp_path):

@@ -15,8 +15,9 @@ from omegaconf import open_dict
 
 import pedrl.plot
 from pedrl.algos.records import CURVE_COLUMNS
+from pedrl.cli import CONFIG_DIR
 from pedrl.learning_curves import draw_runs, plot_runs, read_learning_curve
-from pedrl.train import CONFIG_DIR, train
+from pedrl.train import train
 from tests.refusals import (
     assert_nothing_computed,
     assert_refused,

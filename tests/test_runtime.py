@@ -1,16 +1,13 @@
 """pedrl.runtime's thread count: each job of a parallel sweep gets its share of the cores
 (``hydra/launcher=parallel``)."""
 
-from pathlib import Path
-
 import pytest
 from hydra import compose as hydra_compose
 from hydra import initialize_config_dir
 from hydra.core.hydra_config import HydraConfig
 
+from pedrl.cli import CONFIG_DIR
 from pedrl.runtime import available_cores, launcher_threads, share_of_cores
-
-CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
 
 
 @pytest.mark.parametrize(

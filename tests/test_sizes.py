@@ -21,6 +21,9 @@ LITERAL_LOOPS = {
     "pedrl/rl/kernels.py": "*",
     "pedrl/vq/tree.py": "*",
     "pedrl/algos/fused_kernels.py": "*",
+    "pedrl/sim/step_kernel.py": "*",
+    "pedrl/sim/sensing_kernel.py": "*",
+    "pedrl/vq/encode_kernel.py": "*",
     "pedrl/sim/motion/sliding.py": {"move_agents_sliding_torch"},
     "pedrl/sim/motion/sequential.py": {"move_agents_sequential_torch"},
 }

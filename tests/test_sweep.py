@@ -14,8 +14,8 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 import pedrl.sweep
+from pedrl.cli import CONFIG_DIR
 from pedrl.sweep import FIGURE, SUMMARY_CSV, main, plot_sweep, pool_rows, summarise_sweep
-from pedrl.train import CONFIG_DIR
 from tests.refusals import assert_refused, make_plain_job, run_sweep_main
 
 

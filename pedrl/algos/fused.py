@@ -12,8 +12,7 @@ with axis-aligned walls), and every quantizer kind (shared, per process, IN-VQQL
 
 from __future__ import annotations
 
-import weakref
-from typing import Any, Final
+from typing import Any
 
 import numpy as np
 import torch
@@ -22,16 +21,12 @@ from pedrl._numba import numba, numba_available
 from pedrl.algos.stats import TOTALS, TrialStats
 from pedrl.rl.policy import TabularPolicy
 from pedrl.sim import RoomEnv
-from pedrl.sim.sensing import MIN_VOID_DISTANCE, distance_indices
-from pedrl.vq.encoder import StateEncoder
-from pedrl.vq.quantizer import ProcessQuantizers, Quantizer, UnionQuantizer
+from pedrl.sim.motion import CONTACT_MODELS
+from pedrl.sim.sensing import MIN_VOID_DISTANCE
+from pedrl.sim.state import RoomState
+from pedrl.vq.encoder import EncoderSettings
 
 __all__ = ["fused_reason", "room_reason", "run_trial_fused", "set_kernel_threads"]
-
-CONTACTS: Final = ("stop", "slide", "headway", "yield")
-"""The contact rules in :mod:`pedrl.algos.fused_kernels`' numbering."""
-_PACKED: weakref.WeakKeyDictionary[Any, tuple[Any, tuple[Any, Any]]] = weakref.WeakKeyDictionary()
-"""Each quantizer's packed sets and tree, with the encoder settings and process count they were packed for."""
 
 
 def fused_reason(env: RoomEnv, policy: TabularPolicy) -> str | None:
@@ -53,18 +48,11 @@ def fused_reason(env: RoomEnv, policy: TabularPolicy) -> str | None:
 
 
 def room_reason(env: RoomEnv) -> str | None:
-    """Why the fused trial cannot run in ``env`` (one phrase), or None when it can."""
-    if env.device.type != "cpu":
-        return f"on {env.device.type}: it runs on the CPU"
+    """Why the fused trial cannot run in ``env`` (one phrase), or None when it can: the room's own
+    :meth:`~pedrl.sim.RoomEnv.fast_path_reason` (an allow-list of its settings), and numba."""
     if not numba_available():
         return "without numba (PEDRL_NO_NUMBA is set, or numba is missing)"
-    if env.collision_rule != "sequential":
-        return f"with collision_rule={env.collision_rule} (it runs the sequential rule)"
-    if env.contact == "stop" and not env.geometry.axis_aligned:
-        return "with contact=stop in a room whose walls are not all axis-aligned"
-    if env.compile_sensing:
-        return "with env.compile_sensing=true"
-    return None
+    return env.fast_path_reason()
 
 
 def set_kernel_threads(threads: int) -> None:
@@ -88,7 +76,9 @@ def run_trial_fused(
 ) -> TrialStats:
     """:func:`pedrl.algos.rollout.run_trial` as one compiled pass (module docstring): the same arguments and
     statistics. ``generator`` gives the trial's seed (one draw); the room's resets draw from ``env.generator``."""
-    from pedrl.algos.fused_kernels import fused_trial, seed_streams
+    from pedrl.algos.fused_kernels import fused_trial
+    from pedrl.sim.streams import seed_streams
+    from pedrl.vq.encode_kernel import pack_encoder
 
     reason = fused_reason(env, policy)
     if reason is not None:
@@ -99,7 +89,7 @@ def run_trial_fused(
     layout = policy.layout
     process, base_rows = layout.of(rooms, agents, env.device)
     group = layout.rooms_per_process if layout.blocks(rooms) else rooms  # rooms sharing tables run in one thread
-    state = tuple(t.contiguous().numpy() for t in _state(env))
+    state = _arrays(env.state)
     streams = np.empty(rooms, np.uint64)
     seed_streams(np.uint64(int(torch.randint(0, 2**62, (1,), generator=generator))), streams)
     totals = np.zeros((len(TOTALS), rooms, agents))
@@ -113,15 +103,8 @@ def run_trial_fused(
         _room(env),
         _walls(env),
         _exits(env),
-        *_packed(policy.encoder, policy.num_processes),
-        (
-            settings.num_neighbours,
-            np.float32(settings.max_distance),
-            np.float32(settings.max_speed),
-            np.float32(MIN_VOID_DISTANCE),
-            random_void,
-            settings.distance_transform == "log",
-        ),
+        *pack_encoder(policy.encoder, policy.num_processes),
+        _encoding(settings),
         (np.float32(epsilon), learn, np.float32(alpha), np.float32(gamma), settings.void_draws == "decision"),
         policy.q_values.view(-1, policy.num_actions).numpy(),
         base_rows.view(rooms, agents).numpy(),
@@ -139,27 +122,17 @@ def run_trial_fused(
     return _stats(env, torch.from_numpy(totals).float(), td_sums, steps, policy.num_processes, learn)
 
 
-def _state(env: RoomEnv) -> tuple[torch.Tensor, ...]:
-    return (
-        env.positions,
-        env.velocities,
-        env.headings,
-        env.speeds,
-        env.active,
-        env.exit_index,
-        env.targets(),
-        env.decisions,
-        env.stage,
-    )
+def _arrays(state: RoomState) -> tuple[np.ndarray, ...]:
+    """The kernels' ``state`` tuple: a contiguous array of each field, in :class:`RoomState`'s order."""
+    return tuple(t.contiguous().numpy() for t in state.tensors())
 
 
 def _write_back(env: RoomEnv, state: tuple[np.ndarray, ...], steps: int) -> None:
     """The rooms' state after the trial, into ``env``: every room's clock at the trial's decisions (as the torch loop,
     which steps every room until all are empty), the trial clock advanced by them."""
-    positions, velocities, headings, speeds, active, _, targets, decisions, stage = (torch.from_numpy(a) for a in state)
-    env.positions, env.velocities, env.headings, env.speeds = positions, velocities, headings, speeds
-    env.active, env.decisions, env.stage, env._targets = active, decisions.fill_(steps), stage, targets
-    env._steps_taken += steps
+    after = RoomState(*(torch.from_numpy(a) for a in state))
+    after.decisions.fill_(steps)
+    env.load_state(after, decisions_taken=steps)
 
 
 def _room(env: RoomEnv) -> tuple[Any, ...]:
@@ -171,7 +144,7 @@ def _room(env: RoomEnv) -> tuple[Any, ...]:
         float(env.decision_length),
         int(env.num_substeps),
         float(env.agent_radius),
-        CONTACTS.index(env.contact),
+        CONTACT_MODELS.index(env.contact),
         env.collision_order == "door_first",
         float(env.time_gap),
         env.action_frame == "goal",
@@ -183,6 +156,18 @@ def _room(env: RoomEnv) -> tuple[Any, ...]:
         env.spawns.waypoints.to(torch.float32).contiguous().numpy(),
         env.spawns.route_length.contiguous().numpy(),
         np.float32(env.geometry.waypoint_radius),
+    )
+
+
+def _encoding(settings: EncoderSettings) -> tuple[Any, ...]:
+    """The ``settings`` tuple of :func:`pedrl.vq.encode_kernel.encode_agent`."""
+    return (
+        settings.num_neighbours,
+        np.float32(settings.max_distance),
+        np.float32(settings.max_speed),
+        np.float32(MIN_VOID_DISTANCE),
+        settings.void_features == "random",
+        settings.distance_transform == "log",
     )
 
 
@@ -202,7 +187,7 @@ def _exits(env: RoomEnv) -> tuple[np.ndarray, ...]:
 
 
 def _work(env: RoomEnv) -> tuple[np.ndarray, ...]:
-    """Scratch of :func:`pedrl.algos.fused_kernels.act_room`, one row per room."""
+    """Scratch of :func:`pedrl.sim.step_kernel.act_room`, one row per room."""
     shape = (env.num_replicas, env.num_agents)
     flags = [np.zeros(shape, np.bool_) for _ in range(6)]
     floats = (np.zeros((*shape, 2), np.float32), np.zeros((*shape, 2), np.float32))
@@ -241,55 +226,3 @@ def _stats(env: RoomEnv, totals: torch.Tensor, td_sums: np.ndarray, steps: np.nd
         td_error=td_error,
         decisions=int(steps.max()),
     )
-
-
-def _packed(encoder: StateEncoder, processes: int) -> tuple[Any, Any]:
-    """``(encoder, tree)`` tuples of :func:`pedrl.algos.fused_kernels.encode_agent` for ``encoder``'s quantizer,
-    built once per quantizer (and again if it is used with other settings or processes)."""
-    quantizer, key = encoder.quantizer, (encoder.settings, processes)
-    if quantizer not in _PACKED or _PACKED[quantizer][0] != key:
-        _PACKED[quantizer] = (key, _pack(encoder, processes))
-    return _PACKED[quantizer][1]
-
-
-def _pack(encoder: StateEncoder, processes: int) -> tuple[Any, Any]:
-    """Every prototype set as a full-width set: a plain quantizer is one set, a union one set per part (its
-    features kept, the others 0), padded to the largest set with copies of its first prototype (a tie goes to the
-    lower id, so a copy never wins)."""
-    from pedrl.vq.tree import TreeIndex
-
-    settings = encoder.settings
-    width, k = settings.num_features, settings.num_neighbours
-    sets: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, int]] = []
-
-    def add(part: Quantizer | UnionQuantizer) -> list[int]:
-        """The sets of ``part``, appended; returns the set of each number of sensed neighbours ``0 .. k``."""
-        if isinstance(part, Quantizer):
-            sets.append((part.mean, part.std, torch.ones(width, dtype=torch.bool), part.prototypes, 0))
-            return [len(sets) - 1] * (k + 1)
-        first = len(sets)
-        for sensed in part.num_sensed:
-            index, sub = part.part(sensed)
-            mean, std, keep = torch.zeros(width), torch.ones(width), torch.zeros(width, dtype=torch.bool)
-            mean[index], std[index], keep[index] = sub.mean, sub.std, True
-            prototypes = torch.zeros(sub.num_prototypes, width)
-            prototypes[:, index] = sub.prototypes
-            sets.append((mean, std, keep, prototypes, part.offsets[sensed]))
-        return (first + part.part_of(torch.arange(k + 1))).tolist()
-
-    parts = quantizer.parts if isinstance(quantizer := encoder.quantizer, ProcessQuantizers) else None
-    set_of = [add(part) for part in parts] if parts is not None else [add(quantizer)] * processes
-    size = max(s[3].shape[0] for s in sets)
-    padded = [torch.cat((s[3], s[3][:1].expand(size - s[3].shape[0], -1))) for s in sets]
-    tree = TreeIndex(torch.stack(padded).float())
-    packed = (
-        torch.stack([s[0] for s in sets]).float().numpy(),
-        torch.stack([s[1] for s in sets]).float().numpy(),
-        torch.stack([s[2] for s in sets]).numpy(),
-        np.array([s[4] for s in sets], np.int64),
-        np.ascontiguousarray(tree.columns),
-        distance_indices(k, settings.num_walls).numpy(),
-        np.array(set_of, np.int64),
-        tree.scans,
-    )
-    return packed, tree.kernel_arrays()

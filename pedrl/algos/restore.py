@@ -1,7 +1,7 @@
 """What a checkpoint must hold for a trainer to continue from it (``resume=``).
 
 Every value of a checkpoint is checked against the trainer built from the config, as if a user had typed it
-(the checks that need no trainer are :mod:`pedrl.policy`'s, which evaluation runs too):
+(the checks that need no trainer are :mod:`pedrl.policy_files`'s, which evaluation runs too):
 the metadata (algorithm, phase, trial, stored config), the Q tables ``q_values (P, A, K, U)`` (float32, finite,
 P processes, A tables, K prototypes of the quantizer, U = 81 actions), the quantizer's tensors (their count, K,
 feature dimension, dtype and finiteness) and the generator states. A problem gives one line naming the file,
@@ -21,7 +21,7 @@ import torch
 
 from pedrl.configs import HISTORICAL_VALUES, check_stored_config
 from pedrl.io import Checkpoint, CheckpointError, load_checkpoint
-from pedrl.policy import RNG_KEYS, check_rng_state, check_run_metadata, check_tensor_names
+from pedrl.policy_files import RNG_KEYS, check_rng_state, check_run_metadata, check_tensor_names
 from pedrl.rl import in_huge_pages
 from pedrl.rl.policy import QUANTIZER_PREFIX, rebuild_quantizer
 from pedrl.vq import ProcessQuantizers

@@ -32,7 +32,7 @@ from pedrl.evaluation.jupedsim import JuPedSimReference
 from pedrl.evaluation.report import write_density_map, write_fundamental_diagram, write_scaling_json
 from pedrl.integrations.jupedsim import JuPedSimModel
 from pedrl.io import CsvWriter, RunLogger
-from pedrl.policy import load_policy, room_factory, room_settings
+from pedrl.policy_files import load_policy, room_factory, room_settings
 from pedrl.rl.policy import PolicyController
 from pedrl.scenarios import Scenario, paper_room
 from pedrl.sim import RoomEnv

@@ -37,18 +37,27 @@ this module needs only shapely and numpy.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, fields
+from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any, Final
 
 import numpy as np
 import shapely
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 from shapely.geometry import Polygon
 
+from pedrl.integrations.jupedsim_data import (
+    MODELS,
+    JuPedSimModel,
+    JuPedSimRun,
+    Scene,
+    model_from_settings,
+    pad_frames,
+    room_scene,
+)
 from pedrl.scenarios import Scenario
 from pedrl.sim import RoomEnv
-from pedrl.sim.checks import check_choice, check_real, first_line
+from pedrl.sim.checks import check_real, first_line
 
 __all__ = [
     "EXIT_APRON_DEPTH",
@@ -66,8 +75,6 @@ __all__ = [
     "walkable_with_aprons",
 ]
 
-MODELS: Final = ("collision_free_speed", "social_force")
-"""Operational models :func:`simulate` runs (JuPedSim's ``CollisionFreeSpeedModel`` and ``SocialForceModel``)."""
 EXIT_APRON_DEPTH: Final = 1.0
 """Depth (m) of the apron outside each exit: JuPedSim's exit stage, a polygon the agent's centre enters, and the
 agents' target (its centre). 0.5 m is too shallow for the social force model: the repulsion of the apron's far end,
@@ -79,147 +86,6 @@ ROUTE_CHECK_PERIOD: Final = 0.1
 JuPedSim's default speed, and a tenth of the Python work of a check after every step."""
 STEP_TOLERANCE: Final = 1e-6
 """Relative tolerance of ``1 / (frame_rate * dt)`` being a whole number of JuPedSim steps per frame."""
-
-
-# ---------------------------------------------------------------------- the model
-@dataclass(frozen=True)
-class JuPedSimModel:
-    """The JuPedSim model and the parameters pedrl sets; every other parameter keeps JuPedSim's default.
-
-    The defaults are JuPedSim 1.4's (``CollisionFreeSpeedModelAgentParameters``, ``Simulation``); its model-level
-    parameters stay at their defaults too (collision-free speed: neighbour repulsion strength 8, range 0.1 m, wall
-    repulsion strength 5, range 0.02 m; social force: body force 120000 kg/s^2, friction 240000 kg/(m s), mass
-    80 kg, reaction time 0.5 s, A = 2000 N, B = 0.08 m).
-
-    Attributes:
-        model: ``collision_free_speed`` or ``social_force`` (:data:`MODELS`).
-        desired_speed: v0, the free walking speed (m/s); JuPedSim's collision-free speed default 1.2 (its social
-            force default is 0.8; both models get this value). RiMEA test 1 uses 1.33.
-        time_gap: T, the time gap (s) of the collision-free speed model (its default 1.0); the social force model
-            ignores it.
-        radius: body radius (m); JuPedSim's collision-free speed default 0.2. Pass the body size of the run compared.
-        dt: JuPedSim's time step (s); its default 0.01.
-
-    Raises:
-        ValueError: one line naming the bad value.
-    """
-
-    model: str = "collision_free_speed"
-    desired_speed: float = 1.2
-    time_gap: float = 1.0
-    radius: float = 0.2
-    dt: float = 0.01
-
-    def __post_init__(self) -> None:
-        check_choice("model", self.model, MODELS)
-        for name, unit in (("desired_speed", "m/s"), ("time_gap", "s"), ("radius", "m"), ("dt", "s")):
-            check_real(name, getattr(self, name), unit=unit, positive=True)
-
-
-def model_from_settings(settings: Mapping[str, Any] | None, *, prefix: str = "jupedsim") -> JuPedSimModel:
-    """The :class:`JuPedSimModel` of a config section (its keys are the model's fields; missing ones keep their
-    defaults).
-
-    Raises:
-        ValueError: one line naming ``<prefix>.<key>``, for an unknown key or a bad value.
-    """
-    allowed = [item.name for item in fields(JuPedSimModel)]
-    values = dict(settings or {})
-    for key in values:
-        if key not in allowed:
-            raise ValueError(f"{prefix}.{key} is not a setting of the JuPedSim model: allowed: {', '.join(allowed)}")
-    try:
-        return JuPedSimModel(**values)
-    except ValueError as err:
-        raise ValueError(f"{prefix}.{err}") from None
-
-
-# ---------------------------------------------------------------------- the run
-@dataclass(frozen=True)
-class JuPedSimRun:
-    """Trajectories of one JuPedSim run, sampled every ``1 / frame_rate`` s of simulated time.
-
-    Attributes:
-        positions: ``(T + 1, N, 2)`` float64 agent centres (m); frame 0 is the start. From the frame at which an agent
-            left on, its row holds the point where it left: its centre past its exit's segment, in the apron (at
-            most one JuPedSim step further than the first step past it).
-        active: ``(T + 1, N)`` bool, the agent is still in the area at frame t.
-        left_at: ``(N,)`` int64, the first frame at which the agent is out (its centre past its exit), -1 if never.
-        exit_time: ``(N,)`` float64, the simulated time (s) at which the agent was at the point where it left: the
-            first JuPedSim step after which its centre was past its exit's segment, or the next; NaN if never.
-        frame_rate: frames per second of simulated time (1/s).
-    """
-
-    positions: NDArray[np.float64]
-    active: NDArray[np.bool_]
-    left_at: NDArray[np.int64]
-    exit_time: NDArray[np.float64]
-    frame_rate: float
-
-    @property
-    def num_frames(self) -> int:
-        """T + 1, the frames recorded (frame 0 included)."""
-        return self.positions.shape[0]
-
-    @property
-    def num_agents(self) -> int:
-        """N."""
-        return self.positions.shape[1]
-
-    @property
-    def left(self) -> NDArray[np.bool_]:
-        """``(N,)`` bool, the agent left the area during the run."""
-        return self.left_at >= 0
-
-    def velocities(self) -> NDArray[np.float64]:
-        """``(T + 1, N, 2)`` mean velocity (m/s) over the interval that ends at frame t; 0 at frame 0.
-
-        It is the displacement over the time the agent moved in the interval: ``1 / frame_rate``, or for the frame
-        at which it left, the time from the previous frame to its ``exit_time``. Zero once it left.
-        """
-        displacement = np.diff(self.positions, axis=0, prepend=self.positions[:1])  # (T + 1, N, 2)
-        frames = np.arange(self.num_frames, dtype=np.float64)[:, None]  # (T + 1, 1)
-        period = 1.0 / self.frame_rate
-        exit_time = np.where(self.left, self.exit_time, math.inf)[None, :]  # (1, N)
-        moved = np.clip(np.minimum(frames * period, exit_time) - (frames - 1.0) * period, 0.0, period)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            velocities = np.where(moved[..., None] > 0.0, displacement / moved[..., None], 0.0)
-        velocities[0] = 0.0
-        return velocities
-
-
-# ---------------------------------------------------------------------- the start, from our room
-@dataclass(frozen=True)
-class Scene:
-    """The start of a run: where each agent stands, the exit it walks to and the waypoints it passes first.
-
-    Attributes:
-        positions: ``(N, 2)`` float64 centres (m).
-        exit_index: ``(N,)`` int64, the exit of the scenario each agent walks to.
-        waypoints: per agent, the points ``(x, y)`` (m) of its route still ahead, in order (may be empty).
-    """
-
-    positions: NDArray[np.float64]
-    exit_index: NDArray[np.int64]
-    waypoints: tuple[tuple[tuple[float, float], ...], ...]
-
-
-def room_scene(room: RoomEnv, *, replica: int = 0) -> Scene:
-    """The scene of replica ``replica`` of ``room`` as it stands (after ``room.reset(...)``): its agents' positions,
-    exits and the waypoints of their groups' routes not yet reached (the room skips those reached at the start)."""
-    if not 0 <= replica < room.num_replicas:
-        raise ValueError(f"replica={replica!r} is invalid: must be in [0, {room.num_replicas})")
-    routes = [
-        tuple((float(x), float(y)) for x, y in spawn.waypoints.cpu().tolist())
-        for spawn, count in zip(room.geometry.spawns, room.spawn_counts, strict=True)
-        for _ in range(count)
-    ]  # agents are numbered group by group
-    stage = room.stage[replica].cpu().tolist()
-    return Scene(
-        positions=room.positions[replica].cpu().double().numpy(),
-        exit_index=room.exit_index[replica].cpu().numpy().astype(np.int64),
-        waypoints=tuple(route[step:] for route, step in zip(routes, stage, strict=True)),
-    )
 
 
 # ---------------------------------------------------------------------- geometry
@@ -560,16 +426,6 @@ def simulate_room(
             )
         )
     return runs
-
-
-def pad_frames(values: np.ndarray, length: int, fill: Any = None) -> np.ndarray:
-    """``values (T, ...)`` extended to ``length`` frames with ``fill`` (``None``: its last frame), so that runs that
-    ended at different times stack."""
-    missing = length - values.shape[0]
-    if missing <= 0:
-        return values
-    tail = np.repeat(values[-1:], missing, axis=0) if fill is None else np.full((missing, *values.shape[1:]), fill)
-    return np.concatenate([values, tail])
 
 
 def installed() -> bool:

@@ -1,7 +1,9 @@
 """Numba kernels of the Q tables; their specifications are `pedrl.rl.qlearning.td_update_torch` and
 `pedrl.rl.qtable.greedy_torch`.
 
-Each reproduces its torch function of `pedrl.rl` to the bit, with the same random numbers drawn by torch
+One TD update (:func:`td_batch`) and one greedy choice (:func:`greedy_row`, with :func:`epsilon_greedy_row` drawing
+from a room's stream) serve both the torch trial loop's dispatchers and the fused trial. Each reproduces its torch
+function of `pedrl.rl` to the bit, with the same random numbers drawn by torch
 beforehand, so a seed gives the same run either way (the tests check it): :func:`td_update_kernel` is the twin of
 :func:`pedrl.rl.qlearning.td_update_torch`, :func:`greedy_kernel` that of :func:`pedrl.rl.qtable.greedy_torch`.
 On a CPU a decision's greedy choice or TD update is a dozen small torch operations; here it is one pass over the
@@ -14,8 +16,9 @@ import numpy as np
 import torch
 
 from pedrl._numba import cached_njit
+from pedrl.sim.streams import GOLDEN, next_uniform
 
-__all__ = ["greedy_kernel", "td_update_kernel"]
+__all__ = ["epsilon_greedy_row", "greedy_kernel", "greedy_row", "td_batch", "td_scratch", "td_update_kernel"]
 
 
 @cached_njit(nogil=True)
@@ -74,25 +77,38 @@ def _row_max(table, row):
     return np.float32(np.nan) if nan else max(max(m0, m1), max(m2, m3))
 
 
+@cached_njit(nogil=True, inline="always")
+def greedy_row(table, row, uniform):
+    """The greedy action of ``row``: the ``floor(uniform c)``-th of its ``c`` tied maxima (action 0 for a NaN row,
+    as torch's argmax of an all-False mask)."""
+    num_actions = table.shape[1]
+    best = _row_max(table, row)
+    count = 0
+    for a in range(num_actions):
+        count += table[row, a] == best
+    pick = min(np.int64(uniform * np.float32(count)), count - 1)
+    for a in range(num_actions):
+        if table[row, a] == best:
+            if pick == 0:
+                return a
+            pick -= 1
+    return 0
+
+
+@cached_njit(nogil=True, inline="always")
+def epsilon_greedy_row(table, row, epsilon, streams, r):
+    """:func:`pedrl.rl.epsilon_greedy` of one row, drawing from room ``r``'s stream: a uniform action with probability
+    ``epsilon``, else :func:`greedy_row`."""
+    num_actions = table.shape[1]
+    if next_uniform(streams, r) < epsilon:
+        return min(np.int64(next_uniform(streams, r) * np.float32(num_actions)), num_actions - 1)
+    return greedy_row(table, row, next_uniform(streams, r))
+
+
 @cached_njit(nogil=True)
 def _greedy(table, rows, uniform, actions):
-    num_actions = table.shape[1]
     for b in range(rows.shape[0]):
-        row = rows[b]
-        best = _row_max(table, row)
-        count = 0
-        for a in range(num_actions):
-            count += table[row, a] == best
-        pick = np.int64(uniform[b] * np.float32(count))
-        pick = min(pick, count - 1)
-        chosen = 0  # no maximum (a NaN row): action 0, as torch's argmax of an all-False mask
-        for a in range(num_actions):
-            if table[row, a] == best:
-                if pick == 0:
-                    chosen = a
-                    break
-                pick -= 1
-        actions[b] = chosen
+        actions[b] = greedy_row(table, rows[b], uniform[b])
 
 
 def greedy_kernel(q_values: torch.Tensor, rows: torch.Tensor, uniform: torch.Tensor) -> torch.Tensor:
@@ -107,46 +123,54 @@ def greedy_kernel(q_values: torch.Tensor, rows: torch.Tensor, uniform: torch.Ten
     return actions
 
 
+def td_scratch(num: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The scratch of :func:`td_batch` for batches of at most ``num`` entries: the hash table's keys and tallies (a
+    power of two of at least ``2 num`` slots) and each entry's slot."""
+    slots = 1
+    while slots < 2 * num:
+        slots *= 2
+    return np.empty(slots, np.int64), np.empty(slots, np.int64), np.empty(max(num, 1), np.int64)
+
+
 @cached_njit(nogil=True)
-def _td(table, rows, actions, rewards, next_rows, terminal, valid, alpha, gamma, td_error):
+def td_batch(table, rows, actions, rewards, next_rows, terminal, valid, alpha, gamma, td_error, keys, tally, slot_of):
+    """Equation 1 for a batch of transitions (:func:`pedrl.rl.qlearning.td_update_torch`): every error from the tables
+    before the update, the increments of one ``(row, action)`` averaged and added in batch order. Returns the sum of
+    ``|TD error|`` and the number of updates.
+
+    ``table`` ``(rows, actions)`` float32; ``rows``, ``actions``, ``next_rows`` ``(B,)`` int64; ``rewards`` ``(B,)``
+    float32; ``terminal`` and ``valid`` ``(B,)`` bool; ``td_error`` ``(B,)`` float32 gets the errors (0 where not
+    ``valid``). ``keys``, ``tally`` and ``slot_of`` are :func:`td_scratch`: the entries hitting one ``(row, action)``
+    are counted in an open-addressing hash table (a sort cost more than the rest of the update).
+    """
     num, num_actions = rows.shape[0], table.shape[1]
     flat = table.reshape(-1)
-    entries = np.empty(num, dtype=np.int64)  # flat (row, action) index, -1 where skipped
-    counts = np.empty(num, dtype=np.int64)  # entries hitting the same (row, action)
+    mask = keys.shape[0] - 1
+    bits = np.uint64(64 - np.int64(np.log2(keys.shape[0])))
+    keys[:] = -1
+    tally[:] = 0
+    total, count = 0.0, 0
     for b in range(num):
+        slot_of[b] = -1
         if not valid[b]:
             td_error[b] = 0.0
-            entries[b] = -1
             continue
         next_value = np.float32(0.0) if terminal[b] else _row_max(table, next_rows[b])
-        entries[b] = rows[b] * num_actions + actions[b]
-        td_error[b] = (rewards[b] + gamma * next_value) - flat[entries[b]]  # every error before any update
-    # increments averaged over the entries that hit the same (row, action), added in batch order; the entries are
-    # counted in an open-addressing hash table (a sort cost more than the rest of the update)
-    bits = 1
-    while (1 << bits) < 2 * num:
-        bits += 1
-    keys = np.full(1 << bits, -1, dtype=np.int64)
-    tally = np.zeros(1 << bits, dtype=np.int64)
-    mask = (1 << bits) - 1
-    slots = np.zeros(num, dtype=np.int64)
-    for b in range(num):
-        if entries[b] < 0:
-            continue
-        slot = np.int64((np.uint64(entries[b]) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(64 - bits))
-        while keys[slot] != -1 and keys[slot] != entries[b]:
+        entry = rows[b] * num_actions + actions[b]
+        td_error[b] = (rewards[b] + gamma * next_value) - flat[entry]
+        slot = np.int64((np.uint64(entry) * GOLDEN) >> bits)
+        while keys[slot] != -1 and keys[slot] != entry:
             slot = (slot + 1) & mask
-        keys[slot] = entries[b]
+        keys[slot] = entry
         tally[slot] += 1
-        slots[b] = slot
+        slot_of[b] = slot
+        total += abs(td_error[b])
+        count += 1
     for b in range(num):
-        counts[b] = tally[slots[b]] if entries[b] >= 0 else 1  # a skipped entry adds 0 below, whatever its count
-    for b in range(num):
-        scale = (np.float32(1.0) / np.float32(counts[b])) * alpha  # torch's `alpha / counts`: a reciprocal
-        if entries[b] < 0:  # a skipped entry adds 0 to entry 0, as torch's index_add_ does
-            flat[0] = flat[0] + np.float32(0.0) * scale
-        else:
-            flat[entries[b]] = flat[entries[b]] + td_error[b] * scale
+        if slot_of[b] >= 0:  # torch's `alpha / counts`: a reciprocal
+            entry = rows[b] * num_actions + actions[b]
+            flat[entry] += td_error[b] * ((np.float32(1.0) / np.float32(tally[slot_of[b]])) * alpha)
+    return total, count
 
 
 def td_update_kernel(
@@ -168,7 +192,7 @@ def td_update_kernel(
     rows, actions, next_rows = rows.numpy(), actions.numpy(), next_rows.numpy()
     terminal, valid = terminal.numpy(), valid.numpy()
     _checked_prefetch(table, rows, actions, valid, next_rows, valid & ~terminal)
-    _td(
+    td_batch(
         table,
         rows,
         actions,
@@ -179,5 +203,6 @@ def td_update_kernel(
         np.float32(alpha),
         np.float32(gamma),
         td_error.numpy(),
+        *td_scratch(num),
     )
     return td_error

@@ -34,6 +34,7 @@ from pedrl.sim.checks import (
 )
 from pedrl.sim.geometry import NUM_WALLS, Geometry, X, Y, spawn_counts
 from pedrl.sim.motion import Movement, move_agents, move_agents_sequential, move_agents_sliding
+from pedrl.sim.params import RoomParams
 from pedrl.sim.rewards import MAX_REWARD, compute_rewards
 from pedrl.sim.room_checks import (
     check_actions,
@@ -51,6 +52,7 @@ from pedrl.sim.sensing import Observation, feature_names, num_features, observe
 from pedrl.sim.spawning import MAX_DENSITY as MAX_DENSITY  # re-exported: pedrl.scenarios checks its spawn areas by it
 from pedrl.sim.spawning import PlacementError as PlacementError  # re-exported: raised by reset
 from pedrl.sim.spawning import Spawns, check_density
+from pedrl.sim.state import RoomState
 
 MAX_PLACEMENT_ROUNDS: Final = 1000
 """Rounds of rejection sampling before placement gives up (:meth:`Spawns.place <pedrl.sim.spawning.Spawns.place>`)."""
@@ -94,6 +96,8 @@ class RoomEnv:
         headings: Headings ``(R, N)`` (rad, world frame, in ``(-pi, pi]``).
         speeds: Speeds ``(R, N)`` (m/s, in ``[0, max_speed]``); frozen once an agent is inactive.
         active: Agents still in their trial ``(R, N)`` bool.
+        params: The validated settings (:class:`~pedrl.sim.params.RoomParams`), with what the fast path supports.
+        state: The rooms' state (:class:`~pedrl.sim.state.RoomState`); :meth:`load_state` sets it.
         geometry: Walls, exits and spawn areas (:class:`~pedrl.sim.geometry.Geometry`).
         exit_index: The exit each agent heads for ``(R, N)`` int64: its group's, or the nearest at placement.
         stage: The waypoint each agent aims at ``(R, N)`` int64; past its group's waypoints, its exit.
@@ -242,6 +246,7 @@ class RoomEnv:
         self.goal_depth = check_goal_depth(goal_depth)
         self.reward_progress = check_number("reward_progress", reward_progress, low=0.0, high=MAX_REWARD)
         self.compile_sensing = check_bool("compile_sensing", compile_sensing)
+        self.params = self._params()
         if geometry is None:
             geometry = Geometry.rectangle(
                 width=self.width, length=self.length, door_width=self.door_width, goal_depth=self.goal_depth
@@ -258,6 +263,21 @@ class RoomEnv:
             advice="fewer agents or replicas (processes, rooms_per_process, trials_per_batch)",
         )
         self._build(geometry)
+
+    def _params(self) -> RoomParams:
+        """The validated settings, as one record."""
+        return RoomParams(
+            width=self.width, length=self.length, door_width=self.door_width, agent_radius=self.agent_radius,
+            max_speed=self.max_speed, decisions_per_second=self.decisions_per_second,
+            max_decisions=self.max_decisions, num_neighbours=self.num_neighbours, num_walls=self.num_walls,
+            speed_ratios=tuple(self.speed_ratios), turn_ratios=tuple(self.turn_ratios),
+            reward_goal=self.rewards.goal, reward_crash_wall=self.rewards.crash_wall,
+            reward_crash_agent=self.rewards.crash_agent, reward_default=self.rewards.default,
+            substep_length=self.substep_length, collision_rule=self.collision_rule,
+            collision_order=self.collision_order, goal_depth=self.goal_depth, reward_progress=self.reward_progress,
+            compile_sensing=self.compile_sensing, contact=self.contact, time_gap=self.time_gap,
+            action_frame=self.action_frame,
+        )  # fmt: skip
 
     def _build(self, geometry: Geometry) -> None:
         """The constants (geometry on the device, spawn tables, action tables), the generator and the state, zero
@@ -298,6 +318,45 @@ class RoomEnv:
         """The point each agent aims at ``(R, N, 2)`` (m): its current waypoint, else its exit's goal point. The
         reference line of the state and the progress reward run to it. Set at reset and when routes advance."""
         return self._targets
+
+    def fast_path_reason(self) -> str | None:
+        """Why the fast path (the fused numba trial) cannot step this room (one phrase), or None when it can: on
+        another device than the CPU, a setting :class:`~pedrl.sim.params.RoomParams` does not declare it supports,
+        or contact ``stop`` in a room whose walls are not all axis-aligned (its kernel clamps to wall boxes)."""
+        if self.device.type != "cpu":
+            return f"on {self.device.type}: it runs on the CPU"
+        reason = self.params.fast_path_reason()
+        if reason is None and self.contact == "stop" and not self.geometry.axis_aligned:
+            return "with contact=stop in a room whose walls are not all axis-aligned"
+        return reason
+
+    @property
+    def state(self) -> RoomState:
+        """The rooms' state (:class:`~pedrl.sim.state.RoomState`): views of the env's tensors, not copies."""
+        return RoomState(
+            self.positions, self.velocities, self.headings, self.speeds, self.active, self.exit_index,
+            self._targets, self.decisions, self.stage,
+        )  # fmt: skip
+
+    def load_state(self, state: RoomState, *, decisions_taken: int = 0) -> None:
+        """Take ``state`` as the rooms' state (its tensors, not copies), as after ``decisions_taken`` more decisions
+        of the trial clock (a kernel that ran them); ``ValueError`` for a tensor of another shape, dtype or device.
+
+        Args:
+            state: The new state, shaped as :attr:`state`.
+            decisions_taken: Decisions the trial clock advances by (``>= 0``).
+        """
+        state.check_like(self.state)
+        taken = check_integer("decisions_taken", decisions_taken, minimum=0)
+        self.positions, self.velocities, self.headings, self.speeds = (
+            state.positions,
+            state.velocities,
+            state.headings,
+            state.speeds,
+        )
+        self.active, self.exit_index, self._targets = state.active, state.exit_index, state.targets
+        self.decisions, self.stage = state.decisions, state.stage
+        self._steps_taken += taken
 
     def _advance_routes(self) -> None:
         """Agents that reached their waypoint aim at the next point of their route (:meth:`Spawns.advance`)."""

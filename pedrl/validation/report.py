@@ -13,7 +13,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from pedrl.io.files import replace_atomically
-from pedrl.validation.suite import TestResult
+from pedrl.validation.framework import TestResult
 
 
 def write_reports(

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from typing import Any, Final
 
 import numpy as np
@@ -22,9 +22,16 @@ from shapely.geometry import LineString, box
 
 from pedrl.scenarios import LIDDLE_FLOWS, LIDDLE_WIDTHS, Scenario, Spawn, build_scenario
 from pedrl.validation.crowds import Crowd
+from pedrl.validation.framework import (
+    Budget,
+    Context,
+    NotApplicableError,
+    TestResult,
+    invariants_row,
+    not_applicable,
+)
 from pedrl.validation.measures import (
     WEIDMANN,
-    InvariantTally,
     Recording,
     crossing_times,
     density_scale,
@@ -62,104 +69,9 @@ LANES_MIN_FRAMES: Final = 300
 """Fewest counted agent-frames for a lanes verdict."""
 
 
-@dataclass
-class TestResult:
-    """One row of the report.
-
-    Attributes:
-        test: The test's name.
-        passed: The verdict (always ``False`` when not ``applicable``).
-        value: The measured value (``None`` when nothing could be measured).
-        unit: Unit of ``value``.
-        reference: The value or rule it is compared with.
-        source: Where the reference comes from.
-        details: Further measured numbers (plain values).
-        applicable: ``False`` when the test cannot be run at the crowd's body size (``note`` says why).
-        counted: ``False`` for the sanity row of invariants, which stays outside the pass count.
-        note: Why a row is not applicable, or what else a reader needs.
-    """
-
-    test: str
-    passed: bool
-    value: float | None
-    unit: str
-    reference: str
-    source: str
-    details: dict[str, Any] = field(default_factory=dict)
-    applicable: bool = True
-    counted: bool = True
-    note: str = ""
-
-    def __post_init__(self) -> None:
-        self.passed = bool(self.passed)  # numpy verdicts become plain booleans
-
-    @property
-    def status(self) -> str:
-        """``pass``, ``FAIL`` or ``n/a``."""
-        return "n/a" if not self.applicable else ("pass" if self.passed else "FAIL")
-
-
-@dataclass(frozen=True)
-class Budget:
-    """Sizes of the suite's runs: the published ones, or ``quick`` (a smoke run, not a verdict)."""
-
-    quick: bool = False
-
-    @property
-    def replicas(self) -> int:
-        return 1 if self.quick else 2
-
-    @property
-    def rimea_1_runs(self) -> int:
-        return 1 if self.quick else 4
-
-    @property
-    def rimea_4_densities(self) -> tuple[float, ...]:
-        """Start densities in Weidmann's scale (1/m^2)."""
-        return (1.0, 3.0) if self.quick else (0.5, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0)
-
-    @property
-    def rimea_9_agents(self) -> int:
-        return 200 if self.quick else 1000
-
-    @property
-    def rimea_9_time(self) -> float:
-        return 300.0 if self.quick else 1200.0
-
-    @property
-    def widths(self) -> tuple[float, ...]:
-        return (1.2, 2.5) if self.quick else LIDDLE_WIDTHS
-
-
 RIMEA_6_AGENTS: Final = 20
 BOTTLENECK_AGENTS: Final = 100
 LANES_AGENTS: Final = 54
-
-
-class NotApplicableError(Exception):
-    """The test cannot host its crowd at the crowd's body radius."""
-
-
-@dataclass
-class Context:
-    """What every test needs: the crowd, the budget, and the invariants tally every run feeds."""
-
-    crowd: Crowd
-    budget: Budget
-    invariants: InvariantTally = field(default_factory=InvariantTally)
-    test: str = ""  # the test running now
-
-    def run(self, scenario: Scenario, **run: Any) -> Recording:
-        """Simulate ``scenario`` with the crowd and tally the invariants; :class:`NotApplicableError` when the crowd's
-        bodies do not fit in the spawn areas (hand-placed crowds are placed by the test itself)."""
-        if run.get("positions") is None:
-            try:
-                scenario.check_capacity(run["num_agents"], self.crowd.radius)
-            except ValueError as err:
-                raise NotApplicableError(str(err)) from None
-        recording = self.crowd.simulate(scenario, **run)
-        self.invariants.add(recording, scenario.walkable, scenario.exits, label=self.test)
-        return recording
 
 
 # ---------------------------------------------------------------------------------------------- RiMEA 1
@@ -556,27 +468,6 @@ def window_crossing_times(recording: Recording, window: tuple[float, float]) -> 
 # ---------------------------------------------------------------------------------------------- the suite
 
 
-def invariants_row(tally: InvariantTally) -> TestResult:
-    """The sanity row of the physical invariants (outside the pass count)."""
-    return TestResult(
-        "invariants (sanity, not counted)",
-        tally.passed,
-        None if math.isinf(tally.min_gap) else tally.min_gap,
-        "m (smallest gap between bodies)",
-        "gap >= 0, wall clearance >= 0, nobody outside, step <= max speed / frame rate",
-        "physical invariants of the model",
-        {
-            "frames": tally.frames,
-            "agent_frames": tally.agent_frames,
-            "min_wall_clearance_m": tally.min_wall_clearance,
-            "outside_agent_frames": tally.outside,
-            "max_step_over_limit": tally.max_step_ratio,
-            "broken_in": sorted(tally.broken_in),
-        },
-        counted=False,
-    )
-
-
 TESTS: Final[dict[str, tuple[str, Callable[[Context], Any]]]] = {
     "rimea_1": ("RiMEA 1: travel time in a 40 m corridor", rimea_1),
     "rimea_4": ("RiMEA 4: speed against density (Weidmann)", rimea_4),
@@ -619,17 +510,3 @@ def run_suite(
     if results:  # with nothing simulated (every test not applicable), the row fails: it checked nothing
         results.append(invariants_row(context.invariants))
     return results, figures
-
-
-def not_applicable(name: str, radius: float, reason: str) -> TestResult:
-    """The row of a test whose crowd does not fit at ``radius``."""
-    return TestResult(
-        name,
-        False,
-        None,
-        "",
-        f"not applicable at radius {radius:g} m",
-        "",
-        applicable=False,
-        note=reason,
-    )

@@ -59,13 +59,13 @@ def scene(name: str, agents: int, contact: str, seed: int, replicas: int = 4, fr
 
 
 def fused_features(env: RoomEnv, present: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
-    from pedrl.algos.fused_kernels import sense_room
+    from pedrl.sim.sensing_kernel import sense_room
 
     rooms, agents = env.num_replicas, env.num_agents
     features = np.zeros((rooms, agents, env.num_features), np.float32)
     num_sensed = np.zeros((rooms, agents), np.int64)
     size = max(agents, env.geometry.num_walls)
-    state = tuple(t.contiguous().numpy() for t in fused._state(env))
+    state = fused._arrays(env.state)
     for r in range(rooms):
         sense_room(r, state, present.numpy(), fused._walls(env), env.num_neighbours, env.num_walls, features,
                    num_sensed, np.empty((2, size), np.float32), np.empty((2, size), np.int64))  # fmt: skip
@@ -107,15 +107,15 @@ def test_the_feature_check_fails_on_a_wrong_feature():
         actual[0, column] += error
         with pytest.raises(AssertionError):
             assert_features_close(actual, expected)
-    assert_features_close(expected + torch.tensor([[0.0, 2 * math.pi, 0.0]]) * 0, expected)
+    assert_features_close(expected + torch.tensor([[0.0, 2 * math.pi, 0.0]]), expected)  # an angle modulo 2 pi
 
 
 def fused_step(env: RoomEnv, actions: torch.Tensor, draws: torch.Tensor) -> tuple[tuple, tuple]:
     """One decision of every room by ``act_room`` from ``env``'s state: the state and the events after it."""
-    from pedrl.algos.fused_kernels import act_room, act_scratch
+    from pedrl.sim.step_kernel import act_room, act_scratch
 
     rooms, agents = env.num_replicas, env.num_agents
-    state = tuple(t.clone().contiguous().numpy() for t in fused._state(env))
+    state = fused._arrays(env.state.clone())
     work = list(fused._work(env))
     work[-1] = draws.numpy()
     events = fused._events(rooms, agents)
@@ -180,7 +180,7 @@ def policies(env: RoomEnv, processes: int) -> dict[str, TabularPolicy]:
 
 @pytest.mark.parametrize("kind", ["shared", "per_process", "union"])
 def test_encoding_matches_the_encoder(kind):
-    from pedrl.algos.fused_kernels import encode_agent
+    from pedrl.vq.encode_kernel import encode_agent, pack_encoder
 
     policy = policies(scene("paper_room", 20, "yield", 0), 4)[kind]
     env = scene("paper_room", 20, "yield", 0)
@@ -193,7 +193,7 @@ def test_encoding_matches_the_encoder(kind):
     info = {"num_sensed": torch.from_numpy(num_sensed), "decision": 1}
     expected = policy.rows(torch.from_numpy(features), info, torch.Generator()).view(env.num_replicas, -1)
     base = policy.layout.of(env.num_replicas, env.num_agents, env.device)[1].view(env.num_replicas, -1)
-    packed, tree = fused._packed(encoder, policy.num_processes)
+    packed, tree = pack_encoder(encoder, policy.num_processes)
     settings = encoder.settings
     void_settings = (7, np.float32(settings.max_distance), np.float32(settings.max_speed),
                      np.float32(MIN_VOID_DISTANCE), True, True)  # fmt: skip
@@ -238,29 +238,29 @@ def test_a_seed_gives_the_same_trial_at_any_thread_count(rooms_per_process):
 
 
 def test_the_td_update_averages_entries_as_the_torch_reference():
-    """Two rooms of one process, agents hitting the same (row, action): ``_td`` gives td_update_torch's errors and
-    tables (duplicates averaged, left agents not bootstrapping, inactive ones skipped)."""
-    from pedrl.algos.fused_kernels import _td
+    """Two rooms of one process, agents hitting the same (row, action): the one TD kernel (``td_batch``, which the
+    fused trial runs over a process's rooms) gives td_update_torch's errors and tables to the bit (duplicates
+    averaged, left agents not bootstrapping, inactive ones skipped), and its sum and count of updates."""
+    from pedrl.rl.kernels import td_batch, td_scratch
     from pedrl.rl.qlearning import td_update_torch
 
     generator = torch.Generator().manual_seed(0)
     table = torch.randn(6, 81, generator=generator)
-    rows = torch.tensor([[1, 1, 2, 3], [1, 4, 2, 5]])
-    actions = torch.tensor([[7, 7, 0, 80], [7, 3, 0, 1]])
-    reward = torch.randn(2, 4, generator=generator)
-    next_rows = torch.tensor([[0, 5, 4, 3], [2, 2, 1, 0]])
-    left = torch.tensor([[False, True, False, False], [False, False, True, False]])
-    acting = torch.tensor([[True, True, True, False], [True, True, True, True]])
+    rows = torch.tensor([1, 1, 2, 3, 1, 4, 2, 5])
+    actions = torch.tensor([7, 7, 0, 80, 7, 3, 0, 1])
+    reward = torch.randn(8, generator=generator)
+    next_rows = torch.tensor([0, 5, 4, 3, 2, 2, 1, 0])
+    left = torch.tensor([False, True, False, False, False, False, True, False])
+    acting = torch.tensor([True, True, True, False, True, True, True, True])
     expected_table = table.clone()
-    expected = td_update_torch(expected_table.view(1, 1, 6, 81), rows.view(-1), actions.view(-1), reward.view(-1),
-                               next_rows.view(-1), left.view(-1), acting.view(-1), alpha=0.3, gamma=0.9)  # fmt: skip
-    events = (None, left.numpy(), None, None, None, acting.numpy(), None)
-    errors, keys, tally = np.zeros(8, np.float32), np.empty(16, np.int64), np.empty(16, np.int64)
-    total, count = _td(0, 2, table.numpy(), rows.numpy(), actions.numpy(), reward.numpy(), next_rows.numpy(), events,
-                       np.float32(0.3), np.float32(0.9), errors, keys, tally)  # fmt: skip
+    expected = td_update_torch(expected_table.view(1, 1, 6, 81), rows, actions, reward, next_rows, left, acting,
+                               alpha=0.3, gamma=0.9)  # fmt: skip
+    errors = np.zeros(8, np.float32)
+    arrays = (table, rows, actions, reward, next_rows, left, acting)
+    total, count = td_batch(*(a.numpy() for a in arrays), np.float32(0.3), np.float32(0.9), errors, *td_scratch(8))
     assert count == 7 and total == pytest.approx(float(expected.abs().sum()), rel=1e-6)
-    torch.testing.assert_close(torch.from_numpy(errors)[acting.view(-1)], expected[acting.view(-1)])
-    torch.testing.assert_close(table, expected_table, rtol=0, atol=1e-6)
+    assert torch.equal(torch.from_numpy(errors), expected)
+    assert torch.equal(table, expected_table)
 
 
 def test_fused_must_be_a_boolean_or_null(compose, tmp_path):

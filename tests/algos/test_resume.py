@@ -4,7 +4,6 @@ import json
 import os
 import signal
 import time
-from pathlib import Path
 
 import pytest
 import torch
@@ -12,11 +11,10 @@ from hydra import compose, initialize_config_dir
 from omegaconf import open_dict
 
 from pedrl.algos.registry import build_trainer
-from pedrl.cli import run_reporting_errors
+from pedrl.cli import CONFIG_DIR, run_reporting_errors
 from pedrl.io import CheckpointError, load_checkpoint, read_csv
 from pedrl.train import train
 
-CONFIG_DIR = str(Path(__file__).resolve().parents[2] / "conf")
 # Two VQQL blocks of 10 trials in a 10 m room, mid-phase checkpoints every 3 trials: a whole run takes seconds.
 TINY = ("algo=vqql", "checkpoint_every=3", "logger=none", "algo.trials=20", "vq.num_prototypes=16", "threads=1")
 

@@ -16,9 +16,10 @@ from hydra import compose, initialize_config_dir
 from omegaconf import open_dict
 
 from pedrl.analysis import RoomGeometry, read_pedpy_trajectory
+from pedrl.cli import CONFIG_DIR
 from pedrl.evaluation import SCALING_COLUMNS, evaluate, print_table
 from pedrl.io import CheckpointError, read_csv
-from pedrl.train import CONFIG_DIR, train
+from pedrl.train import train
 
 REQUIRED_COLUMNS = ("agents", "fails_pct", "fails_std", "mean_speed", "speed_std")
 # Two learning agents (A = 2) per checkpoint, so evaluating 3 and 5 agents replicates tables.

@@ -20,12 +20,12 @@ from hydra import compose, initialize_config_dir
 from omegaconf import open_dict
 from safetensors.torch import load_file, save_file
 
+from pedrl.cli import CONFIG_DIR
 from pedrl.evaluation import load_controller
 from pedrl.io import CheckpointError
 from pedrl.io.checkpoint import METADATA_KEY
 from pedrl.train import train
 
-CONFIG_DIR = str(Path(__file__).resolve().parents[2] / "conf")
 CANARY_TEXT = "the canary is alive\n"
 BASE = ("algo.iterations=1", "algo.trials=2", "vq.num_prototypes=8", "env.max_decisions=10", "logger=none")
 TRAIN_OVERRIDES = {

@@ -23,6 +23,7 @@ from safetensors import safe_open
 from safetensors.torch import load_file, save_file
 
 import pedrl.embed
+from pedrl.cli import CONFIG_DIR
 from pedrl.configs import embed_geometry
 from pedrl.evaluation import load_controller
 from pedrl.io import CheckpointError
@@ -31,7 +32,6 @@ from pedrl.notices import PedrlWarning
 from pedrl.scenarios import MAX_VERTICES, MAX_WKT_BYTES, build_scenario, is_wkt_text
 from pedrl.train import train
 
-CONFIG_DIR = str(Path(__file__).resolve().parents[2] / "conf")
 ROOM = "POLYGON ((0 0, 12 0, 12 10, 0 10, 0 0))"
 EXITS = [[12, 4, 12, 6]]
 CPU = torch.device("cpu")

@@ -7,10 +7,11 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
+from pedrl.cli import CONFIG_DIR
 from pedrl.scenarios import build_scenario
 from pedrl.sim.controllers import GreedyDoorController
 
-CONF = Path(__file__).resolve().parents[2] / "conf" / "scenario"
+CONF = Path(CONFIG_DIR) / "scenario"
 DATA = Path(__file__).resolve().parents[1] / "data" / "heldout"
 NOMINAL = {"l_room": 60, "pillar_room": 40}
 """The nominal crowd of each room (its config's header)."""

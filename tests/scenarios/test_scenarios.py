@@ -203,7 +203,7 @@ def test_nothing_outside_the_scenarios_compares_a_scenario_name():
     package = Path(__file__).resolve().parents[2] / "pedrl"
     found = []
     for path in sorted(package.rglob("*.py")):
-        if path == package / "scenarios" / "__init__.py":
+        if path == package / "scenarios" / "builders.py":  # where build_scenario reads a config
             continue
         for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
             if isinstance(node, ast.Compare):

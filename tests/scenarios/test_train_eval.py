@@ -1,17 +1,16 @@
 """Every scenario trains (a seconds-long VQQL run) and evaluates; a checkpoint of one scenario runs in another."""
 
 import csv
-from pathlib import Path
 
 import pytest
 from hydra import compose, initialize_config_dir
 from omegaconf import open_dict
 
+from pedrl.cli import CONFIG_DIR
 from pedrl.evaluation import evaluate
 from pedrl.io import load_checkpoint
 from pedrl.train import train
 
-CONFIG_DIR = str(Path(__file__).resolve().parents[2] / "conf")
 AGENTS = {"paper_room": 4, "bottleneck": 6, "corridor": 6, "corner": 4, "four_exits": 8}
 
 

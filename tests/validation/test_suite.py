@@ -3,7 +3,6 @@ cases, the body sizes each test needs, and pedrl-validate end to end."""
 
 import json
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,6 +11,7 @@ from hydra import compose, initialize_config_dir
 from omegaconf import open_dict
 from shapely.geometry import LineString
 
+from pedrl.cli import CONFIG_DIR
 from pedrl.scenarios import LIDDLE_FLOWS, LIDDLE_WIDTHS, build_scenario
 from pedrl.sim.controllers import GreedyDoorController
 from pedrl.train import train
@@ -49,8 +49,6 @@ from pedrl.validation.suite import (
     liddle_bottleneck,
     rimea_1,
 )
-
-CONFIG_DIR = str(Path(__file__).resolve().parents[2] / "conf")
 
 
 def compose_config(name, overrides):

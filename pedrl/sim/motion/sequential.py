@@ -57,9 +57,9 @@ def move_agents_sequential(
 
     The specification is the literal agent-by-agent loop :func:`pedrl.sim.reference.move_agents_sequential_literal`.
     This function chooses how to compute it, with the same numbers to the bit either way: on the CPU with numba,
-    the walls in torch and the sub-steps in that loop compiled (:func:`pedrl.sim.motion.sequential_kernel.sequential_substeps`),
-    without hundreds of small operations; otherwise (other devices, ``compiled=False``, ``sync_free``)
-    :func:`move_agents_sequential_torch`.
+    the walls in torch and the sub-steps in that loop compiled
+    (:func:`pedrl.sim.motion.sequential_kernel.sequential_substeps`), without hundreds of small operations;
+    otherwise (other devices, ``compiled=False``, ``sync_free``) :func:`move_agents_sequential_torch`.
 
     Args:
         positions: Positions at the start of the decision ``(R, N, 2)`` (m).

@@ -1,8 +1,8 @@
-"""Numba kernel of the sequential rule; its specification is :func:`pedrl.sim.motion.sequential.move_agents_sequential_torch`
-(whose own specification is the literal agent-by-agent loop :func:`pedrl.sim.reference.move_agents_sequential_literal`:
-this kernel is that loop, compiled), to the bit. ``_touches_walls`` and ``_passes_exits`` are
-:meth:`Geometry.touches_walls <pedrl.sim.geometry.Geometry.touches_walls>` (axis-aligned walls) and
-:meth:`Geometry.passes_exits <pedrl.sim.geometry.Geometry.passes_exits>` of one point."""
+"""Numba kernel of the sequential rule; its specification is
+:func:`pedrl.sim.motion.sequential.move_agents_sequential_torch`, to the bit (whose own specification is the literal
+agent-by-agent loop :func:`pedrl.sim.reference.move_agents_sequential_literal`: this kernel is that loop, compiled).
+``_touches_walls`` and ``_passes_exits`` are :meth:`Geometry.touches_walls <pedrl.sim.geometry.Geometry.touches_walls>`
+(axis-aligned walls) and :meth:`Geometry.passes_exits <pedrl.sim.geometry.Geometry.passes_exits>` of one point."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
-"""The ``simultaneous`` collision rule (``collision_rule=simultaneous``, contact ``stop``): every mover's proposal checked
-against every other's at once, all sub-steps of a decision resolved together (:func:`move_agents`); its
+"""The ``simultaneous`` collision rule (``collision_rule=simultaneous``, contact ``stop``): every mover's proposal
+checked against every other's at once, all sub-steps of a decision resolved together (:func:`move_agents`); its
 specification, sub-step after sub-step, is :func:`pedrl.sim.reference.move_agents_literal`."""
 
 from __future__ import annotations

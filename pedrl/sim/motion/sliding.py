@@ -138,11 +138,11 @@ def move_agents_sliding(
     is the headway-limited one: slowing for a body ahead is not a contact; the safety net firing is.
 
     The specification is :func:`move_agents_sliding_torch`, a loop over sub-steps and movers. This function chooses
-    how to compute it: on the CPU (with numba) :func:`pedrl.sim.motion.sliding_kernel.sliding_substeps`, the same loop compiled,
-    with the same float32 operations in the same order (``tests/sim/test_contact.py`` checks the two agree to the
-    bit on random scenes and in every scenario; exact ties between the nearest walls or bodies are the one place
-    they could differ, when both pick a different one of two equally near); otherwise (CUDA, ``compiled=False``,
-    ``PEDRL_NO_NUMBA=1``) the torch loop itself.
+    how to compute it: on the CPU (with numba) :func:`pedrl.sim.motion.sliding_kernel.sliding_substeps`, the same
+    loop compiled, with the same float32 operations in the same order (``tests/sim/test_contact.py`` checks the
+    two agree to the bit on random scenes and in every scenario; exact ties between the nearest walls or bodies are
+    the one place they could differ, when both pick a different one of two equally near); otherwise (CUDA,
+    ``compiled=False``, ``PEDRL_NO_NUMBA=1``) the torch loop itself.
 
     Args:
         positions: Positions at the start of the decision ``(R, N, 2)`` (m).

@@ -194,8 +194,8 @@ def sliding_substeps(
     time_gap: float | None,
     yield_to_earlier: bool = False,
 ) -> Movement:
-    """:func:`pedrl.sim.motion.sliding.move_agents_sliding_torch`, agent by agent, compiled (same float32 operations, same
-    order).
+    """:func:`pedrl.sim.motion.sliding.move_agents_sliding_torch`, agent by agent, compiled (same float32
+    operations, same order).
 
     Args:
         positions: ``(R, N, 2)`` float32 at the start of the decision.

@@ -39,6 +39,7 @@ from pedrl.configs import (
     checked_config,
     env_factory,
     mix_rooms,
+    stored_env,
     stored_value,
 )
 from pedrl.io import Checkpoint, CheckpointError, load_checkpoint
@@ -87,7 +88,7 @@ def load_policy(
     config = check_stored_config(checkpoint, kind=found)
     try:
         _check_config_parts(config)
-        factory = env_factory(config["env"], config.get("scenario"), files=False)
+        factory = env_factory(stored_env(config), config.get("scenario"), files=False)
     except (ValueError, KeyError, TypeError) as err:
         raise CheckpointError(f"{where} holds a config this pedrl refuses ({first_line(err)})") from None
     try:
@@ -138,7 +139,8 @@ def room_factory(
 
 def room_settings(policy: TabularPolicy) -> dict[str, Any]:
     """The ``env`` settings (bodies, speeds, sensing, rewards) of the room ``policy`` learned in: its training
-    config's, checked as a stored config is (:func:`pedrl.configs.checked_config`).
+    config's, checked as a stored config is (:func:`pedrl.configs.checked_config`), a key added since the policy
+    was trained taking the value of its time (:func:`pedrl.configs.stored_env`).
 
     Raises:
         ValueError: one line, for a policy that holds no training config (one built in memory).
@@ -146,7 +148,7 @@ def room_settings(policy: TabularPolicy) -> dict[str, Any]:
     config = policy.metadata.get("config")
     if policy not in _ROOMS:  # a policy file read by TabularPolicy.load, or built in memory: check what it holds
         config = checked_config(config, f"policy of {policy.metadata.get('source', 'unknown origin')}")
-    return dict(config["env"])
+    return stored_env(config)
 
 
 # ---------------------------------------------------------------------- checks
@@ -236,7 +238,7 @@ def _encoder_settings(stored: EncoderSettings | None, config: Mapping[str, Any],
         void_features=algo.get("void_features", VOID_FEATURES_DEFAULTS[ALGO_TARGETS[algo["_target_"]]]),
         void_draws=stored_value(config, "algo.void_draws"),
         distance_transform=stored_value(config, "vq.distance_transform"),
-    ).spanning(mix_rooms(config["env"], config.get("mix"), files=False))  # trained across scenarios: every room
+    ).spanning(mix_rooms(stored_env(config), config.get("mix"), files=False))  # trained across scenarios: every room
     if stored is not None and stored != derived:
         raise ValueError(f"metadata encoder={stored.to_metadata()!r} disagrees with its config: must be {derived}")
     return derived

@@ -1,0 +1,64 @@
+"""What every polygon of a scenario must be, and how messages show one: valid, non-empty, and within
+:data:`MAX_COORDINATE` of the origin, where float32 positions keep millimetres."""
+
+from __future__ import annotations
+
+from typing import Any, Final
+
+import numpy as np
+import shapely
+from shapely.geometry import LineString, Polygon
+
+from pedrl.sim.checks import first_line
+
+TOLERANCE: Final = 1e-6
+"""Distance (m) within which an exit counts as lying on the boundary, and a spawn area inside the walkable area."""
+MAX_COORDINATE: Final = 10_000.0
+"""Largest ``|x|`` and ``|y|`` (m) of a scenario: float32 positions are 1 mm apart at 10 km from the origin (and 0.5 m
+apart at UTM-like 5,400 km), so a room beyond it is refused rather than simulated with drifting positions."""
+MISSING: Final = "???"
+"""A mandatory config value left unset (OmegaConf's marker, kept as text by ``to_container``)."""
+
+
+def check_extent(polygon: Polygon, what: str) -> None:
+    """Refuse a polygon with a coordinate beyond :data:`MAX_COORDINATE`, where float32 positions would drift."""
+    coordinates = shapely.get_coordinates(polygon)
+    if not bool(np.isfinite(coordinates).all()):
+        raise ValueError(f"{what} is invalid: it holds a coordinate that is not a finite number")
+    farthest = float(np.abs(coordinates).max(initial=0.0))
+    if farthest > MAX_COORDINATE:
+        spacing = float(np.spacing(np.float32(farthest)))
+        finest = float(np.spacing(np.float32(MAX_COORDINATE))) * 1000
+        raise ValueError(
+            f"{what} is invalid: it reaches {farthest:.6g} m from the origin, where float32 positions are"
+            f" {spacing:.2g} m apart; every |x| and |y| must be at most {MAX_COORDINATE:g} m ({finest:.1g} mm apart"
+            " there): move it near (0, 0)"
+        )
+
+
+def check_polygon(polygon: Polygon, what: str) -> None:
+    """Refuse anything but a valid, non-empty polygon; ``what`` names it in the one-line message."""
+    if not isinstance(polygon, Polygon) or polygon.is_empty:
+        raise ValueError(
+            f"{what} is invalid: must be a non-empty polygon, got {getattr(polygon, 'geom_type', polygon)}"
+        )
+    if not polygon.is_valid:
+        reason = shapely.is_valid_reason(polygon)
+        raise ValueError(f"{what} {bounds_text(polygon)} is invalid: {reason} (a polygon must not intersect itself)")
+
+
+def short_reason(err: BaseException) -> str:
+    """First line of an error, cut short: a parser may quote the text it read."""
+    line = first_line(err)
+    return line if len(line) <= 120 else line[:120] + "..."
+
+
+def coords_text(line: LineString) -> str:
+    """The vertices of ``line`` for a message: ``[(0, 1), (2, 1)]``."""
+    return "[" + ", ".join(f"({x:g}, {y:g})" for x, y in line.coords) + "]"
+
+
+def bounds_text(polygon: Any) -> str:
+    """The bounding box of ``polygon`` for a message: ``[x_min, y_min] x [x_max, y_max]``."""
+    x_min, y_min, x_max, y_max = polygon.bounds
+    return f"[{x_min:g}, {y_min:g}] x [{x_max:g}, {y_max:g}]"

@@ -1,0 +1,93 @@
+"""The constants of a batch of rooms, :class:`RoomParams`: every setting of :class:`pedrl.sim.RoomEnv` but the batch
+shape, the device and the geometry, validated, with what the fast path (the fused numba trial) supports of each.
+
+Each field declares its fast-path support with :func:`setting`: every value (:data:`ANY`), or only some
+(:func:`only`). :meth:`RoomParams.fast_path_reason` is an allow-list computed from those declarations, so a new
+setting cannot be silently ignored by the fast path: ``tests/sim/test_params.py`` fails for a constructor argument of
+``RoomEnv`` that has no field here, or a field without a declaration.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+from typing import Any, Final
+
+__all__ = ["ANY", "FastSupport", "RoomParams", "only", "setting", "undeclared"]
+
+FAST: Final = "fast"
+"""The metadata key of a field's :class:`FastSupport`."""
+
+
+@dataclass(frozen=True)
+class FastSupport:
+    """The values of a setting that the fast path runs: all (``values`` None) or those listed."""
+
+    values: tuple[Any, ...] | None = None
+
+    def reason(self, name: str, value: Any) -> str | None:
+        """Why the fast path cannot run with ``name=value`` (one phrase), or None when it can."""
+        if self.values is None or value in self.values:
+            return None
+        allowed = " or ".join(_shown(v) for v in self.values)
+        return f"with {name}={_shown(value)} (it runs {name}={allowed})"
+
+
+ANY: Final = FastSupport()
+"""Every value runs on the fast path."""
+
+
+def only(*values: Any) -> FastSupport:
+    """Only ``values`` run on the fast path."""
+    return FastSupport(tuple(values))
+
+
+def setting(support: FastSupport) -> Any:
+    """A :class:`RoomParams` field with its fast-path ``support`` declared."""
+    return field(metadata={FAST: support})
+
+
+def _shown(value: Any) -> str:
+    return str(value).lower() if isinstance(value, bool) else str(value)
+
+
+@dataclass(frozen=True)
+class RoomParams:
+    """The validated settings of a room (``RoomEnv(...)``'s arguments of the same names; units and meanings there)."""
+
+    width: float = setting(ANY)
+    length: float = setting(ANY)
+    door_width: float = setting(ANY)
+    agent_radius: float = setting(ANY)
+    max_speed: float = setting(ANY)
+    decisions_per_second: float = setting(ANY)
+    max_decisions: int = setting(ANY)
+    num_neighbours: int = setting(ANY)
+    num_walls: int = setting(ANY)
+    speed_ratios: tuple[float, ...] = setting(ANY)
+    turn_ratios: tuple[float, ...] = setting(ANY)
+    reward_goal: float = setting(ANY)
+    reward_crash_wall: float = setting(ANY)
+    reward_crash_agent: float = setting(ANY)
+    reward_default: float = setting(ANY)
+    substep_length: float = setting(ANY)
+    collision_rule: str = setting(only("sequential"))
+    collision_order: str = setting(ANY)
+    goal_depth: float = setting(ANY)
+    reward_progress: float = setting(ANY)
+    compile_sensing: bool = setting(only(False))  # the fast path senses in its own kernel
+    contact: str = setting(ANY)  # stop with walls that are not all axis-aligned: RoomEnv.fast_path_reason
+    time_gap: float = setting(ANY)
+    action_frame: str = setting(ANY)
+
+    def fast_path_reason(self) -> str | None:
+        """Why the fast path cannot run these settings (one phrase, the first setting it does not support), or None."""
+        for item in fields(self):
+            reason = item.metadata[FAST].reason(item.name, getattr(self, item.name))
+            if reason is not None:
+                return reason
+        return None
+
+
+def undeclared(cls: type) -> list[str]:
+    """The fields of the dataclass ``cls`` that declare no fast-path support."""
+    return [item.name for item in fields(cls) if not isinstance(item.metadata.get(FAST), FastSupport)]

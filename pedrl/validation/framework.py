@@ -1,0 +1,143 @@
+"""What every test of the validation suite shares: the row it reports (:class:`TestResult`, and the rows of
+:func:`not_applicable` and :func:`invariants_row`), the sizes of its runs (:class:`Budget`), and what it runs with
+(:class:`Context`, which tallies the physical invariants of every run)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+from pedrl.scenarios import LIDDLE_WIDTHS, Scenario
+from pedrl.validation.crowds import Crowd
+from pedrl.validation.measures import InvariantTally, Recording
+
+
+@dataclass
+class TestResult:
+    """One row of the report.
+
+    Attributes:
+        test: The test's name.
+        passed: The verdict (always ``False`` when not ``applicable``).
+        value: The measured value (``None`` when nothing could be measured).
+        unit: Unit of ``value``.
+        reference: The value or rule it is compared with.
+        source: Where the reference comes from.
+        details: Further measured numbers (plain values).
+        applicable: ``False`` when the test cannot be run at the crowd's body size (``note`` says why).
+        counted: ``False`` for the sanity row of invariants, which stays outside the pass count.
+        note: Why a row is not applicable, or what else a reader needs.
+    """
+
+    test: str
+    passed: bool
+    value: float | None
+    unit: str
+    reference: str
+    source: str
+    details: dict[str, Any] = field(default_factory=dict)
+    applicable: bool = True
+    counted: bool = True
+    note: str = ""
+
+    def __post_init__(self) -> None:
+        self.passed = bool(self.passed)  # numpy verdicts become plain booleans
+
+    @property
+    def status(self) -> str:
+        """``pass``, ``FAIL`` or ``n/a``."""
+        return "n/a" if not self.applicable else ("pass" if self.passed else "FAIL")
+
+
+@dataclass(frozen=True)
+class Budget:
+    """Sizes of the suite's runs: the published ones, or ``quick`` (a smoke run, not a verdict)."""
+
+    quick: bool = False
+
+    @property
+    def replicas(self) -> int:
+        return 1 if self.quick else 2
+
+    @property
+    def rimea_1_runs(self) -> int:
+        return 1 if self.quick else 4
+
+    @property
+    def rimea_4_densities(self) -> tuple[float, ...]:
+        """Start densities in Weidmann's scale (1/m^2)."""
+        return (1.0, 3.0) if self.quick else (0.5, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0)
+
+    @property
+    def rimea_9_agents(self) -> int:
+        return 200 if self.quick else 1000
+
+    @property
+    def rimea_9_time(self) -> float:
+        return 300.0 if self.quick else 1200.0
+
+    @property
+    def widths(self) -> tuple[float, ...]:
+        return (1.2, 2.5) if self.quick else LIDDLE_WIDTHS
+
+
+class NotApplicableError(Exception):
+    """The test cannot host its crowd at the crowd's body radius."""
+
+
+@dataclass
+class Context:
+    """What every test needs: the crowd, the budget, and the invariants tally every run feeds."""
+
+    crowd: Crowd
+    budget: Budget
+    invariants: InvariantTally = field(default_factory=InvariantTally)
+    test: str = ""  # the test running now
+
+    def run(self, scenario: Scenario, **run: Any) -> Recording:
+        """Simulate ``scenario`` with the crowd and tally the invariants; :class:`NotApplicableError` when the crowd's
+        bodies do not fit in the spawn areas (hand-placed crowds are placed by the test itself)."""
+        if run.get("positions") is None:
+            try:
+                scenario.check_capacity(run["num_agents"], self.crowd.radius)
+            except ValueError as err:
+                raise NotApplicableError(str(err)) from None
+        recording = self.crowd.simulate(scenario, **run)
+        self.invariants.add(recording, scenario.walkable, scenario.exits, label=self.test)
+        return recording
+
+
+def invariants_row(tally: InvariantTally) -> TestResult:
+    """The sanity row of the physical invariants (outside the pass count)."""
+    return TestResult(
+        "invariants (sanity, not counted)",
+        tally.passed,
+        None if math.isinf(tally.min_gap) else tally.min_gap,
+        "m (smallest gap between bodies)",
+        "gap >= 0, wall clearance >= 0, nobody outside, step <= max speed / frame rate",
+        "physical invariants of the model",
+        {
+            "frames": tally.frames,
+            "agent_frames": tally.agent_frames,
+            "min_wall_clearance_m": tally.min_wall_clearance,
+            "outside_agent_frames": tally.outside,
+            "max_step_over_limit": tally.max_step_ratio,
+            "broken_in": sorted(tally.broken_in),
+        },
+        counted=False,
+    )
+
+
+def not_applicable(name: str, radius: float, reason: str) -> TestResult:
+    """The row of a test whose crowd does not fit at ``radius``."""
+    return TestResult(
+        name,
+        False,
+        None,
+        "",
+        f"not applicable at radius {radius:g} m",
+        "",
+        applicable=False,
+        note=reason,
+    )

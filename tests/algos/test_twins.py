@@ -1,0 +1,110 @@
+"""The twin harness (`pedrl.algos.twins`): the torch trial loop and the stage kernels of the fused trial, in lockstep
+through whole trials, over every scenario x contact rule x quantizer kind, against the one declared tolerance table;
+and the hypothesis invariants of the room, on the kernel path."""
+
+import functools
+
+import numpy as np
+import pytest
+import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from pedrl._numba import numba_available
+from pedrl.algos import fused
+from pedrl.algos.registry import env_factory
+from pedrl.algos.twins import TOLERANCES, check_twins
+from pedrl.scenarios import SCENARIOS
+from pedrl.sim.actions import NUM_ACTIONS
+from pedrl.sim.motion import CONTACT_MODELS
+from pedrl.sim.state import RoomState
+from tests.algos.test_fused import policies
+from tests.sim.test_properties import check_state
+
+pytestmark = pytest.mark.skipif(not numba_available(), reason="numba is off (PEDRL_NO_NUMBA)")
+
+AGENTS = {"paper_room": 20, "bottleneck": 24, "corridor": 24, "corner": 7, "four_exits": 30}
+BUILT_IN = [name for name in SCENARIOS if name != "custom"]  # custom is a WKT file of the user's
+
+
+def room(name: str, contact: str, frame: str = "heading"):
+    settings = {"_target_": "pedrl.sim.RoomEnv", "max_decisions": 30, "contact": contact, "action_frame": frame}
+    if frame == "goal":
+        settings |= {"speed_ratios": [0, 0.2, 0.4, 0.6, 0.7, 0.8, 0.9, 0.95, 1],
+                     "turn_ratios": [-0.5, -0.25, -0.1, -0.05, 0, 0.05, 0.1, 0.25, 0.5]}  # fmt: skip
+    return env_factory(settings, {"name": name})(num_replicas=2, num_agents=AGENTS[name])
+
+
+@functools.cache
+def scenario_policies(name: str):
+    """A policy of each quantizer kind (shared, per process, IN-VQQL's union) fitted to the scenario's states."""
+    return policies(room(name, "yield"), 2)
+
+
+def test_every_built_in_scenario_is_covered():
+    assert sorted(BUILT_IN) == sorted(AGENTS)
+
+
+@pytest.mark.parametrize("kind", ["shared", "per_process", "union"])
+@pytest.mark.parametrize("contact", CONTACT_MODELS)
+@pytest.mark.parametrize("name", BUILT_IN)
+def test_the_kernel_path_matches_the_torch_path_through_whole_trials(name, contact, kind):
+    policy = scenario_policies(name)[kind]
+    policy.q_values.normal_(generator=torch.Generator().manual_seed(1))
+    frame = "goal" if kind == "union" else "heading"  # both action frames, on every scenario and contact rule
+    report = check_twins(room(name, contact, frame), policy, seed=7)
+    assert report.failures() == []
+    assert report.decisions >= 10 and report.agent_decisions > 100 and report.encoded > 100  # real trials
+
+
+def test_a_kernel_that_walks_too_fast_fails_the_harness(monkeypatch):
+    """The control: the kernel path given a top speed 1 % higher than the room's is caught."""
+    original = fused._room
+
+    def faster(env):
+        values = list(original(env))
+        values[0] = values[0] * np.float32(1.01)  # the speed changes, in m/s
+        values[2] = values[2] * np.float32(1.01)  # max_speed
+        return tuple(values)
+
+    monkeypatch.setattr(fused, "_room", faster)
+    report = check_twins(room("paper_room", "stop"), scenario_policies("paper_room")["shared"], seed=7)
+    assert any(failure.startswith(("position", "speed")) for failure in report.failures())
+
+
+def test_the_tolerances_are_the_declared_ones():
+    assert (TOLERANCES.feature, TOLERANCES.position, TOLERANCES.flag_share, TOLERANCES.id_share) == (
+        1e-5,
+        1e-4,
+        0.01,
+        0.01,
+    )
+
+
+@settings(max_examples=12, deadline=None)
+@given(
+    seed=st.integers(0, 2**31 - 1),
+    name=st.sampled_from(BUILT_IN),
+    contact=st.sampled_from(CONTACT_MODELS),
+    fast=st.booleans(),
+)
+def test_invariants_hold_after_every_kernel_step(seed, name, contact, fast):
+    """Bodies apart, clear of walls, inside the room, speeds in range, after every decision of the kernel path."""
+    from pedrl.sim.step_kernel import act_room, act_scratch
+
+    env = room(name, contact)
+    env.reset(seed=seed)
+    generator = torch.Generator().manual_seed(seed)
+    shape = env.active.shape
+    state = fused._arrays(env.state.clone())
+    work, events, scratch = list(fused._work(env)), fused._events(*shape), act_scratch(shape[1])
+    kernel_room, walls, exits = fused._room(env), fused._walls(env), fused._exits(env)
+    for _ in range(env.max_decisions):
+        actions = torch.randint(0, NUM_ACTIONS, shape, generator=generator)
+        if fast:  # mostly accelerate, so bodies meet walls, each other and the door
+            actions = torch.where(torch.rand(shape, generator=generator) < 0.7, 8 * 9 + actions % 9, actions)
+        work[-1] = torch.rand(shape, generator=generator).numpy()
+        for r in range(shape[0]):
+            act_room(r, state, actions.numpy(), kernel_room, walls, exits, tuple(work), events, scratch)
+        env.load_state(RoomState(*(torch.from_numpy(a.copy()) for a in state)))
+        check_state(env)

@@ -1,0 +1,63 @@
+"""RoomParams: every setting of RoomEnv has a field, every field declares what the fast path supports, and the fast
+path's eligibility is the allow-list computed from those declarations."""
+
+import dataclasses
+import inspect
+
+import pytest
+
+from pedrl.sim import RoomEnv
+from pedrl.sim.params import ANY, RoomParams, only, setting, undeclared
+
+BATCH_ARGUMENTS = {"self", "num_replicas", "num_agents", "device", "geometry"}
+"""RoomEnv's arguments that are not settings of the room: the batch shape, the device and the walkable area."""
+
+
+def test_every_setting_of_the_room_has_a_field():
+    settings = set(inspect.signature(RoomEnv.__init__).parameters) - BATCH_ARGUMENTS
+    assert settings == {field.name for field in dataclasses.fields(RoomParams)}
+
+
+def test_every_field_declares_its_fast_path_support():
+    assert undeclared(RoomParams) == []
+
+
+def test_a_field_without_a_declaration_is_found():
+    """The control: a planted setting with no declaration."""
+
+    @dataclasses.dataclass(frozen=True)
+    class Planted:
+        width: float = setting(ANY)
+        new_option: bool = False
+
+    assert undeclared(Planted) == ["new_option"]
+
+
+def test_the_params_are_the_validated_arguments():
+    env = RoomEnv(
+        num_agents=3, width=10.0, length=12.0, contact="yield", speed_ratios=[0, 0, 0, 0, 0, 0.1, 0.2, 0.5, 1]
+    )
+    assert env.params.width == 10.0 and env.params.contact == "yield"
+    assert env.params.speed_ratios == (0, 0, 0, 0, 0, 0.1, 0.2, 0.5, 1)
+    assert env.params.substep_length == env.agent_radius  # None means the body radius
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        env.params.width = 5.0
+
+
+@pytest.mark.parametrize(
+    ("settings", "reason"),
+    [
+        ({}, None),
+        ({"contact": "headway", "collision_order": "door_first", "time_gap": 0.5}, None),
+        ({"collision_rule": "simultaneous"}, "with collision_rule=simultaneous (it runs collision_rule=sequential)"),
+        ({"compile_sensing": True}, "with compile_sensing=true (it runs compile_sensing=false)"),
+    ],
+)
+def test_the_fast_path_runs_what_the_declarations_allow(settings, reason):
+    env = RoomEnv(num_agents=3, width=10.0, length=12.0, **settings)
+    assert env.fast_path_reason() == reason
+
+
+def test_only_lists_the_allowed_values():
+    assert only("a", "b").reason("x", "c") == "with x=c (it runs x=a or b)"
+    assert only("a").reason("x", "a") is None and ANY.reason("x", object()) is None
