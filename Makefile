@@ -27,11 +27,16 @@ run: setup ## the main job: IT-VQQL in the paper's room (experiment=main, ~6 min
 	$(VENV)/bin/pedrl-eval checkpoint=$(RUN_DIR)/checkpoints/last.safetensors "agents=[20,100]" trials=10 \
 		hydra.run.dir=$(RUN_DIR)/eval
 
-test: setup ## the fast test suite (not slow)
-	$(PY) -m pytest -q -m "not slow" $(ARGS)
+# the tests run in a random order (pytest-randomly); rerun one order with `make test SEED=<the seed printed>`
+SEED ?= $(shell python3 -c 'import random; print(random.randrange(2**32))')
 
-test-all: setup ## every test, slow ones included
-	$(PY) -m pytest -q $(ARGS)
+test: setup ## the fast test suite (not slow), in a random order whose seed it prints
+	@echo "test order: --randomly-seed=$(SEED) (rerun this order: make test SEED=$(SEED))"
+	$(PY) -m pytest -q -p randomly --randomly-seed=$(SEED) -m "not slow" $(ARGS)
+
+test-all: setup ## every test, slow ones included, in a random order whose seed it prints
+	@echo "test order: --randomly-seed=$(SEED) (rerun this order: make test-all SEED=$(SEED))"
+	$(PY) -m pytest -q -p randomly --randomly-seed=$(SEED) $(ARGS)
 
 lint: setup ## ruff check and format check
 	$(VENV)/bin/ruff check pedrl tests

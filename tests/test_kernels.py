@@ -8,11 +8,12 @@ import pytest
 import torch
 
 from pedrl._numba import numba_available
-from pedrl.algos import VQQL, fused_kernels
+from pedrl.algos import VQQL
 from pedrl.rl import kernels as rl_kernels
 from pedrl.rl import zeros_q_values
 from pedrl.sim import RoomEnv
 from pedrl.sim.motion import sequential_kernel
+from pedrl.trial import fused_kernels
 from pedrl.vq import tree
 
 pytestmark = pytest.mark.skipif(not numba_available(), reason="numba is off (PEDRL_NO_NUMBA)")
@@ -72,7 +73,7 @@ def test_each_kernel_is_compiled_once_for_trials_of_any_size(fused):
 def test_numba_can_be_switched_off_for_the_torch_code(tmp_path):
     """PEDRL_NO_NUMBA=1 runs the torch code on the CPU: a seeded run of the torch trial loop (fused=False) gives the
     same numbers either way (its kernels are exact; the tree can differ from the matrix search only at float32 ties,
-    which this run has none of). The fused trial is held to it within tolerances instead (tests/algos/test_fused.py)."""
+    which this run has none of). The fused trial is held to it within tolerances instead (tests/trial/test_fused.py)."""
     import json
     import os
     import subprocess

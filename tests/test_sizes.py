@@ -20,7 +20,7 @@ LITERAL_LOOPS = {
     "pedrl/sim/motion/sliding_kernel.py": "*",
     "pedrl/rl/kernels.py": "*",
     "pedrl/vq/tree.py": "*",
-    "pedrl/algos/fused_kernels.py": "*",
+    "pedrl/trial/fused_kernels.py": "*",
     "pedrl/sim/step_kernel.py": "*",
     "pedrl/sim/sensing_kernel.py": "*",
     "pedrl/vq/encode_kernel.py": "*",

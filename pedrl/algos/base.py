@@ -34,13 +34,14 @@ from pedrl.algos.mix import merge_gathered, room_of_trial
 from pedrl.algos.phase import Phase, TrainResult
 from pedrl.algos.records import RunRecord, final_figures, interactive, report_phase
 from pedrl.algos.restore import load_resume
-from pedrl.algos.rollout import Gathered, TrialStats, check_finite, gather, run_trial
 from pedrl.configs import TrainingRoom
 from pedrl.io.files import remove_temporaries_in
 from pedrl.rl import LinearSchedule, zeros_q_values
 from pedrl.rl.policy import TabularPolicy
 from pedrl.sim import RoomEnv
 from pedrl.sim.checks import check_bool, check_choice, check_device, check_integer, check_memory, check_number
+from pedrl.trial.fused import check_fused
+from pedrl.trial.rollout import Gathered, TrialStats, check_finite, gather, run_trial
 from pedrl.vq import Quantizer
 from pedrl.vq.encoder import VOID_DRAWS, VOID_FEATURES, EncoderSettings, StateEncoder
 from pedrl.vq.settings import VQSettings
@@ -81,7 +82,7 @@ class Trainer:
         mix: rooms of other scenarios that take turns with each phase's room, trial by trial
             (:mod:`pedrl.algos.mix`); their states are gathered too, and they learn into the same tables.
         home: the label of the phase's own room in ``learning_curve.csv`` and TensorBoard (its scenario's name).
-        fused: run each trial as one compiled pass per process (:mod:`pedrl.algos.fused`: on the CPU, the processes
+        fused: run each trial as one compiled pass per process (:mod:`pedrl.trial.fused`: on the CPU, the processes
             in parallel over the threads), or as the torch loop, the reference (False); None: the fused pass
             wherever it can run. True is refused in one line, before any compute, for a room it cannot run.
     """
@@ -402,11 +403,11 @@ class Trainer:
         self, env: RoomEnv, quantizer: Any, q_values: torch.Tensor, *, epsilon: float, learn: bool
     ) -> TrialStats:
         """One trial in every room with the tables ``q_values`` over ``quantizer`` (see
-        :func:`pedrl.algos.rollout.run_trial`)."""
+        :func:`pedrl.trial.rollout.run_trial`)."""
         return self._trial(env, self.policy(quantizer, q_values), epsilon=epsilon, learn=learn)
 
     def _trial(self, env: RoomEnv, policy: TabularPolicy, *, epsilon: float, learn: bool) -> TrialStats:
-        """:func:`pedrl.algos.rollout.run_trial` with this trainer's generator, equation 1's constants and ``fused``."""
+        """:func:`pedrl.trial.rollout.run_trial` with this trainer's generator, equation 1's constants and ``fused``."""
         return run_trial(
             env,
             policy,
@@ -460,18 +461,3 @@ class Trainer:
             "final": final_figures(stats) if stats is not None else {},
         }
         record.save(tensors, metadata, phase, iteration=iteration)
-
-
-def check_fused(fused: Any, rooms: Sequence[RoomEnv]) -> bool | None:
-    """``fused`` (None, True or False), refused in one line unless a boolean or null, or when True for a room the
-    fused trial cannot run (:func:`pedrl.algos.fused.room_reason`)."""
-    if fused is not None and not isinstance(fused, bool):
-        raise ValueError(f"fused={fused!r} is invalid: must be true, false or null")
-    if fused:
-        from pedrl.algos.fused import room_reason
-
-        for room in rooms:
-            reason = room_reason(room)
-            if reason is not None:
-                raise ValueError(f"fused=true is invalid: the fused trial cannot run {reason} (false or null)")
-    return fused

@@ -15,8 +15,8 @@ import torch
 
 from pedrl.algos.budget import agents_text
 from pedrl.algos.phase import Phase
-from pedrl.algos.rollout import Gathered
 from pedrl.notices import warn
+from pedrl.trial.rollout import Gathered
 from pedrl.vq import ProcessQuantizers, Quantizer
 from pedrl.vq.settings import VQSettings
 

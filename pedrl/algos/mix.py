@@ -11,7 +11,7 @@ from collections.abc import Sequence
 
 import torch
 
-from pedrl.algos.rollout import Gathered
+from pedrl.trial.rollout import Gathered
 
 
 def room_of_trial(trial: int, trials: int, rooms: int) -> int:

@@ -10,8 +10,8 @@ from pathlib import Path
 from typing import Any, Final
 
 from pedrl.algos.phase import Phase
-from pedrl.algos.rollout import Gathered, TrialStats
 from pedrl.io import CsvWriter, RunLogger, save_checkpoint
+from pedrl.trial.rollout import Gathered, TrialStats
 
 CURVE_METRICS: Final = (
     "success_rate",

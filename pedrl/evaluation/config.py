@@ -21,6 +21,7 @@ from pedrl.evaluation.engine import (
     EvalSettings,
     Recorder,
     build_rooms,
+    check_fused_controller,
     evaluate_policy,
     load_controller,
     measurement_point,
@@ -115,6 +116,8 @@ def _prepare(cfg: DictConfig, controller: str, device: torch.device) -> tuple[An
     if isinstance(policy.controller, Recorder):
         for env in envs.values():
             policy.controller.check(env)
+    if cfg.get("fused"):
+        check_fused_controller(policy.controller, envs.values())
     return policy, envs, geometry
 
 
@@ -158,6 +161,7 @@ def settings_from_config(cfg: DictConfig) -> EvalSettings:
         animation_fps=float(cfg.animation.fps),
         animation_max_frames=None if cfg.animation.max_frames is None else int(cfg.animation.max_frames),
         tensorboard=bool(cfg.tensorboard),
+        fused=cfg.get("fused"),
     )
 
 
@@ -224,6 +228,9 @@ def _validate_values(cfg: DictConfig) -> None:
     if cfg.animation.max_frames is not None:
         check_integer("animation.max_frames", cfg.animation.max_frames, minimum=1)
     check_bool("tensorboard", cfg.get("tensorboard"))
+    fused = cfg.get("fused")
+    if fused is not None and not isinstance(fused, bool):
+        raise ValueError(f"fused={fused!r} is invalid: must be true, false or null")
 
 
 def check_against_room(cfg: DictConfig, geometry: Geometry, envs: dict[int, RoomEnv]) -> None:

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Final
@@ -129,8 +129,20 @@ def load_controller(
 
 
 # ---------------------------------------------------------------------- recording
-def record_batch(env: RoomEnv, controller: Controller) -> BatchRecord:
-    """Reset ``env`` (its generator draws the scene) and run one trial in every replica to its end."""
+def record_batch(env: RoomEnv, controller: Controller, *, fused: bool | None = False) -> BatchRecord:
+    """Reset ``env`` (its generator draws the scene) and run one trial in every replica to its end.
+
+    ``fused``: the learned tables or the greedy walker through the fused trial's kernels
+    (:func:`pedrl.trial.fused.record_trial_fused`: on the CPU, one compiled pass per batch), or the torch loop, the
+    reference (False); None: the fused pass wherever it can run. The two agree within the fused trial's tolerances,
+    not to the bit (their random streams differ).
+    """
+    if fused is not False:
+        record = _record_fused(env, controller)
+        if record is not None:
+            return record
+        if fused:
+            raise ValueError("fused=true is invalid: this controller or room cannot run through the fused trial")
     obs, info = env.reset()
     shape = env.active.shape
     device = env.positions.device
@@ -170,6 +182,55 @@ def record_batch(env: RoomEnv, controller: Controller) -> BatchRecord:
         speed_sum=speed_sum.sum(1).cpu().numpy(),
         speed_sq_sum=speed_sq_sum.sum(1).cpu().numpy(),
         speed_count=speed_count.sum(1).cpu().numpy(),
+    )
+
+
+def check_fused_controller(controller: Controller, envs: Iterable[RoomEnv]) -> None:
+    """One-line ``ValueError`` when ``fused=true`` cannot hold: the learned or greedy ``controller`` cannot run
+    through the fused trial in one of ``envs`` (JuPedSim runs its own model, whatever ``fused`` says)."""
+    from pedrl.trial.fused import fused_reason, room_reason
+
+    for env in envs:
+        if isinstance(controller, PolicyController):
+            reason = fused_reason(env, controller.policy)
+        elif type(controller) is GreedyDoorController:
+            reason = room_reason(env)
+        else:
+            return
+        if reason is not None:
+            raise ValueError(f"fused=true is invalid: the fused trial cannot run {reason} (false or null)")
+
+
+def _record_fused(env: RoomEnv, controller: Controller) -> BatchRecord | None:
+    """:func:`record_batch` through the fused trial, or None where it cannot run ``controller`` in ``env``."""
+    from pedrl.trial.fused import fused_reason, record_trial_fused, room_reason
+
+    if isinstance(controller, PolicyController):
+        policy = controller.policy
+        if fused_reason(env, policy) is not None:
+            return None
+    elif type(controller) is GreedyDoorController:
+        policy = None
+        if room_reason(env) is not None:
+            return None
+    else:
+        return None
+    trace = record_trial_fused(env, policy, epsilon=controller.epsilon, generator=controller.generator)
+    _, crashes, wall_crashes, goal, _, decisions = trace.totals
+    reached = goal > 0
+    taken = trace.active[:, 1:]
+    speed_sq = np.where(taken, (trace.velocities[:, 1:].astype(np.float64) ** 2).sum(-1), 0.0)
+    return BatchRecord(
+        positions=trace.positions,
+        velocities=trace.velocities,
+        active=trace.active,
+        reached=reached,
+        exit_time=np.where(reached, decisions * env.decision_length, np.nan).astype(np.float32),
+        crashes=crashes.astype(np.int64),
+        wall_crashes=wall_crashes.astype(np.int64),
+        speed_sum=np.sqrt(speed_sq).sum((1, 2)),
+        speed_sq_sum=speed_sq.sum((1, 2)),
+        speed_count=taken.sum((1, 2)).astype(np.int64),
     )
 
 
@@ -268,6 +329,7 @@ class EvalSettings:
         animation_fps: its frames per second (``animation.fps``).
         animation_max_frames: its most frames, None for all (``animation.max_frames``).
         tensorboard: write TensorBoard events under ``tb/``.
+        fused: record through the fused trial's kernels (:func:`record_batch`); None: wherever they can run.
     """
 
     trials: int
@@ -283,6 +345,7 @@ class EvalSettings:
     animation_fps: float
     animation_max_frames: int | None
     tensorboard: bool
+    fused: bool | None = None
 
 
 def build_rooms(
@@ -418,7 +481,7 @@ def simulate_agent_count(
         if isinstance(policy.controller, Recorder):
             record = policy.controller.record(env)
         else:
-            record = record_batch(env, policy.controller)
+            record = record_batch(env, policy.controller, fused=settings.fused)
         keep = min(runs_per_batch, total_runs - first_run)
         stats.add(record, keep)
         runs = [record.trajectories(i, geometry, framerate) for i in range(keep)]

@@ -1,7 +1,7 @@
 """Numba kernel of the sensing; its specification is :func:`pedrl.sim.sensing.observe`, within stated tolerances.
 
 ``atan2``/``hypot`` are libm's, not torch's vector routines: features agree with the torch reference to about 1e-6
-relative (``tests/algos/test_twins.py`` states and checks the tolerances).
+relative (``tests/trial/test_twins.py`` states and checks the tolerances).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Numba kernel of one decision of a room; its specification is :meth:`pedrl.sim.RoomEnv.step` without the
 observation (the actions, the move by the room's contact rule, the exits, the clock, the rewards and the routes),
-within stated tolerances (``tests/algos/test_twins.py``)."""
+within stated tolerances (``tests/trial/test_twins.py``)."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """Numba kernel of the encoding; its specification is :meth:`pedrl.vq.StateEncoder.prepare` followed by the k-d
 tree's :func:`pedrl.vq.tree.search_point` (the nearest prototype), within stated tolerances
-(``tests/algos/test_twins.py``): ``log1p`` is libm's, and the void fillings draw from the rooms' streams.
+(``tests/trial/test_twins.py``): ``log1p`` is libm's, and the void fillings draw from the rooms' streams.
 
 :func:`pack_encoder` lays out an encoder's quantizer (shared, per process, or IN-VQQL's union) as the flat arrays the
 kernel reads.

@@ -15,6 +15,7 @@ import torch
 from hydra import compose, initialize_config_dir
 from omegaconf import open_dict
 
+from pedrl._numba import numba_available
 from pedrl.analysis import RoomGeometry, read_pedpy_trajectory
 from pedrl.cli import CONFIG_DIR
 from pedrl.evaluation import SCALING_COLUMNS, evaluate, print_table
@@ -289,6 +290,7 @@ def test_jupedsim_without_jupedsim_fails_with_one_line(checkpoints, tmp_path, mo
         ("trials=0", "trials=0 is invalid"),
         ("density_map.tile_size=0", "density_map.tile_size=0 is invalid"),
         ("agents=[1000]", "num_agents=1000 is invalid"),
+        ("fused=yes", "fused='yes' is invalid: must be true, false or null"),
     ],
 )
 def test_bad_values_fail_with_one_line(override, message, checkpoints, tmp_path):
@@ -354,3 +356,63 @@ def test_contacts_count_bodies_and_walls_apart():
         patch.setattr(pair, "reset", lambda **kwargs: original(seed=0, options=options))
         record = record_batch(pair, Straight())
     assert record.crashes[0].min() >= 1 and record.wall_crashes.sum() == 0
+
+
+# ---------------------------------------------------------------------- the fast path (fused trial kernels)
+def sparse_room(rule: str = "stop"):
+    """Few walkers in a wide room, acting nearest the door first: both paths must walk the same trajectories."""
+    from pedrl.sim import RoomEnv
+
+    return RoomEnv(num_replicas=3, num_agents=4, width=30.0, length=20.0, door_width=6.0, max_decisions=40,
+                   contact=rule, collision_order="door_first")  # fmt: skip
+
+
+@pytest.mark.skipif(not numba_available(), reason="numba is off (PEDRL_NO_NUMBA)")
+@pytest.mark.parametrize("rule", ["stop", "yield"])
+def test_the_greedy_walker_records_the_same_trials_on_both_paths(rule):
+    """Where the order of action is the goal distance's (door_first), the fused recording of the greedy walker is the torch loop's within the fused trial's
+    tolerances (positions 1e-4 m), frame by frame, with the same exits, times and speeds."""
+    from pedrl.evaluation.engine import record_batch
+    from pedrl.sim.controllers import GreedyDoorController
+
+    records = []
+    for fused in (False, True):
+        env = sparse_room(rule)
+        env.reset(seed=3)
+        records.append(record_batch(env, GreedyDoorController(), fused=fused))
+    torch_path, kernels = records
+    assert torch_path.positions.shape == kernels.positions.shape and torch_path.reached.all()
+    np.testing.assert_allclose(kernels.positions, torch_path.positions, atol=1e-4, rtol=0)
+    assert np.array_equal(kernels.active, torch_path.active) and np.array_equal(kernels.reached, torch_path.reached)
+    np.testing.assert_allclose(kernels.exit_time, torch_path.exit_time, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(kernels.speed_sum, torch_path.speed_sum, rtol=1e-5)
+    np.testing.assert_allclose(kernels.speed_sq_sum, torch_path.speed_sq_sum, rtol=1e-5)
+    assert np.array_equal(kernels.speed_count, torch_path.speed_count)
+    assert np.array_equal(kernels.crashes, torch_path.crashes)
+    assert np.array_equal(kernels.wall_crashes, torch_path.wall_crashes)
+
+
+@pytest.mark.skipif(not numba_available(), reason="numba is off (PEDRL_NO_NUMBA)")
+def test_the_fast_path_is_on_by_default_and_agrees_with_the_torch_loop(checkpoints, tmp_path):
+    """pedrl-eval's default records through the kernels: the same scenes, a seed gives the same tables, and the
+    headline figures agree with the torch loop's within the spread of the trials."""
+    common = ("animation.enabled=false", "tensorboard=false", "trials=24", "references=[]")
+    fast = evaluate(eval_config(checkpoints["it_vqql"], *common), run_dir=tmp_path / "a")
+    again = evaluate(eval_config(checkpoints["it_vqql"], *common), run_dir=tmp_path / "b")
+    reference = evaluate(eval_config(checkpoints["it_vqql"], *common, "fused=false"), run_dir=tmp_path / "c")
+    assert (tmp_path / "a" / "scaling.csv").read_text() == (tmp_path / "b" / "scaling.csv").read_text()
+    assert fast == again
+    for mine, theirs in zip(fast, reference, strict=True):
+        assert mine["agents"] == theirs["agents"]
+        error = ((mine["fails_std"] ** 2 + theirs["fails_std"] ** 2) / theirs["trials"]) ** 0.5
+        assert abs(mine["fails_pct"] - theirs["fails_pct"]) <= 3 * error + 1e-9, (mine, theirs)  # 3 standard errors
+
+
+def test_fused_true_is_refused_in_one_line_where_the_kernels_cannot_run(tmp_path, monkeypatch):
+    from pedrl.evaluation.engine import check_fused_controller
+    from pedrl.sim import RoomEnv
+    from pedrl.sim.controllers import GreedyDoorController
+
+    env = RoomEnv(num_replicas=2, num_agents=4, width=10.0, length=10.0, collision_rule="simultaneous")
+    with pytest.raises(ValueError, match=r"^fused=true is invalid: the fused trial cannot run with collision_rule="):
+        check_fused_controller(GreedyDoorController(), [env])

@@ -1,11 +1,11 @@
-"""A trial's statistics (`pedrl.algos.stats.TrialStats`) from per-agent totals: analytic cases of the crowd's
+"""A trial's statistics (`pedrl.trial.stats.TrialStats`) from per-agent totals: analytic cases of the crowd's
 figures, evacuation time and door flow, as ``pedrl-eval`` defines them."""
 
 import math
 
 import torch
 
-from pedrl.algos.stats import TOTALS, TrialStats
+from pedrl.trial.stats import TOTALS, TrialStats
 
 
 def totals_of(reached: list[list[int]], decisions: list[list[int]]) -> torch.Tensor:

@@ -1,4 +1,4 @@
-"""The twin harness (`pedrl.algos.twins`): the torch trial loop and the stage kernels of the fused trial, in lockstep
+"""The twin harness (`pedrl.trial.twins`): the torch trial loop and the stage kernels of the fused trial, in lockstep
 through whole trials, over every scenario x contact rule x quantizer kind, against the one declared tolerance table;
 and the hypothesis invariants of the room, on the kernel path."""
 
@@ -11,15 +11,15 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from pedrl._numba import numba_available
-from pedrl.algos import fused
 from pedrl.algos.registry import env_factory
-from pedrl.algos.twins import TOLERANCES, check_twins
 from pedrl.scenarios import SCENARIOS
 from pedrl.sim.actions import NUM_ACTIONS
 from pedrl.sim.motion import CONTACT_MODELS
 from pedrl.sim.state import RoomState
-from tests.algos.test_fused import policies
+from pedrl.trial import fused
+from pedrl.trial.twins import TOLERANCES, check_twins
 from tests.sim.test_properties import check_state
+from tests.trial.test_fused import policies
 
 pytestmark = pytest.mark.skipif(not numba_available(), reason="numba is off (PEDRL_NO_NUMBA)")
 

@@ -1,32 +1,43 @@
 """The fused trial: a whole trial of every room as one compiled pass per learning process, on every core.
 
-:func:`run_trial_fused` is :func:`pedrl.algos.rollout.run_trial` on the CPU without a torch operation per
-decision: one call of :func:`pedrl.algos.fused_kernels.fused_trial` runs every decision of the trial (step with the
+:func:`run_trial_fused` is :func:`pedrl.trial.rollout.run_trial` on the CPU without a torch operation per
+decision: one call of :func:`pedrl.trial.fused_kernels.fused_trial` runs every decision of the trial (step with the
 room's contact rule, rewards, sensing, void filling, distance transform, k-d tree encoding, TD update,
 epsilon-greedy choice), the learning processes in parallel over numba's threads. The torch loop stays the
 reference (and the path on a GPU, or with ``fused=false``); this one matches it within stated tolerances
-(``tests/algos/test_fused.py``) and equals itself for a seed at any thread count. :func:`fused_reason` says which
+(``tests/trial/test_fused.py``) and equals itself for a seed at any thread count. :func:`fused_reason` says which
 rooms and quantizers it runs: every contact rule, geometry and route of ``collision_rule=sequential`` (``stop``
 with axis-aligned walls), and every quantizer kind (shared, per process, IN-VQQL's union).
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import torch
 
 from pedrl._numba import numba, numba_available
-from pedrl.algos.stats import TOTALS, TrialStats
 from pedrl.rl.policy import TabularPolicy
 from pedrl.sim import RoomEnv
 from pedrl.sim.motion import CONTACT_MODELS
 from pedrl.sim.sensing import MIN_VOID_DISTANCE
 from pedrl.sim.state import RoomState
-from pedrl.vq.encoder import EncoderSettings
+from pedrl.trial.stats import TOTALS, TrialStats
+from pedrl.vq.encoder import EncoderSettings, StateEncoder
+from pedrl.vq.quantizer import Quantizer
 
-__all__ = ["fused_reason", "room_reason", "run_trial_fused", "set_kernel_threads"]
+__all__ = [
+    "FusedRecord",
+    "check_fused",
+    "fused_reason",
+    "record_trial_fused",
+    "room_reason",
+    "run_trial_fused",
+    "set_kernel_threads",
+]
 
 
 def fused_reason(env: RoomEnv, policy: TabularPolicy) -> str | None:
@@ -55,6 +66,19 @@ def room_reason(env: RoomEnv) -> str | None:
     return env.fast_path_reason()
 
 
+def check_fused(fused: Any, rooms: Sequence[RoomEnv]) -> bool | None:
+    """``fused`` (None, True or False), refused in one line unless a boolean or null, or when True for a room the
+    fused trial cannot run (:func:`pedrl.trial.fused.room_reason`)."""
+    if fused is not None and not isinstance(fused, bool):
+        raise ValueError(f"fused={fused!r} is invalid: must be true, false or null")
+    if fused:
+        for room in rooms:
+            reason = room_reason(room)
+            if reason is not None:
+                raise ValueError(f"fused=true is invalid: the fused trial cannot run {reason} (false or null)")
+    return fused
+
+
 def set_kernel_threads(threads: int) -> None:
     """Run numba's parallel kernels on ``threads`` threads (at most the cores numba started with), in its
     ``workqueue`` layer, whose idle threads sleep instead of spinning against torch's."""
@@ -74,15 +98,70 @@ def run_trial_fused(
     alpha: float = 0.0,
     gamma: float = 0.0,
 ) -> TrialStats:
-    """:func:`pedrl.algos.rollout.run_trial` as one compiled pass (module docstring): the same arguments and
+    """:func:`pedrl.trial.rollout.run_trial` as one compiled pass (module docstring): the same arguments and
     statistics. ``generator`` gives the trial's seed (one draw); the room's resets draw from ``env.generator``."""
-    from pedrl.algos.fused_kernels import fused_trial
-    from pedrl.sim.streams import seed_streams
-    from pedrl.vq.encode_kernel import pack_encoder
-
     reason = fused_reason(env, policy)
     if reason is not None:
         raise ValueError(f"the fused trial cannot run {reason}")
+    totals, td_sums, steps, _ = _launch(env, policy, epsilon, generator, learn, alpha, gamma, record=False)
+    return _stats(env, torch.from_numpy(totals).float(), td_sums, steps, policy.num_processes, learn)
+
+
+@dataclass(frozen=True)
+class FusedRecord:
+    """A recorded trial of every room (numpy, frame 0 the reset, frame t after decision t).
+
+    Attributes:
+        positions: ``(R, T, N, 2)`` agent centres (m).
+        velocities: ``(R, T, N, 2)`` velocities (m/s).
+        active: ``(R, T, N)`` bool: in frame 0 the agents in the room, in frame t those that took decision t.
+        totals: ``(len(TOTALS), R, N)`` float64 per-agent totals (:data:`pedrl.trial.stats.TOTALS`): the goal row
+            says who reached its own exit, the decisions row when (the decision at which it left).
+    """
+
+    positions: np.ndarray
+    velocities: np.ndarray
+    active: np.ndarray
+    totals: np.ndarray
+
+
+def record_trial_fused(
+    env: RoomEnv, policy: TabularPolicy | None, *, epsilon: float, generator: torch.Generator
+) -> FusedRecord:
+    """One trial of every room of ``env`` from a reset (its generator draws the scene), acted by ``policy``'s tables
+    (epsilon-greedy, no learning) or, with ``policy=None``, by the greedy walker
+    (:class:`pedrl.sim.controllers.GreedyDoorController`'s twin), recorded frame by frame. ``ValueError`` where the
+    fused trial cannot run (:func:`fused_reason`, :func:`room_reason`)."""
+    reason = room_reason(env) if policy is None else fused_reason(env, policy)
+    if reason is not None:
+        raise ValueError(f"the fused trial cannot run {reason}")
+    if policy is None:
+        policy = _walker_policy(env)
+        greedy = True
+    else:
+        greedy = False
+    totals, _, steps, trace = _launch(env, policy, epsilon, generator, False, 0.0, 0.0, record=True, greedy=greedy)
+    frames = int(steps.max()) + 1
+    positions, velocities, active = (a[:, :frames] for a in trace)
+    return FusedRecord(positions, velocities, active, totals)
+
+
+def _walker_policy(env: RoomEnv) -> TabularPolicy:
+    """Tables of one state for the greedy walker's trial, which reads none: the encoder and table arrays of the
+    kernel's signature, so that the walker runs the compiled code the learned crowd runs."""
+    settings = EncoderSettings.for_room(env)
+    width = settings.num_features
+    quantizer = Quantizer(mean=torch.zeros(width), std=torch.ones(width), prototypes=torch.zeros(1, width))
+    return TabularPolicy(StateEncoder(settings, quantizer), torch.zeros(1, 1, 1, env.num_actions))
+
+
+def _launch(env, policy, epsilon, generator, learn, alpha, gamma, *, record, greedy=False):
+    """Reset ``env``, run :func:`pedrl.trial.fused_kernels.fused_trial` and write the rooms' state back: the
+    per-agent totals, the TD sums, each thread's decisions and the trace (empty unless ``record``)."""
+    from pedrl.sim.streams import seed_streams
+    from pedrl.trial.fused_kernels import fused_trial
+    from pedrl.vq.encode_kernel import pack_encoder
+
     set_kernel_threads(torch.get_num_threads())
     env.reset()
     rooms, agents = env.num_replicas, env.num_agents
@@ -97,6 +176,12 @@ def run_trial_fused(
     steps = np.zeros(rooms // group, np.int64)
     settings = policy.encoder.settings
     random_void = settings.void_features == "random"
+    frames = env.max_decisions + 1 if record else 1
+    trace = (np.zeros((rooms, frames, agents if record else 1, 2), np.float32),
+             np.zeros((rooms, frames, agents if record else 1, 2), np.float32),
+             np.zeros((rooms, frames, agents if record else 1), np.bool_))  # fmt: skip
+    learning = (np.float32(epsilon), learn, np.float32(alpha), np.float32(gamma), settings.void_draws == "decision",
+                greedy)  # fmt: skip
     fused_trial(
         group,
         state,
@@ -105,7 +190,7 @@ def run_trial_fused(
         _exits(env),
         *pack_encoder(policy.encoder, policy.num_processes),
         _encoding(settings),
-        (np.float32(epsilon), learn, np.float32(alpha), np.float32(gamma), settings.void_draws == "decision"),
+        learning,
         policy.q_values.view(-1, policy.num_actions).numpy(),
         base_rows.view(rooms, agents).numpy(),
         process.view(rooms, agents)[:, 0].contiguous().numpy(),
@@ -117,9 +202,10 @@ def run_trial_fused(
         totals,
         td_sums,
         steps,
+        trace,
     )
     _write_back(env, state, int(steps.max()))
-    return _stats(env, torch.from_numpy(totals).float(), td_sums, steps, policy.num_processes, learn)
+    return totals, td_sums, steps, trace
 
 
 def _arrays(state: RoomState) -> tuple[np.ndarray, ...]:

@@ -13,7 +13,7 @@ error of one stage never feeds the next and every comparison is of one stage alo
 - **learn**: :func:`pedrl.rl.kernels.td_batch` against :func:`pedrl.rl.td_update_torch`, on the same transitions.
 
 The actions are epsilon-greedy on the torch path's tables. :data:`TOLERANCES` is the one declared table; the tests
-(``tests/algos/test_twins.py``) run it over every scenario x contact rule x quantizer kind.
+(``tests/trial/test_twins.py``) run it over every scenario x contact rule x quantizer kind.
 """
 
 from __future__ import annotations
@@ -25,11 +25,11 @@ from typing import Final
 import numpy as np
 import torch
 
-from pedrl.algos import fused
 from pedrl.rl.policy import TabularPolicy
 from pedrl.rl.qlearning import td_update_torch
 from pedrl.sim import RoomEnv
 from pedrl.sim.sensing import void_draws
+from pedrl.trial import fused
 from pedrl.vq.tree import _STACK, LEAF_SIZE
 
 __all__ = ["TOLERANCES", "Tolerances", "TwinReport", "check_twins"]

@@ -1,4 +1,4 @@
-"""The fused trial (`pedrl.algos.fused`) against the torch reference, within the tolerances the docs state:
+"""The fused trial (`pedrl.trial.fused`) against the torch reference, within the tolerances the docs state:
 
 - features: distances, speeds and relative speeds within 1e-5 relative (1e-5 absolute below 1), angles within 1e-5
   rad (modulo 2 pi), the numbers of sensed neighbours equal;
@@ -20,15 +20,15 @@ import torch
 from omegaconf import open_dict
 
 from pedrl._numba import numba_available
-from pedrl.algos import fused
 from pedrl.algos.registry import env_factory
-from pedrl.algos.rollout import gather, run_trial
 from pedrl.io import read_csv
 from pedrl.rl.policy import TabularPolicy
 from pedrl.sim import RoomEnv
 from pedrl.sim.actions import GOAL_SPEED_RATIOS, GOAL_TURN_RATIOS
 from pedrl.sim.sensing import MIN_VOID_DISTANCE, observe
 from pedrl.train import train as train_run
+from pedrl.trial import fused
+from pedrl.trial.rollout import gather, run_trial
 from pedrl.vq.encoder import EncoderSettings, StateEncoder
 from pedrl.vq.quantizer import ProcessQuantizers, Quantizer, UnionQuantizer
 from tests.conftest import compose_config

@@ -10,10 +10,10 @@ from typing import Final, NamedTuple
 
 import torch
 
-from pedrl.algos.stats import TOTALS, TrialStats
 from pedrl.rl import epsilon_greedy, td_update
 from pedrl.rl.policy import TableLayout, TabularPolicy
 from pedrl.sim import RoomEnv
+from pedrl.trial.stats import TOTALS, TrialStats
 from pedrl.vq.encoder import StateEncoder
 
 DEVICE_CHECK_EVERY: Final = 8
@@ -92,7 +92,7 @@ def run_trial(
     """Run one trial in every room, acting epsilon-greedily and (if ``learn``) applying equation 1 to
     ``policy.q_values`` in place with learning rate ``alpha`` and discount ``gamma``.
 
-    ``fused``: run the trial as one compiled pass (:func:`pedrl.algos.fused.run_trial_fused`; a one-line
+    ``fused``: run the trial as one compiled pass (:func:`pedrl.trial.fused.run_trial_fused`; a one-line
     ``ValueError`` where it cannot run), or the torch loop below, the reference (False); None: the fused pass
     wherever it can run (on the CPU with numba).
 
@@ -101,7 +101,7 @@ def run_trial(
     host (the extra decisions of empty rooms change nothing).
     """
     if fused is not False:
-        from pedrl.algos.fused import fused_reason, run_trial_fused
+        from pedrl.trial.fused import fused_reason, run_trial_fused
 
         reason = fused_reason(env, policy)
         if reason is None:
