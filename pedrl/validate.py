@@ -32,6 +32,9 @@ def run(cfg: DictConfig, *, run_dir: Path | None = None) -> dict[str, Any]:
     tensorboard = check_bool("tensorboard", cfg.get("tensorboard"))
     if cfg.get("threads") is not None:
         check_integer("threads", cfg.get("threads"), minimum=1)
+    fused = cfg.get("fused")
+    if fused is not None and not isinstance(fused, bool):
+        raise ValueError(f"fused={fused!r} is invalid: must be true, false or null")
     radius = cfg.get("radius")
     if radius is not None:
         radius = check_number("radius", radius, low=0.05, high=1.0)
@@ -77,6 +80,7 @@ def run(cfg: DictConfig, *, run_dir: Path | None = None) -> dict[str, Any]:
         radius=radius,
         jupedsim=jupedsim,
         tensorboard=tensorboard,
+        fused=fused,
         meta={"checkpoint": None if checkpoint is None else str(checkpoint)},
         progress=lambda step: print(f"pedrl-validate: {step}", flush=True),
     )

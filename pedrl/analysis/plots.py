@@ -205,7 +205,8 @@ def animate_trial(
     Returns:
         The path written.
     """
-    from matplotlib.animation import PillowWriter  # imported here: only this function needs it
+    from matplotlib.backends.backend_agg import FigureCanvasAgg  # imported here: only this function needs them
+    from PIL import Image
 
     path = Path(path)
     num_frames = trajectories.num_frames if max_frames is None else min(max_frames, trajectories.num_frames)
@@ -234,12 +235,25 @@ def animate_trial(
     axes.add_collection(bodies)
     figure.colorbar(bodies, ax=axes).set_label("speed (m/s)")
 
-    writer = PillowWriter(fps=fps)
-    with writer.saving(figure, str(path), dpi=dpi):
-        for t in range(num_frames):
-            active = trajectories.active[t]
-            bodies.set_offsets(trajectories.positions[t, active])
-            bodies.set_array(speeds[t, active])
-            axes.set_title(f"t = {t / trajectories.framerate:g} s (frame {t}), {int(active.sum())} agents")
-            writer.grab_frame()
+    # the room, walls and colour bar are drawn once; each frame redraws only the bodies and the title (blitting)
+    figure.set_dpi(dpi)
+    canvas = FigureCanvasAgg(figure)
+    title = axes.set_title(f"t = {(num_frames - 1) / trajectories.framerate:g} s (frame {num_frames - 1}), 0 agents")
+    canvas.draw()  # lays the figure out once, with the longest title
+    figure.set_layout_engine("none")
+    bodies.set_animated(True)
+    title.set_animated(True)
+    canvas.draw()
+    background = canvas.copy_from_bbox(figure.bbox)
+    frames = []
+    for t in range(num_frames):
+        active = trajectories.active[t]
+        bodies.set_offsets(trajectories.positions[t, active])
+        bodies.set_array(speeds[t, active])
+        title.set_text(f"t = {t / trajectories.framerate:g} s (frame {t}), {int(active.sum())} agents")
+        canvas.restore_region(background)
+        axes.draw_artist(bodies)
+        axes.draw_artist(title)
+        frames.append(Image.frombuffer("RGBA", canvas.get_width_height(), canvas.buffer_rgba()).convert("RGB"))
+    frames[0].save(path, save_all=True, append_images=frames[1:], duration=round(1000 / fps), loop=0)
     return path

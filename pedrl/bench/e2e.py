@@ -14,7 +14,7 @@ K = 4096 prototypes; keys of the returned dict):
 This file is also the driver that the baseline subprocess runs (``python e2e.py --rooms ...`` with the other
 tree's ``pedrl`` on ``PYTHONPATH``): everything below :func:`measure` uses only the API that commit e228a3c
 already had (``VQQL``, ``gather``, ``fit_quantizer``, ``run_trial``, ``zeros_q_values``; its rooms came from
-``_env``, which is ``env_for`` since issue 21).
+``_env``, which is now ``env_for``).
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ import torch
 
 PROCESSES, AGENTS, PROTOTYPES, FEATURES = 20, 20, 4096, 28
 ROOMS = (1, 4, 16, 32)
-"""E values of the default run (the issue's table); ``--rooms`` picks others."""
+"""E values of the default run (docs/performance.md's table); ``--rooms`` picks others."""
 QUICK_ROOMS = (1, 2)
 QUICK_PROTOTYPES = 512
 

@@ -188,34 +188,23 @@ def record_batch(env: RoomEnv, controller: Controller, *, fused: bool | None = F
 def check_fused_controller(controller: Controller, envs: Iterable[RoomEnv]) -> None:
     """One-line ``ValueError`` when ``fused=true`` cannot hold: the learned or greedy ``controller`` cannot run
     through the fused trial in one of ``envs`` (JuPedSim runs its own model, whatever ``fused`` says)."""
-    from pedrl.trial.fused import fused_reason, room_reason
+    from pedrl.trial.fused import controller_reason
 
+    if isinstance(controller, Recorder):
+        return
     for env in envs:
-        if isinstance(controller, PolicyController):
-            reason = fused_reason(env, controller.policy)
-        elif type(controller) is GreedyDoorController:
-            reason = room_reason(env)
-        else:
-            return
+        reason = controller_reason(env, controller)
         if reason is not None:
             raise ValueError(f"fused=true is invalid: the fused trial cannot run {reason} (false or null)")
 
 
 def _record_fused(env: RoomEnv, controller: Controller) -> BatchRecord | None:
     """:func:`record_batch` through the fused trial, or None where it cannot run ``controller`` in ``env``."""
-    from pedrl.trial.fused import fused_reason, record_trial_fused, room_reason
+    from pedrl.trial.fused import controller_reason, record_trial_fused
 
-    if isinstance(controller, PolicyController):
-        policy = controller.policy
-        if fused_reason(env, policy) is not None:
-            return None
-    elif type(controller) is GreedyDoorController:
-        policy = None
-        if room_reason(env) is not None:
-            return None
-    else:
+    if controller_reason(env, controller) is not None:
         return None
-    trace = record_trial_fused(env, policy, epsilon=controller.epsilon, generator=controller.generator)
+    trace = record_trial_fused(env, controller)
     _, crashes, wall_crashes, goal, _, decisions = trace.totals
     reached = goal > 0
     taken = trace.active[:, 1:]

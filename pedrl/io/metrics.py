@@ -1,6 +1,6 @@
 """Run logging: TensorBoard scalars and figures, and the per-trial ``learning_curve.csv``.
 
-Metric name spaces (documented in the README):
+Metric name spaces (documented in docs/outputs.md):
     charts/   what the agents achieve (success_rate, episodic_return, crashes_agent, crashes_wall, mean_speed,
               evacuation_time, door_flow, decisions_per_s, epsilon)
     vq/       the quantizer (distortion, prototypes)

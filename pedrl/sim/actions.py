@@ -27,7 +27,7 @@ either way. The smallest turn is fine enough to line up with a 1 m opening: with
 error falls to at most 2.25 degrees, so a full-speed step of 2.5 m lands within 0.1 m of the aimed line (the
 clearance of a 0.4 m body in a 1 m opening); ``COARSE_TURN_RATIOS`` left up to 9 degrees (0.39 m)."""
 COARSE_TURN_RATIOS: Final = (-0.75, -0.5, -0.25, -0.1, 0.0, 0.1, 0.25, 0.5, 0.75)
-"""The turn ratios before issue 19 (smallest turn 18 degrees), kept for old runs and the golden trajectories."""
+"""The former default turn ratios (smallest turn 18 degrees), kept for old runs and the golden trajectories."""
 ACTION_FRAMES: Final = ("heading", "goal")
 """What an action changes. ``heading`` (the paper): the speed and the heading change by the ratios from their
 current values. ``goal``: the speed index sets the speed to ``speed_ratios[i] * max_speed`` and the turn index sets

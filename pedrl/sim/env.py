@@ -8,9 +8,8 @@ Who starts where and heads where (placement, exits, waypoint routes) is :class:`
 
 from __future__ import annotations
 
-import functools
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any, Final
 
 import torch
@@ -33,7 +32,14 @@ from pedrl.sim.checks import (
     check_real,
 )
 from pedrl.sim.geometry import NUM_WALLS, Geometry, X, Y, spawn_counts
-from pedrl.sim.motion import Movement, move_agents, move_agents_sequential, move_agents_sliding
+from pedrl.sim.motion import (
+    Motion,
+    Movement,
+    SlidingMotion,
+    move_agents,
+    move_agents_sequential,
+    move_agents_sliding,
+)
 from pedrl.sim.params import RoomParams
 from pedrl.sim.rewards import MAX_REWARD, compute_rewards
 from pedrl.sim.room_checks import (
@@ -48,7 +54,7 @@ from pedrl.sim.room_checks import (
     read_option,
     read_options,
 )
-from pedrl.sim.sensing import Observation, feature_names, num_features, observe
+from pedrl.sim.sensing import Observation, compiled_observe, feature_names, num_features, observe
 from pedrl.sim.spawning import MAX_DENSITY as MAX_DENSITY  # re-exported: pedrl.scenarios checks its spawn areas by it
 from pedrl.sim.spawning import PlacementError as PlacementError  # re-exported: raised by reset
 from pedrl.sim.spawning import Spawns, check_density
@@ -71,17 +77,6 @@ STATE_BYTES: Final = 128
 """Bytes per agent of the state, observations, rewards and flags of one decision."""
 
 
-@functools.cache
-def compiled_observe() -> Callable[..., Observation]:
-    """:func:`~pedrl.sim.sensing.observe` through ``torch.compile`` (static shapes), built once per process.
-
-    Every room of one shape shares its graph: a new trial, a partial reset or another room of the same size reuses
-    it (``tests/sim/test_env.py`` checks that the graph count stays constant). Inductor caches the compiled code
-    on disk (``TORCHINDUCTOR_CACHE_DIR``), so later processes compile faster.
-    """
-    return torch.compile(observe, dynamic=False)
-
-
 class RoomEnv:
     """R replicas of a walkable area (the paper's room by default), each holding N agents that must leave by an exit.
 
@@ -99,6 +94,7 @@ class RoomEnv:
         params: The validated settings (:class:`~pedrl.sim.params.RoomParams`), with what the fast path supports.
         state: The rooms' state (:class:`~pedrl.sim.state.RoomState`); :meth:`load_state` sets it.
         geometry: Walls, exits and spawn areas (:class:`~pedrl.sim.geometry.Geometry`).
+        motion: The constants of a decision's movement by the contact model (:class:`~pedrl.sim.motion.Motion`).
         exit_index: The exit each agent heads for ``(R, N)`` int64: its group's, or the nearest at placement.
         stage: The waypoint each agent aims at ``(R, N)`` int64; past its group's waypoints, its exit.
         spawns: Who starts where and heads where (:class:`~pedrl.sim.spawning.Spawns`).
@@ -290,6 +286,12 @@ class RoomEnv:
             num_replicas=self.num_replicas,
             room=(self.width, self.length),
             device=self.device,
+        )
+        constants = (self.geometry, self.agent_radius, self.decision_length, self.num_substeps)
+        self.motion = (
+            Motion(*constants)
+            if self.contact == "stop"
+            else SlidingMotion(*constants, self.time_gap if self.contact != "slide" else None, self.contact == "yield")
         )
         self.speed_changes = torch.tensor(self.speed_ratios, device=self.device) * self.max_speed
         self.turn_changes = torch.tensor(self.turn_ratios, device=self.device) * math.pi
@@ -530,24 +532,13 @@ class RoomEnv:
         """Move the ``acting`` agents at the new ``speeds`` and ``headings``, sub-stepped, by the contact model and
         collision rule: the movement, and the speeds and velocities after it."""
         velocities = velocities_from(speeds=speeds, headings=headings)
-        motion = dict(
-            positions=self.positions,
-            velocities=velocities,
-            active=acting,
-            geometry=self.geometry,
-            agent_radius=self.agent_radius,
-            decision_length=self.decision_length,
-            num_substeps=self.num_substeps,
-        )
+        bodies = dict(positions=self.positions, velocities=velocities, active=acting)
         if self.collision_rule == "sequential":
             priority = torch.rand(self.active.shape, generator=self.generator, device=self.device)
             if self.collision_order == "door_first":  # metres dominate, the uniform draw breaks ties
                 priority = self._goal_distance(self.positions, targets) + priority * 1e-3
         if self.contact != "stop":
-            time_gap = self.time_gap if self.contact in ("headway", "yield") else None
-            movement = move_agents_sliding(
-                **motion, priority=priority, time_gap=time_gap, yield_to_earlier=self.contact == "yield"
-            )
+            movement = move_agents_sliding(**bodies, motion=self.motion, priority=priority)
             # the speed is the distance actually walked; the heading stays the commanded one
             walked = torch.linalg.vector_norm(movement.positions - self.positions, dim=-1) / self.decision_length
             speeds = torch.where(acting, walked.clamp_max(self.max_speed), speeds)
@@ -555,9 +546,11 @@ class RoomEnv:
         else:
             if self.collision_rule == "sequential":
                 # off the CPU: fixed rounds with masks, so that a decision never waits for the host (same result)
-                movement = move_agents_sequential(**motion, priority=priority, sync_free=self.device.type != "cpu")
+                movement = move_agents_sequential(
+                    **bodies, motion=self.motion, priority=priority, sync_free=self.device.type != "cpu"
+                )
             else:
-                movement = move_agents(**motion)
+                movement = move_agents(**bodies, motion=self.motion)
             speeds = torch.where(movement.blocked, 0.0, speeds)
             velocities = torch.where(movement.blocked.unsqueeze(-1), 0.0, velocities)
         return movement, speeds, velocities

@@ -18,8 +18,7 @@ from __future__ import annotations
 
 import torch
 
-from pedrl.sim.geometry import Geometry
-from pedrl.sim.motion import PAIR_MARGIN, Movement
+from pedrl.sim.motion.common import PAIR_MARGIN, Motion, Movement
 
 __all__ = ["move_agents_literal", "move_agents_sequential_literal"]
 
@@ -29,16 +28,14 @@ def move_agents_literal(
     positions: torch.Tensor,
     velocities: torch.Tensor,
     active: torch.Tensor,
-    geometry: Geometry,
-    agent_radius: float,
-    decision_length: float,
-    num_substeps: int,
+    motion: Motion,
 ) -> Movement:
     """The collision rule of docs/design.md written literally: a loop over sub-steps, rounds inside each.
 
     Same arguments and result as :func:`pedrl.sim.motion.move_agents`, except that ``crashed_agent`` may also be
     set where ``crashed_wall`` is (the fast code clears it there).
     """
+    geometry, agent_radius, decision_length, num_substeps = motion.values()
     num_replicas, num_agents, _ = positions.shape
     step = velocities * (decision_length / num_substeps)
     moving = active & (step != 0).any(-1)
@@ -87,10 +84,7 @@ def move_agents_sequential_literal(
     positions: torch.Tensor,
     velocities: torch.Tensor,
     active: torch.Tensor,
-    geometry: Geometry,
-    agent_radius: float,
-    decision_length: float,
-    num_substeps: int,
+    motion: Motion,
     priority: torch.Tensor,
 ) -> Movement:
     """The paper's rule written literally: sub-step after sub-step, agent after agent in priority order.
@@ -98,6 +92,7 @@ def move_agents_sequential_literal(
     Same arguments (but ``sync_free`` and ``compiled``) and result as
     :func:`pedrl.sim.motion.move_agents_sequential`.
     """
+    geometry, agent_radius, decision_length, num_substeps = motion.values()
     num_replicas, num_agents, _ = positions.shape
     step = velocities * (decision_length / num_substeps)
     going = active & (step != 0).any(-1)

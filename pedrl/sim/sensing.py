@@ -24,7 +24,9 @@ the neighbour mask.
 
 from __future__ import annotations
 
+import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import Final
@@ -307,3 +309,14 @@ def void_draws(
 ) -> torch.Tensor:
     """Uniform draws ``(*batch, 3k + 1)`` in ``[0, 1)`` for :func:`fill_void_neighbours` (``uniform=``)."""
     return torch.rand((*batch, 3 * num_neighbours + 1), generator=generator, device=device)
+
+
+@functools.cache
+def compiled_observe() -> Callable[..., Observation]:
+    """:func:`~pedrl.sim.sensing.observe` through ``torch.compile`` (static shapes), built once per process.
+
+    Every room of one shape shares its graph: a new trial, a partial reset or another room of the same size reuses
+    it (``tests/sim/test_env.py`` checks that the graph count stays constant). Inductor caches the compiled code
+    on disk (``TORCHINDUCTOR_CACHE_DIR``), so later processes compile faster.
+    """
+    return torch.compile(observe, dynamic=False)

@@ -20,8 +20,9 @@ import numpy as np
 import torch
 
 from pedrl._numba import numba, numba_available
-from pedrl.rl.policy import TabularPolicy
+from pedrl.rl.policy import PolicyController, TabularPolicy
 from pedrl.sim import RoomEnv
+from pedrl.sim.controllers import GreedyDoorController
 from pedrl.sim.motion import CONTACT_MODELS
 from pedrl.sim.sensing import MIN_VOID_DISTANCE
 from pedrl.sim.state import RoomState
@@ -32,6 +33,7 @@ from pedrl.vq.quantizer import Quantizer
 __all__ = [
     "FusedRecord",
     "check_fused",
+    "controller_reason",
     "fused_reason",
     "record_trial_fused",
     "room_reason",
@@ -125,22 +127,31 @@ class FusedRecord:
     totals: np.ndarray
 
 
-def record_trial_fused(
-    env: RoomEnv, policy: TabularPolicy | None, *, epsilon: float, generator: torch.Generator
-) -> FusedRecord:
-    """One trial of every room of ``env`` from a reset (its generator draws the scene), acted by ``policy``'s tables
-    (epsilon-greedy, no learning) or, with ``policy=None``, by the greedy walker
-    (:class:`pedrl.sim.controllers.GreedyDoorController`'s twin), recorded frame by frame. ``ValueError`` where the
-    fused trial cannot run (:func:`fused_reason`, :func:`room_reason`)."""
-    reason = room_reason(env) if policy is None else fused_reason(env, policy)
+def controller_reason(env: RoomEnv, controller: Any) -> str | None:
+    """Why the fused trial cannot run ``controller`` in ``env`` (one phrase), or None when it can: it runs a
+    :class:`~pedrl.rl.policy.PolicyController` (a learned policy) and the greedy walker
+    (:class:`~pedrl.sim.controllers.GreedyDoorController`)."""
+    if isinstance(controller, PolicyController):
+        return fused_reason(env, controller.policy)
+    if type(controller) is GreedyDoorController:
+        return room_reason(env)
+    return f"with a {type(controller).__name__} (it runs learned policies and the greedy walker)"
+
+
+def record_trial_fused(env: RoomEnv, controller: Any, *, reset: bool = True) -> FusedRecord:
+    """One trial of every room of ``env``, acted by ``controller`` (a learned policy, epsilon-greedy without
+    learning, or the greedy walker, with the controller's own ``epsilon`` and ``generator``), recorded frame by
+    frame: from a reset (its generator draws the scene), or with ``reset=False`` from the rooms' current state (a
+    reset the caller made, e.g. with placed agents). ``ValueError`` where the fused trial cannot run
+    (:func:`controller_reason`)."""
+    reason = controller_reason(env, controller)
     if reason is not None:
         raise ValueError(f"the fused trial cannot run {reason}")
-    if policy is None:
-        policy = _walker_policy(env)
-        greedy = True
-    else:
-        greedy = False
-    totals, _, steps, trace = _launch(env, policy, epsilon, generator, False, 0.0, 0.0, record=True, greedy=greedy)
+    greedy = not isinstance(controller, PolicyController)
+    policy = _walker_policy(env) if greedy else controller.policy
+    totals, _, steps, trace = _launch(
+        env, policy, controller.epsilon, controller.generator, False, 0.0, 0.0, record=True, greedy=greedy, reset=reset
+    )
     frames = int(steps.max()) + 1
     positions, velocities, active = (a[:, :frames] for a in trace)
     return FusedRecord(positions, velocities, active, totals)
@@ -155,19 +166,22 @@ def _walker_policy(env: RoomEnv) -> TabularPolicy:
     return TabularPolicy(StateEncoder(settings, quantizer), torch.zeros(1, 1, 1, env.num_actions))
 
 
-def _launch(env, policy, epsilon, generator, learn, alpha, gamma, *, record, greedy=False):
-    """Reset ``env``, run :func:`pedrl.trial.fused_kernels.fused_trial` and write the rooms' state back: the
-    per-agent totals, the TD sums, each thread's decisions and the trace (empty unless ``record``)."""
+def _launch(env, policy, epsilon, generator, learn, alpha, gamma, *, record, greedy=False, reset=True):
+    """Reset ``env`` (unless ``reset`` is False), run :func:`pedrl.trial.fused_kernels.fused_trial` and write the
+    rooms' state back: the per-agent totals, the TD sums, each thread's decisions and the trace (empty unless
+    ``record``)."""
     from pedrl.sim.streams import seed_streams
     from pedrl.trial.fused_kernels import fused_trial
     from pedrl.vq.encode_kernel import pack_encoder
 
     set_kernel_threads(torch.get_num_threads())
-    env.reset()
+    if reset:
+        env.reset()
     rooms, agents = env.num_replicas, env.num_agents
     layout = policy.layout
     process, base_rows = layout.of(rooms, agents, env.device)
-    group = layout.rooms_per_process if layout.blocks(rooms) else rooms  # rooms sharing tables run in one thread
+    # rooms that learn into shared tables run in one thread; rooms that only read them, each in its own
+    group = (layout.rooms_per_process if layout.blocks(rooms) else rooms) if learn else 1
     state = _arrays(env.state)
     streams = np.empty(rooms, np.uint64)
     seed_streams(np.uint64(int(torch.randint(0, 2**62, (1,), generator=generator))), streams)

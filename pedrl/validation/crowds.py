@@ -19,6 +19,7 @@ import torch
 from pedrl.integrations.jupedsim import pad_frames, simulate_room
 from pedrl.scenarios import Scenario
 from pedrl.sim import RoomEnv
+from pedrl.trial.fused import controller_reason, record_trial_fused
 from pedrl.validation.measures import Recording
 
 
@@ -59,6 +60,8 @@ class PedrlCrowd:
     controller: Any
     env_settings: Mapping[str, Any] = field(default_factory=dict)
     device: torch.device = field(default_factory=lambda: torch.device("cpu"))
+    fused: bool | None = None
+    """Run through the fused trial's kernels (:func:`pedrl.trial.fused.record_trial_fused`); None: wherever they can."""
 
     @property
     def radius(self) -> float:
@@ -141,6 +144,11 @@ class PedrlCrowd:
             positions=positions,
             headings=headings,
         )
+        reason = None if self.fused is False else controller_reason(env, self.controller)
+        if self.fused is not False and reason is None:
+            return self._record_fused(env)
+        if self.fused:
+            raise ValueError(f"fused=true is invalid: the fused trial cannot run {reason} (false or null)")
         frames, active = [env.positions.clone()], [env.active.clone()]
         left_at = torch.full(env.active.shape, -1, dtype=torch.int64, device=env.device)
         decision = 0
@@ -154,6 +162,21 @@ class PedrlCrowd:
             positions=torch.stack(frames).cpu().numpy(),
             active=torch.stack(active).cpu().numpy(),
             left_at=left_at.cpu().numpy(),
+            frame_rate=env.decisions_per_second,
+            radius=env.agent_radius,
+            max_speed=env.max_speed,
+        )
+
+    def _record_fused(self, env: RoomEnv) -> Recording:
+        """:meth:`simulate`'s recording through the fused trial, from the rooms as placed: frame 0 the start, frame t
+        the positions and who is still in the room after decision t."""
+        trace = record_trial_fused(env, self.controller, reset=False)
+        still_in = np.concatenate((trace.active[:, 1:], np.zeros_like(trace.active[:, :1])), axis=1)
+        goal, decisions = trace.totals[3], trace.totals[5]
+        return Recording(
+            positions=trace.positions.transpose(1, 0, 2, 3).copy(),
+            active=still_in.transpose(1, 0, 2).copy(),
+            left_at=np.where(goal > 0, decisions, -1).astype(np.int64),
             frame_rate=env.decisions_per_second,
             radius=env.agent_radius,
             max_speed=env.max_speed,

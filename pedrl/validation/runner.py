@@ -48,6 +48,7 @@ def validate(
     radius: float | None = None,
     jupedsim: Any = None,
     tensorboard: bool = True,
+    fused: bool | None = None,
     meta: Mapping[str, Any] | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> dict[str, list[TestResult]]:
@@ -57,7 +58,9 @@ def validate(
 
     Every column runs at one body radius: the checkpoint's, else ``radius`` (default :data:`DEFAULT_RADIUS`). The
     greedy reference runs in the checkpoint's room settings when there is one (same bodies, speeds, sensing), else in
-    the defaults of :class:`~pedrl.sim.RoomEnv`; JuPedSim starts from the positions the same rooms give.
+    the defaults of :class:`~pedrl.sim.RoomEnv`; JuPedSim starts from the positions the same rooms give. The learned
+    and greedy crowds run through the fused trial's kernels where they can (``fused``: None), or the torch loop
+    (False).
     """
     budget = Budget(quick=quick)
     env_settings = dict(learned[1]) if learned is not None else {}
@@ -66,10 +69,10 @@ def validate(
     crowds: dict[str, Any] = {}
     for name in columns(controller):
         if name == "learned" and learned is not None:
-            crowds[name] = PedrlCrowd(learned[0], env_settings, device)
+            crowds[name] = PedrlCrowd(learned[0], env_settings, device, fused)
         elif name == "greedy":
             greedy = GreedyDoorController(epsilon=epsilon, generator=torch.Generator(device=device))  # seeded below
-            crowds[name] = PedrlCrowd(greedy, env_settings, device)
+            crowds[name] = PedrlCrowd(greedy, env_settings, device, fused)
         elif name == "jupedsim":
             placement = PedrlCrowd(None, env_settings, device)
             crowds[name] = JuPedSimCrowd(replace(jupedsim, radius=placement.radius), placement)

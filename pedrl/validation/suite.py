@@ -6,7 +6,7 @@ feed the verdicts hand-built crowds that must pass and crowds that must fail, so
 
 Every test runs at the crowd's own body radius. A test whose crowd does not fit at that radius (the bodies would
 cover more than :data:`~pedrl.sim.env.MAX_DENSITY` of their start area) is "not applicable at radius r": it is never
-shrunk to fit. The README gives each test's definition, its pass rule and the sizes it needs.
+shrunk to fit. docs/validation-suite.md gives each test's definition, its pass rule and the sizes it needs.
 """
 
 from __future__ import annotations

@@ -370,8 +370,9 @@ def sparse_room(rule: str = "stop"):
 @pytest.mark.skipif(not numba_available(), reason="numba is off (PEDRL_NO_NUMBA)")
 @pytest.mark.parametrize("rule", ["stop", "yield"])
 def test_the_greedy_walker_records_the_same_trials_on_both_paths(rule):
-    """Where the order of action is the goal distance's (door_first), the fused recording of the greedy walker is the torch loop's within the fused trial's
-    tolerances (positions 1e-4 m), frame by frame, with the same exits, times and speeds."""
+    """Where the order of action is the goal distance's (door_first), the fused recording of the greedy walker is
+    the torch loop's within the fused trial's tolerances (positions 1e-4 m), frame by frame, with the same exits,
+    times, speeds and contacts."""
     from pedrl.evaluation.engine import record_batch
     from pedrl.sim.controllers import GreedyDoorController
 

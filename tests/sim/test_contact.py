@@ -17,7 +17,7 @@ from pedrl.sim import RoomEnv
 from pedrl.sim.actions import NUM_ACTIONS, NUM_TURNS, velocities_from
 from pedrl.sim.controllers import GreedyDoorController
 from pedrl.sim.geometry import distances_to_segments
-from pedrl.sim.motion import move_agents_sliding, move_agents_sliding_torch
+from pedrl.sim.motion import SlidingMotion, move_agents_sliding, move_agents_sliding_torch
 from pedrl.sim.motion import sequential as sequential_motion
 from pedrl.sim.motion import sliding as sliding_motion
 
@@ -114,14 +114,12 @@ def test_kernel_equals_the_torch_reference_to_the_bit(seed, num_agents, room, sp
         positions=env.positions,
         velocities=velocities,
         active=active,
-        geometry=env.geometry,
-        agent_radius=env.agent_radius,
-        decision_length=env.decision_length,
-        num_substeps=env.num_substeps,
+        motion=SlidingMotion(
+            env.geometry, env.agent_radius, env.decision_length, env.num_substeps,
+            None if rule == "slide" else 1.0, rule == "yield",
+        ),
         priority=priority,
-        time_gap=None if rule == "slide" else 1.0,
-        yield_to_earlier=rule == "yield",
-    )
+    )  # fmt: skip
     compiled = move_agents_sliding(**kwargs, compiled=True)
     reference = move_agents_sliding_torch(**kwargs)  # the kernel's specification
     assert torch.equal(compiled.positions, reference.positions)  # same float32 operations in the same order

@@ -23,7 +23,7 @@ from pedrl.sim.actions import (
     velocities_from,
 )
 from pedrl.sim.geometry import Geometry, build_walls, distances_to_segments
-from pedrl.sim.motion import move_agents, move_agents_sequential
+from pedrl.sim.motion import Motion, move_agents, move_agents_sequential
 from pedrl.sim.reference import move_agents_literal, move_agents_sequential_literal
 
 
@@ -33,10 +33,7 @@ def motion(env: RoomEnv, velocities: torch.Tensor) -> dict:
         positions=env.positions,
         velocities=velocities,
         active=env.active,
-        geometry=env.geometry,
-        agent_radius=env.agent_radius,
-        decision_length=env.decision_length,
-        num_substeps=env.num_substeps,
+        motion=Motion(env.geometry, env.agent_radius, env.decision_length, env.num_substeps),
     )
 
 
@@ -230,10 +227,7 @@ def test_standing_agent_that_is_walked_into_is_not_penalised():
         positions=positions,
         velocities=velocities,
         active=torch.ones(1, 2, dtype=torch.bool),
-        geometry=geometry,
-        agent_radius=0.4,
-        decision_length=1.0,
-        num_substeps=7,
+        motion=Motion(geometry, 0.4, 1.0, 7),
     )
     assert movement.crashed_agent.tolist() == [[True, False]]
     assert movement.blocked.tolist() == [[True, False]]
@@ -278,10 +272,7 @@ def _sequential(positions, velocities, priority=None, geometry=None):
         positions=positions,
         velocities=velocities,
         active=torch.ones(1, num_agents, dtype=torch.bool),
-        geometry=geometry or Geometry.rectangle(width=60.0, length=100.0, door_width=2.0),
-        agent_radius=0.4,
-        decision_length=1.0,
-        num_substeps=7,
+        motion=Motion(geometry or Geometry.rectangle(width=60.0, length=100.0, door_width=2.0), 0.4, 1.0, 7),
         priority=torch.tensor([priority if priority is not None else list(range(num_agents))], dtype=torch.float32),
     )
 
@@ -311,10 +302,7 @@ def test_two_agents_below_the_door_heading_for_its_centre(rule):
             positions=positions,
             velocities=velocities,
             active=active,
-            geometry=geometry,
-            agent_radius=0.4,
-            decision_length=1.0,
-            num_substeps=7,
+            motion=Motion(geometry, 0.4, 1.0, 7),
         )
         if rule == "sequential":
             movement = move_agents_sequential(**kwargs, priority=torch.rand(1, 2, generator=generator))

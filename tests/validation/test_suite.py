@@ -11,6 +11,7 @@ from hydra import compose, initialize_config_dir
 from omegaconf import open_dict
 from shapely.geometry import LineString
 
+from pedrl._numba import numba_available
 from pedrl.cli import CONFIG_DIR
 from pedrl.scenarios import LIDDLE_FLOWS, LIDDLE_WIDTHS, build_scenario
 from pedrl.sim.controllers import GreedyDoorController
@@ -395,3 +396,27 @@ def test_the_jupedsim_column_without_jupedsim_is_one_line(tmp_path, monkeypatch)
     with pytest.raises(ValueError, match=r"jupedsim is not installed: pip install 'pedrl\[jupedsim\]'") as err:
         run(compose_config("validate", ["controller=references"]), run_dir=tmp_path)
     assert "\n" not in str(err.value) and not (tmp_path / "validation.json").exists()
+
+
+# ---------------------------------------------------------------------------------------------- the fast path
+@pytest.mark.skipif(not numba_available(), reason="numba is off (PEDRL_NO_NUMBA)")
+def test_a_placed_crowd_records_the_same_run_through_the_fused_trial():
+    """RiMEA 1's lone walker, placed by hand: the fused recording is the torch loop's (positions within 1e-4 m,
+    the same frames in the room and the same exit decision), and RiMEA 1 passes on both paths."""
+    from pedrl.validation.suite import straight_corridor
+
+    runs = []
+    for fused in (False, True):
+        crowd = PedrlCrowd(GreedyDoorController(), {"agent_radius": 0.2}, fused=fused)
+        start = np.array([[[0.21, 1.0]], [[0.21, 0.5]]], dtype=np.float32)
+        runs.append(crowd.simulate(straight_corridor(), num_agents=1, replicas=2, max_time=60.0, seed=0,
+                                   max_speed=1.33, positions=start, headings=np.zeros((2, 1))))  # fmt: skip
+    torch_path, kernels = runs
+    assert kernels.positions.shape == torch_path.positions.shape
+    np.testing.assert_allclose(kernels.positions, torch_path.positions, atol=1e-4, rtol=0)
+    assert np.array_equal(kernels.active, torch_path.active)
+    assert np.array_equal(kernels.left_at, torch_path.left_at) and int(kernels.left_at[0, 0]) > 0
+    for fused in (False, True):
+        crowd = PedrlCrowd(GreedyDoorController(), {"agent_radius": 0.2}, fused=fused)
+        row = rimea_1(Context(crowd, Budget(quick=True)))
+        assert row.passed and row.value == 30.0

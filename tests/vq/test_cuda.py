@@ -60,22 +60,17 @@ def test_sequential_collision_rule_on_cuda_equals_the_cpu_on_a_hand_built_scene(
     positions = torch.tensor([[[4.0, 9.0], [4.0, 8.1], [3.0, 5.0], [5.0, 5.0]]])
     speeds = torch.tensor([[1.0, 2.5, 2.0, 2.0]])
     headings = torch.tensor([[1.5708, 1.5708, 0.0, 3.1416]])  # up, up, towards each other
-    kwargs = dict(
-        active=torch.ones(1, 4, dtype=torch.bool),
-        agent_radius=env.agent_radius,
-        decision_length=env.decision_length,
-        num_substeps=env.num_substeps,
-    )
+    kwargs = dict(active=torch.ones(1, 4, dtype=torch.bool))
     velocities = velocities_from(speeds=speeds, headings=headings)
     priority = torch.tensor([[0.3, 0.1, 0.2, 0.4]])
     cpu = move_agents_sequential(
-        positions=positions, velocities=velocities, geometry=env.geometry, priority=priority, **kwargs
+        positions=positions, velocities=velocities, motion=env.motion, priority=priority, **kwargs
     )
     cuda_env = RoomEnv(num_replicas=1, num_agents=4, width=8.0, length=10.0, door_width=1.5, device="cuda")
     cuda = move_agents_sequential(
         positions=positions.cuda(),
         velocities=velocities.cuda(),
-        geometry=cuda_env.geometry,
+        motion=cuda_env.motion,
         priority=priority.cuda(),
         sync_free=True,
         **{**kwargs, "active": kwargs["active"].cuda()},

@@ -3,13 +3,13 @@ contact models (one enumeration, which the kernels number by position), and the 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from functools import lru_cache
-from typing import Final
+from typing import Any, Final
 
 import torch
 
-from pedrl.sim.geometry import X, Y
+from pedrl.sim.geometry import Geometry, X, Y
 
 PAIR_MARGIN: Final = 1e-3
 """Slack (m) of the conservative pre-filters of :func:`move_agents`; it only widens them."""
@@ -51,6 +51,27 @@ with a right of way: only the bodies that act before the mover in the order of t
 ``collision_order=door_first``, those nearer the goal) slow it; it slides past the others (``yield_to_earlier``).
 Two bodies converging on a door then never hold each other up: the one nearer goes, the other keeps its gap.
 """
+
+
+@dataclass(frozen=True)
+class Motion:
+    """The constants of one decision's movement, shared by every motion model.
+
+    Attributes:
+        geometry: The room.
+        agent_radius: Body radius ``r`` (m).
+        decision_length: Duration of the decision (s).
+        num_substeps: Number of sub-steps ``S``.
+    """
+
+    geometry: Geometry
+    agent_radius: float
+    decision_length: float
+    num_substeps: int
+
+    def values(self) -> tuple[Any, ...]:
+        """The fields in declaration order (no copies)."""
+        return tuple(getattr(self, item.name) for item in fields(self))
 
 
 # the contact models as the numba kernels number them (positions in CONTACT_MODELS)

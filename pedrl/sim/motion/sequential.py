@@ -12,6 +12,7 @@ from pedrl._numba import use_kernels
 from pedrl.sim.geometry import Geometry, X, Y
 from pedrl.sim.motion.common import (
     PAIR_MARGIN,
+    Motion,
     Movement,
     _discs_overlap,
     _eye,
@@ -36,10 +37,7 @@ def move_agents_sequential(
     positions: torch.Tensor,
     velocities: torch.Tensor,
     active: torch.Tensor,
-    geometry: Geometry,
-    agent_radius: float,
-    decision_length: float,
-    num_substeps: int,
+    motion: Motion,
     priority: torch.Tensor,
     sync_free: bool = False,
     compiled: bool | None = None,
@@ -65,10 +63,7 @@ def move_agents_sequential(
         positions: Positions at the start of the decision ``(R, N, 2)`` (m).
         velocities: Velocities for the decision ``(R, N, 2)`` (m/s).
         active: Agents in the room ``(R, N)`` bool; the others neither move nor collide.
-        geometry: The room.
-        agent_radius: Body radius (m).
-        decision_length: Duration of the decision (s).
-        num_substeps: Number of sub-steps ``S``.
+        motion: The room and the decision's constants (:class:`~pedrl.sim.motion.Motion`).
         priority: Order of action ``(R, N)`` float (lowest acts first); distinct values within a replica.
         sync_free: Bounded iterations with masks instead of convergence tests read on the host (torch path).
         compiled: Use the compiled CPU kernel (None: on the CPU when numba is there and not ``sync_free``).
@@ -76,6 +71,7 @@ def move_agents_sequential(
     Returns:
         The :class:`Movement` of the decision.
     """
+    geometry, agent_radius, decision_length, num_substeps = motion.values()
     if use_kernels(positions.device, False if sync_free and compiled is None else compiled):
         from pedrl.sim.motion.sequential_kernel import sequential_substeps  # imports numba: only where it is used
 
@@ -97,15 +93,7 @@ def move_agents_sequential(
         )
         return Movement(moved_to, blocked, crashed_wall, blocked & ~crashed_wall, reached)
     return move_agents_sequential_torch(
-        positions=positions,
-        velocities=velocities,
-        active=active,
-        geometry=geometry,
-        agent_radius=agent_radius,
-        decision_length=decision_length,
-        num_substeps=num_substeps,
-        priority=priority,
-        sync_free=sync_free,
+        positions=positions, velocities=velocities, active=active, motion=motion, priority=priority, sync_free=sync_free
     )
 
 
@@ -114,10 +102,7 @@ def move_agents_sequential_torch(
     positions: torch.Tensor,
     velocities: torch.Tensor,
     active: torch.Tensor,
-    geometry: Geometry,
-    agent_radius: float,
-    decision_length: float,
-    num_substeps: int,
+    motion: Motion,
     priority: torch.Tensor,
     sync_free: bool = False,
 ) -> Movement:
@@ -140,6 +125,7 @@ def move_agents_sequential_torch(
     every sub-step with a kept pair runs exactly ``N`` rounds, which leaves the fixed point unchanged; the
     result is the same. Otherwise sub-steps stop once nobody moves and rounds once nothing changes.
     """
+    geometry, agent_radius, decision_length, num_substeps = motion.values()
     num_agents = positions.shape[1]
     device, dtype = positions.device, positions.dtype
     contact_sq = 4.0 * agent_radius * agent_radius

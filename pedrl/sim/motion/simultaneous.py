@@ -9,6 +9,7 @@ import torch
 from pedrl.sim.geometry import Geometry
 from pedrl.sim.motion.common import (
     PAIR_MARGIN,
+    Motion,
     Movement,
     _discs_overlap,
     _swept_discs,
@@ -99,10 +100,7 @@ def move_agents(
     positions: torch.Tensor,
     velocities: torch.Tensor,
     active: torch.Tensor,
-    geometry: Geometry,
-    agent_radius: float,
-    decision_length: float,
-    num_substeps: int,
+    motion: Motion,
 ) -> Movement:
     """Move every active agent through one decision, sub-stepped, with the collision rule of the module.
 
@@ -134,14 +132,12 @@ def move_agents(
         positions: Positions at the start of the decision ``(R, N, 2)`` (m).
         velocities: Velocities for the decision ``(R, N, 2)`` (m/s).
         active: Agents in the room ``(R, N)`` bool; the others neither move nor collide.
-        geometry: The room.
-        agent_radius: Body radius (m).
-        decision_length: Duration of the decision (s).
-        num_substeps: Number of sub-steps ``S``.
+        motion: The room and the decision's constants (:class:`~pedrl.sim.motion.Motion`).
 
     Returns:
         The :class:`Movement` of the decision.
     """
+    geometry, agent_radius, decision_length, num_substeps = motion.values()
     num_replicas, num_agents, _ = positions.shape
     device, dtype = positions.device, positions.dtype
     never = torch.tensor(num_substeps + 1, device=device)  # "no such sub-step"

@@ -6,12 +6,15 @@ something, and under ``headway``/``yield`` walks at the collision-free speed (To
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import torch
 
 from pedrl._numba import use_kernels
 from pedrl.sim.geometry import Geometry, X, Y
 from pedrl.sim.motion.common import (
     PAIR_MARGIN,
+    Motion,
     Movement,
     _eye,
 )
@@ -21,6 +24,20 @@ def _sqrt(values: torch.Tensor) -> torch.Tensor:
     """Correctly rounded float32 square root, as the kernels' (torch's vectorised float32 ``sqrt`` is off by one ulp
     for about 1 value in 150); through float64, whose rounding to float32 is then exact."""
     return values.double().sqrt().to(values.dtype)
+
+
+@dataclass(frozen=True)
+class SlidingMotion(Motion):
+    """The constants of a decision under ``slide`` (no ``time_gap``), ``headway`` (a ``time_gap``) or ``yield`` (a
+    ``time_gap`` and ``yield_to_earlier``).
+
+    Attributes:
+        time_gap: ``T`` of the collision-free speed rule (s); None for ``slide``.
+        yield_to_earlier: Only the bodies that act before the mover slow it (``yield``).
+    """
+
+    time_gap: float | None = None
+    yield_to_earlier: bool = False
 
 
 def headway_factors(
@@ -110,13 +127,8 @@ def move_agents_sliding(
     positions: torch.Tensor,
     velocities: torch.Tensor,
     active: torch.Tensor,
-    geometry: Geometry,
-    agent_radius: float,
-    decision_length: float,
-    num_substeps: int,
+    motion: SlidingMotion,
     priority: torch.Tensor,
-    time_gap: float | None = None,
-    yield_to_earlier: bool = False,
     compiled: bool | None = None,
 ) -> Movement:
     """Move every active agent through one decision with the ``slide`` contact model (``headway`` with ``time_gap``,
@@ -148,19 +160,15 @@ def move_agents_sliding(
         positions: Positions at the start of the decision ``(R, N, 2)`` (m).
         velocities: Commanded velocities ``(R, N, 2)`` (m/s).
         active: Agents in the room ``(R, N)`` bool; the others neither move nor collide.
-        geometry: The room.
-        agent_radius: Body radius ``r`` (m).
-        decision_length: Duration of the decision (s).
-        num_substeps: Number of sub-steps ``S``.
+        motion: The room and the decision's constants (:class:`~pedrl.sim.motion.SlidingMotion`).
         priority: Order of action ``(R, N)`` float (lowest acts first).
-        time_gap: ``T`` (s) of the collision-free speed rule, or ``None`` for plain ``slide``.
-        yield_to_earlier: With ``time_gap``, only bodies that act before the mover (lower ``priority``) slow it.
         compiled: Use the compiled CPU kernel (None: on the CPU when numba is there).
 
     Returns:
         The :class:`Movement` of the decision; ``blocked`` marks movers stopped because even the slid move was
         refused.
     """
+    geometry, agent_radius, decision_length, num_substeps, time_gap, yield_to_earlier = motion.values()
     if use_kernels(positions.device, compiled):
         from pedrl.sim.motion.sliding_kernel import sliding_substeps  # imports numba: only where it is used
 
@@ -181,16 +189,7 @@ def move_agents_sliding(
             yield_to_earlier=yield_to_earlier,
         )
     return move_agents_sliding_torch(
-        positions=positions,
-        velocities=velocities,
-        active=active,
-        geometry=geometry,
-        agent_radius=agent_radius,
-        decision_length=decision_length,
-        num_substeps=num_substeps,
-        priority=priority,
-        time_gap=time_gap,
-        yield_to_earlier=yield_to_earlier,
+        positions=positions, velocities=velocities, active=active, motion=motion, priority=priority
     )
 
 
@@ -199,13 +198,8 @@ def move_agents_sliding_torch(
     positions: torch.Tensor,
     velocities: torch.Tensor,
     active: torch.Tensor,
-    geometry: Geometry,
-    agent_radius: float,
-    decision_length: float,
-    num_substeps: int,
+    motion: SlidingMotion,
     priority: torch.Tensor,
-    time_gap: float | None = None,
-    yield_to_earlier: bool = False,
 ) -> Movement:
     """:func:`move_agents_sliding` in torch, on any device (same arguments but ``compiled``, same result): the
     specification of :func:`pedrl.sim.motion.sliding_kernel.sliding_substeps`.
@@ -214,6 +208,7 @@ def move_agents_sliding_torch(
     on a CPU core, 65 ms a decision for 20 rooms of 20 agents against 1 ms compiled): it is the path on CUDA and with
     ``PEDRL_NO_NUMBA=1``.
     """
+    geometry, agent_radius, decision_length, num_substeps, time_gap, yield_to_earlier = motion.values()
     device = positions.device
     starts, directions, inverse = _wall_segments(geometry)
     order = priority.argsort(dim=1)
