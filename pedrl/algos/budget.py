@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Final
 from pedrl.vq.kmeans import default_chunk_size
 
 if TYPE_CHECKING:
-    from pedrl.algos.base import Trainer
+    from pedrl.algos.phase import TrainerView
 
 TABLE_COPIES: Final = 2
 """Q tables alive at once in the memory estimate: the phase's and the previous phase's (followed while gathering,
@@ -19,7 +19,7 @@ KMEANS_COPIES: Final = 4
 """Copies of the states one k-means fit holds: subsampled, standardised, weighted, and their nearest distances."""
 
 
-def memory_needs(trainer: Trainer) -> dict[str, float]:
+def memory_needs(trainer: TrainerView) -> dict[str, float]:
     """Estimated bytes of a run's largest allocations, by what they hold: the worst phase of each.
 
     Q tables ``(R, A, K, 81)`` float32 (:data:`TABLE_COPIES` of them), the gathered states
@@ -44,7 +44,7 @@ def memory_needs(trainer: Trainer) -> dict[str, float]:
     return {"Q tables": tables, "gathered states": gathered, "k-means": kmeans, "room": room}
 
 
-def check_gathering_yield(trainer: Trainer) -> None:
+def check_gathering_yield(trainer: TrainerView) -> None:
     """Refuse, before any compute, a ``vq.num_prototypes`` that no gathering can reach: k-means needs a distinct
     state per prototype, and a phase records at most ``gather_trials x E x N x max_decisions`` states per
     process (``R`` times that for a shared quantizer). Fewer distinct states than that (agents leave the room

@@ -4,9 +4,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Final
+from typing import TYPE_CHECKING, Any, Final, Protocol
 
 from pedrl.sim.checks import check_integer, check_number
+
+if TYPE_CHECKING:
+    import torch
+
+    from pedrl.sim import RoomEnv
+    from pedrl.vq.settings import VQSettings
 
 MAX_TRIALS: Final = 10**9
 """Most learning trials of one phase: years of compute at the fastest measured rates; more is a typo (or a
@@ -58,3 +64,27 @@ class TrainResult:
     def finished(cls, run_dir: Path, checkpoint: Path, wall_time_s: float, final, summaries) -> TrainResult:
         """The result of a run resumed from the checkpoint of its last phase: nothing to do, nothing rewritten."""
         return cls(dict(final), run_dir, checkpoint, wall_time_s, list(summaries), finished_before=True)
+
+
+class TrainerView(Protocol):
+    """What the budget checks (:mod:`pedrl.algos.budget`) and a resume (:mod:`pedrl.algos.restore`) read of a trainer;
+    :class:`pedrl.algos.base.Trainer` is one. Typed here, below the trainer, so that neither module imports it."""
+
+    name: str
+    config: Any
+    device: torch.device
+    processes: int
+    rooms_per_process: int
+    vq: VQSettings
+
+    def phases(self) -> list[Phase]: ...
+
+    def env_for(self, num_agents: int) -> RoomEnv: ...
+
+    def rooms(self, env: RoomEnv) -> list[tuple[str, RoomEnv]]: ...
+
+    def num_tables(self, phase: Phase) -> int: ...
+
+    def max_prototypes(self, phase: Phase) -> int: ...
+
+    def check_quantizer(self, part: Any, position: int) -> str | None: ...

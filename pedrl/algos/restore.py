@@ -27,8 +27,7 @@ from pedrl.rl.policy import QUANTIZER_PREFIX, rebuild_quantizer
 from pedrl.vq import ProcessQuantizers
 
 if TYPE_CHECKING:
-    from pedrl.algos.base import Trainer
-    from pedrl.algos.phase import Phase
+    from pedrl.algos.phase import Phase, TrainerView
 
 
 @dataclass(frozen=True)
@@ -64,7 +63,7 @@ class RestoredState:
     final: dict[str, float] = field(default_factory=dict)
 
 
-def restore_state(trainer: Trainer, checkpoint: Checkpoint) -> RestoredState:
+def restore_state(trainer: TrainerView, checkpoint: Checkpoint) -> RestoredState:
     """Validate ``checkpoint`` (its stored config already checked, :func:`load_resume`) against ``trainer`` and
     rebuild its quantizer and tables; the generator states of a mid-phase checkpoint must fit the trainer's device.
 
@@ -104,7 +103,7 @@ def restore_state(trainer: Trainer, checkpoint: Checkpoint) -> RestoredState:
     )
 
 
-def _check_progress(trainer: Trainer, meta: dict[str, Any]) -> tuple[int, Phase, int]:
+def _check_progress(trainer: TrainerView, meta: dict[str, Any]) -> tuple[int, Phase, int]:
     if meta.get("algo") != trainer.name:
         raise ValueError(f"metadata algo={meta.get('algo')!r} is not the config's algorithm: must be {trainer.name!r}")
     phases = trainer.phases()
@@ -131,7 +130,7 @@ def _check_progress(trainer: Trainer, meta: dict[str, Any]) -> tuple[int, Phase,
 
 
 # ---------------------------------------------------------------------- tensors
-def _rebuild_quantizer(trainer: Trainer, checkpoint: Checkpoint, position: int) -> Any:
+def _rebuild_quantizer(trainer: TrainerView, checkpoint: Checkpoint, position: int) -> Any:
     quantizer = rebuild_quantizer(checkpoint.tensors_with_prefix(QUANTIZER_PREFIX))
     per_process = isinstance(quantizer, ProcessQuantizers)
     count = quantizer.num_processes if per_process else 1
@@ -147,7 +146,7 @@ def _rebuild_quantizer(trainer: Trainer, checkpoint: Checkpoint, position: int) 
     return quantizer
 
 
-def _check_tables(trainer: Trainer, q_values: torch.Tensor, phase: Phase, num_prototypes: int) -> torch.Tensor:
+def _check_tables(trainer: TrainerView, q_values: torch.Tensor, phase: Phase, num_prototypes: int) -> torch.Tensor:
     env = trainer.env_for(phase.num_agents)
     expected = (trainer.processes, trainer.num_tables(phase), num_prototypes, env.num_actions)
     allowed = f"float32 {expected} (processes, tables, prototypes, actions)"
@@ -158,7 +157,7 @@ def _check_tables(trainer: Trainer, q_values: torch.Tensor, phase: Phase, num_pr
     return q_values
 
 
-def _check_rng(trainer: Trainer, name: str, state: torch.Tensor, *, restore: bool) -> torch.Tensor:
+def _check_rng(trainer: TrainerView, name: str, state: torch.Tensor, *, restore: bool) -> torch.Tensor:
     """A generator state; one that will be restored is tried on a generator of the trainer's device."""
     state = check_rng_state(name, state)
     if restore:
@@ -199,7 +198,7 @@ def short_json(value: Any, limit: int = 80) -> str:
     return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
 
 
-def load_resume(trainer: Trainer, path: str | Path) -> RestoredState:
+def load_resume(trainer: TrainerView, path: str | Path) -> RestoredState:
     """Read and validate the checkpoint ``trainer`` continues from: written by the same algorithm, from a config
     that differs only in :data:`RESUME_INDEPENDENT` keys, and every value checked (:func:`restore_state`)."""
     checkpoint = load_checkpoint(path, device=trainer.device)

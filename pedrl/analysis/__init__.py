@@ -7,15 +7,6 @@ Depends only on numpy and matplotlib; it never imports :mod:`pedrl.sim` or torch
 """
 
 from pedrl.analysis.density_map import DensityMap, compute_density_map, compute_tile_edges, load_density_map
-from pedrl.analysis.export import (
-    ID_COL,
-    X_COL,
-    Y_COL,
-    read_pedpy_trajectory,
-    write_geometry_wkt,
-    write_pedpy_trajectories,
-    write_pedpy_trajectory,
-)
 from pedrl.analysis.fundamental import (
     DEFAULT_MIN_DENSITY,
     DEFAULT_RADIUS,
@@ -44,6 +35,15 @@ from pedrl.analysis.plots import (
     plot_room,
 )
 from pedrl.analysis.trajectories import DEFAULT_EXIT_DEPTH, AreaGeometry, Geometry, RoomGeometry, Trajectories
+from pedrl.analysis.trajectory_files import (
+    ID_COL,
+    X_COL,
+    Y_COL,
+    read_pedpy_trajectory,
+    write_geometry_wkt,
+    write_pedpy_trajectories,
+    write_pedpy_trajectory,
+)
 
 __all__ = [
     "DEFAULT_EXIT_DEPTH",

@@ -8,6 +8,8 @@ Sections:
               (simulation, sensing, encoding, epsilon-greedy and the TD update), for several E (rooms per process),
               each also as a fraction of the float32 matmul peak measured in the same run; optionally with a
               second busy torch process (--contention) and beside the code of another commit (--baseline)
+    eval      pedrl-eval's recording of a batch (the greedy walker, 80 rooms of 100 and of 20 agents) through the fused
+              trial's kernels against the torch loop, in agent-decisions/s and their ratio (target 3x at 100 agents)
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ from pathlib import Path
 
 import torch
 
-SECTIONS = ("sim", "kmeans", "e2e")
+SECTIONS = ("sim", "kmeans", "e2e", "eval")
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -78,6 +80,11 @@ def main(argv: list[str] | None = None) -> dict:
                 baseline=args.baseline,
             )
         )
+    if "eval" in sections:
+        from pedrl.bench.evaluation import run as run_eval
+
+        print("evaluation ...", flush=True)
+        report.update(run_eval(quick=args.quick, device=args.device))
     output = Path(args.output)
     output.parent.mkdir(parents=True, exist_ok=True)
     previous = json.loads(output.read_text()) if output.exists() else {}

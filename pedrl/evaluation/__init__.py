@@ -10,7 +10,7 @@ Tables 4 and 5).
 - :mod:`pedrl.evaluation.report`: the figures and files of a run and the console table (:func:`print_table`).
 - :mod:`pedrl.evaluation.config`: the eval config: its validation and :func:`evaluate`, which turns a validated
   config into the engine's plain arguments. ``pedrl/evaluate.py`` is the ``@hydra.main`` wrapper around it.
-- :mod:`pedrl.evaluation.jupedsim`: ``controller=jupedsim``, JuPedSim on the same scenes
+- :mod:`pedrl.evaluation.jupedsim_reference`: ``controller=jupedsim``, JuPedSim on the same scenes
   (:class:`JuPedSimReference`, a :class:`Recorder`).
 
 The file's stored training config rebuilds its room, and its state encoder (void filling, distance transform,
@@ -18,7 +18,7 @@ quantizer) and tables ``q_values (P, A, K, U)`` drive the agents as a :class:`pe
 (``controller=learned``), or the non-learned :class:`~pedrl.sim.controllers.GreedyDoorController` does
 (``controller=greedy``), or JuPedSim's collision-free speed model simulates the same initial scenes in the same area
 with the same body radius and trial length (``controller=jupedsim``, settings ``jupedsim.*``;
-:mod:`pedrl.evaluation.jupedsim`). For every agent count of ``agents`` it simulates ``trials`` trials with the
+:mod:`pedrl.evaluation.jupedsim_reference`). For every agent count of ``agents`` it simulates ``trials`` trials with the
 tables of every one of the P learning processes (``trials * P`` simulated trials, numbered ``run = trial * P +
 process``); agent ``n`` acts with table ``n mod A``. Initial positions depend only on ``seed`` and the agent count,
 so both controllers face the same scenarios.
@@ -88,7 +88,7 @@ from pedrl.evaluation.engine import (
     stuck_agents,
     write_scaling,
 )
-from pedrl.evaluation.jupedsim import JuPedSimReference
+from pedrl.evaluation.jupedsim_reference import JuPedSimReference
 from pedrl.evaluation.report import (
     FUNDAMENTAL_COLUMNS,
     print_table,

@@ -16,7 +16,7 @@ from pedrl.sim import RoomEnv
 @runtime_checkable
 class Recorder(Protocol):
     """Simulates whole trials itself in place of a controller that acts in the room decision by decision: another
-    simulator on the room's initial scenes (:class:`pedrl.evaluation.jupedsim.JuPedSimReference`)."""
+    simulator on the room's initial scenes (:class:`pedrl.evaluation.jupedsim_reference.JuPedSimReference`)."""
 
     def check(self, env: RoomEnv) -> None:
         """One-line ``ValueError`` if it cannot simulate the trials of ``env`` (before any compute)."""

@@ -28,7 +28,7 @@ from pedrl.analysis import (
 )
 from pedrl.analysis.trajectories import Geometry
 from pedrl.evaluation.batch import BatchRecord, Recorder
-from pedrl.evaluation.jupedsim import JuPedSimReference
+from pedrl.evaluation.jupedsim_reference import JuPedSimReference
 from pedrl.evaluation.report import write_density_map, write_fundamental_diagram, write_scaling_json
 from pedrl.integrations.jupedsim import JuPedSimModel
 from pedrl.io import CsvWriter, RunLogger
