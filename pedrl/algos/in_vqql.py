@@ -9,7 +9,7 @@ import torch
 
 from pedrl.algos.base import Trainer
 from pedrl.algos.it_vqql import _budgets
-from pedrl.algos.phase import Phase
+from pedrl.algos.phase import Phase, staged_phases
 from pedrl.rl.qtable import empty_tables
 from pedrl.sim.sensing import feature_indices
 from pedrl.vq import UnionQuantizer
@@ -71,16 +71,9 @@ class INVQQL(Trainer):
         super().__init__(**common)
 
     def phases(self) -> list[Phase]:
-        return [
-            Phase(
-                index=i + 1,
-                num_agents=m,
-                trials=budget,
-                gather_trials=self.gather_trials,
-                gather_epsilon=1.0 if i == 0 else self.gather_epsilon,
-            )
-            for i, (m, budget) in enumerate(zip(self.stages, self.trial_budgets, strict=True))
-        ]
+        return staged_phases(
+            self.stages, self.trial_budgets, gather_trials=self.gather_trials, gather_epsilon=self.gather_epsilon
+        )
 
     def max_prototypes(self, phase: Phase) -> int:
         """The union of stage ``i`` has at most ``i K`` prototypes (K more per stage)."""

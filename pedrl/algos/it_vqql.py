@@ -9,7 +9,7 @@ from typing import Any
 import torch
 
 from pedrl.algos.base import Trainer
-from pedrl.algos.phase import MAX_TRIALS, Phase
+from pedrl.algos.phase import MAX_TRIALS, Phase, staged_phases
 from pedrl.sim.checks import check_bool, check_integer, check_number
 from pedrl.vq import ProcessQuantizers
 
@@ -66,16 +66,10 @@ class ITVQQL(Trainer):
         super().__init__(void_features=void_features, **common)
 
     def phases(self) -> list[Phase]:
-        return [
-            Phase(
-                index=i + 1,
-                num_agents=agents,
-                trials=budget,
-                gather_trials=self.gather_trials,
-                gather_epsilon=1.0 if i == 0 else self.gather_epsilon,
-            )
-            for i, (agents, budget) in enumerate(zip(self.agents_per_iteration, self.trial_budgets, strict=True))
-        ]
+        agents = self.agents_per_iteration
+        return staged_phases(
+            agents, self.trial_budgets, gather_trials=self.gather_trials, gather_epsilon=self.gather_epsilon
+        )
 
     def gather_tables(self, phase: Phase, previous: tuple[Any, torch.Tensor] | None):
         """Re-quantization: iteration ``i`` gathers its states following iteration ``i - 1``'s tables

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final, Protocol
@@ -64,6 +65,23 @@ class TrainResult:
     def finished(cls, run_dir: Path, checkpoint: Path, wall_time_s: float, final, summaries) -> TrainResult:
         """The result of a run resumed from the checkpoint of its last phase: nothing to do, nothing rewritten."""
         return cls(dict(final), run_dir, checkpoint, wall_time_s, list(summaries), finished_before=True)
+
+
+def staged_phases(
+    agents: Sequence[int], budgets: Sequence[int], *, gather_trials: int, gather_epsilon: float
+) -> list[Phase]:
+    """One phase per number of learning agents (IT-VQQL's iterations, IN-VQQL's stages), with its trial budget; the
+    first gathers by a random walk (epsilon 1), the later ones with ``gather_epsilon`` on the previous tables."""
+    return [
+        Phase(
+            index=i + 1,
+            num_agents=count,
+            trials=budget,
+            gather_trials=gather_trials,
+            gather_epsilon=1.0 if i == 0 else gather_epsilon,
+        )
+        for i, (count, budget) in enumerate(zip(agents, budgets, strict=True))
+    ]
 
 
 class TrainerView(Protocol):

@@ -105,7 +105,7 @@ def run_trial_fused(
     reason = fused_reason(env, policy)
     if reason is not None:
         raise ValueError(f"the fused trial cannot run {reason}")
-    totals, td_sums, steps, _ = _launch(env, policy, epsilon, generator, learn, alpha, gamma, record=False)
+    totals, td_sums, steps, _, _ = _launch(env, policy, epsilon, generator, learn, alpha, gamma, record=False)
     return _stats(env, torch.from_numpy(totals).float(), td_sums, steps, policy.num_processes, learn)
 
 
@@ -149,11 +149,14 @@ def record_trial_fused(env: RoomEnv, controller: Any, *, reset: bool = True) -> 
         raise ValueError(f"the fused trial cannot run {reason}")
     greedy = not isinstance(controller, PolicyController)
     policy = _walker_policy(env) if greedy else controller.policy
-    totals, _, steps, trace = _launch(
+    totals, _, steps, trace, room_steps = _launch(
         env, policy, controller.epsilon, controller.generator, False, 0.0, 0.0, record=True, greedy=greedy, reset=reset
     )
     frames = int(steps.max()) + 1
     positions, velocities, active = (a[:, :frames] for a in trace)
+    for r, last in enumerate(room_steps.tolist()):  # a room that emptied early keeps its last frame, as in torch
+        positions[r, last + 1 :] = positions[r, last]
+        velocities[r, last + 1 :] = velocities[r, last]
     return FusedRecord(positions, velocities, active, totals)
 
 
@@ -168,8 +171,8 @@ def _walker_policy(env: RoomEnv) -> TabularPolicy:
 
 def _launch(env, policy, epsilon, generator, learn, alpha, gamma, *, record, greedy=False, reset=True):
     """Reset ``env`` (unless ``reset`` is False), run :func:`pedrl.trial.fused_kernels.fused_trial` and write the
-    rooms' state back: the per-agent totals, the TD sums, each thread's decisions and the trace (empty unless
-    ``record``)."""
+    rooms' state back: the per-agent totals, the TD sums, each thread's decisions, the trace (empty unless ``record``)
+    and each room's decisions."""
     from pedrl.sim.streams import seed_streams
     from pedrl.trial.fused_kernels import fused_trial
     from pedrl.vq.encode_kernel import pack_encoder
@@ -218,8 +221,9 @@ def _launch(env, policy, epsilon, generator, learn, alpha, gamma, *, record, gre
         steps,
         trace,
     )
+    room_steps = state[7].copy()  # each room's own decisions, before every clock is set to the trial's
     _write_back(env, state, int(steps.max()))
-    return totals, td_sums, steps, trace
+    return totals, td_sums, steps, trace, room_steps
 
 
 def _arrays(state: RoomState) -> tuple[np.ndarray, ...]:
