@@ -28,7 +28,10 @@ run: setup ## the main job: IT-VQQL in the paper's room (experiment=main, ~6 min
 		hydra.run.dir=$(RUN_DIR)/eval
 
 # the tests run in a random order (pytest-randomly); rerun one order with `make test SEED=<the seed printed>`
-SEED ?= $(shell python3 -c 'import random; print(random.randrange(2**32))')
+# drawn once (:=), so that the seed printed is the seed pytest runs
+ifndef SEED
+SEED := $(shell python3 -c 'import random; print(random.randrange(2**32))')
+endif
 
 test: setup ## the fast test suite (not slow), in a random order whose seed it prints
 	@echo "test order: --randomly-seed=$(SEED) (rerun this order: make test SEED=$(SEED))"

@@ -1,13 +1,14 @@
 """The fused trial: a whole trial of every room as one compiled pass per learning process, on every core.
 
-:func:`run_trial_fused` is :func:`pedrl.trial.rollout.run_trial` on the CPU without a torch operation per
-decision: one call of :func:`pedrl.trial.fused_kernels.fused_trial` runs every decision of the trial (step with the
-room's contact rule, rewards, sensing, void filling, distance transform, k-d tree encoding, TD update,
-epsilon-greedy choice), the learning processes in parallel over numba's threads. The torch loop stays the
-reference (and the path on a GPU, or with ``fused=false``); this one matches it within stated tolerances
-(``tests/trial/test_fused.py``) and equals itself for a seed at any thread count. :func:`fused_reason` says which
-rooms and quantizers it runs: every contact rule, geometry and route of ``collision_rule=sequential`` (``stop``
-with axis-aligned walls), and every quantizer kind (shared, per process, IN-VQQL's union).
+:func:`run_trial_fused` is :func:`pedrl.trial.rollout.run_trial` on the CPU without a torch operation per decision:
+one call of :func:`pedrl.trial.fused_kernels.fused_trial` runs every decision of the trial (the loop over the stage
+kernels: act, sense, encode, learn, choose), the learning processes in parallel over numba's threads.
+:func:`record_trial_fused` runs a trial of a learned policy or of the greedy walker without learning and records
+every frame, for ``pedrl-eval`` and ``pedrl-validate``. The torch loop stays the reference (and the path on a GPU,
+or with ``fused=false``); this one matches it within the tolerances of :mod:`pedrl.trial.twins` and equals itself
+for a seed at any thread count. Where it runs is an allow-list: :meth:`pedrl.sim.RoomEnv.fast_path_reason` (each
+room setting's declaration) and :func:`fused_reason` (the tables and quantizer: every kind, shared, per process
+and IN-VQQL's union).
 """
 
 from __future__ import annotations

@@ -148,10 +148,10 @@ def check_twins(
                        np.empty((2, size), np.float32), np.empty((2, size), np.int64))  # fmt: skip
         if not np.array_equal(num_sensed, info["num_sensed"].numpy()):
             report.other.append(f"decision {report.decisions}: the numbers of sensed neighbours differ")
-        _compare_features(report, env, torch.from_numpy(features), obs, torch.from_numpy(in_room), angles)
+        present = torch.from_numpy(in_room)
+        _compare_features(report, env, torch.from_numpy(features), obs, present, angles, tolerances.feature)
         # ---- encode: from the torch features, with the same void fillings
-        next_rows, void = _encode(report, policy, obs, info, torch.from_numpy(in_room), generator, process, encoder,
-                                  void)  # fmt: skip
+        next_rows, void = _encode(report, policy, obs, info, present, generator, process, encoder, void)
         # ---- learn: the same transitions
         valid, left = acting.view(-1), terminated.view(-1)
         copy = table.clone()
@@ -216,13 +216,13 @@ def _canonical(features: torch.Tensor, k: int, w: int) -> torch.Tensor:
     return out
 
 
-def _compare_features(report, env: RoomEnv, features: torch.Tensor, expected: torch.Tensor, present, angles) -> None:
+def _compare_features(report, env: RoomEnv, features, expected, present, angles, tolerance: float) -> None:
+    """The worst excess of a feature over its bound (relative ``tolerance``, or ``tolerance`` rad for angles)."""
     features = _canonical(features, env.num_neighbours, env.num_walls)
     expected = _canonical(expected, env.num_neighbours, env.num_walls)
     difference = (features - expected).abs()
     difference[..., angles] = torch.minimum(difference[..., angles], 2 * math.pi - difference[..., angles])
-    bound = torch.where(angles, torch.full_like(expected, TOLERANCES.feature),
-                        TOLERANCES.feature * expected.abs().clamp_min(1.0))  # fmt: skip
+    bound = torch.where(angles, torch.full_like(expected, tolerance), tolerance * expected.abs().clamp_min(1.0))
     excess = torch.where(present.unsqueeze(-1), difference - bound, -torch.inf)
     report.feature_excess = max(report.feature_excess, float(excess.max()))
 

@@ -159,8 +159,8 @@ class PedrlCrowd:
             frames.append(env.positions.clone())
             active.append(env.active.clone())
         return Recording(
-            positions=torch.stack(frames).cpu().numpy(),
-            active=torch.stack(active).cpu().numpy(),
+            positions=torch.stack(frames, 1).cpu().numpy(),
+            active=torch.stack(active, 1).cpu().numpy(),
             left_at=left_at.cpu().numpy(),
             frame_rate=env.decisions_per_second,
             radius=env.agent_radius,
@@ -174,8 +174,8 @@ class PedrlCrowd:
         still_in = np.concatenate((trace.active[:, 1:], np.zeros_like(trace.active[:, :1])), axis=1)
         goal, decisions = trace.totals[3], trace.totals[5]
         return Recording(
-            positions=trace.positions.transpose(1, 0, 2, 3).copy(),
-            active=still_in.transpose(1, 0, 2).copy(),
+            positions=trace.positions,
+            active=still_in,
             left_at=np.where(goal > 0, decisions, -1).astype(np.int64),
             frame_rate=env.decisions_per_second,
             radius=env.agent_radius,
@@ -226,8 +226,8 @@ class JuPedSimCrowd:
         runs = simulate_room(scenario, env, model=model, max_time=max_time, frame_rate=self.frame_rate)
         length = max(run.positions.shape[0] for run in runs)
         return Recording(
-            positions=np.stack([pad_frames(run.positions, length) for run in runs], axis=1),
-            active=np.stack([pad_frames(run.active, length, fill=False) for run in runs], axis=1),
+            positions=np.stack([pad_frames(run.positions, length) for run in runs]),
+            active=np.stack([pad_frames(run.active, length, fill=False) for run in runs]),
             left_at=np.stack([run.left_at for run in runs]),
             frame_rate=self.frame_rate,
             radius=model.radius,

@@ -26,8 +26,9 @@ class Recording:
     """A simulated (or scripted) batch of R runs of N agents.
 
     Attributes:
-        positions: Centres ``(T + 1, R, N, 2)`` (m), frame 0 the start.
-        active: In-room flags ``(T + 1, R, N)``: the agent has not left yet.
+        positions: Centres ``(R, T + 1, N, 2)`` (m), frame 0 the start (the axis order of every batch of runs,
+            as :class:`pedrl.evaluation.BatchRecord`'s).
+        active: In-room flags ``(R, T + 1, N)``: the agent has not left yet.
         left_at: ``(R, N)`` the frame at which each agent left through its own exit (-1: never).
         frame_rate: Frames per second.
         radius: Body radius (m).
@@ -83,8 +84,8 @@ def pedpy_trajectory(recording: Recording, replica: int) -> Any:
     import pandas as pd
     import pedpy
 
-    frames, agents = np.nonzero(recording.active[:, replica])
-    xy = recording.positions[frames, replica, agents].astype(np.float64)
+    frames, agents = np.nonzero(recording.active[replica])
+    xy = recording.positions[replica, frames, agents].astype(np.float64)
     data = pd.DataFrame({"id": agents, "frame": frames, "x": xy[:, 0], "y": xy[:, 1]})
     return pedpy.TrajectoryData(data=data, frame_rate=recording.frame_rate)
 
@@ -95,7 +96,7 @@ def crossing_times(recording: Recording, line: LineString) -> list[np.ndarray]:
 
     measurement_line = pedpy.MeasurementLine(line)
     times = []
-    for replica in range(recording.active.shape[1]):
+    for replica in range(recording.active.shape[0]):
         traj = pedpy_trajectory(recording, replica)
         _, crossing_frames = pedpy.compute_n_t(traj_data=traj, measurement_line=measurement_line)
         times.append(np.sort(crossing_frames["frame"].to_numpy()) / recording.frame_rate)
@@ -123,7 +124,7 @@ def voronoi_samples(
     walkable_area = pedpy.WalkableArea(walkable)
     measurement_area = pedpy.MeasurementArea(area)
     densities, speeds = [], []
-    for replica in range(recording.active.shape[1]):
+    for replica in range(recording.active.shape[0]):
         traj = pedpy_trajectory(recording, replica)
         polygons = pedpy.compute_individual_voronoi_polygons(traj_data=traj, walkable_area=walkable_area)
         density, intersection = pedpy.compute_voronoi_density(
@@ -166,8 +167,8 @@ def lane_order_values(
     ``min_agents`` agents, some walking each way: a lone agent would score 1 whatever it does.
 
     Args:
-        positions: ``(T, R, N, 2)`` centres (m).
-        active: ``(T, R, N)`` in-room flags.
+        positions: ``(R, T, N, 2)`` centres (m).
+        active: ``(R, T, N)`` in-room flags.
         direction: ``(N,)`` +1 / -1, the way each agent walks.
         lane_width: Width (m) of a lane, centred on the agent.
         window: ``(x_min, x_max)`` of the agents counted (m).
@@ -178,14 +179,14 @@ def lane_order_values(
         ``phi_j`` of every counted agent-frame.
     """
     values: list[np.ndarray] = []
-    for frame in range(positions.shape[0]):
-        for replica in range(positions.shape[1]):
-            x = positions[frame, replica, :, 0]
-            here = active[frame, replica] & (x >= window[0]) & (x <= window[1])
+    for frame in range(positions.shape[1]):
+        for replica in range(positions.shape[0]):
+            x = positions[replica, frame, :, 0]
+            here = active[replica, frame] & (x >= window[0]) & (x <= window[1])
             sign = direction[here]
             if here.sum() < min_agents or (sign > 0).all() or (sign < 0).all():
                 continue
-            xy = positions[frame, replica, here]
+            xy = positions[replica, frame, here]
             dx = np.abs(xy[:, None, 0] - xy[None, :, 0])
             dy = np.abs(xy[:, None, 1] - xy[None, :, 1])
             lane = (dy < lane_width / 2) & (dx < reach)  # the diagonal: the agent itself, in its own lane
@@ -224,14 +225,14 @@ class InvariantTally:
             points = shapely.points(xy)
             run.min_wall_clearance = float(shapely.distance(walls, points).min()) - radius
             run.outside = int((~shapely.contains(grown, points)).sum())
-        for frame in range(positions.shape[0]):
-            for replica in range(positions.shape[1]):
-                here = positions[frame, replica, active[frame, replica]]
+        for frame in range(positions.shape[1]):
+            for replica in range(positions.shape[0]):
+                here = positions[replica, frame, active[replica, frame]]
                 if len(here) >= 2:
                     nearest, _ = cKDTree(here).query(here, k=2)
                     run.min_gap = min(run.min_gap, float(nearest[:, 1].min()) - 2 * radius)
-        both = active[:-1] & active[1:]
-        steps = np.linalg.norm(positions[1:] - positions[:-1], axis=-1)[both]
+        both = active[:, :-1] & active[:, 1:]
+        steps = np.linalg.norm(positions[:, 1:] - positions[:, :-1], axis=-1)[both]
         if steps.size:
             run.max_step_ratio = float(steps.max()) * recording.frame_rate / recording.max_speed
         self.frames += run.frames

@@ -298,8 +298,8 @@ def rimea_9(context: Context) -> tuple[TestResult, Figure]:
             seed=9,
         )
         times[label] = recording.exit_times()
-        steps = np.arange(recording.active.shape[0]) / recording.frame_rate
-        axes.plot(steps, 1.0 - recording.active.mean(axis=(1, 2)), label=label)
+        steps = np.arange(recording.active.shape[1]) / recording.frame_rate
+        axes.plot(steps, 1.0 - recording.active.mean(axis=(0, 2)), label=label)
     axes.set(xlabel="time (s)", ylabel="share evacuated", title="RiMEA 9: four exits, then two")
     axes.legend()
     return judge_rimea_9(times["four open"], times["two closed"]), figure
@@ -457,9 +457,9 @@ def window_crossing_times(recording: Recording, window: tuple[float, float]) -> 
     inside = (x >= window[0]) & (x <= window[1])
     step = recording.max_speed / recording.frame_rate
     times = []
-    for replica, agent in zip(*np.nonzero(inside.any(axis=0)), strict=True):
-        frames = np.nonzero(inside[:, replica, agent])[0]
-        ends = x[[frames[0], frames[-1]], replica, agent]
+    for replica, agent in zip(*np.nonzero(inside.any(axis=1)), strict=True):
+        frames = np.nonzero(inside[replica, :, agent])[0]
+        ends = x[replica, [frames[0], frames[-1]], agent]
         if min(ends) - window[0] <= step and window[1] - max(ends) <= step:
             times.append((frames[-1] - frames[0]) / recording.frame_rate)
     return np.array(times)

@@ -65,7 +65,7 @@ def recording(positions, *, frame_rate=1.0, radius=0.2, max_speed=1.34, left_at=
     active = np.ones((frames, replicas, agents), dtype=bool)
     for replica, agent in zip(*np.nonzero(left_at >= 0), strict=True):
         active[left_at[replica, agent] :, replica, agent] = False
-    return Recording(positions, active, left_at, frame_rate, radius, max_speed)
+    return Recording(positions.swapaxes(0, 1), active.swapaxes(0, 1), left_at, frame_rate, radius, max_speed)
 
 
 # ---------------------------------------------------------------------------------------------- Weidmann, RiMEA 4
