@@ -34,6 +34,7 @@ from pedrl.analysis.plots import (
     plot_learning_curves,
     plot_room,
 )
+from pedrl.analysis.recording import Recording
 from pedrl.analysis.trajectories import DEFAULT_EXIT_DEPTH, AreaGeometry, Geometry, RoomGeometry, Trajectories
 from pedrl.analysis.trajectory_files import (
     ID_COL,
@@ -61,6 +62,7 @@ __all__ = [
     "FundamentalDiagram",
     "AreaGeometry",
     "Geometry",
+    "Recording",
     "RoomGeometry",
     "SpeedDensityFit",
     "SpeedDensityModel",

@@ -8,8 +8,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from pedrl.analysis import Trajectories
-from pedrl.analysis.trajectories import Geometry
+from pedrl.analysis import Recording
 from pedrl.sim import RoomEnv
 
 
@@ -27,16 +26,12 @@ class Recorder(Protocol):
         ...
 
 
-@dataclass(frozen=True)
-class BatchRecord:
-    """One trial in each of R replicas, recorded frame by frame (numpy, on the host).
+@dataclass(frozen=True, kw_only=True)
+class BatchRecord(Recording):
+    """One trial in each of R replicas (a :class:`~pedrl.analysis.Recording`: frame t after decision t), with the
+    per-agent counts of the trial.
 
     Attributes:
-        positions: ``(R, T, N, 2)`` agent centres (m), frame 0 the initial state, frame t after decision t.
-        velocities: ``(R, T, N, 2)`` velocities (m/s).
-        active: ``(R, T, N)`` bool, the agent is in frame t (it took decision t; every agent in frame 0).
-        reached: ``(R, N)`` bool, the agent passed the door.
-        exit_time: ``(R, N)`` time (s) at which it passed the door, NaN if it did not.
         crashes: ``(R, N)`` contacts with bodies: decisions in which another body cut its move (``crashed_agent``);
             NaN where the simulator has no such event (``controller=jupedsim``).
         wall_crashes: ``(R, N)`` decisions in which a wall cut its move (``crashed_wall``), counted apart; NaN as
@@ -46,22 +41,8 @@ class BatchRecord:
         speed_count: ``(R,)`` decisions taken (agent-decisions).
     """
 
-    positions: np.ndarray
-    velocities: np.ndarray
-    active: np.ndarray
-    reached: np.ndarray
-    exit_time: np.ndarray
     crashes: np.ndarray
     wall_crashes: np.ndarray
     speed_sum: np.ndarray
     speed_sq_sum: np.ndarray
     speed_count: np.ndarray
-
-    def trajectories(self, replica: int, geometry: Geometry, framerate: float) -> Trajectories:
-        return Trajectories(
-            positions=self.positions[replica],
-            velocities=self.velocities[replica],
-            active=self.active[replica],
-            framerate=framerate,
-            geometry=geometry,
-        )

@@ -146,8 +146,7 @@ def record_batch(env: RoomEnv, controller: Controller, *, fused: bool | None = F
     obs, info = env.reset()
     shape = env.active.shape
     device = env.positions.device
-    positions, velocities, active = [env.positions.cpu()], [env.velocities.cpu()], [env.active.cpu()]
-    reached = torch.zeros(shape, dtype=torch.bool, device=device)
+    positions, velocities, in_room = [env.positions.cpu()], [env.velocities.cpu()], [env.active.cpu()]
     exit_time = torch.full(shape, float("nan"), device=device)
     crashes = torch.zeros(shape, dtype=torch.int64, device=device)
     wall_crashes = torch.zeros(shape, dtype=torch.int64, device=device)
@@ -160,7 +159,6 @@ def record_batch(env: RoomEnv, controller: Controller, *, fused: bool | None = F
         actions = controller.act(env, obs, info)
         obs, _, _, _, info = env.step(actions)
         decision += 1
-        reached |= info["reached"]
         exit_time = torch.where(info["reached"], decision * env.decision_length, exit_time)
         crashes += info["crashed_agent"].to(torch.int64)
         wall_crashes += info["crashed_wall"].to(torch.int64)
@@ -170,13 +168,15 @@ def record_batch(env: RoomEnv, controller: Controller, *, fused: bool | None = F
         speed_count += acting.to(torch.int64)
         positions.append(env.positions.cpu())
         velocities.append(env.velocities.cpu())
-        active.append(acting.cpu())
+        in_room.append(env.active.cpu())
     return BatchRecord(
         positions=torch.stack(positions, 1).numpy(),
         velocities=torch.stack(velocities, 1).numpy(),
-        active=torch.stack(active, 1).numpy(),
-        reached=reached.cpu().numpy(),
+        in_room=torch.stack(in_room, 1).numpy(),
         exit_time=exit_time.cpu().numpy(),
+        frame_rate=env.decisions_per_second,
+        radius=env.agent_radius,
+        max_speed=env.max_speed,
         crashes=crashes.cpu().numpy(),
         wall_crashes=wall_crashes.cpu().numpy(),
         speed_sum=speed_sum.sum(1).cpu().numpy(),
@@ -206,15 +206,16 @@ def _record_fused(env: RoomEnv, controller: Controller) -> BatchRecord | None:
         return None
     trace = record_trial_fused(env, controller)
     _, crashes, wall_crashes, goal, _, decisions = trace.totals
-    reached = goal > 0
     taken = trace.active[:, 1:]
     speed_sq = np.where(taken, (trace.velocities[:, 1:].astype(np.float64) ** 2).sum(-1), 0.0)
     return BatchRecord(
         positions=trace.positions,
         velocities=trace.velocities,
-        active=trace.active,
-        reached=reached,
-        exit_time=np.where(reached, decisions * env.decision_length, np.nan).astype(np.float32),
+        in_room=np.concatenate((taken, np.zeros_like(taken[:, :1])), axis=1),  # in the room after frame t
+        exit_time=np.where(goal > 0, decisions * env.decision_length, np.nan).astype(np.float32),
+        frame_rate=env.decisions_per_second,
+        radius=env.agent_radius,
+        max_speed=env.max_speed,
         crashes=crashes.astype(np.int64),
         wall_crashes=wall_crashes.astype(np.int64),
         speed_sum=np.sqrt(speed_sq).sum((1, 2)),
@@ -240,12 +241,12 @@ class ScalingStats:
 
     def add(self, record: BatchRecord, keep: int) -> None:
         """Add the first ``keep`` replicas of ``record``."""
-        reached, exit_time = record.reached[:keep], record.exit_time[:keep]
+        reached, exit_time = record.left[:keep], record.exit_time[:keep]
         num_agents = reached.shape[1]
         self.fails_pct.extend((100.0 * (1.0 - reached.mean(axis=1))).tolist())
         self.crashes_per_agent.extend((record.crashes[:keep].sum(axis=1) / num_agents).tolist())
         self.wall_crashes_per_agent.extend((record.wall_crashes[:keep].sum(axis=1) / num_agents).tolist())
-        in_room = record.active[:keep, -1] & ~reached  # acted in the trial's last decision and did not reach
+        in_room = record.acted()[:keep, -1] & ~reached  # acted in the trial's last decision and did not reach
         self.stuck_pct.extend((100.0 * stuck_agents(record.positions[:keep], in_room).mean(axis=1)).tolist())
         self.speed_sum += float(record.speed_sum[:keep].sum())
         self.speed_sq_sum += float(record.speed_sq_sum[:keep].sum())
@@ -465,7 +466,6 @@ def simulate_agent_count(
     total_runs = settings.trials * policy.processes
     to_export = min(settings.export_trials, total_runs)
     folder = run_dir / "trajectories" / f"agents_{env.num_agents}"
-    framerate = env.decisions_per_second
     for first_run in range(0, total_runs, runs_per_batch):
         if isinstance(policy.controller, Recorder):
             record = policy.controller.record(env)
@@ -473,7 +473,7 @@ def simulate_agent_count(
             record = record_batch(env, policy.controller, fused=settings.fused)
         keep = min(runs_per_batch, total_runs - first_run)
         stats.add(record, keep)
-        runs = [record.trajectories(i, geometry, framerate) for i in range(keep)]
+        runs = [record.run(i, geometry) for i in range(keep)]
         diagram = compute_fundamental_diagram(
             runs, point=point, radius=settings.radius, min_density=settings.min_density
         )

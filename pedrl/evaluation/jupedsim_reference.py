@@ -66,22 +66,23 @@ def batch_record(runs: list[JuPedSimRun]) -> BatchRecord:
     the room's conventions (module docstring); shorter runs are padded with their last frame, agents inactive."""
     length = max(run.num_frames for run in runs)
     frames = np.arange(length)[:, None]  # (T, 1)
-    positions, velocities, active, speeds = [], [], [], []
+    positions, velocities, in_room, active, speeds = [], [], [], [], []
     for run in runs:
         in_frame = (~run.left)[None, :] | (frames <= run.left_at[None, :])  # (T, N): in the area at frame t - 1
         velocity = pad_frames(run.velocities(), length, fill=0.0)
         positions.append(pad_frames(run.positions, length))
         velocities.append(velocity)
         active.append(in_frame)
+        in_room.append((~run.left)[None, :] | (frames < run.left_at[None, :]))  # (T, N): in the area at frame t
         speeds.append(np.where(in_frame[1:], np.linalg.norm(velocity[1:], axis=-1), 0.0))  # (T - 1, N) m/s
     speed = np.stack(speeds)  # (R, T - 1, N)
     counted = np.stack(active)[:, 1:]
     return BatchRecord(
         positions=np.stack(positions).astype(np.float32),
         velocities=np.stack(velocities).astype(np.float32),
-        active=np.stack(active),
-        reached=np.stack([run.left for run in runs]),
+        in_room=np.stack(in_room),
         exit_time=np.stack([np.where(run.left, run.left_at / run.frame_rate, math.nan) for run in runs]),
+        frame_rate=runs[0].frame_rate,
         crashes=np.full((len(runs), runs[0].num_agents), math.nan),
         wall_crashes=np.full((len(runs), runs[0].num_agents), math.nan),
         speed_sum=speed.sum(axis=(1, 2)),

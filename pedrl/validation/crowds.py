@@ -16,11 +16,11 @@ from typing import Any, Protocol
 import numpy as np
 import torch
 
+from pedrl.analysis import Recording
 from pedrl.integrations.jupedsim import pad_frames, simulate_room
 from pedrl.scenarios import Scenario
 from pedrl.sim import RoomEnv
 from pedrl.trial.fused import controller_reason, record_trial_fused
-from pedrl.validation.measures import Recording
 
 
 class Crowd(Protocol):
@@ -48,6 +48,11 @@ class Crowd(Protocol):
             headings: ``(R, N)`` start headings (rad) of hand-placed agents, or ``None`` for the room's (uniform).
         """
         ...
+
+
+def exit_times(left_at: np.ndarray, frame_rate: float) -> np.ndarray:
+    """``(R, N)`` times (s) of the frames ``left_at`` at which agents left (-1: never, NaN)."""
+    return np.where(left_at >= 0, left_at / frame_rate, np.nan)
 
 
 @dataclass
@@ -160,8 +165,8 @@ class PedrlCrowd:
             active.append(env.active.clone())
         return Recording(
             positions=torch.stack(frames, 1).cpu().numpy(),
-            active=torch.stack(active, 1).cpu().numpy(),
-            left_at=left_at.cpu().numpy(),
+            in_room=torch.stack(active, 1).cpu().numpy(),
+            exit_time=exit_times(left_at.cpu().numpy(), env.decisions_per_second),
             frame_rate=env.decisions_per_second,
             radius=env.agent_radius,
             max_speed=env.max_speed,
@@ -175,8 +180,8 @@ class PedrlCrowd:
         goal, decisions = trace.totals[3], trace.totals[5]
         return Recording(
             positions=trace.positions,
-            active=still_in,
-            left_at=np.where(goal > 0, decisions, -1).astype(np.int64),
+            in_room=still_in,
+            exit_time=exit_times(np.where(goal > 0, decisions, -1).astype(np.int64), env.decisions_per_second),
             frame_rate=env.decisions_per_second,
             radius=env.agent_radius,
             max_speed=env.max_speed,
@@ -227,8 +232,8 @@ class JuPedSimCrowd:
         length = max(run.positions.shape[0] for run in runs)
         return Recording(
             positions=np.stack([pad_frames(run.positions, length) for run in runs]),
-            active=np.stack([pad_frames(run.active, length, fill=False) for run in runs]),
-            left_at=np.stack([run.left_at for run in runs]),
+            in_room=np.stack([pad_frames(run.active, length, fill=False) for run in runs]),
+            exit_time=exit_times(np.stack([run.left_at for run in runs]), self.frame_rate),
             frame_rate=self.frame_rate,
             radius=model.radius,
             max_speed=model.desired_speed,

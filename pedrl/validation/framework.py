@@ -8,9 +8,10 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+from pedrl.analysis import Recording
 from pedrl.scenarios import LIDDLE_WIDTHS, Scenario
 from pedrl.validation.crowds import Crowd
-from pedrl.validation.measures import InvariantTally, Recording
+from pedrl.validation.measures import InvariantTally
 
 
 @dataclass

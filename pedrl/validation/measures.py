@@ -1,8 +1,8 @@
 """Measures of the validation suite, on trajectories only: Weidmann's curve, PedPy's Voronoi and N-t measures, the
 lane order parameter and the physical invariants.
 
-Everything here reads a :class:`Recording` (positions and in-room flags per frame), whichever model produced it: a
-pedrl room driven by a controller, JuPedSim, or a crowd scripted by a test.
+Everything here reads a :class:`~pedrl.analysis.Recording` (positions and in-room flags per frame), whichever model
+produced it: a pedrl room driven by a controller, JuPedSim, or a crowd scripted by a test.
 """
 
 from __future__ import annotations
@@ -15,42 +15,12 @@ import numpy as np
 import shapely
 from shapely.geometry import LineString, Polygon
 
+from pedrl.analysis import Recording
+
 WEIDMANN: Final = {"v0": 1.34, "gamma": 1.913, "rho_max": 5.4}
 """Weidmann's speed-density relation, ``v = v0 (1 - exp(-gamma (1/rho - 1/rho_max)))`` (m/s, 1/m^2)."""
 WEIDMANN_RADIUS: Final = math.sqrt(2.0 / (math.sqrt(3.0) * WEIDMANN["rho_max"])) / 2.0
 """Radius (m, 0.231) of the discs whose densest (hexagonal) packing is Weidmann's jam density 5.4 /m^2."""
-
-
-@dataclass
-class Recording:
-    """A simulated (or scripted) batch of R runs of N agents.
-
-    Attributes:
-        positions: Centres ``(R, T + 1, N, 2)`` (m), frame 0 the start (the axis order of every batch of runs,
-            as :class:`pedrl.evaluation.BatchRecord`'s).
-        active: In-room flags ``(R, T + 1, N)``: the agent has not left yet.
-        left_at: ``(R, N)`` the frame at which each agent left through its own exit (-1: never).
-        frame_rate: Frames per second.
-        radius: Body radius (m).
-        max_speed: The fastest speed the model allows (m/s): a frame's displacement is at most
-            ``max_speed / frame_rate``.
-    """
-
-    positions: np.ndarray
-    active: np.ndarray
-    left_at: np.ndarray
-    frame_rate: float
-    radius: float
-    max_speed: float
-
-    @property
-    def evacuated(self) -> float:
-        """Share of agents that left."""
-        return float((self.left_at >= 0).mean())
-
-    def exit_times(self) -> np.ndarray:
-        """``(R, N)`` time (s) at which each agent left, NaN if it never did."""
-        return np.where(self.left_at >= 0, self.left_at / self.frame_rate, np.nan)
 
 
 # ---------------------------------------------------------------------------------------------- Weidmann
@@ -84,7 +54,7 @@ def pedpy_trajectory(recording: Recording, replica: int) -> Any:
     import pandas as pd
     import pedpy
 
-    frames, agents = np.nonzero(recording.active[replica])
+    frames, agents = np.nonzero(recording.in_room[replica])
     xy = recording.positions[replica, frames, agents].astype(np.float64)
     data = pd.DataFrame({"id": agents, "frame": frames, "x": xy[:, 0], "y": xy[:, 1]})
     return pedpy.TrajectoryData(data=data, frame_rate=recording.frame_rate)
@@ -96,7 +66,7 @@ def crossing_times(recording: Recording, line: LineString) -> list[np.ndarray]:
 
     measurement_line = pedpy.MeasurementLine(line)
     times = []
-    for replica in range(recording.active.shape[0]):
+    for replica in range(recording.in_room.shape[0]):
         traj = pedpy_trajectory(recording, replica)
         _, crossing_frames = pedpy.compute_n_t(traj_data=traj, measurement_line=measurement_line)
         times.append(np.sort(crossing_frames["frame"].to_numpy()) / recording.frame_rate)
@@ -124,7 +94,7 @@ def voronoi_samples(
     walkable_area = pedpy.WalkableArea(walkable)
     measurement_area = pedpy.MeasurementArea(area)
     densities, speeds = [], []
-    for replica in range(recording.active.shape[0]):
+    for replica in range(recording.in_room.shape[0]):
         traj = pedpy_trajectory(recording, replica)
         polygons = pedpy.compute_individual_voronoi_polygons(traj_data=traj, walkable_area=walkable_area)
         density, intersection = pedpy.compute_voronoi_density(
@@ -218,7 +188,7 @@ class InvariantTally:
 
         walls = walkable.boundary.difference(shapely.union_all(exits)) if exits else walkable.boundary
         grown = walkable.buffer(1e-4)
-        positions, active, radius = recording.positions.astype(np.float64), recording.active, recording.radius
+        positions, active, radius = recording.positions.astype(np.float64), recording.in_room, recording.radius
         run = InvariantTally(frames=positions.shape[0] * positions.shape[1], agent_frames=int(active.sum()))
         xy = positions[active]
         if xy.size:

@@ -100,7 +100,7 @@ def rimea_1(context: Context) -> TestResult:
         positions=start,
         headings=np.zeros((runs, 1)),
     )
-    return judge_rimea_1(recording.exit_times()[:, 0])
+    return judge_rimea_1(recording.exit_time[:, 0])
 
 
 def judge_rimea_1(times: np.ndarray) -> TestResult:
@@ -263,7 +263,7 @@ def judge_rimea_6(recording: Recording, scenario: Scenario) -> TestResult:
     walkable area, by more than 1e-4 m), or if anyone has not arrived."""
     import shapely
 
-    points = shapely.points(recording.positions[recording.active].astype(np.float64))
+    points = shapely.points(recording.positions[recording.in_room].astype(np.float64))
     inside = shapely.contains(scenario.walkable.buffer(1e-4), points)
     in_wall = int((~inside).sum())
     passed = recording.evacuated == 1.0 and in_wall == 0
@@ -274,7 +274,7 @@ def judge_rimea_6(recording: Recording, scenario: Scenario) -> TestResult:
         "share arrived",
         "1.0, and no trajectory point in the wall",
         RIMEA_SOURCE + f", test 6 ({RIMEA_6_AGENTS} persons)",
-        {"points_in_wall": in_wall, "runs": int(recording.left_at.shape[0])},
+        {"points_in_wall": in_wall, "runs": int(recording.exit_time.shape[0])},
     )
 
 
@@ -297,9 +297,9 @@ def rimea_9(context: Context) -> tuple[TestResult, Figure]:
             max_time=context.budget.rimea_9_time,
             seed=9,
         )
-        times[label] = recording.exit_times()
-        steps = np.arange(recording.active.shape[1]) / recording.frame_rate
-        axes.plot(steps, 1.0 - recording.active.mean(axis=(0, 2)), label=label)
+        times[label] = recording.exit_time
+        steps = np.arange(recording.in_room.shape[1]) / recording.frame_rate
+        axes.plot(steps, 1.0 - recording.in_room.mean(axis=(0, 2)), label=label)
     axes.set(xlabel="time (s)", ylabel="share evacuated", title="RiMEA 9: four exits, then two")
     axes.legend()
     return judge_rimea_9(times["four open"], times["two closed"]), figure
@@ -423,7 +423,7 @@ def judge_lanes(recording: Recording, direction: np.ndarray) -> TestResult:
     reported beside it."""
     values = lane_order_values(
         recording.positions,
-        recording.active,
+        recording.in_room,
         direction,
         lane_width=LANE_WIDTH,
         window=LANES_WINDOW,
@@ -453,7 +453,7 @@ def window_crossing_times(recording: Recording, window: tuple[float, float]) -> 
     """Times (s) agents spent walking through ``window`` (x, m) from one end to the other: the frames between their
     first and last frame in it, for agents whose first and last positions there lie within one frame's step of
     opposite ends."""
-    x = np.where(recording.active, recording.positions[..., 0], np.nan)
+    x = np.where(recording.in_room, recording.positions[..., 0], np.nan)
     inside = (x >= window[0]) & (x <= window[1])
     step = recording.max_speed / recording.frame_rate
     times = []

@@ -382,9 +382,9 @@ def test_the_greedy_walker_records_the_same_trials_on_both_paths(rule):
         env.reset(seed=3)
         records.append(record_batch(env, GreedyDoorController(), fused=fused))
     torch_path, kernels = records
-    assert torch_path.positions.shape == kernels.positions.shape and torch_path.reached.all()
+    assert torch_path.positions.shape == kernels.positions.shape and torch_path.left.all()
     np.testing.assert_allclose(kernels.positions, torch_path.positions, atol=1e-4, rtol=0)
-    assert np.array_equal(kernels.active, torch_path.active) and np.array_equal(kernels.reached, torch_path.reached)
+    assert np.array_equal(kernels.in_room, torch_path.in_room) and np.array_equal(kernels.left, torch_path.left)
     np.testing.assert_allclose(kernels.exit_time, torch_path.exit_time, rtol=0, atol=1e-6)
     np.testing.assert_allclose(kernels.speed_sum, torch_path.speed_sum, rtol=1e-5)
     np.testing.assert_allclose(kernels.speed_sq_sum, torch_path.speed_sq_sum, rtol=1e-5)

@@ -12,6 +12,7 @@ from omegaconf import open_dict
 from shapely.geometry import LineString
 
 from pedrl._numba import numba_available
+from pedrl.analysis import Recording
 from pedrl.cli import CONFIG_DIR
 from pedrl.scenarios import LIDDLE_FLOWS, LIDDLE_WIDTHS, build_scenario
 from pedrl.sim.controllers import GreedyDoorController
@@ -22,7 +23,6 @@ from pedrl.validation.measures import (
     WEIDMANN,
     WEIDMANN_RADIUS,
     InvariantTally,
-    Recording,
     crossing_times,
     density_scale,
     hex_packing,
@@ -65,7 +65,14 @@ def recording(positions, *, frame_rate=1.0, radius=0.2, max_speed=1.34, left_at=
     active = np.ones((frames, replicas, agents), dtype=bool)
     for replica, agent in zip(*np.nonzero(left_at >= 0), strict=True):
         active[left_at[replica, agent] :, replica, agent] = False
-    return Recording(positions.swapaxes(0, 1), active.swapaxes(0, 1), left_at, frame_rate, radius, max_speed)
+    return Recording(
+        positions=positions.swapaxes(0, 1),
+        in_room=active.swapaxes(0, 1),
+        exit_time=np.where(left_at >= 0, left_at / frame_rate, np.nan),
+        frame_rate=frame_rate,
+        radius=radius,
+        max_speed=max_speed,
+    )
 
 
 # ---------------------------------------------------------------------------------------------- Weidmann, RiMEA 4
@@ -414,8 +421,8 @@ def test_a_placed_crowd_records_the_same_run_through_the_fused_trial():
     torch_path, kernels = runs
     assert kernels.positions.shape == torch_path.positions.shape
     np.testing.assert_allclose(kernels.positions, torch_path.positions, atol=1e-4, rtol=0)
-    assert np.array_equal(kernels.active, torch_path.active)
-    assert np.array_equal(kernels.left_at, torch_path.left_at) and int(kernels.left_at[0, 0]) > 0
+    assert np.array_equal(kernels.in_room, torch_path.in_room)
+    assert np.array_equal(kernels.exit_time, torch_path.exit_time) and kernels.exit_time[0, 0] > 0
     for fused in (False, True):
         crowd = PedrlCrowd(GreedyDoorController(), {"agent_radius": 0.2}, fused=fused)
         row = rimea_1(Context(crowd, Budget(quick=True)))
