@@ -61,7 +61,7 @@ class EncoderSettings:
     distance_transform: str = "none"
 
     def __post_init__(self) -> None:
-        check_integer("num_neighbours", self.num_neighbours, minimum=1)
+        check_integer("num_neighbours", self.num_neighbours, minimum=0)
         check_integer("num_walls", self.num_walls, minimum=0)
         check_number("max_distance", self.max_distance, low=0.0, low_open=True)
         check_number("max_speed", self.max_speed, low=0.0, low_open=True)

@@ -312,3 +312,28 @@ def test_learning_curves_of_the_two_paths_agree_within_the_seed_spread(tmp_path)
         finals[path] = runs
     spread = max(np.std(finals["true"]), np.std(finals["false"]), 0.03)
     assert abs(np.mean(finals["true"]) - np.mean(finals["false"])) < 2 * spread, finals
+
+
+@pytest.mark.parametrize("algo", ["it_vqql", "in_vqql"])
+def test_a_walker_that_senses_no_neighbour_learns_on_both_paths(algo, tmp_path):
+    """``env.num_neighbours=0`` (an ablation: the door and the walls only) trains on the fused and the torch path, as
+    it did before the encoder refused it; -1 is refused by the room and the encoder alike, in one line."""
+    import functools
+
+    from pedrl.algos import INVQQL, ITVQQL
+
+    room = functools.partial(RoomEnv, width=12.0, length=12.0, door_width=3.0, max_decisions=30, num_neighbours=0)
+    common = dict(env=room, vq={"num_prototypes": 32, "max_iterations": 2}, trials=2, gather_trials=2, processes=2,
+                  progress=False, tensorboard=False, seed=1, run_dir=tmp_path)  # fmt: skip
+    for fused_path in (True, False):
+        if algo == "it_vqql":
+            trainer = ITVQQL(**common, iterations=2, num_agents=4, fused=fused_path)
+        else:
+            trainer = INVQQL(**common, stages=[1, 2], fused=fused_path)
+        assert trainer.encoder_settings.num_features == 3 + 2 * 2
+        result = trainer.fit()
+        assert 0.0 <= result.final["success_rate_mean"] <= 1.0
+    encoder = functools.partial(EncoderSettings, num_walls=2, max_distance=10.0, max_speed=2.0)
+    for build in (lambda: RoomEnv(num_neighbours=-1), lambda: encoder(num_neighbours=-1)):
+        with pytest.raises(ValueError, match=r"^num_neighbours=-1 is invalid: must be an integer >= 0$"):
+            build()
