@@ -53,6 +53,9 @@ def run(cfg: DictConfig, *, run_dir: Path | None = None) -> dict[str, Any]:
             f"checkpoint is missing: controller={controller} needs one (or use controller=references, greedy or"
             " jupedsim)"
         )
+    from pedrl.integrations.jupedsim import model_from_settings
+
+    model_from_settings(cfg.get("jupedsim"))  # every value given is checked, whether or not this run uses it
     jupedsim = jupedsim_model(cfg.get("jupedsim")) if "jupedsim" in columns(controller) else None
     set_threads(cfg.get("threads"))
     learned = None

@@ -16,6 +16,9 @@ VALIDATE_CASES: list[tuple[str, tuple[str, ...]]] = [
     ("controller=greedy tests=lanes", ("tests='lanes' is invalid", "non-empty list")),
     ("controller=greedy seed=-1", ("seed=-1", "integer in")),
     ("checkpoint={tmp}/absent.safetensors", ("absent.safetensors",)),
+    # a value of a column this run does not use is checked all the same
+    ("controller=greedy jupedsim.model=foo", ("jupedsim.model='foo' is invalid",)),
+    ("controller=greedy jupedsim.dt=0", ("jupedsim.dt=0 is invalid",)),
 ]
 
 

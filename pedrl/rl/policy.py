@@ -158,13 +158,40 @@ class TabularPolicy:
         The encoder draws random void fillings once per trial (``void_draws="trial"``, at decision 0), so one
         policy acts in one stream of trials at a time: rooms stepped in turn want a policy each.
         """
+        check_number("epsilon", epsilon, low=0.0, high=1.0)
+        self.check_observations(obs, info)
         if generator is None:
             if self._generator is None:
                 self._generator = torch.Generator(device=self.device)
                 self._generator.seed()
             generator = self._generator
+        elif not isinstance(generator, torch.Generator):
+            raise TypeError(f"generator is a {type(generator).__name__}: must be a torch.Generator (or None)")
         rows = self.rows(obs, info, generator)
         return epsilon_greedy(self.q_values, rows, epsilon, generator).view(obs.shape[0], obs.shape[1])
+
+    def check_observations(self, obs: Any, info: Any) -> None:
+        """One-line ``TypeError``/``ValueError`` unless ``obs`` is a float tensor ``(R, N, F)`` on the tables' device,
+        of the encoder's width, and ``info`` the mapping ``RoomEnv`` returns (``num_sensed`` ``(R, N)`` and
+        ``decision``, which a :class:`~pedrl.vq.StateEncoder` reads)."""
+        if not isinstance(obs, torch.Tensor):
+            raise TypeError(f"obs is a {type(obs).__name__}: must be a torch.Tensor (R, N, F) as RoomEnv returns")
+        settings = getattr(self.encoder, "settings", None)
+        width = settings.num_features if settings is not None else obs.shape[-1]
+        if obs.dim() != 3 or obs.shape[-1] != width or not obs.is_floating_point():
+            raise ValueError(
+                f"obs is {obs.dtype} {tuple(obs.shape)}: must be float (R, N, {width}), the observations of the room "
+                "the policy learned in"
+            )
+        if obs.device != self.device:
+            raise ValueError(f"obs is on {obs.device}: must be on the tables' device, {self.device}")
+        if not isinstance(info, Mapping):
+            raise TypeError(f"info is a {type(info).__name__}: must be the mapping RoomEnv returns")
+        if settings is not None and ("num_sensed" not in info or "decision" not in info):
+            raise ValueError("info must be the mapping RoomEnv returns (with num_sensed and decision)")
+        if "num_sensed" in info and tuple(info["num_sensed"].shape) != tuple(obs.shape[:2]):
+            shape, wanted = tuple(info["num_sensed"].shape), tuple(obs.shape[:2])
+            raise ValueError(f"info['num_sensed'] is {shape}: must be {wanted}, one per agent")
 
     def controller(self, epsilon: float = 0.0, generator: torch.Generator | None = None) -> PolicyController:
         """This policy as a controller of the evaluation engine, with a fixed ``epsilon`` and ``generator``."""

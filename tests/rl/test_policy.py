@@ -119,3 +119,23 @@ def test_a_crafted_policy_file_is_refused_in_one_line(tmp_path, change, message)
     with pytest.raises(CheckpointError, match=message) as error:
         TabularPolicy.load(path)
     assert "\n" not in str(error.value) and str(path) in str(error.value)
+
+
+@pytest.mark.parametrize(
+    ("call", "error", "message"),
+    [
+        (lambda p, o, i: p.act(o, i, epsilon=float("nan")), ValueError, r"^epsilon=nan is invalid"),
+        (lambda p, o, i: p.act(o, i, epsilon=2.0), ValueError, r"^epsilon=2.0 is invalid"),
+        (lambda p, o, i: p.act(o[..., :5], i), ValueError, r"^obs is torch.float32 \(2, 5, 5\): must be float"),
+        (lambda p, o, i: p.act(o.tolist(), i), TypeError, r"^obs is a list: must be a torch.Tensor"),
+        (lambda p, o, i: p.act(o, {}), ValueError, r"^info must be the mapping RoomEnv returns"),
+        (lambda p, o, i: p.act(o, i, generator=5), TypeError, r"^generator is a int: must be a torch.Generator"),
+    ],
+)
+def test_bad_arguments_of_act_are_refused_in_one_line(call, error, message):
+    """The Python API speaks as the command lines do: a one-line ValueError or TypeError naming the argument, never
+    a silent NaN share of random actions or a torch RuntimeError from a wrong width."""
+    policy, _, obs, info = small_policy(False)
+    with pytest.raises(error, match=message) as caught:
+        call(policy, obs, info)
+    assert "\n" not in str(caught.value)
