@@ -40,7 +40,7 @@ from pedrl.rl import LinearSchedule, zeros_q_values
 from pedrl.rl.policy import TabularPolicy
 from pedrl.sim import RoomEnv
 from pedrl.sim.checks import check_bool, check_choice, check_device, check_integer, check_memory, check_number
-from pedrl.trial.fused import check_fused
+from pedrl.trial.fused import check_fused, room_reason
 from pedrl.trial.rollout import Gathered, TrialStats, check_finite, gather, run_trial
 from pedrl.vq import Quantizer
 from pedrl.vq.encoder import VOID_DRAWS, VOID_FEATURES, EncoderSettings, StateEncoder
@@ -419,6 +419,17 @@ class Trainer:
             fused=self.fused,
         )
 
+    def trial_path(self) -> tuple[str, str | None]:
+        """Where this trainer's trials run, ``"fused"`` or ``"torch"`` (a seed gives other numbers on each), and why
+        not on the fused one (None when they do): what a resume must keep (:func:`pedrl.algos.restore.load_resume`)."""
+        if self.fused is False:
+            return "torch", "fused=false"
+        for room in [*self._envs.values(), *self._mix_envs]:
+            reason = room_reason(room)
+            if reason is not None:
+                return "torch", f"the fused trial cannot run {reason}"
+        return "fused", None
+
     def env_for(self, num_agents: int) -> RoomEnv:
         """The trainer's ``P E`` rooms with ``num_agents`` agents (built once)."""
         if num_agents not in self._envs:
@@ -459,5 +470,6 @@ class Trainer:
             "summaries": summaries,
             "encoder": self.encoder_settings.to_metadata(),
             "final": final_figures(stats) if stats is not None else {},
+            "trial_path": self.trial_path()[0],
         }
         record.save(tensors, metadata, phase, iteration=iteration)

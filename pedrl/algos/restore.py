@@ -210,4 +210,11 @@ def load_resume(trainer: TrainerView, path: str | Path) -> RestoredState:
     mismatch = config_mismatch(check_stored_config(checkpoint), trainer.config)
     if mismatch:
         raise CheckpointError(f"checkpoint {str(path)!r} comes from an incompatible configuration: {mismatch}")
+    started, (now, why) = meta.get("trial_path"), trainer.trial_path()
+    if started is not None and started != now:  # e.g. PEDRL_NO_NUMBA set, or another device, since the run started
+        raise CheckpointError(
+            f"checkpoint {str(path)!r} ran its trials on the {started} path and this resume would run them on the {now}"
+            f" path ({why or 'the fused trial can run here'}): a seed gives other numbers on each; resume where the"
+            " run started (unset PEDRL_NO_NUMBA, the same device and fused)"
+        )
     return restore_state(trainer, checkpoint)

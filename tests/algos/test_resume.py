@@ -10,6 +10,7 @@ import torch
 from hydra import compose, initialize_config_dir
 from omegaconf import open_dict
 
+from pedrl._numba import numba_available
 from pedrl.algos.registry import build_trainer
 from pedrl.cli import CONFIG_DIR, run_reporting_errors
 from pedrl.io import CheckpointError, load_checkpoint, read_csv
@@ -319,3 +320,28 @@ def test_checkpoints_written_before_compile_sensing_existed_still_resume():
     older = {"env": {"width": 60.0}, "seed": 0}
     assert config_mismatch(older, current) == ""
     assert "env.compile_sensing" in config_mismatch(older, {**current, "env": {"width": 60.0, "compile_sensing": True}})
+
+
+# ---------------------------------------------------------------------- the trial path
+@pytest.mark.skipif(not numba_available(), reason="numba is off (PEDRL_NO_NUMBA)")
+def test_a_resume_keeps_the_trial_path_the_run_started_on(tmp_path, monkeypatch):
+    """A run started on the fused path (the CPU default) refuses, in one line, to go on in the torch loop (numba
+    switched off, as ``PEDRL_NO_NUMBA=1`` does), whose numbers for a seed differ; resumed as it started, it goes on."""
+    import pedrl.trial.fused
+
+    _interrupt_after(monkeypatch, 14)
+    with pytest.raises(KeyboardInterrupt):
+        train(tiny_config(*TINY), run_dir=tmp_path)
+    monkeypatch.undo()
+    assert load_checkpoint(tmp_path / "checkpoints" / "last.safetensors").metadata["trial_path"] == "fused"
+    curve = (tmp_path / "learning_curve.csv").read_bytes()
+    monkeypatch.setattr(pedrl.trial.fused, "numba_available", lambda: False)
+    with pytest.raises(CheckpointError) as refused:
+        train(tiny_config(*TINY, "resume=true"), run_dir=tmp_path)
+    message = str(refused.value)
+    assert "ran its trials on the fused path and this resume would run them on the torch path" in message
+    assert "without numba" in message and "\n" not in message
+    assert (tmp_path / "learning_curve.csv").read_bytes() == curve  # nothing ran, nothing was lost
+    monkeypatch.undo()
+    train(tiny_config(*TINY, "resume=true"), run_dir=tmp_path)  # the control: as it started, it goes on
+    assert len(read_csv(tmp_path / "learning_curve.csv")) == 20
