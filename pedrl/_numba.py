@@ -4,7 +4,7 @@ quantizer (`pedrl.vq.tree`).
 numba compiles a kernel at its first call (about 13 s for all of them on a 2-core CPU) and keeps it in its on-disk
 cache (``__pycache__`` next to the module, or ``NUMBA_CACHE_DIR``), so later processes load them in under a second.
 Kernels are declared with :func:`cached_njit`, whose cache heals itself: a kernel whose cache files cannot be read
-(truncated, garbage) is recompiled into a fresh cache with a one-line warning, instead of failing every run.
+(truncated, garbage) is recompiled into a fresh cache, with one warning line per process, instead of failing every run.
 The torch code stays the reference and the path on other devices: the kernels return its numbers to the bit (the
 tree search the exact argmin, which can order float32 ties differently from the matrix search). Each kernel module
 names its specification in its first line. In `pedrl.sim.motion` and `pedrl.rl.qlearning` a function with a
@@ -27,6 +27,8 @@ if TYPE_CHECKING:
 
 __all__ = ["cached_njit", "numba", "numba_available", "use_kernels"]
 
+_HEALED: list[str] = []
+"""The kernels whose cache this process found unreadable and rebuilt (the first one is reported)."""
 DISABLE_VARIABLE = "PEDRL_NO_NUMBA"
 """Set it (to anything but empty or ``0``) to run the torch code on the CPU too."""
 
@@ -96,7 +98,12 @@ def _healing_cache_class() -> type:
                 except OSError:
                     self.disable()
                     outcome = "recompiled without a cache (the cache folder cannot be written)"
-                warn(f"numba's cache of {kernel} in {self.cache_path!r} could not be read ({reason}); {outcome}")
+                if not _HEALED:  # one line per process: a corrupt cache folder holds many kernels
+                    warn(
+                        f"numba's cache of {kernel} in {self.cache_path!r} could not be read ({reason}); {outcome}"
+                        " (and so is any other kernel whose cache cannot be read)"
+                    )
+                _HEALED.append(kernel)
                 return None
 
     return HealingCache

@@ -1,5 +1,5 @@
-"""A corrupt numba cache heals itself (issue 20): the kernel is recompiled into a fresh cache with a one-line
-warning, instead of an ``UnpicklingError`` traceback on every run until the cache is deleted by hand."""
+"""A corrupt numba cache heals itself: the kernels are recompiled into a fresh cache with one warning line, instead
+of an ``UnpicklingError`` traceback on every run until the cache is deleted by hand."""
 
 import os
 import subprocess
@@ -38,10 +38,10 @@ def test_a_corrupt_kernel_cache_is_rebuilt_with_one_line(tmp_path):
     assert healed.returncode == 0, healed.stderr
     assert healed.stdout.strip() == "[0, 1, 0]"
     notices = [line for line in healed.stderr.splitlines() if line.strip()]
-    assert len(notices) == 2, healed.stderr  # one line per kernel, no traceback
-    for kernel, notice in zip(("_greedy", "_prefetch"), sorted(notices), strict=True):
-        assert notice.startswith(f"pedrl: warning: numba's cache of pedrl.rl.kernels.{kernel} in "), notice
-        assert "could not be read" in notice and "recompiled into a fresh cache" in notice
+    assert len(notices) == 1, healed.stderr  # one line for the process, however many kernels healed; no traceback
+    (notice,) = notices
+    assert notice.startswith("pedrl: warning: numba's cache of pedrl.rl.kernels._"), notice
+    assert "could not be read" in notice and "recompiled into a fresh cache" in notice
 
     again = run_kernels(tmp_path)  # the rewritten cache loads: no notice
     assert again.returncode == 0 and again.stdout.strip() == "[0, 1, 0]"
