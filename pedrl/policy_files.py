@@ -45,7 +45,7 @@ from pedrl.configs import (
 from pedrl.io import Checkpoint, CheckpointError, load_checkpoint
 from pedrl.rl.policy import POLICY_KIND, TabularPolicy, check_policy_file, from_tensors
 from pedrl.sim import RoomEnv
-from pedrl.sim.checks import first_line, shown
+from pedrl.sim.checks import check_device, first_line, shown
 from pedrl.vq.encoder import EncoderSettings
 
 RNG_KEYS: Final = ("rng/trainer", "rng/env")
@@ -53,6 +53,10 @@ RNG_KEYS: Final = ("rng/trainer", "rng/env")
 _ROOMS: weakref.WeakKeyDictionary[TabularPolicy, Callable[..., RoomEnv]] = weakref.WeakKeyDictionary()
 """The room factory each loaded policy was checked against: :func:`room_factory` reuses it (building a stored room
 reads its WKT text with shapely, up to 10 MB)."""
+
+
+FILE_KINDS: Final = ("checkpoint", "policy")
+"""The kinds of file :func:`load_policy` reads: a training checkpoint, or a policy of ``pedrl-export``."""
 
 
 def load_policy(
@@ -76,7 +80,11 @@ def load_policy(
 
     Raises:
         CheckpointError: one line naming the file, for a missing, foreign, corrupt or crafted one.
+        ValueError: one line, for a bad ``device`` or ``kind`` (before the file is read).
     """
+    device = check_device(device)
+    if kind is not None and kind not in FILE_KINDS:
+        raise ValueError(f"kind={kind!r} is invalid: must be None, {' or '.join(map(repr, FILE_KINDS))}")
     checkpoint = load_checkpoint(path, device=device)
     exported = checkpoint.metadata.get("kind") == POLICY_KIND
     found = "policy" if exported else "checkpoint"

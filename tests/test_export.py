@@ -103,6 +103,21 @@ def test_a_training_checkpoint_is_not_a_policy_file_and_back(trained):
 
 
 @pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"device": "banana"}, r"^device='banana' is invalid: must be cpu or cuda"),
+        ({"kind": "bogus"}, r"^kind='bogus' is invalid: must be None, 'checkpoint' or 'policy'$"),
+    ],
+)
+def test_load_policy_blames_its_argument_not_the_file(trained, kwargs, message):
+    """The Python API speaks as the command lines do: a bad argument is named in one line before the file is read,
+    not blamed on the file (device) or raised as a bare KeyError (kind)."""
+    with pytest.raises(ValueError, match=message) as refused:
+        pedrl.load_policy(trained[1], **kwargs)
+    assert "\n" not in str(refused.value) and "policy.safetensors" not in str(refused.value)
+
+
+@pytest.mark.parametrize(
     ("args", "fragments"),
     [
         (["out=policy.txt"], ("policy.txt' is invalid", ".safetensors")),
