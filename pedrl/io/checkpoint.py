@@ -87,6 +87,20 @@ def save_checkpoint(path: str | os.PathLike, *, tensors: dict[str, torch.Tensor]
         raise CheckpointError(f"cannot write checkpoint {str(path)!r}: {first_line(err)}") from None
 
 
+def _file_kind(path: Path) -> str:
+    """What ``path`` is, when it is not a regular file: a FIFO, a device, a socket, or a link to one (or dangling)."""
+    import stat
+
+    try:
+        mode = path.stat().st_mode
+    except OSError:
+        return "a dangling link"
+    kinds = ((stat.S_ISFIFO, "a FIFO"), (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+             (stat.S_ISSOCK, "a socket"))  # fmt: skip
+    kind = next((name for test, name in kinds if test(mode)), "not a regular file")
+    return f"a link to {kind}" if path.is_symlink() else kind
+
+
 def load_checkpoint(path: str | os.PathLike, *, device: str | torch.device = "cpu") -> Checkpoint:
     """Read a checkpoint written by :func:`save_checkpoint`.
 
@@ -98,7 +112,10 @@ def load_checkpoint(path: str | os.PathLike, *, device: str | torch.device = "cp
     if path.is_dir():
         raise CheckpointError(f"checkpoint {str(path)!r} is a directory (expected a .safetensors file)")
     if not path.is_file():
-        raise CheckpointError(f"checkpoint {str(path)!r} does not exist (expected a .safetensors file)")
+        if not path.exists() and not path.is_symlink():
+            raise CheckpointError(f"checkpoint {str(path)!r} does not exist (expected a .safetensors file)")
+        kind = _file_kind(path)
+        raise CheckpointError(f"checkpoint {str(path)!r} is {kind}: only regular files are read (a .safetensors file)")
     try:
         from safetensors import safe_open
 

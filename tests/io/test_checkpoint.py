@@ -88,6 +88,24 @@ def test_missing_file(tmp_path):
         load_checkpoint(tmp_path / "nope.safetensors")
 
 
+@pytest.mark.parametrize(
+    ("make", "kind"),
+    [
+        (lambda p: os.mkfifo(p), "a FIFO"),
+        (lambda p: os.symlink("/dev/zero", p), "a link to a character device"),
+        (lambda p: os.symlink(p.parent / "gone", p), "a dangling link"),
+    ],
+)
+def test_what_is_not_a_regular_file_is_named_as_what_it_is(tmp_path, make, kind):
+    """A FIFO (which would block the read) or a link to /dev/zero (an endless one) is said to be what it is, not
+    "does not exist"; nothing is read from it."""
+    path = tmp_path / "policy.safetensors"
+    make(path)
+    with pytest.raises(CheckpointError, match=f"is {kind}: only regular files are read") as refused:
+        load_checkpoint(path)
+    assert "does not exist" not in str(refused.value)
+
+
 def test_a_directory_is_named_as_one(tmp_path):
     with pytest.raises(CheckpointError, match="is a directory"):
         load_checkpoint(tmp_path)
