@@ -86,7 +86,13 @@ def load_policy(
     if kind is not None and kind not in FILE_KINDS:
         raise ValueError(f"kind={kind!r} is invalid: must be None, {' or '.join(map(repr, FILE_KINDS))}")
     checkpoint = load_checkpoint(path, device=device)
-    exported = checkpoint.metadata.get("kind") == POLICY_KIND
+    stored_kind = checkpoint.metadata.get("kind")
+    if stored_kind is not None and stored_kind != POLICY_KIND:
+        raise CheckpointError(
+            f"file {str(path)!r} has metadata kind={shown(stored_kind)}, which is unknown: a training checkpoint has no"
+            f" kind, a policy of pedrl-export kind={POLICY_KIND!r}"
+        )
+    exported = stored_kind == POLICY_KIND
     found = "policy" if exported else "checkpoint"
     if kind is not None and kind != found:
         names = {"policy": "an exported policy", "checkpoint": "a training checkpoint"}

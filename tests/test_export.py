@@ -252,3 +252,13 @@ def test_the_adapter_refuses_a_crowd_it_cannot_run(trained):
 
     with pytest.raises(ValueError, match="crowd of type str is invalid: must be a pedrl.TabularPolicy"):
         parallel_env(num_agents=3, width=8.0, length=8.0, crowd=str(trained[1]))
+
+
+@pytest.mark.parametrize("which", [0, 1])
+def test_a_file_of_an_unknown_kind_is_named_as_such(trained, tmp_path, which):
+    """A checkpoint or policy whose metadata ``kind`` is neither is refused as a file of an unknown kind, not called a
+    training checkpoint with the advice for one."""
+    crafted = _rewritten(trained[which], tmp_path, lambda tensors, metadata: metadata.update(kind="bogus"))
+    with pytest.raises(CheckpointError, match=r"has metadata kind='bogus', which is unknown") as refused:
+        pedrl.load_policy(crafted)
+    assert "training checkpoint has no kind" in str(refused.value) and "\n" not in str(refused.value)
