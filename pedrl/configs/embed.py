@@ -6,7 +6,7 @@ import copy
 import os
 from pathlib import Path
 
-from pedrl.configs.stored import check_stored_config
+from pedrl.configs.stored import check_config_bounds, check_stored_config
 from pedrl.io import Checkpoint, CheckpointError, load_checkpoint, save_checkpoint
 from pedrl.scenarios import build_scenario, geometry_file, inline_geometry
 
@@ -25,7 +25,7 @@ def embed_geometry(path: str | os.PathLike, wkt: str | os.PathLike, *, output: s
     """
     source = load_checkpoint(path)
     where = f"checkpoint {str(source.path)!r}"
-    config = copy.deepcopy(source.metadata.get("config"))
+    config = copy.deepcopy(check_config_bounds(source.metadata.get("config"), where))  # bounded before any walk
     scenario = config.get("scenario") if isinstance(config, dict) else None
     if geometry_file(scenario) is None:
         raise CheckpointError(f"{where} names no WKT file (scenario.geometry): there is nothing to re-export")
@@ -38,5 +38,5 @@ def embed_geometry(path: str | os.PathLike, wkt: str | os.PathLike, *, output: s
     header = ("format", "format_version", "pedrl_version")  # written anew by save_checkpoint
     metadata = {key: value for key, value in source.metadata.items() if key not in header} | {"config": config}
     destination = Path(output) if output is not None else source.path
-    check_stored_config(Checkpoint(tensors=source.tensors, metadata=metadata, path=destination))
+    check_stored_config(Checkpoint(tensors=source.tensors, metadata=metadata, path=source.path))  # its content
     return save_checkpoint(destination, tensors=source.tensors, metadata=metadata)

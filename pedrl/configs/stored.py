@@ -55,8 +55,9 @@ def check_stored_config(checkpoint: Checkpoint, *, kind: str = "checkpoint") -> 
     return checked_config(checkpoint.metadata.get("config"), f"{kind} {str(checkpoint.path)!r}", checkpoint.path)
 
 
-def checked_config(config: Any, where: str, path: Path | None = None) -> dict[str, Any]:
-    """:func:`check_stored_config` of a ``config`` read from the file ``path`` (``where`` names it in messages)."""
+def check_config_bounds(config: Any, where: str) -> dict[str, Any]:
+    """A stored ``config`` bounded before anything walks it (its rooms' sizes, depth, values, strings): one-line
+    ``CheckpointError`` naming ``where`` (the file) otherwise. Every reader of a stored config starts here."""
     if not isinstance(config, dict) or not all(isinstance(config.get(key), dict) for key in ("env", "algo")):
         raise CheckpointError(f"{where} holds no training config (a mapping with env and algo) to rebuild its run")
     mix = config.get("mix") if isinstance(config.get("mix"), list) else []
@@ -67,6 +68,15 @@ def checked_config(config: Any, where: str, path: Path | None = None) -> dict[st
         for entry in mix:
             check_scenario_sizes(entry)
         _check_config_size(config)
+    except ValueError as err:
+        raise CheckpointError(f"{where} holds a config that is refused: {err}") from None
+    return config
+
+
+def checked_config(config: Any, where: str, path: Path | None = None) -> dict[str, Any]:
+    """:func:`check_stored_config` of a ``config`` read from the file ``path`` (``where`` names it in messages)."""
+    check_config_bounds(config, where)
+    try:
         wkt_file = geometry_file(config.get("scenario"))
         if wkt_file is None:
             check_names_no_code(config, stored=True)

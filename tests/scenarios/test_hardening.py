@@ -173,6 +173,25 @@ def test_a_checkpoint_naming_its_wkt_file_is_refused_with_how_to_reexport_it(cus
         embed_geometry(tmp_path / "embedded.safetensors", wkt)
 
 
+def test_re_exporting_an_old_checkpoint_refuses_a_deep_config_in_one_line_naming_the_checkpoint(custom_run, tmp_path):
+    """``python -m pedrl.embed`` bounds the stored config before it walks it (a spawn list nested 600 deep gave a
+    RecursionError), and blames the checkpoint it was given, not its ``--output`` path."""
+    checkpoint, _, wkt = custom_run
+    nested: list = []
+    for _ in range(600):
+        nested = [nested]
+
+    def deepen(config):
+        config["scenario"].update(geometry=str(wkt), spawn=nested)
+
+    old = restored(checkpoint, deepen)
+    output = tmp_path / "out.safetensors"
+    with pytest.raises(CheckpointError) as error:
+        embed_geometry(old, wkt, output=output)
+    one_line_error(error.value, str(old), "nested deeper than")
+    assert str(output) not in str(error.value) and not output.exists()
+
+
 # ---------------------------------------------------------------------- 2. WKT input is bounded
 @pytest.mark.parametrize(
     ("make", "kind"),
