@@ -14,13 +14,18 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pedrl.sim import RoomEnv
-from pedrl.sim.checks import check_choice, check_real
+from pedrl.sim.checks import check_choice, check_number, check_real
 
 MODELS: Final = ("collision_free_speed", "social_force")
 """Operational models :func:`simulate` runs (JuPedSim's ``CollisionFreeSpeedModel`` and ``SocialForceModel``)."""
 
 
 # ---------------------------------------------------------------------- the model
+JUPEDSIM_RANGES: Final = {"desired_speed": (0.0, 10.0), "time_gap": (0.1, 10.0), "radius": (0.0, 2.0)}
+"""The ranges JuPedSim's collision-free speed model accepts (``CheckModelConstraint``: v0 in [0, 10] m/s, the time gap
+in [0.1, 10] s, the radius in (0, 2] m), checked with the config instead of failing mid-run on an agent's position."""
+
+
 @dataclass(frozen=True)
 class JuPedSimModel:
     """The JuPedSim model and the parameters pedrl sets; every other parameter keeps JuPedSim's default.
@@ -53,6 +58,8 @@ class JuPedSimModel:
         check_choice("model", self.model, MODELS)
         for name, unit in (("desired_speed", "m/s"), ("time_gap", "s"), ("radius", "m"), ("dt", "s")):
             check_real(name, getattr(self, name), unit=unit, positive=True)
+        for name, (low, high) in JUPEDSIM_RANGES.items():  # JuPedSim's own model constraints, before any run
+            check_number(name, getattr(self, name), low=low, high=high, low_open=low == 0.0)
 
 
 def model_from_settings(settings: Mapping[str, Any] | None, *, prefix: str = "jupedsim") -> JuPedSimModel:

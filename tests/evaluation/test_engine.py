@@ -283,6 +283,8 @@ def test_jupedsim_without_jupedsim_fails_with_one_line(checkpoints, tmp_path, mo
         ("controller=foo", "controller='foo' is invalid"),
         ("jupedsim.model=foo", "jupedsim.model='foo' is invalid"),
         ("jupedsim.desired_speed=0", "jupedsim.desired_speed=0 is invalid"),
+        ("jupedsim.desired_speed=1e6", "jupedsim.desired_speed=1000000.0 is invalid: must be a number in (0, 10]"),
+        ("jupedsim.time_gap=0.05", "jupedsim.time_gap=0.05 is invalid: must be a number in [0.1, 10]"),
         ("epsilon=2", "epsilon=2 is invalid"),
         ("references=[foo]", "references='foo' is invalid: must be one of greedy, jupedsim"),
         ("references=[learned]", "references='learned' is invalid"),
