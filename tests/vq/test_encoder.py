@@ -108,7 +108,7 @@ def test_check_refuses_a_quantizer_of_other_observations():
     [
         ({"void_features": "noise"}, "void_features='noise' is invalid"),
         ({"distance_transform": "sqrt"}, "distance_transform='sqrt' is invalid"),
-        ({"num_neighbours": 0}, "num_neighbours=0 is invalid"),
+        ({"num_neighbours": -1}, "num_neighbours=-1 is invalid: must be an integer >= 0"),  # 0 senses none: an ablation
     ],
 )
 def test_bad_settings_are_one_line(values, message):
