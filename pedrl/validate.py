@@ -17,6 +17,7 @@ from omegaconf import DictConfig, ListConfig
 from pedrl.cli import CONFIG_DIR, checked_groups, hydra_output_dir, run_reporting_errors
 from pedrl.runtime import set_threads
 from pedrl.sim.checks import MAX_SEED, check_bool, check_choice, check_device, check_integer, check_number
+from pedrl.trial.fused import check_fused
 from pedrl.validation.report import pass_count
 from pedrl.validation.runner import CHOICES, columns, validate
 from pedrl.validation.suite import TEST_NAMES
@@ -32,9 +33,7 @@ def run(cfg: DictConfig, *, run_dir: Path | None = None) -> dict[str, Any]:
     tensorboard = check_bool("tensorboard", cfg.get("tensorboard"))
     if cfg.get("threads") is not None:
         check_integer("threads", cfg.get("threads"), minimum=1)
-    fused = cfg.get("fused")
-    if fused is not None and not isinstance(fused, bool):
-        raise ValueError(f"fused={fused!r} is invalid: must be true, false or null")
+    fused = check_fused(cfg.get("fused"), [])  # the value; the rooms are checked once built
     radius = cfg.get("radius")
     if radius is not None:
         radius = check_number("radius", radius, low=0.05, high=1.0)

@@ -41,6 +41,7 @@ from pedrl.sim.checks import (
     check_number,
     first_line,
 )
+from pedrl.trial.fused import check_fused
 
 CONTROLLERS: Final = ("learned", "greedy", "jupedsim")
 DENSITY_MAP_BYTES_PER_TILE: Final = 40
@@ -228,9 +229,7 @@ def _validate_values(cfg: DictConfig) -> None:
     if cfg.animation.max_frames is not None:
         check_integer("animation.max_frames", cfg.animation.max_frames, minimum=1)
     check_bool("tensorboard", cfg.get("tensorboard"))
-    fused = cfg.get("fused")
-    if fused is not None and not isinstance(fused, bool):
-        raise ValueError(f"fused={fused!r} is invalid: must be true, false or null")
+    check_fused(cfg.get("fused"), [])  # the value; the rooms are checked once built
 
 
 def check_against_room(cfg: DictConfig, geometry: Geometry, envs: dict[int, RoomEnv]) -> None:

@@ -211,7 +211,7 @@ def _record_fused(env: RoomEnv, controller: Controller) -> BatchRecord | None:
     return BatchRecord(
         positions=trace.positions,
         velocities=trace.velocities,
-        in_room=np.concatenate((taken, np.zeros_like(taken[:, :1])), axis=1),  # in the room after frame t
+        in_room=trace.in_room(),
         exit_time=np.where(goal > 0, decisions * env.decision_length, np.nan).astype(np.float32),
         frame_rate=env.decisions_per_second,
         radius=env.agent_radius,

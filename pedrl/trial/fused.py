@@ -13,6 +13,7 @@ and IN-VQQL's union).
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -127,6 +128,10 @@ class FusedRecord:
     active: np.ndarray
     totals: np.ndarray
 
+    def in_room(self) -> np.ndarray:
+        """``(R, T, N)`` bool: who is in the room after frame t (who takes decision t + 1; nobody after the last)."""
+        return np.concatenate((self.active[:, 1:], np.zeros_like(self.active[:, :1])), axis=1)
+
 
 def controller_reason(env: RoomEnv, controller: Any) -> str | None:
     """Why the fused trial cannot run ``controller`` in ``env`` (one phrase), or None when it can: it runs a
@@ -164,10 +169,15 @@ def record_trial_fused(env: RoomEnv, controller: Any, *, reset: bool = True) -> 
 def _walker_policy(env: RoomEnv) -> TabularPolicy:
     """Tables of one state for the greedy walker's trial, which reads none: the encoder and table arrays of the
     kernel's signature, so that the walker runs the compiled code the learned crowd runs."""
-    settings = EncoderSettings.for_room(env)
+    return _walker_policy_for(EncoderSettings.for_room(env), env.num_actions)
+
+
+@functools.lru_cache(maxsize=8)
+def _walker_policy_for(settings: EncoderSettings, num_actions: int) -> TabularPolicy:
+    """:func:`_walker_policy`, built (and its quantizer packed) once per room settings, not once per batch."""
     width = settings.num_features
     quantizer = Quantizer(mean=torch.zeros(width), std=torch.ones(width), prototypes=torch.zeros(1, width))
-    return TabularPolicy(StateEncoder(settings, quantizer), torch.zeros(1, 1, 1, env.num_actions))
+    return TabularPolicy(StateEncoder(settings, quantizer), torch.zeros(1, 1, 1, num_actions))
 
 
 def _launch(env, policy, epsilon, generator, learn, alpha, gamma, *, record, greedy=False, reset=True):

@@ -176,11 +176,10 @@ class PedrlCrowd:
         """:meth:`simulate`'s recording through the fused trial, from the rooms as placed: frame 0 the start, frame t
         the positions and who is still in the room after decision t."""
         trace = record_trial_fused(env, self.controller, reset=False)
-        still_in = np.concatenate((trace.active[:, 1:], np.zeros_like(trace.active[:, :1])), axis=1)
         goal, decisions = trace.totals[3], trace.totals[5]
         return Recording(
             positions=trace.positions,
-            in_room=still_in,
+            in_room=trace.in_room(),
             exit_time=exit_times(np.where(goal > 0, decisions, -1).astype(np.int64), env.decisions_per_second),
             frame_rate=env.decisions_per_second,
             radius=env.agent_radius,
