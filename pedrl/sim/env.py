@@ -36,6 +36,7 @@ from pedrl.sim.motion import (
     Motion,
     Movement,
     SlidingMotion,
+    Steering,
     move_agents,
     move_agents_sequential,
     move_agents_sliding,
@@ -46,11 +47,13 @@ from pedrl.sim.room_checks import (
     check_actions,
     check_extent,
     check_goal_depth,
+    check_motion,
     check_ratios,
     check_rewards,
     check_rules,
     check_substep_length,
     check_substeps,
+    check_time_steps,
     read_option,
     read_options,
 )
@@ -95,6 +98,7 @@ class RoomEnv:
         state: The rooms' state (:class:`~pedrl.sim.state.RoomState`); :meth:`load_state` sets it.
         geometry: Walls, exits and spawn areas (:class:`~pedrl.sim.geometry.Geometry`).
         motion: The constants of a decision's movement by the contact model (:class:`~pedrl.sim.motion.Motion`).
+        motion_model: The ``motion`` setting, ``"step"`` or ``"continuous"``.
         exit_index: The exit each agent heads for ``(R, N)`` int64: its group's, or the nearest at placement.
         stage: The waypoint each agent aims at ``(R, N)`` int64; past its group's waypoints, its exit.
         spawns: Who starts where and heads where (:class:`~pedrl.sim.spawning.Spawns`).
@@ -138,6 +142,10 @@ class RoomEnv:
         contact: str = "stop",
         time_gap: float = 1.0,
         action_frame: str = "heading",
+        motion: str = "step",
+        time_step: float = 0.05,
+        neighbour_repulsion: Sequence[float] = (8.0, 0.1),
+        wall_repulsion: Sequence[float] = (5.0, 0.02),
         geometry: Geometry | None = None,
     ) -> None:
         """Validate the configuration and allocate the state (call :meth:`reset` before :meth:`step`).
@@ -208,6 +216,19 @@ class RoomEnv:
             action_frame: What an action changes (``pedrl.sim.actions.ACTION_FRAMES``): ``"heading"`` (the
                 paper: speed and heading change from their current values) or ``"goal"`` (the action sets the speed
                 and the heading relative to the bearing of the agent's goal point, its door or waypoint).
+            motion: How bodies walk between decisions (``pedrl.sim.room_checks.MOTIONS``). ``"step"`` (default, the
+                paper's model): the decision's velocity, sub-stepped by ``substep_length`` under ``contact``.
+                ``"continuous"``: the decision sets the desired direction ``e0`` and speed, and at every time step of
+                at most ``time_step`` each body walks the collision-free speed model (Tordeux, Chraibi & Seyfried
+                2016, as JuPedSim's ``CollisionFreeSpeedModel``): its direction is the unit vector of ``e0`` plus
+                the repulsions of the bodies and walls nearby (:class:`~pedrl.sim.motion.Steering`), its speed the
+                headway rule's along it (``contact`` ``headway`` or ``yield``, ``time_gap``), and the slide stays the
+                safety net (a refused move waits for the next time step). The sub-steps are
+                ``max(ceil(decision_length / time_step), the step model's)``.
+            time_step: The longest time step of ``motion=continuous`` (s, in ``(0, 0.05]``); unused by ``step``.
+            neighbour_repulsion: ``[a, D]`` of the direction rule (strength, range in m): JuPedSim's defaults 8 and
+                0.1 m; unused by ``step``.
+            wall_repulsion: ``[b, B]`` of the direction rule for walls: JuPedSim's defaults 5 and 0.02 m.
             geometry: Any walkable area (``pedrl.scenarios`` builds one from polygons); ``None`` is the paper's
                 room of ``width``, ``length`` and ``door_width`` (:meth:`Geometry.rectangle`), which are then
                 ignored except as the extent of the area. Its ``goal_depth`` is the geometry's own.
@@ -239,6 +260,9 @@ class RoomEnv:
         self.substep_length = check_substep_length(substep_length, agent_radius)
         self.collision_rule, self.collision_order, self.contact = check_rules(collision_rule, collision_order, contact)
         self.time_gap = check_real("time_gap", time_gap, unit="s", positive=True)
+        self.motion_model, self.time_step, self.neighbour_repulsion, self.wall_repulsion = check_motion(
+            motion, self.contact, time_step, neighbour_repulsion, wall_repulsion
+        )
         self.goal_depth = check_goal_depth(goal_depth)
         self.reward_progress = check_number("reward_progress", reward_progress, low=0.0, high=MAX_REWARD)
         self.compile_sensing = check_bool("compile_sensing", compile_sensing)
@@ -253,6 +277,8 @@ class RoomEnv:
         )
         self.decision_length = 1.0 / self.decisions_per_second
         self.num_substeps = check_substeps(self.max_speed, self.decisions_per_second, self.substep_length)
+        if self.motion_model == "continuous":
+            self.num_substeps = check_time_steps(self.num_substeps, self.decision_length, self.time_step)
         check_memory(
             {"room state and collision pairs": self.step_memory()},
             device=self.device,
@@ -272,7 +298,8 @@ class RoomEnv:
             substep_length=self.substep_length, collision_rule=self.collision_rule,
             collision_order=self.collision_order, goal_depth=self.goal_depth, reward_progress=self.reward_progress,
             compile_sensing=self.compile_sensing, contact=self.contact, time_gap=self.time_gap,
-            action_frame=self.action_frame,
+            action_frame=self.action_frame, motion=self.motion_model, time_step=self.time_step,
+            neighbour_repulsion=self.neighbour_repulsion, wall_repulsion=self.wall_repulsion,
         )  # fmt: skip
 
     def _build(self, geometry: Geometry) -> None:
@@ -288,10 +315,16 @@ class RoomEnv:
             device=self.device,
         )
         constants = (self.geometry, self.agent_radius, self.decision_length, self.num_substeps)
+        continuous = self.motion_model == "continuous"
         self.motion = (
             Motion(*constants)
             if self.contact == "stop"
-            else SlidingMotion(*constants, self.time_gap if self.contact != "slide" else None, self.contact == "yield")
+            else SlidingMotion(
+                *constants,
+                self.time_gap if self.contact != "slide" else None,
+                self.contact == "yield",
+                Steering(*self.neighbour_repulsion, *self.wall_repulsion) if continuous else None,
+            )
         )
         self.speed_changes = torch.tensor(self.speed_ratios, device=self.device) * self.max_speed
         self.turn_changes = torch.tensor(self.turn_ratios, device=self.device) * math.pi

@@ -78,6 +78,10 @@ class RoomParams:
     contact: str = setting(ANY)  # stop with walls that are not all axis-aligned: RoomEnv.fast_path_reason
     time_gap: float = setting(ANY)
     action_frame: str = setting(ANY)
+    motion: str = setting(ANY)
+    time_step: float = setting(ANY)
+    neighbour_repulsion: tuple[float, float] = setting(ANY)
+    wall_repulsion: tuple[float, float] = setting(ANY)
 
     def fast_path_reason(self) -> str | None:
         """Why the fast path cannot run these settings (one phrase, the first setting it does not support), or None."""

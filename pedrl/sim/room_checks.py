@@ -3,6 +3,7 @@ bad value (the generic checks of a number, a choice or a device are in :mod:`ped
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from typing import Any, Final
 
@@ -124,6 +125,52 @@ def check_rules(collision_rule: Any, collision_order: Any, contact: Any) -> tupl
             " rules resolve movers in turn (collision_rule: sequential; it applies to contact=stop only)"
         )
     return rule, order, model
+
+
+MOTIONS: Final = ("step", "continuous")
+"""How bodies walk between decisions (``RoomEnv(motion=...)``): ``step``, the paper's model (the decision's velocity,
+sub-stepped by ``substep_length``, under the contact rule); ``continuous``, the decision sets a desired direction and
+speed and the collision-free speed model with its direction rule walks every body at a time step of ``time_step``."""
+MAX_TIME_STEP: Final = 0.05
+"""Longest time step (s) of ``motion=continuous``."""
+CONTINUOUS_CONTACTS: Final = ("headway", "yield")
+
+
+def check_motion(motion: Any, contact: str, time_step: Any, neighbour_repulsion: Any, wall_repulsion: Any):
+    """``(motion, time_step, neighbour_repulsion, wall_repulsion)`` checked: ``continuous`` walks by the
+    collision-free speed rule, so it needs contact ``headway`` or ``yield``; each repulsion is ``(strength >= 0,
+    range > 0 m)``."""
+    model = check_choice("motion", motion, MOTIONS)
+    if model == "continuous" and contact not in CONTINUOUS_CONTACTS:
+        raise ValueError(
+            f"contact={contact!r} is invalid with motion='continuous': it walks by the collision-free speed rule"
+            " (contact: headway or yield)"
+        )
+    step = check_number("time_step", time_step, low=0.0, high=MAX_TIME_STEP, low_open=True)
+    repulsions = []
+    for name, value in (("neighbour_repulsion", neighbour_repulsion), ("wall_repulsion", wall_repulsion)):
+        try:
+            pair = tuple(value)
+        except TypeError:
+            pair = ()
+        if isinstance(value, str | bytes) or len(pair) != 2:
+            raise ValueError(f"{name}={value!r} is invalid: must be [strength, range] (strength >= 0, range > 0 m)")
+        strength = check_number(f"{name}[0]", pair[0], low=0.0, high=MAX_REWARD)
+        reach = check_number(f"{name}[1]", pair[1], low=0.0, high=10.0, low_open=True)
+        repulsions.append((strength, reach))
+    return model, step, repulsions[0], repulsions[1]
+
+
+def check_time_steps(num_substeps: int, decision_length: float, time_step: float) -> int:
+    """The sub-steps of a ``motion=continuous`` decision: ``max(num_substeps, ceil(decision_length / time_step))``, at
+    most :data:`MAX_SUBSTEPS`, else a one-line ``ValueError``."""
+    steps = math.ceil(decision_length / time_step * (1.0 - 1e-9))  # the slack keeps e.g. 1 / 0.05 at 20
+    if steps > MAX_SUBSTEPS:
+        raise ValueError(
+            f"time_step={time_step!r} s is invalid with decisions_per_second={1.0 / decision_length:.6g}: a decision"
+            f" would take {steps} time steps; at most {MAX_SUBSTEPS} (raise time_step or decisions_per_second)"
+        )
+    return max(num_substeps, steps)
 
 
 def check_goal_depth(goal_depth: Any) -> float:

@@ -33,7 +33,8 @@ def act_room(r, state, actions, room, walls, exits, work, events, scratch):
 
     ``room`` is ``(speed_changes (9,), turn_changes (9,), max_speed, decision_length, num_substeps, radius, contact,
     door_first, time_gap, goal_frame, max_decisions, rewards (4,): goal, wall, agent, default, reward_progress,
-    assigned (R, N), exit_goals (X, 2), waypoints (N, W, 2), route_length (N,), waypoint_radius)``, the last three
+    assigned (R, N), exit_goals (X, 2), steer, steering (4,), waypoints (N, W, 2), route_length (N,),
+    waypoint_radius)``: ``steer`` is ``motion=continuous`` with the direction rule's ``(a, D, b, B)``; the last three
     the routes (flat: a parallel kernel takes no tuple in a tuple);
     ``exits`` ``(start, normal, tangent, span)``; ``work`` ``(R, N)``-shaped arrays of the move, the last the
     uniform draws that order the movers (``RoomEnv``'s ``priority``); ``events`` ``(reward, left, goal,
@@ -41,8 +42,8 @@ def act_room(r, state, actions, room, walls, exits, work, events, scratch):
     """
     positions, velocities, headings, speeds, active, exit_index, targets, decisions, stage = state
     speed_changes, turn_changes, max_speed, length, substeps, radius, contact, door_first, time_gap = room[:9]
-    goal_frame, max_decisions, rewards, reward_progress, assigned, exit_goals = room[9:15]
-    routes = room[15:]
+    goal_frame, max_decisions, rewards, reward_progress, assigned, exit_goals, steer, steering = room[9:17]
+    routes = room[17:]
     moved_to, step, going, present, order, depth, blocked, cut_wall, cut_body, reached, no_walls, draws = work
     reward, left, goal, crashed_wall, crashed_agent, acting, in_room = events
     priority, old_x, old_y, moved, flags, current, rank_of = scratch
@@ -90,8 +91,8 @@ def act_room(r, state, actions, room, walls, exits, work, events, scratch):
             r, positions, velocities, going, present, order, starts, directions, inverse, exit_start, exit_normal,
             exit_tangent, exit_span, np.float32(radius * radius), np.float32(4.0 * radius * radius),
             np.float32(length / substeps), substeps, contact >= HEADWAY, contact == YIELD, np.float32(time_gap),
-            np.float32(2.0 * radius), _MARGIN, moved_to, blocked, cut_wall, cut_body, reached, step[r], current,
-            moved, rank_of,
+            np.float32(2.0 * radius), _MARGIN, steer, steering, moved_to, blocked, cut_wall, cut_body, reached, step[r],
+            current, moved, rank_of,
         )  # fmt: skip
     decisions[r] += 1
     for i in range(num_agents):

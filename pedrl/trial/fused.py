@@ -26,6 +26,7 @@ from pedrl.rl.policy import PolicyController, TabularPolicy
 from pedrl.sim import RoomEnv
 from pedrl.sim.controllers import GreedyDoorController
 from pedrl.sim.motion import CONTACT_MODELS
+from pedrl.sim.motion.sliding import steering_array
 from pedrl.sim.sensing import MIN_VOID_DISTANCE
 from pedrl.sim.state import RoomState
 from pedrl.trial.stats import TOTALS, TrialStats
@@ -268,6 +269,8 @@ def _room(env: RoomEnv) -> tuple[Any, ...]:
         np.float32(env.reward_progress),
         env.spawns.assigned_exit.expand(env.num_replicas, env.num_agents).contiguous().numpy(),
         env.geometry.exit_goals.contiguous().numpy(),
+        env.motion_model == "continuous",
+        steering_array(getattr(env.motion, "steering", None)),
         env.spawns.waypoints.to(torch.float32).contiguous().numpy(),
         env.spawns.route_length.contiguous().numpy(),
         np.float32(env.geometry.waypoint_radius),

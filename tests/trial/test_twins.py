@@ -27,8 +27,9 @@ AGENTS = {"paper_room": 20, "bottleneck": 24, "corridor": 24, "corner": 7, "four
 BUILT_IN = [name for name in SCENARIOS if name != "custom"]  # custom is a WKT file of the user's
 
 
-def room(name: str, contact: str, frame: str = "heading"):
+def room(name: str, contact: str, frame: str = "heading", motion: str = "step"):
     settings = {"_target_": "pedrl.sim.RoomEnv", "max_decisions": 30, "contact": contact, "action_frame": frame}
+    settings |= {"motion": motion, "decisions_per_second": 2.0} if motion == "continuous" else {}
     if frame == "goal":
         settings |= {"speed_ratios": [0, 0.2, 0.4, 0.6, 0.7, 0.8, 0.9, 0.95, 1],
                      "turn_ratios": [-0.5, -0.25, -0.1, -0.05, 0, 0.05, 0.1, 0.25, 0.5]}  # fmt: skip
@@ -55,6 +56,18 @@ def test_the_kernel_path_matches_the_torch_path_through_whole_trials(name, conta
     report = check_twins(room(name, contact, frame), policy, seed=7)
     assert report.failures() == []
     assert report.decisions >= 10 and report.agent_decisions > 100 and report.encoded > 100  # real trials
+
+
+@pytest.mark.parametrize("contact", ["headway", "yield"])
+@pytest.mark.parametrize("name", BUILT_IN)
+def test_the_continuous_motion_matches_through_whole_trials(name, contact):
+    """motion=continuous (the direction rule at 0.05 s steps) on both paths, in both action frames."""
+    for kind, frame in (("shared", "goal"), ("per_process", "heading")):
+        policy = scenario_policies(name)[kind]
+        policy.q_values.normal_(generator=torch.Generator().manual_seed(1))
+        report = check_twins(room(name, contact, frame, motion="continuous"), policy, seed=7)
+        assert report.failures() == []
+        assert report.decisions >= 10 and report.agent_decisions > 100  # real trials
 
 
 def test_a_kernel_that_walks_too_fast_fails_the_harness(monkeypatch):

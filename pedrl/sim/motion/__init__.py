@@ -14,7 +14,13 @@ the kernel returns the torch code's numbers to the bit. :mod:`~pedrl.sim.motion.
 from pedrl.sim.motion.common import COLLISION_RULES, CONTACT_MODELS, PAIR_MARGIN, Motion, Movement
 from pedrl.sim.motion.sequential import move_agents_sequential, move_agents_sequential_torch
 from pedrl.sim.motion.simultaneous import move_agents
-from pedrl.sim.motion.sliding import SlidingMotion, headway_factors, move_agents_sliding, move_agents_sliding_torch
+from pedrl.sim.motion.sliding import (
+    SlidingMotion,
+    Steering,
+    headway_factors,
+    move_agents_sliding,
+    move_agents_sliding_torch,
+)
 
 __all__ = [
     "COLLISION_RULES",
@@ -23,6 +29,7 @@ __all__ = [
     "Motion",
     "Movement",
     "SlidingMotion",
+    "Steering",
     "headway_factors",
     "move_agents",
     "move_agents_sequential",

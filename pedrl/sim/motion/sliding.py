@@ -7,7 +7,9 @@ something, and under ``headway``/``yield`` walks at the collision-free speed (To
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Final
 
+import numpy as np
 import torch
 
 from pedrl._numba import use_kernels
@@ -26,18 +28,122 @@ def _sqrt(values: torch.Tensor) -> torch.Tensor:
     return values.double().sqrt().to(values.dtype)
 
 
+STEERING_CUTOFF: Final = -20.0
+"""A term of the direction rule whose exponent ``(l - d) / D`` is below this is dropped: it would weigh at most
+``2e-9`` of its strength (the rule is otherwise unchanged; it bounds the work to the bodies and walls nearby)."""
+
+
+@dataclass(frozen=True)
+class Steering:
+    """The direction rule of the collision-free speed model (Tordeux, Chraibi & Seyfried 2016, "Collision-free speed
+    model for pedestrian dynamics", eq. 4; JuPedSim's ``CollisionFreeSpeedModel``): the walking direction is the unit
+    vector of ``e0 + sum_j a exp((2 r - d_ij) / D) n_ji + sum_w b exp((r - d_iw) / B) n_wi``, with ``e0`` the
+    commanded direction, ``n_ji`` the unit vector from body ``j`` to the mover, ``n_wi`` from the closest point of
+    wall ``w`` to it. The defaults are JuPedSim's (``strength_neighbor_repulsion`` 8, ``range_neighbor_repulsion``
+    0.1 m, ``strength_geometry_repulsion`` 5, ``range_geometry_repulsion`` 0.02 m).
+
+    Attributes:
+        neighbour_strength: ``a`` (dimensionless).
+        neighbour_range: ``D`` (m).
+        wall_strength: ``b`` (dimensionless).
+        wall_range: ``B`` (m).
+    """
+
+    neighbour_strength: float = 8.0
+    neighbour_range: float = 0.1
+    wall_strength: float = 5.0
+    wall_range: float = 0.02
+
+
 @dataclass(frozen=True)
 class SlidingMotion(Motion):
     """The constants of a decision under ``slide`` (no ``time_gap``), ``headway`` (a ``time_gap``) or ``yield`` (a
-    ``time_gap`` and ``yield_to_earlier``).
+    ``time_gap`` and ``yield_to_earlier``), and of ``motion=continuous`` (``steering`` too).
 
     Attributes:
         time_gap: ``T`` of the collision-free speed rule (s); None for ``slide``.
         yield_to_earlier: Only the bodies that act before the mover slow it (``yield``).
+        steering: ``motion=continuous``: the walking direction is recomputed at every sub-step from the commanded one
+            by the direction rule (:func:`steer`), and a mover the safety net refuses only waits for the next
+            sub-step; None: the decision's direction is kept (bar slides), and a refused mover stops for the decision.
     """
 
     time_gap: float | None = None
     yield_to_earlier: bool = False
+    steering: Steering | None = None
+
+
+def steering_array(steering: Steering | None) -> np.ndarray:
+    """The kernels' ``steering``: ``(a, D, b, B)`` float32 (ones when None, unused then)."""
+    if steering is None:
+        return np.ones(4, np.float32)
+    values = (steering.neighbour_strength, steering.neighbour_range, steering.wall_strength, steering.wall_range)
+    return np.array(values, np.float32)
+
+
+def steer(
+    *,
+    positions: torch.Tensor,
+    commanded: torch.Tensor,
+    present: torch.Tensor,
+    agent_radius: float,
+    steering: Steering,
+    walls: tuple[torch.Tensor, torch.Tensor, torch.Tensor],
+) -> torch.Tensor:
+    """The wanted velocities of a sub-step under ``motion=continuous``: each commanded speed along the direction of
+    :class:`Steering` (from the commanded direction, the present bodies and the walls).
+
+    The sums run body by body and wall by wall in index order, as the kernel's (``sliding_kernel._steer``).
+
+    Args:
+        positions: Centres ``(R, N, 2)`` (m).
+        commanded: Commanded velocities ``(R, N, 2)`` (m/s): speed and direction ``e0``.
+        present: Bodies in the room ``(R, N)`` bool; only they repel, and only they get a velocity.
+        agent_radius: Body radius ``r`` (m).
+        steering: The rule's constants.
+        walls: :func:`_wall_segments` of the room.
+
+    Returns:
+        Wanted velocities ``(R, N, 2)`` (m/s): ``|commanded| e``, zero where the commanded speed is 0 or not present.
+    """
+    starts, directions, inverse = walls
+    num_agents = positions.shape[1]
+    cx, cy = commanded[..., X], commanded[..., Y]
+    speed = _sqrt(cx * cx + cy * cy)
+    moving = present & (speed > 0)
+    safe = torch.where(moving, speed, 1.0)
+    ex, ey = torch.where(moving, cx / safe, 0.0), torch.where(moving, cy / safe, 0.0)
+    fx, fy = ex, ey
+    x, y = positions[..., X], positions[..., Y]
+    agents = torch.arange(num_agents, device=positions.device)
+
+    def add(fx, fy, dx, dy, limit, strength, reach, use):
+        distance = _sqrt(dx * dx + dy * dy)
+        exponent = (limit - distance) / reach
+        use = use & (exponent > STEERING_CUTOFF) & (distance > 0)
+        weight = torch.where(use, strength * torch.exp(exponent), 0.0)
+        safe_distance = torch.where(use, distance, 1.0)
+        return fx + weight * (dx / safe_distance), fy + weight * (dy / safe_distance)
+
+    diameter = 2.0 * agent_radius
+    for j in range(num_agents):
+        use = present[:, j : j + 1] & (agents != j)
+        fx, fy = add(
+            fx, fy, x - x[:, j : j + 1], y - y[:, j : j + 1], diameter,
+            steering.neighbour_strength, steering.neighbour_range, use,
+        )  # fmt: skip
+    for s in range(starts.shape[0]):
+        along = ((x - starts[s, X]) * directions[s, X] + (y - starts[s, Y]) * directions[s, Y]) * inverse[s]
+        along = along.clamp(0.0, 1.0)
+        dx = x - (starts[s, X] + along * directions[s, X])
+        dy = y - (starts[s, Y] + along * directions[s, Y])
+        fx, fy = add(fx, fy, dx, dy, agent_radius, steering.wall_strength, steering.wall_range, moving)
+    norm = _sqrt(fx * fx + fy * fy)
+    turned = norm > 0
+    safe_norm = torch.where(turned, norm, 1.0)
+    wx = torch.where(turned, fx / safe_norm, ex) * speed
+    wy = torch.where(turned, fy / safe_norm, ey) * speed
+    return torch.where(moving.unsqueeze(-1), torch.stack((wx, wy), -1), 0.0)
 
 
 def headway_factors(
@@ -168,7 +274,7 @@ def move_agents_sliding(
         The :class:`Movement` of the decision; ``blocked`` marks movers stopped because even the slid move was
         refused.
     """
-    geometry, agent_radius, decision_length, num_substeps, time_gap, yield_to_earlier = motion.values()
+    geometry, agent_radius, decision_length, num_substeps, time_gap, yield_to_earlier, steering = motion.values()
     if use_kernels(positions.device, compiled):
         from pedrl.sim.motion.sliding_kernel import sliding_substeps  # imports numba: only where it is used
 
@@ -187,6 +293,7 @@ def move_agents_sliding(
             order=priority.argsort(dim=1),
             time_gap=time_gap,
             yield_to_earlier=yield_to_earlier,
+            steering=steering,
         )
     return move_agents_sliding_torch(
         positions=positions, velocities=velocities, active=active, motion=motion, priority=priority
@@ -208,9 +315,10 @@ def move_agents_sliding_torch(
     on a CPU core, 65 ms a decision for 20 rooms of 20 agents against 1 ms compiled): it is the path on CUDA and with
     ``PEDRL_NO_NUMBA=1``.
     """
-    geometry, agent_radius, decision_length, num_substeps, time_gap, yield_to_earlier = motion.values()
+    geometry, agent_radius, decision_length, num_substeps, time_gap, yield_to_earlier, steering = motion.values()
     device = positions.device
     starts, directions, inverse = _wall_segments(geometry)
+    commanded = velocities * active.unsqueeze(-1)
     order = priority.argsort(dim=1)
     num_replicas, num_agents = active.shape
     substep_length = decision_length / num_substeps
@@ -241,6 +349,11 @@ def move_agents_sliding_torch(
     for _ in range(num_substeps):
         if on_cpu and not bool(going.any()):
             break
+        if steering is not None:  # motion=continuous: the direction rule, from the positions at the sub-step's start
+            wanted = steer(
+                positions=current, commanded=commanded, present=present, agent_radius=agent_radius,
+                steering=steering, walls=(starts, directions, inverse),
+            )  # fmt: skip
         if time_gap is None:
             factor = torch.ones_like(current[..., X])
         else:
@@ -289,7 +402,8 @@ def move_agents_sliding_torch(
             passed = moves & geometry.passes_exits(target, depth=depth)
             reached[rows, mover_index] |= passed
             present[rows, mover_index] &= ~passed
-            going[rows, mover_index] = moves & ~passed
+            # a refused mover stops for the decision, or under motion=continuous waits for the next sub-step
+            going[rows, mover_index] = (moves if steering is None else mover) & ~passed
 
     return Movement(
         positions=current,

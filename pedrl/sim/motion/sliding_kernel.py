@@ -11,6 +11,7 @@ from pedrl._numba import cached_njit
 from pedrl.sim.geometry import Geometry
 from pedrl.sim.motion.common import PAIR_MARGIN, Movement
 from pedrl.sim.motion.sequential_kernel import _passes_exits
+from pedrl.sim.motion.sliding import STEERING_CUTOFF, Steering, steering_array
 
 __all__ = ["sliding_room", "sliding_substeps"]
 
@@ -50,11 +51,58 @@ def _nearest_body(x, y, mover, current, present_row):
     return nearest, index
 
 
+_CUTOFF = np.float32(STEERING_CUTOFF)
+
+
+@cached_njit(nogil=True, inline="always")
+def _steer(i, r, velocities, current, present_row, starts, directions, inverse, radius, diameter, steering):
+    """The wanted velocity of mover ``i`` under ``motion=continuous`` (``pedrl.sim.motion.sliding.steer`` of one
+    agent): its commanded speed along the direction rule's unit vector. ``steering`` is ``(a, D, b, B)``."""
+    zero = np.float32(0.0)
+    cx = velocities[r, i, 0]
+    cy = velocities[r, i, 1]
+    speed = np.sqrt(cx * cx + cy * cy)
+    if not speed > zero:
+        return zero, zero
+    ex = cx / speed
+    ey = cy / speed
+    fx = ex
+    fy = ey
+    x = current[i, 0]
+    y = current[i, 1]
+    for j in range(current.shape[0]):
+        if j == i or not present_row[j]:
+            continue
+        dx = x - current[j, 0]
+        dy = y - current[j, 1]
+        distance = np.sqrt(dx * dx + dy * dy)
+        exponent = (diameter - distance) / steering[1]
+        if exponent > _CUTOFF and distance > zero:
+            weight = steering[0] * np.exp(exponent)
+            fx = fx + weight * (dx / distance)
+            fy = fy + weight * (dy / distance)
+    for s in range(starts.shape[0]):
+        along = ((x - starts[s, 0]) * directions[s, 0] + (y - starts[s, 1]) * directions[s, 1]) * inverse[s]
+        along = min(max(along, zero), np.float32(1.0))
+        dx = x - (starts[s, 0] + along * directions[s, 0])
+        dy = y - (starts[s, 1] + along * directions[s, 1])
+        distance = np.sqrt(dx * dx + dy * dy)
+        exponent = (radius - distance) / steering[3]
+        if exponent > _CUTOFF and distance > zero:
+            weight = steering[2] * np.exp(exponent)
+            fx = fx + weight * (dx / distance)
+            fy = fy + weight * (dy / distance)
+    norm = np.sqrt(fx * fx + fy * fy)
+    if norm > zero:
+        return fx / norm * speed, fy / norm * speed
+    return ex * speed, ey * speed
+
+
 @cached_njit(nogil=True)
 def _sliding(
     positions, velocities, going, present, order, starts, directions, inverse, exit_start, exit_normal,
     exit_tangent, exit_span, radius_sq, contact_sq, substep_length, num_substeps, headway, yield_order, time_gap,
-    diameter, margin, out, blocked, cut_wall, cut_body, reached,
+    diameter, margin, steer, steering, out, blocked, cut_wall, cut_body, reached,
 ):  # fmt: skip
     num_replicas, num_agents = going.shape
     wanted = np.empty((num_agents, 2), dtype=np.float32)
@@ -65,7 +113,8 @@ def _sliding(
         sliding_room(
             r, positions, velocities, going, present, order, starts, directions, inverse, exit_start, exit_normal,
             exit_tangent, exit_span, radius_sq, contact_sq, substep_length, num_substeps, headway, yield_order,
-            time_gap, diameter, margin, out, blocked, cut_wall, cut_body, reached, wanted, current, factor, rank_of,
+            time_gap, diameter, margin, steer, steering, out, blocked, cut_wall, cut_body, reached, wanted, current,
+            factor, rank_of,
         )  # fmt: skip
 
 
@@ -73,11 +122,11 @@ def _sliding(
 def sliding_room(
     r, positions, velocities, going, present, order, starts, directions, inverse, exit_start, exit_normal,
     exit_tangent, exit_span, radius_sq, contact_sq, substep_length, num_substeps, headway, yield_order, time_gap,
-    diameter, margin, out, blocked, cut_wall, cut_body, reached,
+    diameter, margin, steer, steering, out, blocked, cut_wall, cut_body, reached,
     wanted, current, factor, rank_of,
 ):  # fmt: skip
     """The sub-steps of replica ``r`` (of :func:`sliding_substeps`); ``wanted``, ``current`` ``(N, 2)``, ``factor`` and
-    ``rank_of`` ``(N,)`` are scratch."""
+    ``rank_of`` ``(N,)`` are scratch. ``steer``: ``motion=continuous``, with ``steering`` ``(a, D, b, B)`` float32."""
     num_agents = going.shape[1]
     zero = np.float32(0.0)
     one = np.float32(1.0)
@@ -95,6 +144,14 @@ def sliding_room(
             anyone |= going[r, i]
         if not anyone:
             break
+        if steer:  # the direction rule, from the positions at the start of the sub-step
+            radius = diameter * np.float32(0.5)  # float32(r) exactly
+            for i in range(num_agents):
+                wanted[i, 0], wanted[i, 1] = zero, zero
+                if present[r, i]:
+                    wanted[i, 0], wanted[i, 1] = _steer(
+                        i, r, velocities, current, present[r], starts, directions, inverse, radius, diameter, steering
+                    )
         for i in range(num_agents):  # headway_factors, from the positions at the start of the sub-step
             factor[i] = one
             if not headway:
@@ -160,9 +217,9 @@ def sliding_room(
                     cut_wall[r, i] = True
                 if hits_body or slid_body:
                     cut_body[r, i] = True
-                if slid_wall or slid_body:
+                if slid_wall or slid_body:  # stops for the decision, or (steer) waits for the next sub-step
                     blocked[r, i] = True
-                    going[r, i] = False
+                    going[r, i] = steer
                     continue
             current[i, 0] = target_x
             current[i, 1] = target_y
@@ -193,6 +250,7 @@ def sliding_substeps(
     order: torch.Tensor,
     time_gap: float | None,
     yield_to_earlier: bool = False,
+    steering: Steering | None = None,
 ) -> Movement:
     """:func:`pedrl.sim.motion.sliding.move_agents_sliding_torch`, agent by agent, compiled (same float32
     operations, same order).
@@ -211,6 +269,7 @@ def sliding_substeps(
         order: ``(R, N)`` int64, the agents in their order of action.
         time_gap: ``T`` (s) of the headway rule, or ``None`` for ``slide``.
         yield_to_earlier: the ``yield`` rule: only bodies earlier in ``order`` slow a mover.
+        steering: ``motion=continuous``'s direction rule, or None.
 
     Returns:
         The :class:`~pedrl.sim.motion.Movement` of the decision.
@@ -244,6 +303,8 @@ def sliding_substeps(
         np.float32(1.0 if time_gap is None else time_gap),
         np.float32(2.0 * agent_radius),
         np.float32(PAIR_MARGIN),
+        steering is not None,
+        steering_array(steering),
         out.numpy(),
         blocked.numpy(),
         cut_wall.numpy(),
