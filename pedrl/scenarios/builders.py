@@ -22,10 +22,12 @@ SCENARIOS: Final = ("paper_room", "bottleneck", "corridor", "corner", "four_exit
 """Names accepted by ``scenario.name``."""
 WAYPOINT_SETBACK: Final = 0.8
 """Distance (m) before and after the bottleneck's entrance of the waypoints that line agents up with it."""
-LIDDLE_WIDTHS: Final = (0.9, 1.0, 1.1, 1.2, 1.4, 1.6, 1.8, 2.0, 2.3, 2.5)
-"""Bottleneck widths (m) of the Seyfried / Liddle experiments."""
+LIDDLE_WIDTHS: Final = (0.9, 1.0, 1.1, 1.2, 1.4, 1.6, 1.8, 2.0, 2.2, 2.5)
+"""Bottleneck widths (m) of the Liddle et al. (2011) experiments (4 m long bottlenecks), as JuPedSim's bottleneck test
+reads them from Liddle's data (``lid_w``: the data's width column over 100, hence 2.2 m, not 2.3 m)."""
 LIDDLE_FLOWS: Final = (1.71, 2.02, 2.19, 2.53, 2.91, 3.11, 3.91, 3.91, 4.52, 5.55)
-"""Measured flows (1/s) through the bottleneck at :data:`LIDDLE_WIDTHS` (Liddle et al.; about ``J = 2.22 w - 0.25``)."""
+"""Measured flows (1/s) through the bottleneck at :data:`LIDDLE_WIDTHS` (Liddle et al. 2011, as JuPedSim's
+bottleneck test reads them, ``lid_f``, rounded; about ``J = 2.22 w - 0.25``)."""
 
 
 def paper_room(*, width: float = 60.0, length: float = 100.0, door_width: float = 2.0) -> Scenario:

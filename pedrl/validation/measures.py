@@ -1,5 +1,5 @@
-"""Measures of the validation suite, on trajectories only: Weidmann's curve, PedPy's Voronoi and N-t measures, the
-lane order parameter and the physical invariants.
+"""Measures of the validation suite, on trajectories only: Weidmann's curve, PedPy's Voronoi and N-t measures,
+Feliciani and Nishinari's lane order parameter and crossing times, and the physical invariants.
 
 Everything here reads a :class:`~pedrl.analysis.Recording` (positions and in-room flags per frame), whichever model
 produced it: a pedrl room driven by a controller, JuPedSim, or a crowd scripted by a test.
@@ -119,51 +119,103 @@ def voronoi_samples(
 # ---------------------------------------------------------------------------------------------- lanes
 
 
-def lane_order_values(
+def lane_order_frames(
     positions: np.ndarray,
     active: np.ndarray,
     direction: np.ndarray,
     *,
-    lane_width: float,
     window: tuple[float, float],
-    reach: float,
+    width: float,
+    row: float,
     min_agents: int,
-) -> np.ndarray:
-    """Rex and Löwen's lane order ``phi_j = ((L_j - O_j) / (L_j + O_j))^2`` of every agent-frame in a crowded window.
+    shuffles: int = 0,
+    seed: int = 0,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Feliciani and Nishinari's order parameter ``Phi`` of every counted frame, with its chance level.
 
-    ``L_j`` counts the agents walking the way of agent ``j`` in its lane, ``j`` itself included, and ``O_j`` those
-    walking the other way: agents less than ``lane_width / 2`` to the side and less than ``reach`` along x. Random
-    mixing gives about ``1 / (L + O)``, perfect lanes 1. A frame counts only when the window holds at least
-    ``min_agents`` agents, some walking each way: a lone agent would score 1 whatever it does.
+    The measurement area ``window x [0, width]`` is cut along the walking direction into rows ``row`` wide. In a row
+    ``j`` holding ``n_j^+`` agents walking to +x and ``n_j^-`` walking to -x, ``phi_j = ((n_j^+ - n_j^-) /
+    (n_j^+ + n_j^-))^2``; a frame's ``Phi`` is the mean of ``phi_j`` over its occupied rows (1: every row holds one
+    direction). A frame counts only when the area holds at least ``min_agents`` agents, some walking each way. The
+    chance level of a frame is its ``Phi`` with the directions of the agents in the area shuffled (the mean over
+    ``shuffles`` seeded permutations): rows that hold one agent score 1 whatever it does, so thin rows and a sparse
+    area raise ``Phi`` with no lanes at all.
 
     Args:
         positions: ``(R, T, N, 2)`` centres (m).
         active: ``(R, T, N)`` in-room flags.
         direction: ``(N,)`` +1 / -1, the way each agent walks.
-        lane_width: Width (m) of a lane, centred on the agent.
-        window: ``(x_min, x_max)`` of the agents counted (m).
-        reach: Longitudinal distance (m) within which agents count.
-        min_agents: Fewest agents in the window for a frame to count.
+        window: ``(x_min, x_max)`` of the measurement area (m).
+        width: Width (m) of the corridor, cut into rows from ``y = 0``.
+        row: Width (m) of a row.
+        min_agents: Fewest agents in the area for a frame to count.
+        shuffles: Permutations of the directions per counted frame for its chance level (0: none, NaN).
+        seed: Seed of the permutations.
 
     Returns:
-        ``phi_j`` of every counted agent-frame.
+        ``Phi``, the number of agents in the area and the chance level of every counted frame.
     """
-    values: list[np.ndarray] = []
-    for frame in range(positions.shape[1]):
-        for replica in range(positions.shape[0]):
-            x = positions[replica, frame, :, 0]
+    rows = max(1, math.ceil(width / row - 1e-9))
+    rng = np.random.default_rng(seed)
+    phis, counts, chances = [], [], []
+    for replica in range(positions.shape[0]):
+        for frame in range(positions.shape[1]):
+            x, y = positions[replica, frame, :, 0], positions[replica, frame, :, 1]
             here = active[replica, frame] & (x >= window[0]) & (x <= window[1])
             sign = direction[here]
             if here.sum() < min_agents or (sign > 0).all() or (sign < 0).all():
                 continue
-            xy = positions[replica, frame, here]
-            dx = np.abs(xy[:, None, 0] - xy[None, :, 0])
-            dy = np.abs(xy[:, None, 1] - xy[None, :, 1])
-            lane = (dy < lane_width / 2) & (dx < reach)  # the diagonal: the agent itself, in its own lane
-            same = (lane & (sign[:, None] == sign[None, :])).sum(1)
-            opposite = (lane & (sign[:, None] != sign[None, :])).sum(1)
-            values.append(((same - opposite) / (same + opposite)) ** 2)
-    return np.concatenate(values) if values else np.zeros(0)
+            index = np.clip(np.floor(y[here] / row).astype(int), 0, rows - 1)
+            shuffled = rng.permuted(np.tile(sign, (shuffles, 1)), axis=1)
+            orders = _rows_order(index, np.vstack([sign, shuffled]), rows)
+            phis.append(orders[0])
+            counts.append(int(here.sum()))
+            chances.append(float(orders[1:].mean()) if shuffles else math.nan)
+    return np.array(phis), np.array(counts, dtype=np.int64), np.array(chances)
+
+
+def _rows_order(index: np.ndarray, signs: np.ndarray, rows: int) -> np.ndarray:
+    """``Phi`` of one frame for each line of ``signs`` ``(K, n)``: the mean ``((n^+ - n^-) / (n^+ + n^-))^2`` over
+    the rows ``index`` ``(n,)`` that hold an agent (the same rows for every line)."""
+    total = np.bincount(index, minlength=rows)  # n^+ + n^- per row
+    net = np.stack([np.bincount(index, weights=line, minlength=rows) for line in signs])  # n^+ - n^- per row
+    occupied = total > 0
+    return np.mean((net[:, occupied] / total[occupied]) ** 2, axis=1)
+
+
+def crossing_durations(
+    positions: np.ndarray, active: np.ndarray, direction: np.ndarray, *, window: tuple[float, float], frame_rate: float
+) -> np.ndarray:
+    """Times (s) agents took to walk through ``window`` (x, m) the way they walk: from crossing its near end to
+    crossing its far end, each crossing interpolated linearly between the two frames around it. Agents that start
+    past the near end, or do not cross the far end while in the room, are left out.
+
+    Args:
+        positions: ``(R, T, N, 2)`` centres (m).
+        active: ``(R, T, N)`` in-room flags.
+        direction: ``(N,)`` +1 / -1, the way each agent walks.
+        window: ``(x_min, x_max)`` of the area (m).
+        frame_rate: Frames per second.
+    """
+    progress = positions[..., 0] * direction  # grows as an agent walks its way
+    times = []
+    for replica, agent in np.ndindex(progress.shape[0], progress.shape[2]):
+        walked = np.where(active[replica, :, agent], progress[replica, :, agent], np.nan)
+        start, end = (window[0], window[1]) if direction[agent] > 0 else (-window[1], -window[0])
+        entered, left = _first_crossing(walked, start), _first_crossing(walked, end)
+        if walked[0] < start and entered is not None and left is not None and left > entered:
+            times.append((left - entered) / frame_rate)
+    return np.array(times)
+
+
+def _first_crossing(walked: np.ndarray, level: float) -> float | None:
+    """Fractional frame at which ``walked`` (NaN: out of the room) first reaches ``level``, or None."""
+    reached = np.nonzero(walked >= level)[0]
+    if not reached.size or reached[0] == 0:
+        return None
+    after = reached[0]
+    before = walked[after - 1]
+    return after - 1 + (level - before) / (walked[after] - before)
 
 
 # ---------------------------------------------------------------------------------------------- invariants

@@ -19,6 +19,7 @@ from pedrl.sim.controllers import GreedyDoorController
 from pedrl.train import train
 from pedrl.validate import run
 from pedrl.validation.crowds import PedrlCrowd
+from pedrl.validation.lanes import LANES_AGENTS, lanes_corridor
 from pedrl.validation.measures import (
     WEIDMANN,
     WEIDMANN_RADIUS,
@@ -26,29 +27,26 @@ from pedrl.validation.measures import (
     crossing_times,
     density_scale,
     hex_packing,
-    lane_order_values,
     steady_flow,
     weidmann_speed,
 )
 from pedrl.validation.suite import (
     BOTTLENECK_AGENTS,
-    LANE_WIDTH,
-    LANES_AGENTS,
-    LANES_REACH,
-    LANES_WINDOW,
     RIMEA_6_AGENTS,
     TEST_NAMES,
+    TESTS,
     Budget,
     Context,
     judge_bottleneck,
-    judge_lanes,
     judge_rimea_1,
     judge_rimea_4,
     judge_rimea_6,
     judge_rimea_9,
     lattice,
     liddle_bottleneck,
+    liddle_flow,
     rimea_1,
+    rimea_name,
 )
 
 
@@ -115,6 +113,21 @@ def test_rimea_4_passes_weidmann_shaped_data_and_fails_flat_rising_or_narrow_clo
     sparse = np.full(200, 0.2) * density_scale(radius), np.full(200, 1.2)  # a flat cloud below 0.3 /m^2
     narrow = judge_rimea_4(*sparse, radius=radius)
     assert not narrow.passed and not narrow.details["spans_range"] and narrow.value < 0.335  # close, but too narrow
+
+
+def test_rimea_4_fails_a_slow_step_model_and_a_standing_crowd_that_its_rms_band_alone_lets_through():
+    """A step model walking 0.9 m/s when free and barely slowing (0.6 m/s at 3.5 /m^2) sits within 0.335 m/s RMS of
+    Weidmann with a falling slope over [0.5, 3.5] /m^2: the RMS band, the span and the slope pass it. Its free speed
+    (67 % of v0) and its dense speed (over half its free one) fail it. A crowd that stands still fails too."""
+    rng = np.random.default_rng(1)
+    step = judge_rimea_4(*weidmann_cloud(rng, low=0.5, high=3.5, speed=lambda d: 0.9 - 0.1 * d), radius=0.2)
+    assert step.value <= 0.335 and step.details["spans_range"] and step.details["slope_m_s_per_density"] < 0
+    assert not step.passed and step.details["free_speed_share_of_v0"] < 0.75 and step.details["dense_over_free"] > 0.5
+    standing = judge_rimea_4(*weidmann_cloud(rng, low=0.3, high=6.0, speed=np.zeros_like), radius=0.2)
+    assert not standing.passed and standing.details["free_speed_share_of_v0"] < 0.1
+    weidmann = judge_rimea_4(*weidmann_cloud(rng), radius=0.2)
+    assert weidmann.passed and weidmann.details["free_speed_share_of_v0"] > 0.9
+    assert weidmann.details["dense_over_free"] < 0.5 and weidmann.reference.startswith("ours:")
 
 
 def test_rimea_4_lattice_has_its_density_and_no_overlap():
@@ -184,6 +197,24 @@ def test_rimea_9_passes_a_doubling_and_fails_one_exit_only_or_a_room_not_evacuat
     assert not judge_rimea_9(exit_times(1.3, 4), stuck).passed
 
 
+def milling_exit_times(mill, exits, flow_per_exit=1.3, agents=1000):
+    """Exit times (s) of ``agents`` who random-walk in the room for ``mill`` s, then leave by ``exits`` doors of
+    ``flow_per_exit`` persons/s each."""
+    return mill + exit_times(flow_per_exit, exits, agents)
+
+
+def test_rimea_9_fails_a_crowd_that_mills_for_most_of_both_runs_whatever_its_ratio():
+    """Milling 400 s, then leaving, with four exits (592 s in all) and 800 s, then leaving, with two (1185 s): the
+    ratio is 2.0, in the band, but each run flows 0.42 /s through each open exit, below 0.5 /s."""
+    four, two = milling_exit_times(400.0, 4), milling_exit_times(800.0, 2)
+    row = judge_rimea_9(four, two)
+    assert 1.6 <= row.value <= 2.4 and row.details["evacuated"] == {"four": 1.0, "two": 1.0}
+    assert not row.passed and max(row.details["flow_per_exit_per_s"].values()) < 0.5
+    assert row.reference.startswith("ours:") and "not a pass rule" in row.reference
+    brisk = judge_rimea_9(milling_exit_times(40.0, 4), milling_exit_times(80.0, 2))  # a short hesitation passes
+    assert brisk.passed and min(brisk.details["flow_per_exit_per_s"].values()) > 0.5
+
+
 # ---------------------------------------------------------------------------------------------- bottleneck
 
 
@@ -213,46 +244,14 @@ def test_steady_flow_and_crossings_of_a_line():
     assert steady_flow(np.arange(100) * 0.5) == pytest.approx(2.0)
 
 
+def test_liddle_places_452_per_second_at_22_m_as_his_data_does():
+    """JuPedSim's bottleneck test reads Liddle's widths from his data (0.9 .. 2.0, 2.2, 2.5 m); 4.52 /s is 2.2 m."""
+    assert LIDDLE_WIDTHS == (0.9, 1.0, 1.1, 1.2, 1.4, 1.6, 1.8, 2.0, 2.2, 2.5)
+    assert liddle_flow(2.2) == 4.52 and liddle_flow(2.5) == 5.55 and 2.3 not in LIDDLE_WIDTHS
+
+
 def test_liddle_bottleneck_holds_100_bodies_of_04():
     liddle_bottleneck(0.9).check_capacity(BOTTLENECK_AGENTS, 0.4)
-
-
-# ---------------------------------------------------------------------------------------------- lanes
-
-
-def corridor_crowd(rng, *, lanes, frames=30):
-    """54 agents in Feliciani's 10 m window, half walking each way: in lanes (each direction in its own two lanes
-    0.6 m apart) or randomly mixed."""
-    direction = np.where(np.arange(LANES_AGENTS) < LANES_AGENTS // 2, 1, -1)
-    positions = np.zeros((frames, 1, LANES_AGENTS, 2))
-    positions[..., 0] = rng.uniform(*LANES_WINDOW, (frames, 1, LANES_AGENTS))
-    if lanes:
-        lane = np.arange(LANES_AGENTS) % 2
-        positions[..., 1] = np.where(direction > 0, 0.4 + 0.6 * lane, 1.9 + 0.6 * lane)
-    else:
-        positions[..., 1] = rng.uniform(0.3, 2.7, (frames, 1, LANES_AGENTS))
-    return recording(positions), direction
-
-
-def test_lanes_pass_segregated_lanes_and_fail_random_mixing_at_the_tests_density():
-    rng = np.random.default_rng(0)
-    row = judge_lanes(*corridor_crowd(rng, lanes=True))
-    assert row.passed and row.value == pytest.approx(1.0)
-    mixed = judge_lanes(*corridor_crowd(rng, lanes=False))
-    assert not mixed.passed and mixed.value < 0.4 and mixed.details["agent_frames"] >= 300
-
-
-def test_lane_order_counts_the_agent_itself_and_ignores_sparse_windows():
-    """Two agents head-on in one lane score 0 each, not 1; with fewer agents than the minimum nothing is counted,
-    so a sparse crowd gets no verdict."""
-    positions = np.array([[[[15.0, 1.5], [17.0, 1.5]]]])
-    direction = np.array([1, -1])
-    active = np.ones((1, 1, 2), dtype=bool)
-    window = dict(lane_width=LANE_WIDTH, window=LANES_WINDOW, reach=LANES_REACH)
-    assert lane_order_values(positions, active, direction, **window, min_agents=2).tolist() == [0.0, 0.0]
-    assert lane_order_values(positions, active, direction, **window, min_agents=10).size == 0
-    sparse = judge_lanes(recording(np.repeat(positions, 400, axis=0)), direction)
-    assert not sparse.passed and sparse.value is None
 
 
 # ---------------------------------------------------------------------------------------------- invariants
@@ -281,11 +280,13 @@ def test_invariants_catch_an_overlap_a_wall_crossing_and_a_jump():
 
 def test_each_test_says_which_body_sizes_it_hosts():
     """At the paper's 0.4 m, RiMEA 6 (20 persons in 6 m x 2 m), RiMEA 9 (1000 persons in 26 m x 16 m) and the lanes
-    (27 persons in each 12 m x 3 m end) cannot place their crowds; at a pedestrian's 0.2 m every test can."""
+    (27 persons in each 12 m x 3 m end at 3:3, 45 in one at 5:1) cannot place their crowds; at a pedestrian's 0.2 m
+    every test can."""
     crowds = {
         "rimea_6": (build_scenario({"name": "corner", "spawn_length": 6.0}), RIMEA_6_AGENTS),
         "rimea_9": (build_scenario({"name": "four_exits", "margin": 4.0, "spawn_margin": 2.0}), 1000),
-        "lanes": (build_scenario({"name": "corridor", "length": 38.0, "width": 3.0}), LANES_AGENTS),
+        "lanes": (lanes_corridor((3, 3)), LANES_AGENTS),
+        "lanes at 5:1": (lanes_corridor((5, 1)), LANES_AGENTS),
         "bottleneck": (liddle_bottleneck(0.9), BOTTLENECK_AGENTS),
     }
     for name, (scenario, agents) in crowds.items():
@@ -296,6 +297,21 @@ def test_each_test_says_which_body_sizes_it_hosts():
 
 
 # ---------------------------------------------------------------------------------------------- pedrl-validate
+
+
+def test_rimea_tests_carry_the_numbers_and_names_of_rimea_411_and_the_others_their_sources():
+    assert [TESTS[key][0] for key in ("rimea_1", "rimea_4", "rimea_6", "rimea_9")] == [
+        "RiMEA 1: Maintaining the specified walking speed in a corridor",
+        "RiMEA 4: Measurement of the fundamental diagram",
+        "RiMEA 6: Movement around a corner",
+        "RiMEA 9: Crowd of people leaving a large public space",
+    ]
+    assert "Liddle" in TESTS["bottleneck"][0] and "Feliciani" in TESTS["lanes"][0]
+    assert judge_rimea_1(walker_times(1.33)).source.startswith("RiMEA guideline 4.1.1 (2025), test 1")
+
+
+def test_validate_runs_the_learned_and_greedy_crowds_at_epsilon_0_by_default():
+    assert compose_config("validate", [])["epsilon"] == 0.0
 
 
 @pytest.fixture(scope="module")
@@ -365,10 +381,24 @@ def test_jupedsim_column_passes_rimea_1_and_6_at_its_defaults(tmp_path):
     pytest.importorskip("jupedsim")
     cfg = compose_config("validate", ["controller=jupedsim", "tests=[rimea_1,rimea_6,invariants]", "tensorboard=false"])
     rows = {row.test: row for row in run(cfg, run_dir=tmp_path)["jupedsim"]}
-    assert rows["RiMEA 1: travel time in a 40 m corridor"].passed
-    assert rows["RiMEA 6: around a corner"].passed
+    assert rows[rimea_name(1)].passed
+    assert rows[rimea_name(6)].passed
     document = json.loads((tmp_path / "validation.json").read_text())
     assert document["jupedsim"]["radius"] == 0.2 and document["jupedsim"]["desired_speed"] == 1.2
+
+
+def test_lanes_at_03_m_judge_3_3_and_report_the_ratios_that_do_not_fit_as_not_run():
+    """At 0.3 m the 3:3 crowd fits (up to 0.331 m) but 45 persons at 5:1 and 36 at 4:2 do not: the verdict is read
+    on 3:3, the others are reported as not run; at 0.4 m the test is not applicable."""
+    from pedrl.validation.suite import run_suite
+
+    crowd = PedrlCrowd(GreedyDoorController(), {"agent_radius": 0.3})
+    rows, _ = run_suite(crowd, budget=Budget(quick=True), only=["lanes", "invariants"])
+    assert [row.status for row in rows] == ["FAIL", "pass"] and rows[0].details["agent_frames"]["3:3"] > 0
+    assert rows[0].details["agent_frames"]["5:1"] is None and rows[0].details["phi"]["4:2"] is None
+    crowd = PedrlCrowd(GreedyDoorController(), {"agent_radius": 0.4})
+    rows, _ = run_suite(crowd, budget=Budget(quick=True), only=["lanes", "invariants"])
+    assert [row.status for row in rows] == ["n/a", "FAIL"] and "cannot be placed" in rows[0].note
 
 
 def test_invariants_row_fails_when_nothing_was_simulated():
