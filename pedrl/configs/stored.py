@@ -22,6 +22,7 @@ HISTORICAL_VALUES: Final = {
     "env.compile_sensing": False,
     "env.contact": "stop",
     "env.time_gap": 1.0,
+    "env.motion": "step",
     "algo.value_transfer": False,
     "algo.tables": "agent",
     "algo.void_draws": "decision",

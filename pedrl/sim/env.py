@@ -56,6 +56,7 @@ from pedrl.sim.room_checks import (
     check_time_steps,
     read_option,
     read_options,
+    step_memory,
 )
 from pedrl.sim.sensing import Observation, compiled_observe, feature_names, num_features, observe
 from pedrl.sim.spawning import MAX_DENSITY as MAX_DENSITY  # re-exported: pedrl.scenarios checks its spawn areas by it
@@ -69,15 +70,6 @@ MAX_RESET_SEED: Final = 2**64 - 1
 """Largest ``reset(seed=...)``: a torch generator's seed is 64 bits. Wider than the command line's ``seed``
 (``MAX_SEED``, 2^32 - 1), because trainers and evaluation reseed rooms with derived seeds such as
 ``seed * 10007 + phase``."""
-PAIRWISE_BYTES: Final = 40
-"""Bytes per ``(replica, agent, agent)`` entry of the pairwise matrices a decision allocates (sensing distances and
-sort, the swept-disc pre-filter): a measured upper bound, for the memory estimate of :meth:`RoomEnv.step_memory`."""
-PAIR_BYTES: Final = 120
-"""Bytes per ordered candidate pair of the sequential rule (indices, proposals, gaps)."""
-PAIR_BYTES_PER_SUBSTEP: Final = 40
-"""Bytes per ordered candidate pair and sub-step of the simultaneous rule (proposals, gaps, conflicts)."""
-STATE_BYTES: Final = 128
-"""Bytes per agent of the state, observations, rewards and flags of one decision."""
 
 
 class RoomEnv:
@@ -216,19 +208,15 @@ class RoomEnv:
             action_frame: What an action changes (``pedrl.sim.actions.ACTION_FRAMES``): ``"heading"`` (the
                 paper: speed and heading change from their current values) or ``"goal"`` (the action sets the speed
                 and the heading relative to the bearing of the agent's goal point, its door or waypoint).
-            motion: How bodies walk between decisions (``pedrl.sim.room_checks.MOTIONS``). ``"step"`` (default, the
-                paper's model): the decision's velocity, sub-stepped by ``substep_length`` under ``contact``.
-                ``"continuous"``: the decision sets the desired direction ``e0`` and speed, and at every time step of
-                at most ``time_step`` each body walks the collision-free speed model (Tordeux, Chraibi & Seyfried
-                2016, as JuPedSim's ``CollisionFreeSpeedModel``): its direction is the unit vector of ``e0`` plus
-                the repulsions of the bodies and walls nearby (:class:`~pedrl.sim.motion.Steering`), its speed the
-                headway rule's along it (``contact`` ``headway`` or ``yield``, ``time_gap``), and the slide stays the
-                safety net (a refused move waits for the next time step). The sub-steps are
-                ``max(ceil(decision_length / time_step), the step model's)``.
-            time_step: The longest time step of ``motion=continuous`` (s, in ``(0, 0.05]``); unused by ``step``.
-            neighbour_repulsion: ``[a, D]`` of the direction rule (strength, range in m): JuPedSim's defaults 8 and
-                0.1 m; unused by ``step``.
-            wall_repulsion: ``[b, B]`` of the direction rule for walls: JuPedSim's defaults 5 and 0.02 m.
+            motion: ``"step"`` (default, the paper's model: the decision's velocity, sub-stepped under ``contact``)
+                or ``"continuous"``: the decision sets the desired direction and speed, and the collision-free speed
+                model with its direction rule (:class:`~pedrl.sim.motion.Steering`; Tordeux, Chraibi & Seyfried 2016)
+                walks every body at steps of at most ``time_step``, the slide the safety net (needs ``contact``
+                ``headway`` or ``yield``; docs/configuration.md).
+            time_step: The longest time step of ``motion=continuous`` (s, in ``(0, 0.05]``).
+            neighbour_repulsion: ``[a, D]`` (strength, range m) of the direction rule for bodies: JuPedSim's
+                ``[8, 0.1]``.
+            wall_repulsion: ``[b, B]`` for walls; JuPedSim's ``[5, 0.02]``.
             geometry: Any walkable area (``pedrl.scenarios`` builds one from polygons); ``None`` is the paper's
                 room of ``width``, ``length`` and ``door_width`` (:meth:`Geometry.rectangle`), which are then
                 ignored except as the extent of the area. Its ``goal_depth`` is the geometry's own.
@@ -266,41 +254,30 @@ class RoomEnv:
         self.goal_depth = check_goal_depth(goal_depth)
         self.reward_progress = check_number("reward_progress", reward_progress, low=0.0, high=MAX_REWARD)
         self.compile_sensing = check_bool("compile_sensing", compile_sensing)
-        self.params = self._params()
+        self.params = RoomParams.of(self)
+        self._build(self._checked_room(geometry))
+
+    def _checked_room(self, geometry: Geometry | None) -> Geometry:
+        """The walkable area (the paper's room when ``geometry`` is None), with the checks that need it: the agents
+        fit in the spawn areas, the sub-steps and the memory of a decision."""
         if geometry is None:
             geometry = Geometry.rectangle(
                 width=self.width, length=self.length, door_width=self.door_width, goal_depth=self.goal_depth
             )
         self.spawn_counts = spawn_counts(self.num_agents, [spawn.weight for spawn in geometry.spawns])
         check_density(
-            geometry, self.spawn_counts, num_agents, agent_radius=self.agent_radius, room=(self.width, self.length)
+            geometry, self.spawn_counts, self.num_agents, agent_radius=self.agent_radius, room=(self.width, self.length)
         )
         self.decision_length = 1.0 / self.decisions_per_second
-        self.num_substeps = check_substeps(self.max_speed, self.decisions_per_second, self.substep_length)
-        if self.motion_model == "continuous":
-            self.num_substeps = check_time_steps(self.num_substeps, self.decision_length, self.time_step)
+        self.num_substeps = check_time_steps(
+            check_substeps(self.max_speed, self.decisions_per_second, self.substep_length), self
+        )
         check_memory(
             {"room state and collision pairs": self.step_memory()},
             device=self.device,
             advice="fewer agents or replicas (processes, rooms_per_process, trials_per_batch)",
         )
-        self._build(geometry)
-
-    def _params(self) -> RoomParams:
-        """The validated settings, as one record."""
-        return RoomParams(
-            width=self.width, length=self.length, door_width=self.door_width, agent_radius=self.agent_radius,
-            max_speed=self.max_speed, decisions_per_second=self.decisions_per_second,
-            max_decisions=self.max_decisions, num_neighbours=self.num_neighbours, num_walls=self.num_walls,
-            speed_ratios=tuple(self.speed_ratios), turn_ratios=tuple(self.turn_ratios),
-            reward_goal=self.rewards.goal, reward_crash_wall=self.rewards.crash_wall,
-            reward_crash_agent=self.rewards.crash_agent, reward_default=self.rewards.default,
-            substep_length=self.substep_length, collision_rule=self.collision_rule,
-            collision_order=self.collision_order, goal_depth=self.goal_depth, reward_progress=self.reward_progress,
-            compile_sensing=self.compile_sensing, contact=self.contact, time_gap=self.time_gap,
-            action_frame=self.action_frame, motion=self.motion_model, time_step=self.time_step,
-            neighbour_repulsion=self.neighbour_repulsion, wall_repulsion=self.wall_repulsion,
-        )  # fmt: skip
+        return geometry
 
     def _build(self, geometry: Geometry) -> None:
         """The constants (geometry on the device, spawn tables, action tables), the generator and the state, zero
@@ -399,16 +376,8 @@ class RoomEnv:
             self.stage, self._targets = self.spawns.advance(self.positions, self.stage, self.exit_index)
 
     def step_memory(self) -> int:
-        """Estimated peak bytes of one :meth:`step`: the worst case, every pair of agents close enough to collide.
-
-        Pairwise ``(R, N, N)`` matrices, plus the candidate pairs of the collision rule: ``R N (N - 1)`` ordered
-        pairs, each held once (sequential) or at every sub-step (simultaneous).
-        """
-        rooms, agents = self.num_replicas, self.num_agents
-        ordered_pairs = rooms * agents * (agents - 1)
-        simultaneous = self.collision_rule == "simultaneous"
-        per_pair = PAIR_BYTES_PER_SUBSTEP * self.num_substeps if simultaneous else PAIR_BYTES
-        return rooms * agents * (STATE_BYTES + PAIRWISE_BYTES * agents) + ordered_pairs * per_pair
+        """Estimated peak bytes of one :meth:`step` (:func:`~pedrl.sim.room_checks.step_memory`)."""
+        return step_memory(self.num_replicas, self.num_agents, self.num_substeps, self.collision_rule)
 
     # ------------------------------------------------------------------ public API
 

@@ -83,6 +83,21 @@ class RoomParams:
     neighbour_repulsion: tuple[float, float] = setting(ANY)
     wall_repulsion: tuple[float, float] = setting(ANY)
 
+    @classmethod
+    def of(cls, room: Any) -> RoomParams:
+        """The settings of a built room (a ``RoomEnv``): each field its attribute of the same name, the rewards from
+        its reward table and ``motion`` from its ``motion_model``."""
+        rewards = room.rewards
+        special = {
+            "reward_goal": rewards.goal,
+            "reward_crash_wall": rewards.crash_wall,
+            "reward_crash_agent": rewards.crash_agent,
+            "reward_default": rewards.default,
+            "motion": room.motion_model,
+        }
+        values = {f.name: special[f.name] if f.name in special else getattr(room, f.name) for f in fields(cls)}
+        return cls(**{name: tuple(v) if isinstance(v, list) else v for name, v in values.items()})
+
     def fast_path_reason(self) -> str | None:
         """Why the fast path cannot run these settings (one phrase, the first setting it does not support), or None."""
         for item in fields(self):

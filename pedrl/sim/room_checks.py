@@ -161,9 +161,13 @@ def check_motion(motion: Any, contact: str, time_step: Any, neighbour_repulsion:
     return model, step, repulsions[0], repulsions[1]
 
 
-def check_time_steps(num_substeps: int, decision_length: float, time_step: float) -> int:
-    """The sub-steps of a ``motion=continuous`` decision: ``max(num_substeps, ceil(decision_length / time_step))``, at
-    most :data:`MAX_SUBSTEPS`, else a one-line ``ValueError``."""
+def check_time_steps(num_substeps: int, room: Any) -> int:
+    """The sub-steps of a decision of ``room`` (a ``RoomEnv`` being built): the step model's ``num_substeps``; under
+    ``motion=continuous`` at least ``ceil(decision_length / time_step)``, at most :data:`MAX_SUBSTEPS`, else a
+    one-line ``ValueError``."""
+    if room.motion_model != "continuous":
+        return num_substeps
+    decision_length, time_step = room.decision_length, room.time_step
     steps = math.ceil(decision_length / time_step * (1.0 - 1e-9))  # the slack keeps e.g. 1 / 0.05 at 20
     if steps > MAX_SUBSTEPS:
         raise ValueError(
@@ -171,6 +175,28 @@ def check_time_steps(num_substeps: int, decision_length: float, time_step: float
             f" would take {steps} time steps; at most {MAX_SUBSTEPS} (raise time_step or decisions_per_second)"
         )
     return max(num_substeps, steps)
+
+
+PAIRWISE_BYTES: Final = 40
+"""Bytes per ``(replica, agent, agent)`` entry of the pairwise matrices a decision allocates (sensing distances and
+sort, the swept-disc pre-filter): a measured upper bound, for the memory estimate of :func:`step_memory`."""
+PAIR_BYTES: Final = 120
+"""Bytes per ordered candidate pair of the sequential rule (indices, proposals, gaps)."""
+PAIR_BYTES_PER_SUBSTEP: Final = 40
+"""Bytes per ordered candidate pair and sub-step of the simultaneous rule (proposals, gaps, conflicts)."""
+STATE_BYTES: Final = 128
+"""Bytes per agent of the state, observations, rewards and flags of one decision."""
+
+
+def step_memory(num_replicas: int, num_agents: int, num_substeps: int, collision_rule: str) -> int:
+    """Estimated peak bytes of one ``RoomEnv.step``: the worst case, every pair of agents close enough to collide.
+
+    Pairwise ``(R, N, N)`` matrices, plus the candidate pairs of the collision rule: ``R N (N - 1)`` ordered pairs,
+    each held once (sequential) or at every sub-step (simultaneous).
+    """
+    ordered_pairs = num_replicas * num_agents * (num_agents - 1)
+    per_pair = PAIR_BYTES_PER_SUBSTEP * num_substeps if collision_rule == "simultaneous" else PAIR_BYTES
+    return num_replicas * num_agents * (STATE_BYTES + PAIRWISE_BYTES * num_agents) + ordered_pairs * per_pair
 
 
 def check_goal_depth(goal_depth: Any) -> float:

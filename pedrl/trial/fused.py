@@ -26,7 +26,7 @@ from pedrl.rl.policy import PolicyController, TabularPolicy
 from pedrl.sim import RoomEnv
 from pedrl.sim.controllers import GreedyDoorController
 from pedrl.sim.motion import CONTACT_MODELS
-from pedrl.sim.motion.sliding import steering_array
+from pedrl.sim.motion.common import steering_array
 from pedrl.sim.sensing import MIN_VOID_DISTANCE
 from pedrl.sim.state import RoomState
 from pedrl.trial.stats import TOTALS, TrialStats

@@ -11,12 +11,11 @@ the kernel returns the torch code's numbers to the bit. :mod:`~pedrl.sim.motion.
 :class:`Movement` they return and the one enumeration of the collision rules and contact models.
 """
 
-from pedrl.sim.motion.common import COLLISION_RULES, CONTACT_MODELS, PAIR_MARGIN, Motion, Movement
+from pedrl.sim.motion.common import COLLISION_RULES, CONTACT_MODELS, PAIR_MARGIN, Motion, Movement, Steering
 from pedrl.sim.motion.sequential import move_agents_sequential, move_agents_sequential_torch
 from pedrl.sim.motion.simultaneous import move_agents
 from pedrl.sim.motion.sliding import (
     SlidingMotion,
-    Steering,
     headway_factors,
     move_agents_sliding,
     move_agents_sliding_torch,

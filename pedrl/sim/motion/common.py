@@ -7,6 +7,7 @@ from dataclasses import dataclass, fields
 from functools import lru_cache
 from typing import Any, Final
 
+import numpy as np
 import torch
 
 from pedrl.sim.geometry import Geometry, X, Y
@@ -118,3 +119,38 @@ def _discs_overlap(
     gap_y = centre_y.unsqueeze(2) - centre_y.unsqueeze(1)
     limit = half_move.unsqueeze(2) + half_move.unsqueeze(1) + (2.0 * agent_radius + PAIR_MARGIN)
     return gap_x * gap_x + gap_y * gap_y < limit * limit
+
+
+STEERING_CUTOFF: Final = -20.0
+"""A term of the direction rule whose exponent ``(l - d) / D`` is below this is dropped: it would weigh at most
+``2e-9`` of its strength (the rule is otherwise unchanged; it bounds the work to the bodies and walls nearby)."""
+
+
+@dataclass(frozen=True)
+class Steering:
+    """The direction rule of the collision-free speed model (Tordeux, Chraibi & Seyfried 2016, "Collision-free speed
+    model for pedestrian dynamics", eq. 4; JuPedSim's ``CollisionFreeSpeedModel``): the walking direction is the unit
+    vector of ``e0 + sum_j a exp((2 r - d_ij) / D) n_ji + sum_w b exp((r - d_iw) / B) n_wi``, with ``e0`` the
+    commanded direction, ``n_ji`` the unit vector from body ``j`` to the mover, ``n_wi`` from the closest point of
+    wall ``w`` to it. The defaults are JuPedSim's (``strength_neighbor_repulsion`` 8, ``range_neighbor_repulsion``
+    0.1 m, ``strength_geometry_repulsion`` 5, ``range_geometry_repulsion`` 0.02 m).
+
+    Attributes:
+        neighbour_strength: ``a`` (dimensionless).
+        neighbour_range: ``D`` (m).
+        wall_strength: ``b`` (dimensionless).
+        wall_range: ``B`` (m).
+    """
+
+    neighbour_strength: float = 8.0
+    neighbour_range: float = 0.1
+    wall_strength: float = 5.0
+    wall_range: float = 0.02
+
+
+def steering_array(steering: Steering | None) -> np.ndarray:
+    """The kernels' ``steering``: ``(a, D, b, B)`` float32 (ones when None, unused then)."""
+    if steering is None:
+        return np.ones(4, np.float32)
+    values = (steering.neighbour_strength, steering.neighbour_range, steering.wall_strength, steering.wall_range)
+    return np.array(values, np.float32)

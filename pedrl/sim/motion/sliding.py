@@ -7,17 +7,17 @@ something, and under ``headway``/``yield`` walks at the collision-free speed (To
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Final
 
-import numpy as np
 import torch
 
 from pedrl._numba import use_kernels
 from pedrl.sim.geometry import Geometry, X, Y
 from pedrl.sim.motion.common import (
     PAIR_MARGIN,
+    STEERING_CUTOFF,
     Motion,
     Movement,
+    Steering,
     _eye,
 )
 
@@ -28,31 +28,10 @@ def _sqrt(values: torch.Tensor) -> torch.Tensor:
     return values.double().sqrt().to(values.dtype)
 
 
-STEERING_CUTOFF: Final = -20.0
-"""A term of the direction rule whose exponent ``(l - d) / D`` is below this is dropped: it would weigh at most
-``2e-9`` of its strength (the rule is otherwise unchanged; it bounds the work to the bodies and walls nearby)."""
-
-
-@dataclass(frozen=True)
-class Steering:
-    """The direction rule of the collision-free speed model (Tordeux, Chraibi & Seyfried 2016, "Collision-free speed
-    model for pedestrian dynamics", eq. 4; JuPedSim's ``CollisionFreeSpeedModel``): the walking direction is the unit
-    vector of ``e0 + sum_j a exp((2 r - d_ij) / D) n_ji + sum_w b exp((r - d_iw) / B) n_wi``, with ``e0`` the
-    commanded direction, ``n_ji`` the unit vector from body ``j`` to the mover, ``n_wi`` from the closest point of
-    wall ``w`` to it. The defaults are JuPedSim's (``strength_neighbor_repulsion`` 8, ``range_neighbor_repulsion``
-    0.1 m, ``strength_geometry_repulsion`` 5, ``range_geometry_repulsion`` 0.02 m).
-
-    Attributes:
-        neighbour_strength: ``a`` (dimensionless).
-        neighbour_range: ``D`` (m).
-        wall_strength: ``b`` (dimensionless).
-        wall_range: ``B`` (m).
-    """
-
-    neighbour_strength: float = 8.0
-    neighbour_range: float = 0.1
-    wall_strength: float = 5.0
-    wall_range: float = 0.02
+def _exp(values: torch.Tensor) -> torch.Tensor:
+    """Correctly rounded float32 exponential, as the kernel's: through float64 (torch's vectorised float32 ``exp`` and
+    the kernel's may differ in the last bit, which a contact can amplify)."""
+    return values.double().exp().to(values.dtype)
 
 
 @dataclass(frozen=True)
@@ -71,14 +50,6 @@ class SlidingMotion(Motion):
     time_gap: float | None = None
     yield_to_earlier: bool = False
     steering: Steering | None = None
-
-
-def steering_array(steering: Steering | None) -> np.ndarray:
-    """The kernels' ``steering``: ``(a, D, b, B)`` float32 (ones when None, unused then)."""
-    if steering is None:
-        return np.ones(4, np.float32)
-    values = (steering.neighbour_strength, steering.neighbour_range, steering.wall_strength, steering.wall_range)
-    return np.array(values, np.float32)
 
 
 def steer(
@@ -121,7 +92,7 @@ def steer(
         distance = _sqrt(dx * dx + dy * dy)
         exponent = (limit - distance) / reach
         use = use & (exponent > STEERING_CUTOFF) & (distance > 0)
-        weight = torch.where(use, strength * torch.exp(exponent), 0.0)
+        weight = torch.where(use, strength * _exp(exponent), 0.0)
         safe_distance = torch.where(use, distance, 1.0)
         return fx + weight * (dx / safe_distance), fy + weight * (dy / safe_distance)
 

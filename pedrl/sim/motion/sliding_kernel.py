@@ -9,9 +9,8 @@ import torch
 
 from pedrl._numba import cached_njit
 from pedrl.sim.geometry import Geometry
-from pedrl.sim.motion.common import PAIR_MARGIN, Movement
+from pedrl.sim.motion.common import PAIR_MARGIN, STEERING_CUTOFF, Movement, Steering, steering_array
 from pedrl.sim.motion.sequential_kernel import _passes_exits
-from pedrl.sim.motion.sliding import STEERING_CUTOFF, Steering, steering_array
 
 __all__ = ["sliding_room", "sliding_substeps"]
 
@@ -78,7 +77,7 @@ def _steer(i, r, velocities, current, present_row, starts, directions, inverse, 
         distance = np.sqrt(dx * dx + dy * dy)
         exponent = (diameter - distance) / steering[1]
         if exponent > _CUTOFF and distance > zero:
-            weight = steering[0] * np.exp(exponent)
+            weight = steering[0] * np.float32(np.exp(np.float64(exponent)))
             fx = fx + weight * (dx / distance)
             fy = fy + weight * (dy / distance)
     for s in range(starts.shape[0]):
@@ -89,7 +88,7 @@ def _steer(i, r, velocities, current, present_row, starts, directions, inverse, 
         distance = np.sqrt(dx * dx + dy * dy)
         exponent = (radius - distance) / steering[3]
         if exponent > _CUTOFF and distance > zero:
-            weight = steering[2] * np.exp(exponent)
+            weight = steering[2] * np.float32(np.exp(np.float64(exponent)))
             fx = fx + weight * (dx / distance)
             fy = fy + weight * (dy / distance)
     norm = np.sqrt(fx * fx + fy * fy)
