@@ -17,7 +17,7 @@ from pedrl.sim import RoomEnv
 from pedrl.sim.actions import NUM_ACTIONS, NUM_TURNS, velocities_from
 from pedrl.sim.controllers import GreedyDoorController
 from pedrl.sim.geometry import distances_to_segments
-from pedrl.sim.motion import SlidingMotion, move_agents_sliding, move_agents_sliding_torch
+from pedrl.sim.motion import SlidingMotion, Steering, move_agents_sliding, move_agents_sliding_torch
 from pedrl.sim.motion import sequential as sequential_motion
 from pedrl.sim.motion import sliding as sliding_motion
 
@@ -98,15 +98,16 @@ def random_scene(seed: int, num_agents: int, room: tuple[float, float, float], s
 
 
 @needs_numba
-@settings(max_examples=30, deadline=None)
+@settings(max_examples=40, deadline=None)
 @given(
     seed=st.integers(0, 2**31 - 1),
     num_agents=st.integers(1, 40),
     room=st.sampled_from([(12.0, 15.0, 1.5), (6.0, 8.0, 1.0), (4.0, 4.0, 1.2)]),
     speed_scale=st.sampled_from([0.3, 1.0]),
-    rule=st.sampled_from(RULES),
+    rule=st.sampled_from((*RULES, "continuous")),
 )
 def test_kernel_equals_the_torch_reference_to_the_bit(seed, num_agents, room, speed_scale, rule):
+    """Every sliding rule, and motion=continuous (yield with the direction rule at 0.05 s steps)."""
     width, length, _ = room
     num_agents = min(num_agents, int(0.3 * (width - 0.8) * (length - 0.8) / (math.pi * 0.16)))
     env, velocities, active, priority = random_scene(seed, num_agents, room, speed_scale)
@@ -115,8 +116,9 @@ def test_kernel_equals_the_torch_reference_to_the_bit(seed, num_agents, room, sp
         velocities=velocities,
         active=active,
         motion=SlidingMotion(
-            env.geometry, env.agent_radius, env.decision_length, env.num_substeps,
-            None if rule == "slide" else 1.0, rule == "yield",
+            env.geometry, env.agent_radius, env.decision_length,
+            20 if rule == "continuous" else env.num_substeps, None if rule == "slide" else 1.0,
+            rule in ("yield", "continuous"), Steering() if rule == "continuous" else None,
         ),
         priority=priority,
     )  # fmt: skip

@@ -1,5 +1,6 @@
 """``motion=continuous``: the decision sets the desired direction and speed, and the collision-free speed model with
-its direction rule (Tordeux, Chraibi & Seyfried 2016) walks every body at time steps of at most 0.05 s."""
+its direction rule (Tordeux, Chraibi & Seyfried 2016) walks every body at time steps of at most 0.05 s. Its kernel
+against its torch specification, to the bit: ``tests/sim/test_contact.py``."""
 
 import math
 
@@ -11,9 +12,9 @@ from hypothesis import strategies as st
 from pedrl._numba import numba_available
 from pedrl.sim import RoomEnv
 from pedrl.sim.actions import NUM_ACTIONS
-from pedrl.sim.motion import Steering, move_agents_sliding, move_agents_sliding_torch
+from pedrl.sim.motion import Steering
 from pedrl.sim.motion.sliding import steer
-from tests.sim.test_contact import check_bodies, kernels_on, random_scene
+from tests.sim.test_contact import check_bodies, kernels_on
 
 GOAL = {
     "action_frame": "goal",
@@ -94,31 +95,6 @@ def sliding_walls(env: RoomEnv):
     from pedrl.sim.motion.sliding import _wall_segments
 
     return _wall_segments(env.geometry)
-
-
-@needs_numba
-@settings(max_examples=25, deadline=None)
-@given(
-    seed=st.integers(0, 2**31 - 1),
-    num_agents=st.integers(1, 40),
-    room=st.sampled_from([(12.0, 15.0, 1.5), (6.0, 8.0, 1.0), (4.0, 4.0, 1.2)]),
-    speed_scale=st.sampled_from([0.3, 1.0]),
-    rule=st.sampled_from(["headway", "yield"]),
-)
-def test_the_kernel_equals_its_torch_specification_to_the_bit(seed, num_agents, room, speed_scale, rule):
-    width, length, _ = room
-    num_agents = min(num_agents, int(0.3 * (width - 0.8) * (length - 0.8) / (math.pi * 0.16)))
-    env, velocities, active, priority = random_scene(seed, num_agents, room, speed_scale)
-    motion = continuous(
-        num_replicas=2, num_agents=num_agents, width=width, length=length, door_width=room[2], agent_radius=0.4,
-        max_speed=env.max_speed, contact=rule,
-    ).motion  # fmt: skip
-    kwargs = dict(positions=env.positions, velocities=velocities, active=active, motion=motion, priority=priority)
-    compiled = move_agents_sliding(**kwargs, compiled=True)
-    reference = move_agents_sliding_torch(**kwargs)
-    assert torch.equal(compiled.positions, reference.positions)  # same float32 operations in the same order
-    for flag in ("blocked", "crashed_wall", "crashed_agent", "reached"):
-        assert torch.equal(getattr(compiled, flag), getattr(reference, flag)), flag
 
 
 @settings(max_examples=6, deadline=None)

@@ -54,6 +54,19 @@ _CUTOFF = np.float32(STEERING_CUTOFF)
 
 
 @cached_njit(nogil=True, inline="always")
+def _push(fx, fy, dx, dy, limit, strength, reach):
+    """``(fx, fy)`` plus the repulsion ``strength exp((limit - d) / reach)`` along ``(dx, dy) / d`` (``add`` of
+    ``pedrl.sim.motion.sliding.steer``), dropped below the cutoff."""
+    distance = np.sqrt(dx * dx + dy * dy)
+    exponent = (limit - distance) / reach
+    if exponent > _CUTOFF and distance > np.float32(0.0):
+        weight = strength * np.float32(np.exp(np.float64(exponent)))  # rounded through float64, as the torch twin
+        fx = fx + weight * (dx / distance)
+        fy = fy + weight * (dy / distance)
+    return fx, fy
+
+
+@cached_njit(nogil=True, inline="always")
 def _steer(i, r, velocities, current, present_row, starts, directions, inverse, radius, diameter, steering):
     """The wanted velocity of mover ``i`` under ``motion=continuous`` (``pedrl.sim.motion.sliding.steer`` of one
     agent): its commanded speed along the direction rule's unit vector. ``steering`` is ``(a, D, b, B)``."""
@@ -72,25 +85,13 @@ def _steer(i, r, velocities, current, present_row, starts, directions, inverse, 
     for j in range(current.shape[0]):
         if j == i or not present_row[j]:
             continue
-        dx = x - current[j, 0]
-        dy = y - current[j, 1]
-        distance = np.sqrt(dx * dx + dy * dy)
-        exponent = (diameter - distance) / steering[1]
-        if exponent > _CUTOFF and distance > zero:
-            weight = steering[0] * np.float32(np.exp(np.float64(exponent)))
-            fx = fx + weight * (dx / distance)
-            fy = fy + weight * (dy / distance)
+        fx, fy = _push(fx, fy, x - current[j, 0], y - current[j, 1], diameter, steering[0], steering[1])
     for s in range(starts.shape[0]):
         along = ((x - starts[s, 0]) * directions[s, 0] + (y - starts[s, 1]) * directions[s, 1]) * inverse[s]
         along = min(max(along, zero), np.float32(1.0))
         dx = x - (starts[s, 0] + along * directions[s, 0])
         dy = y - (starts[s, 1] + along * directions[s, 1])
-        distance = np.sqrt(dx * dx + dy * dy)
-        exponent = (radius - distance) / steering[3]
-        if exponent > _CUTOFF and distance > zero:
-            weight = steering[2] * np.float32(np.exp(np.float64(exponent)))
-            fx = fx + weight * (dx / distance)
-            fy = fy + weight * (dy / distance)
+        fx, fy = _push(fx, fy, dx, dy, radius, steering[2], steering[3])
     norm = np.sqrt(fx * fx + fy * fy)
     if norm > zero:
         return fx / norm * speed, fy / norm * speed
