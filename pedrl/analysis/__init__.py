@@ -42,6 +42,7 @@ from pedrl.analysis.trajectory_files import (
     Y_COL,
     read_pedpy_trajectory,
     write_geometry_wkt,
+    write_jupedsim_sqlite,
     write_pedpy_trajectories,
     write_pedpy_trajectory,
 )
@@ -85,6 +86,7 @@ __all__ = [
     "plot_room",
     "read_pedpy_trajectory",
     "write_geometry_wkt",
+    "write_jupedsim_sqlite",
     "write_pedpy_trajectories",
     "write_pedpy_trajectory",
 ]

@@ -1,4 +1,5 @@
-"""Export trajectories in the text format that PedPy reads (``pedpy.load_trajectory_from_txt``).
+"""Export trajectories in the text format that PedPy reads (``pedpy.load_trajectory_from_txt``), and as JuPedSim's
+SQLite trajectory files (:func:`write_jupedsim_sqlite`), which PedPy reads with their walkable area.
 
 The format (PedPy's ``pedpy/io/ped_data_archive_loader.py``): ``#`` comment lines first, then one row per
 agent and frame with whitespace-separated columns ``id frame x y``. PedPy takes the frame rate from the first
@@ -20,12 +21,15 @@ significant digits to read back bit-exactly in the dtype of the positions (9 for
 
 from __future__ import annotations
 
+import hashlib
+import sqlite3
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Final
 
 import numpy as np
+import shapely
 from numpy.typing import NDArray
 
 from pedrl.analysis.trajectories import DEFAULT_EXIT_DEPTH, Geometry, Trajectories, X, Y
@@ -132,6 +136,76 @@ def write_geometry_wkt(path: str | Path, geometry: Geometry, *, exit_depth: floa
     """
     path = Path(path)
     path.write_text(geometry.to_wkt(exit_depth=exit_depth) + "\n", encoding="utf-8")
+    return path
+
+
+JUPEDSIM_SQLITE_VERSION: Final = 2
+"""The schema of JuPedSim's SQLite trajectory files that :func:`write_jupedsim_sqlite` writes: the one JuPedSim 1.x
+writes (``jupedsim.sqlite_serialization``) and PedPy 1.5 reads with its walkable area."""
+
+
+def write_jupedsim_sqlite(
+    path: str | Path, trajectories: Trajectories, *, first_id: int = 0, exit_depth: float = DEFAULT_EXIT_DEPTH
+) -> Path:
+    """Write one trial as a JuPedSim SQLite trajectory file (schema version 2), with the room's walkable area.
+
+    ``pedpy.load_trajectory_from_jupedsim_sqlite`` and ``pedpy.load_walkable_area_from_jupedsim_sqlite`` read it back,
+    and JuPedSim's viewer opens it. Tables: ``trajectory_data (frame, id, pos_x, pos_y, ori_x, ori_y)`` (active
+    agent-frames; the orientation is the unit velocity, ``(0, 0)`` for a body at rest), ``metadata`` (``version`` 2,
+    ``fps``, the area's bounds ``xmin`` .. ``ymax``), ``geometry (hash, wkt)`` (the area plus an apron of ``exit_depth``
+    m beyond each exit, as :func:`write_geometry_wkt`) and ``frame_data (frame, geometry_hash)``. The file is written
+    beside its destination and moved into place, so a reader never sees half of it.
+
+    Args:
+        path: output file (its parent must exist); replaced if it exists.
+        trajectories: the trial; agent ``n`` gets id ``first_id + n``.
+        first_id: id of agent 0.
+        exit_depth: the apron beyond each exit (m).
+
+    Returns:
+        The path written.
+    """
+    path = Path(path)
+    frames, agents = np.nonzero(trajectories.active)
+    xy = trajectories.positions[frames, agents].astype(np.float64)
+    velocity = trajectories.velocities[frames, agents].astype(np.float64)
+    norm = np.hypot(velocity[:, X], velocity[:, Y])
+    orientation = np.divide(velocity, norm[:, None], out=np.zeros_like(velocity), where=norm[:, None] > 0)
+    wkt = trajectories.geometry.to_wkt(exit_depth=exit_depth)
+    geometry_hash = int.from_bytes(hashlib.sha1(wkt.encode()).digest()[:7], "big")  # a stable 56-bit key
+    xmin, ymin, xmax, ymax = shapely.from_wkt(wkt).bounds
+    rows = zip(
+        frames.tolist(), (agents + first_id).tolist(), xy[:, X].tolist(), xy[:, Y].tolist(),
+        orientation[:, X].tolist(), orientation[:, Y].tolist(), strict=True,
+    )  # fmt: skip
+    partial = path.with_name(f".{path.name}.partial")
+    partial.unlink(missing_ok=True)
+    connection = sqlite3.connect(partial)
+    try:
+        with connection:
+            connection.execute(
+                "CREATE TABLE trajectory_data (frame INTEGER NOT NULL, id INTEGER NOT NULL, pos_x REAL NOT NULL,"
+                " pos_y REAL NOT NULL, ori_x REAL NOT NULL, ori_y REAL NOT NULL)"
+            )
+            connection.execute("CREATE TABLE metadata(key TEXT NOT NULL UNIQUE PRIMARY KEY, value TEXT NOT NULL)")
+            connection.executemany(
+                "INSERT INTO metadata VALUES(?, ?)",
+                [("version", str(JUPEDSIM_SQLITE_VERSION)), ("fps", repr(float(trajectories.framerate))),
+                 ("xmin", repr(xmin)), ("xmax", repr(xmax)), ("ymin", repr(ymin)), ("ymax", repr(ymax))],
+            )  # fmt: skip
+            connection.execute("CREATE TABLE geometry(hash INTEGER NOT NULL, wkt TEXT NOT NULL)")
+            connection.execute("CREATE UNIQUE INDEX geometry_hash on geometry(hash)")
+            connection.execute("INSERT INTO geometry VALUES(?, ?)", (geometry_hash, wkt))
+            connection.execute("CREATE TABLE frame_data(frame INTEGER NOT NULL, geometry_hash INTEGER NOT NULL)")
+            connection.executemany(
+                "INSERT INTO frame_data VALUES(?, ?)",
+                [(frame, geometry_hash) for frame in range(trajectories.active.shape[0])],
+            )
+            connection.executemany("INSERT INTO trajectory_data VALUES(?, ?, ?, ?, ?, ?)", rows)
+            connection.execute("CREATE INDEX frame_id_idx ON trajectory_data(frame, id)")
+    finally:
+        connection.close()
+    partial.replace(path)
     return path
 
 

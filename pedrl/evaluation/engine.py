@@ -24,6 +24,7 @@ from pedrl.analysis import (
     compute_density_map,
     compute_fundamental_diagram,
     write_geometry_wkt,
+    write_jupedsim_sqlite,
     write_pedpy_trajectory,
 )
 from pedrl.analysis.trajectories import Geometry
@@ -494,6 +495,7 @@ def simulate_agent_count(
                 folder.mkdir(parents=True, exist_ok=True)
                 write_geometry_wkt(run_dir / "trajectories" / "geometry.wkt", geometry)
             write_pedpy_trajectory(folder / f"trial_{first_run + i:03d}.txt", runs[i])
+            write_jupedsim_sqlite(folder / f"trial_{first_run + i:03d}.sqlite", runs[i])
     assert density is not None  # at least one batch ran
     return stats, _concatenate_diagrams(diagrams), density
 

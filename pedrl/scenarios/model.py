@@ -121,7 +121,7 @@ class Scenario:
 
     def geometry(self, *, goal_depth: float = 0.0, device: str | torch.device = "cpu") -> Geometry:
         """The simulation's :class:`~pedrl.sim.Geometry`: walls are the boundary minus the exits."""
-        walls = _segments(self.walkable.boundary.difference(shapely.union_all(self.exits)))
+        walls = _segments(walls_without_exits(self.walkable, self.exits))
         exits = [list(exit_.coords)[:2] for exit_ in self.exits]
         normals = [_outward_normal(self.walkable, exit_) for exit_ in self.exits]
         spawns = tuple(
@@ -206,6 +206,15 @@ def _segments(lines: Any) -> list[list[list[float]]]:
 def _ring_segments(polygon: Polygon) -> list[list[list[float]]]:
     """Segments of every ring of a polygon (exterior and holes)."""
     return _segments(shapely.MultiLineString([polygon.exterior, *polygon.interiors]))
+
+
+def walls_without_exits(walkable: Polygon, exits: tuple[LineString, ...]) -> Any:
+    """The boundary of ``walkable`` minus its ``exits``, at any angle. The boundary is first snapped to the exits'
+    end points (each becomes a vertex of it), so that an exit is a piece of the boundary to the bit: an exit in a wall
+    that is not axis-aligned lies on it only to rounding, and a plain difference left the whole wall standing."""
+    ends = shapely.MultiPoint([point for exit_ in exits for point in exit_.coords])
+    boundary = shapely.snap(walkable.boundary, ends, TOLERANCE)
+    return boundary.difference(shapely.union_all(exits))
 
 
 def _outward_normal(walkable: Polygon, exit_: LineString) -> list[float]:

@@ -6,9 +6,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
-from pedrl.analysis import Recording
+from pedrl.analysis import Recording, write_jupedsim_sqlite
 from pedrl.scenarios import LIDDLE_WIDTHS, Scenario
 from pedrl.validation.crowds import Crowd
 from pedrl.validation.measures import InvariantTally
@@ -95,6 +96,10 @@ class Context:
     budget: Budget
     invariants: InvariantTally = field(default_factory=InvariantTally)
     test: str = ""  # the test running now
+    trajectories: Path | None = None
+    """A folder: the first run of every simulation is written there as a JuPedSim SQLite trajectory file,
+    ``<test>_<k>.sqlite`` (k counts the test's simulations), with its walkable area."""
+    _written: dict[str, int] = field(default_factory=dict)
 
     def run(self, scenario: Scenario, **run: Any) -> Recording:
         """Simulate ``scenario`` with the crowd and tally the invariants; :class:`NotApplicableError` when the crowd's
@@ -106,6 +111,11 @@ class Context:
                 raise NotApplicableError(str(err)) from None
         recording = self.crowd.simulate(scenario, **run)
         self.invariants.add(recording, scenario.walkable, scenario.exits, label=self.test)
+        if self.trajectories is not None:
+            count = self._written[self.test] = self._written.get(self.test, 0) + 1
+            self.trajectories.mkdir(parents=True, exist_ok=True)
+            path = self.trajectories / f"{self.test}_{count}.sqlite"
+            write_jupedsim_sqlite(path, recording.run(0, scenario.analysis_geometry()))
         return recording
 
 

@@ -86,7 +86,9 @@ def validate(
             generator.manual_seed(seed)
         report = None if progress is None else (lambda test, name=name: progress(f"{name}: {test}"))
         started = time.perf_counter()
-        results[name], figures[name] = run_suite(crowd, budget=budget, only=tests, progress=report)
+        results[name], figures[name] = run_suite(
+            crowd, budget=budget, only=tests, progress=report, trajectories=run_dir / "trajectories" / name
+        )
         timings[name] = round(time.perf_counter() - started, 1)
     document = {
         **(meta or {}),

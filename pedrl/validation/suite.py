@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import replace
+from pathlib import Path
 from typing import Any, Final
 
 import numpy as np
@@ -481,10 +482,12 @@ def run_suite(
     budget: Budget,
     only: Sequence[str] | None = None,
     progress: Callable[[str], None] | None = None,
+    trajectories: Path | None = None,
 ) -> tuple[list[TestResult], dict[str, Figure]]:
     """Run the suite (or the tests named in ``only``) with one crowd; return its rows and figures. The invariants
-    row closes the list whenever any test ran."""
-    context = Context(crowd, budget)
+    row closes the list whenever any test ran. With ``trajectories`` (a folder), the first run of every simulation
+    goes there as a JuPedSim SQLite trajectory file (:class:`~pedrl.validation.framework.Context`)."""
+    context = Context(crowd, budget, trajectories=trajectories)
     results: list[TestResult] = []
     figures: dict[str, Figure] = {}
     for key, (name, test) in TESTS.items():

@@ -8,6 +8,7 @@ from pedrl.analysis import (
     Trajectories,
     read_pedpy_trajectory,
     write_geometry_wkt,
+    write_jupedsim_sqlite,
     write_pedpy_trajectories,
     write_pedpy_trajectory,
 )
@@ -149,3 +150,53 @@ def test_pedpy_classic_density_equals_our_count(tmp_path: Path, make_trial):
     np.testing.assert_array_equal(frames, np.arange(frames.min(), frames.max() + 1))
     assert ours[frames].max() > 0
     np.testing.assert_allclose(classic["density"].to_numpy(), ours[frames], rtol=1e-12)
+
+
+# JuPedSim's SQLite trajectory files: PedPy reads the trajectories and the walkable area back.
+
+
+def test_pedpy_reads_the_jupedsim_sqlite_file_with_its_walkable_area(tmp_path: Path):
+    pedpy = pytest.importorskip("pedpy")
+    trial = exit_trial()
+    path = write_jupedsim_sqlite(tmp_path / "trial.sqlite", trial, first_id=7)
+    traj_data = pedpy.load_trajectory_from_jupedsim_sqlite(trajectory_file=path)
+    assert traj_data.frame_rate == trial.framerate
+    frames, agents = np.nonzero(trial.active)
+    data = traj_data.data.sort_values(["frame", "id"])
+    np.testing.assert_array_equal(data["frame"].to_numpy(), frames)
+    np.testing.assert_array_equal(data["id"].to_numpy(), agents + 7)
+    np.testing.assert_array_equal(data["x"].to_numpy(), trial.positions[trial.active][:, 0])
+    np.testing.assert_array_equal(data["y"].to_numpy(), trial.positions[trial.active][:, 1])
+    walkable_area = pedpy.load_walkable_area_from_jupedsim_sqlite(trajectory_file=path)
+    assert walkable_area.polygon.equals(pedpy.WalkableArea(trial.geometry.to_wkt()).polygon)
+    assert pedpy.is_trajectory_valid(traj_data=traj_data, walkable_area=walkable_area)  # the exit frames included
+
+
+def test_the_jupedsim_sqlite_file_has_jupedsims_schema_and_replaces_an_old_one(tmp_path: Path):
+    import sqlite3
+
+    trial = exit_trial()
+    path = tmp_path / "trial.sqlite"
+    path.write_text("an older file")
+    write_jupedsim_sqlite(path, trial)
+    with sqlite3.connect(path) as connection:
+        tables = {row[0] for row in connection.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+        metadata = dict(connection.execute("SELECT key, value FROM metadata"))
+        orientation = connection.execute("SELECT ori_x, ori_y FROM trajectory_data LIMIT 1").fetchone()
+        frames = connection.execute("SELECT COUNT(*) FROM frame_data").fetchone()[0]
+    assert tables == {"trajectory_data", "metadata", "geometry", "frame_data"}
+    assert metadata["version"] == "2" and float(metadata["fps"]) == trial.framerate
+    assert orientation == (0.0, 1.0)  # the unit velocity
+    assert frames == trial.active.shape[0]
+    assert list(tmp_path.iterdir()) == [path]  # no partial file left
+
+
+def test_jupedsims_own_reader_opens_the_file_as_its_viewer_does(tmp_path: Path):
+    """``jupedsim.Recording`` is what JuPedSim's viewer (``jupedsim-visualizer``) reads files with."""
+    jupedsim = pytest.importorskip("jupedsim")
+    trial = exit_trial()
+    recording = jupedsim.Recording(str(write_jupedsim_sqlite(tmp_path / "trial.sqlite", trial)))
+    assert recording.num_frames == trial.active.shape[0] and recording.fps == trial.framerate
+    assert recording.geometry().area == pytest.approx(20.0 * 30.0 + (2.0 + 2.0 + 2 * 2.5) / 2 * 2.5)  # with the apron
+    first = recording.frame(0)
+    assert sorted(agent.id for agent in first.agents) == list(np.nonzero(trial.active[0])[0])

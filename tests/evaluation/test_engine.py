@@ -6,6 +6,7 @@ The ``pedrl-eval`` entry point's refusals are in ``tests/test_evaluate.py``; the
 """
 
 import json
+import sqlite3
 import sys
 from pathlib import Path
 
@@ -134,9 +135,13 @@ def test_replicated_evaluation_writes_every_output(algo, checkpoints, tmp_path):
         assert counts.sum() >= n * 2 * PROCESSES
         assert (tmp_path / f"animation_{n}.gif").read_bytes()[:4] == b"GIF8"
         exported = sorted(p.name for p in (tmp_path / "trajectories" / f"agents_{n}").iterdir())
-        assert exported == ["trial_000.txt", "trial_001.txt"]  # export.trials = 2
-        ids, frames, _, framerate = read_pedpy_trajectory(tmp_path / "trajectories" / f"agents_{n}" / exported[0])
+        # export.trials = 2, each in PedPy's text format and as a JuPedSim SQLite file
+        assert exported == ["trial_000.sqlite", "trial_000.txt", "trial_001.sqlite", "trial_001.txt"]
+        ids, frames, _, framerate = read_pedpy_trajectory(tmp_path / "trajectories" / f"agents_{n}" / exported[1])
         assert framerate == 1.0 and sorted(ids[frames == 0]) == list(range(n))
+        with sqlite3.connect(tmp_path / "trajectories" / f"agents_{n}" / exported[0]) as connection:
+            rows = connection.execute("SELECT id, pos_x, pos_y FROM trajectory_data WHERE frame = 0").fetchall()
+        assert sorted(row[0] for row in rows) == list(range(n))
     assert (tmp_path / "trajectories" / "geometry.wkt").read_text().startswith("POLYGON ((0.0 0.0, 10.0 0.0")
     assert any(p.name.startswith("events.out.tfevents") for p in (tmp_path / "tb").iterdir())
 
@@ -159,7 +164,7 @@ def test_density_map_counts_every_recorded_agent_frame_in_the_room(checkpoints, 
         checkpoints["it_vqql"], "agents=[4]", f"trials={trials}", "trials_per_batch=2", f"export.trials={trials * 9}"
     )
     evaluate(cfg, run_dir=tmp_path)
-    files = sorted((tmp_path / "trajectories" / "agents_4").iterdir())
+    files = sorted((tmp_path / "trajectories" / "agents_4").glob("*.txt"))
     # every simulated trial is exported: trials x processes, batches of 2 trials per process (the last one cut)
     assert [p.name for p in files] == [f"trial_{i:03d}.txt" for i in range(trials * PROCESSES)]
     room = RoomGeometry(width=10.0, length=10.0, door_width=3.0)
@@ -175,11 +180,17 @@ def test_exported_trials_open_in_pedpy(checkpoints, tmp_path):
 
     evaluate(eval_config(checkpoints["vqql"], "agents=[5]", "animation.enabled=false"), run_dir=tmp_path)
     walkable = pedpy.WalkableArea((tmp_path / "trajectories" / "geometry.wkt").read_text())
-    for path in sorted((tmp_path / "trajectories" / "agents_5").iterdir()):
+    for path in sorted((tmp_path / "trajectories" / "agents_5").glob("*.txt")):
         trajectory = pedpy.load_trajectory_from_txt(trajectory_file=path)
         assert trajectory.frame_rate == 1.0 and set(trajectory.data["id"]) <= set(range(5))
         points = shapely.points(trajectory.data[["x", "y"]].to_numpy())
         assert shapely.covers(walkable.polygon, points).all()  # including agents in the door's exit frame
+        # the same trial as a JuPedSim SQLite file, which carries its own walkable area
+        sqlite = path.with_suffix(".sqlite")
+        from_sqlite = pedpy.load_trajectory_from_jupedsim_sqlite(trajectory_file=sqlite)
+        assert from_sqlite.frame_rate == 1.0 and len(from_sqlite.data) == len(trajectory.data)
+        area = pedpy.load_walkable_area_from_jupedsim_sqlite(trajectory_file=sqlite)
+        assert area.polygon.equals(walkable.polygon)
 
 
 def test_evaluation_is_deterministic_for_a_seed(checkpoints, tmp_path):

@@ -344,6 +344,14 @@ def test_pedrl_validate_quick_writes_reports_stamped_not_a_verdict(tmp_path, tin
     report = (tmp_path / "validation.md").read_text()
     assert "quick: not a verdict" in report and "| test | learned | greedy |" in report
     assert (tmp_path / "figures" / "greedy_bottleneck.png").exists()
+    # each simulation's first run as a JuPedSim SQLite file, which PedPy reads with its walkable area
+    written = sorted(path.name for path in (tmp_path / "trajectories" / "learned").iterdir())
+    assert "rimea_1_1.sqlite" in written and "rimea_9_2.sqlite" in written
+    pedpy = pytest.importorskip("pedpy")
+    corner = tmp_path / "trajectories" / "greedy" / "rimea_6_1.sqlite"
+    trajectory = pedpy.load_trajectory_from_jupedsim_sqlite(trajectory_file=corner)
+    area = pedpy.load_walkable_area_from_jupedsim_sqlite(trajectory_file=corner)
+    assert area.polygon.area > 0 and pedpy.is_trajectory_valid(traj_data=trajectory, walkable_area=area)
 
 
 @pytest.mark.parametrize(
