@@ -15,6 +15,7 @@ from shapely.geometry import LineString, Polygon, box
 
 from pedrl.scenarios.model import MAX_EXITS, MAX_SPAWNS, PaperRoom, Scenario, Spawn
 from pedrl.scenarios.polygons import MAX_COORDINATE, MISSING, TOLERANCE, bounds_text, short_reason
+from pedrl.scenarios.routes import with_routes
 from pedrl.scenarios.wkt import MAX_WKT_BYTES, read_geometry
 from pedrl.sim.checks import shown
 
@@ -250,9 +251,10 @@ def build_scenario(
                 f" {', '.join(allowed) or 'none'}"
             )
     try:
-        return builder(**settings)
+        scenario = builder(**settings)
     except (TypeError, shapely.errors.GEOSException) as err:
         raise ValueError(f"scenario {name!r} is invalid: {short_reason(err)}") from None
+    return with_routes(scenario)
 
 
 def check_scenario_sizes(config: Any) -> None:

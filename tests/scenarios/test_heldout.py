@@ -1,5 +1,6 @@
-"""The held-out rooms of issue 22 (conf/scenario/l_room.yaml, pillar_room.yaml): geometries that no training run
-sees, given as WKT (tests/data/heldout/), that a crowd can leave by every exit."""
+"""The held-out rooms (conf/scenario/l_room.yaml, pillar_room.yaml, and partition_room.yaml, corridor_room.yaml whose
+exit is out of sight from every start: tests/scenarios/test_routes.py): geometries that no training run sees, given
+as WKT (tests/data/heldout/), that a crowd can leave by every exit."""
 
 from pathlib import Path
 
@@ -13,7 +14,7 @@ from pedrl.sim.controllers import GreedyDoorController
 
 CONF = Path(CONFIG_DIR) / "scenario"
 DATA = Path(__file__).resolve().parents[1] / "data" / "heldout"
-NOMINAL = {"l_room": 60, "pillar_room": 40}
+NOMINAL = {"l_room": 60, "pillar_room": 40, "partition_room": 40, "corridor_room": 40}
 """The nominal crowd of each room (its config's header)."""
 
 

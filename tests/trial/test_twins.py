@@ -70,6 +70,26 @@ def test_the_continuous_motion_matches_through_whole_trials(name, contact):
         assert report.decisions >= 10 and report.agent_decisions > 100  # real trials
 
 
+def test_a_room_with_an_automatic_route_matches_through_whole_trials():
+    """The held-out partition room, whose exit is out of sight: its route's waypoints on both paths."""
+    from omegaconf import OmegaConf
+
+    from pedrl.cli import CONFIG_DIR
+
+    scenario = OmegaConf.to_container(OmegaConf.load(f"{CONFIG_DIR}/scenario/partition_room.yaml"))
+    settings = {"_target_": "pedrl.sim.RoomEnv", "max_decisions": 40, "contact": "yield", "agent_radius": 0.2,
+                "max_speed": 1.34, "motion": "continuous", "action_frame": "goal",
+                "speed_ratios": [0, 0.2, 0.4, 0.6, 0.7, 0.8, 0.9, 0.95, 1],
+                "turn_ratios": [-0.5, -0.25, -0.1, -0.05, 0, 0.05, 0.1, 0.25, 0.5]}  # fmt: skip
+    env = env_factory(settings, scenario)(num_replicas=2, num_agents=20)
+    assert env.spawns.has_routes
+    policy = policies(env, 2)["shared"]
+    policy.q_values.normal_(generator=torch.Generator().manual_seed(1))
+    report = check_twins(env, policy, seed=7)
+    assert report.failures() == []
+    assert report.decisions >= 10 and report.agent_decisions > 100
+
+
 def test_a_kernel_that_walks_too_fast_fails_the_harness(monkeypatch):
     """The control: the kernel path given a top speed 1 % higher than the room's is caught."""
     original = fused._room
