@@ -219,6 +219,11 @@ def build_scenario(
     Raises:
         ValueError: one line naming the bad value and what is allowed.
     """
+    if config is not None and not isinstance(config, Mapping):
+        raise ValueError(
+            f"scenario={shown(config)} is invalid: must be a mapping with a name (scenario.name: one of"
+            f" {', '.join(SCENARIOS)}) and that scenario's keys"
+        )
     settings = dict(config or {"name": "paper_room"})
     check_scenario_sizes(settings)
     name = settings.pop("name", "paper_room")

@@ -297,3 +297,14 @@ def test_messages_name_the_key_that_was_set(config, room, start):
     with pytest.raises(ValueError) as error:
         build_scenario(config, room=room)
     assert one_line_error(error.value).startswith(start), str(error.value)
+
+
+@pytest.mark.parametrize("stored", ["paper_room", 7, ["paper_room"]])
+def test_a_stored_scenario_that_is_not_a_mapping_is_refused_in_one_line(custom_run, stored):
+    """A checkpoint whose stored ``scenario`` is a string (or a number, a list) is refused naming the value, where it
+    gave "dictionary update sequence element #0 has length 1; 2 is required"."""
+    crafted = restored(custom_run[0], lambda config: config.update(scenario=stored))
+    with pytest.raises(ValueError) as error:
+        load_controller(crafted, controller="learned", epsilon=0.0, device=CPU, max_decisions=None)
+    message = str(error.value)
+    assert "\n" not in message and f"scenario={stored!r}" in message and "must be a mapping" in message
