@@ -47,14 +47,16 @@ def memory_needs(trainer: TrainerView) -> dict[str, float]:
 def check_gathering_yield(trainer: TrainerView) -> None:
     """Refuse, before any compute, a ``vq.num_prototypes`` that no gathering can reach: k-means needs a distinct
     state per prototype, and a phase records at most ``gather_trials x E x N x max_decisions`` states per
-    process (``R`` times that for a shared quantizer). Fewer distinct states than that (agents leave the room
+    process (``R`` times that for a shared quantizer), ``N`` the agents of its room and of every ``mix`` room (each
+    gathered as :func:`memory_needs` counts it). Fewer distinct states than that (agents leave the room
     early) only shrink K, with a warning (:meth:`fit_quantizers`)."""
     for phase in trainer.phases():
         env = trainer.env_for(phase.num_agents)
+        trained_in = [room.num_agents for _, room in trainer.rooms(env)]  # the phase's room and the mix rooms
         factors = {
             "algo.gather_trials": phase.gather_trials,
             "rooms_per_process": trainer.rooms_per_process,
-            "agents": phase.num_agents,
+            "agents": sum(trained_in),
             "env.max_decisions": env.max_decisions,
         }
         if not trainer.vq.per_process:
@@ -63,7 +65,8 @@ def check_gathering_yield(trainer: TrainerView) -> None:
         if most < trainer.vq.num_prototypes:
             scope = "for the shared quantizer" if not trainer.vq.per_process else "per process"
             product = " x ".join(
-                agents_text(value) if key == "agents" else f"{key}={value}" for key, value in factors.items()
+                agents_text(value, trained_in) if key == "agents" else f"{key}={value}"
+                for key, value in factors.items()
             )
             raise ValueError(
                 f"vq.num_prototypes={trainer.vq.num_prototypes} is invalid: phase {phase.index} gathers at most "
@@ -72,6 +75,9 @@ def check_gathering_yield(trainer: TrainerView) -> None:
             )
 
 
-def agents_text(count: int) -> str:
-    """``1 agent``, ``20 agents``."""
-    return f"{count} agent" if count == 1 else f"{count} agents"
+def agents_text(count: int, rooms: list[int] | None = None) -> str:
+    """``1 agent``, ``20 agents``; with the agents of several ``rooms``, ``26 agents (20 + 6 in the mix rooms)``."""
+    text = f"{count} agent" if count == 1 else f"{count} agents"
+    if rooms is not None and len(rooms) > 1:
+        text += f" ({rooms[0]} + {' + '.join(str(n) for n in rooms[1:])} in the mix rooms)"
+    return text

@@ -56,6 +56,11 @@ def test_without_a_terminal_the_progress_bar_is_one_line_per_phase(train_config,
             ("algo=in_vqql", "vq.num_prototypes=61"),
             "phase 1 gathers at most 60 states per process (algo.gather_trials=2",
         ),
+        (  # the mix rooms are gathered too: 2 x (20 + 6) agents x 30 decisions per process
+            ("algo=vqql", "vq.num_prototypes=1561", "+mix=[{name: corridor, length: 40.0, width: 2.0, agents: 6}]"),
+            "at most 1560 states per process (algo.gather_trials=2 x rooms_per_process=1 x 26 agents (20 + 6 in the mix"
+            " rooms) x env.max_decisions=30)",
+        ),
     ],
 )
 def test_a_k_that_gathering_cannot_reach_is_refused_before_compute(train_config, tmp_path, overrides, message):
@@ -63,6 +68,19 @@ def test_a_k_that_gathering_cannot_reach_is_refused_before_compute(train_config,
         train(train_config("logger=none", *overrides), run_dir=tmp_path)
     assert message in str(error.value) and "\n" not in str(error.value)
     assert not any(tmp_path.iterdir()), "nothing is computed or written"
+
+
+def test_the_mix_rooms_states_count_towards_k(train_config, tmp_path):
+    """K = 1300 with a 6-agent mix room beside the 20-agent room: gathering records 2 x 26 x 30 = 1560 states per
+    process, so the run trains (it was refused as above 1200)."""
+    cfg = train_config(
+        "algo=vqql",
+        "logger=none",
+        "vq.num_prototypes=1300",
+        "+mix=[{name: corridor, length: 40.0, width: 2.0, agents: 6}]",
+    )
+    train(cfg, run_dir=tmp_path)
+    assert (tmp_path / "checkpoints" / "last.safetensors").exists()
 
 
 @pytest.mark.parametrize(
