@@ -48,8 +48,8 @@ def run_reporting_errors(program: str, action: Callable[[], T]) -> T:
         message = str(err)
     except InstantiationException as err:
         message = str(err.__cause__ or err)
-    except OSError as err:  # a read-only folder, a file where a folder should be, ...
-        message = describe_os_error(err)
+    except OSError as err:  # a read-only folder, a file where a folder should be, a full disk (named by its folder)
+        message = _describe_write_error(err)
     fail(program, message)
 
 

@@ -259,3 +259,22 @@ def test_run_folder_that_cannot_be_resolved_is_one_line(program, tmp_path, check
     args = [*_any_program_args(program, tmp_path, checkpoint), "hydra.run.dir=" + str(tmp_path) + "/${oops}"]
     outcome = run_hydra_main(ALL_PROGRAMS[program], args, capsys)
     assert_refused(outcome, program, ("hydra.run.dir is invalid", "Interpolation key 'oops' not found"))
+
+
+def test_a_full_disk_during_a_run_names_the_run_folder(tmp_path, monkeypatch, capsys):
+    """A write that fails with ENOSPC and names no file (a checkpoint or curve flushed at close) blames the run's
+    folder, where it said "cannot use '?'"."""
+    import errno
+
+    from pedrl.cli import OutputDirCheck, run_reporting_errors
+
+    monkeypatch.setattr(OutputDirCheck, "folder", tmp_path / "run")
+
+    def full() -> None:
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    with pytest.raises(SystemExit) as exit_info:
+        run_reporting_errors("pedrl-train", full)
+    assert exit_info.value.code == 2
+    error = capsys.readouterr().err.strip()
+    assert error == f"pedrl-train: error: cannot write in {str(tmp_path / 'run')!r}: No space left on device"
