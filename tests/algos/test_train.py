@@ -125,6 +125,13 @@ def test_resume_from_foreign_config_is_refused(train_config, tmp_path):
         train(cfg, run_dir=tmp_path)
 
 
+def test_a_resume_on_another_walking_layer_is_refused(train_config, tmp_path):
+    run = ("algo=vqql", "algo.iterations=1", "algo.trials=2", "logger=none", "env.contact=yield")
+    train(train_config(*run), run_dir=tmp_path)
+    with pytest.raises(CheckpointError, match='env.motion was "step" there and is "continuous" here'):
+        train(train_config(*run, "env.motion=continuous", "resume=true"), run_dir=tmp_path)
+
+
 @pytest.mark.parametrize(
     ("override", "message"),
     [
