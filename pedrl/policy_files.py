@@ -25,6 +25,7 @@ training run reads (the phase, the trial) is checked against the run's phases by
 from __future__ import annotations
 
 import math
+import os
 import weakref
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -82,6 +83,8 @@ def load_policy(
         CheckpointError: one line naming the file, for a missing, foreign, corrupt or crafted one.
         ValueError: one line, for a bad ``device`` or ``kind`` (before the file is read).
     """
+    if not isinstance(path, str | os.PathLike):
+        raise TypeError(f"path={shown(path)} is invalid: must be a str or os.PathLike naming a .safetensors file")
     device = check_device(device)
     if kind is not None and kind not in FILE_KINDS:
         raise ValueError(f"kind={kind!r} is invalid: must be None, {' or '.join(map(repr, FILE_KINDS))}")
@@ -140,8 +143,11 @@ def room_factory(
     :class:`~pedrl.scenarios.Scenario`.
 
     Raises:
+        TypeError: one line, for a ``policy`` that is not a :class:`~pedrl.rl.policy.TabularPolicy`.
         ValueError: one line, for a bad ``scenario`` or ``max_decisions``, or a policy without a training config.
     """
+    if not isinstance(policy, TabularPolicy):
+        raise TypeError(f"policy={shown(policy)} is invalid: must be a TabularPolicy, as pedrl.load_policy returns")
     env = room_settings(policy) | ({} if max_decisions is None else {"max_decisions": max_decisions})
     config = policy.metadata["config"]
     if scenario is not None:

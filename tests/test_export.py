@@ -118,6 +118,24 @@ def test_load_policy_blames_its_argument_not_the_file(trained, kwargs, message):
 
 
 @pytest.mark.parametrize(
+    ("call", "message"),
+    [
+        (lambda: pedrl.load_policy(123), r"^path=123 is invalid: must be a str or os.PathLike naming a \.safetensors"),
+        (
+            lambda: pedrl.room_factory("nope"),
+            r"^policy='nope' is invalid: must be a TabularPolicy, as pedrl.load_policy",
+        ),
+        (lambda: pedrl.room_factory(None), r"^policy=None is invalid: must be a TabularPolicy"),
+    ],
+)
+def test_the_python_api_refuses_an_argument_of_the_wrong_type_in_one_line(call, message):
+    """Not an AttributeError from deep inside (``'str' object has no attribute 'metadata'``) nor os's own message."""
+    with pytest.raises(TypeError, match=message) as refused:
+        call()
+    assert "\n" not in str(refused.value)
+
+
+@pytest.mark.parametrize(
     ("args", "fragments"),
     [
         (["out=policy.txt"], ("policy.txt' is invalid", ".safetensors")),
