@@ -7,9 +7,9 @@ the corners of the shortest path to it, which the room then serves as the walker
 alike, and the validation suite hands the same waypoints to JuPedSim.
 
 The path is the shortest one through a visibility graph (networkx, a dependency of torch) over the walkable area
-shrunk by :data:`CLEARANCE`: its nodes are the shrunk area's corners, the spawn area's centre and a point
-:data:`CLEARANCE` inside the exit's middle; two nodes are joined when the segment between them lies in the shrunk
-area. Its waypoints are the path's corners, :data:`CLEARANCE` off the walls they turn round.
+shrunk by a clearance (:data:`CLEARANCES`): its nodes are the shrunk area's corners, the spawn area's centre and a
+point the clearance inside the exit's middle; two nodes are joined when the segment between them lies in the shrunk
+area. Its waypoints are the path's corners, the clearance off the walls they turn round.
 """
 
 from __future__ import annotations
@@ -25,13 +25,15 @@ from shapely.ops import nearest_points
 
 from pedrl.scenarios.model import Scenario
 
-CLEARANCE: Final = 0.3
-"""Distance (m) the route keeps from the walls: a pedestrian's body (0.2 m, JuPedSim's default radius) and a margin;
-openings narrower than twice this (0.6 m) are closed to routes."""
+CLEARANCES: Final = (0.5, 0.25)
+"""Distances (m) the route keeps from the walls, tried in turn: 0.5 m (a pedestrian's 0.2 m body and room to turn
+without grazing the corner), else 0.25 m for a start area that can only get out through an opening narrower than
+1 m (a body and a margin: openings under 0.5 m are closed to routes, as they are to a 0.2 m body)."""
+CLEARANCE: Final = CLEARANCES[-1]
+"""The least clearance: a start area that reaches no exit keeping it is refused."""
 WAYPOINT_RADIUS: Final = 0.6
-"""Distance (m) at which a walker on a route counts a corner as reached (twice the clearance): a corner is where the
-walker must pass, so the room's wider default (2 m) would let it aim past the corner and into the wall it turns
-round."""
+"""Distance (m) at which a walker on a route counts a corner as reached: a corner is where the walker must pass, so
+the room's wider default (2 m) would let it aim past the corner and into the wall it turns round."""
 SNAP: Final = 1e-7
 """Slack (m) of the test that a segment lies in the shrunk area (its corners lie on that area's boundary)."""
 
@@ -46,17 +48,21 @@ def with_routes(scenario: Scenario) -> Scenario:
         ValueError: one line naming the spawn area (its index and bounds) from which no exit can be reached with
             :data:`CLEARANCE` from the walls.
     """
-    free = scenario.walkable.buffer(-CLEARANCE, join_style="mitre")
     spawns = []
     for index, spawn in enumerate(scenario.spawns):
         if spawn.waypoints:
             spawns.append(spawn)
             continue
-        start = _inside(free, spawn.area.representative_point() if spawn.area.area else spawn.area.centroid)
-        exits = range(len(scenario.exits)) if spawn.exit < 0 else (spawn.exit,)
-        routes = {e: shortest_route(free, start, _goal(scenario, e)) for e in exits}
-        reachable = {e: route for e, route in routes.items() if route is not None}
-        if not reachable:
+        for clearance in CLEARANCES:
+            free = scenario.walkable.buffer(-clearance, join_style="mitre")
+            area = spawn.area
+            start = _inside(free, area.representative_point() if area.area else area.centroid)
+            exits = range(len(scenario.exits)) if spawn.exit < 0 else (spawn.exit,)
+            goals = {e: _goal(scenario, e, clearance) for e in exits}
+            reachable = {e: route for e in exits if (route := shortest_route(free, start, goals[e])) is not None}
+            if reachable:
+                break
+        else:
             bounds = ", ".join(f"{value:g}" for value in spawn.area.bounds)
             raise ValueError(
                 f"scenario spawn area {index} (bounds {bounds}) reaches no exit: no way to"
@@ -65,7 +71,7 @@ def with_routes(scenario: Scenario) -> Scenario:
         if any(not route for route in reachable.values()):  # an exit in sight: the room's own choice stands
             spawns.append(spawn)
             continue
-        best = min(reachable, key=lambda e: _length(start, reachable[e], _goal(scenario, e)))
+        best = min(reachable, key=lambda e: _length(start, reachable[e], goals[e]))
         spawns.append(replace(spawn, exit=best, waypoints=tuple(reachable[best])))
     if tuple(spawns) == scenario.spawns:
         return scenario
@@ -102,15 +108,15 @@ def _sees(free: Polygon, a: Point, b: Point) -> bool:
     return bool(shapely.covers(free.buffer(SNAP), segment))
 
 
-def _goal(scenario: Scenario, exit_index: int) -> Point:
-    """A point :data:`CLEARANCE` inside the middle of exit ``exit_index``."""
+def _goal(scenario: Scenario, exit_index: int, clearance: float) -> Point:
+    """A point ``clearance`` inside the middle of exit ``exit_index``."""
     exit_ = scenario.exits[exit_index]
     middle = exit_.interpolate(0.5, normalized=True)
     (x0, y0), (x1, y1) = exit_.coords[0], exit_.coords[-1]
     length = math.hypot(x1 - x0, y1 - y0)
     normal = (-(y1 - y0) / length, (x1 - x0) / length)
     for sign in (1.0, -1.0):  # the side of the exit the area lies on
-        inward = Point(middle.x + sign * CLEARANCE * normal[0], middle.y + sign * CLEARANCE * normal[1])
+        inward = Point(middle.x + sign * clearance * normal[0], middle.y + sign * clearance * normal[1])
         if scenario.walkable.contains(inward):
             return inward
     return middle
@@ -128,4 +134,4 @@ def _length(start: Point, corners: list[tuple[float, float]], goal: Point) -> fl
     return sum(math.dist(a, b) for a, b in zip(points, points[1:], strict=False))
 
 
-__all__ = ["CLEARANCE", "shortest_route", "with_routes"]
+__all__ = ["CLEARANCE", "CLEARANCES", "shortest_route", "with_routes"]

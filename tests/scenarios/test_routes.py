@@ -10,7 +10,7 @@ from shapely.geometry import LineString, Point
 from pedrl.cli import CONFIG_DIR
 from pedrl.scenarios import SCENARIOS, build_scenario
 from pedrl.scenarios.builders import BUILDERS
-from pedrl.scenarios.routes import CLEARANCE, with_routes
+from pedrl.scenarios.routes import CLEARANCE, CLEARANCES, WAYPOINT_RADIUS, with_routes
 from pedrl.sim.controllers import GreedyDoorController
 
 GOAL = {
@@ -75,12 +75,25 @@ def test_the_route_turns_round_the_partition_clear_of_its_end():
     corners = scenario.spawns[0].waypoints
     assert len(corners) == 2 and all(y > 9.0 for _, y in corners)  # over the partition's end (9 m)
     partition = LineString([(10.0, 0.0), (10.0, 9.0)]).buffer(0.1)
-    assert all(Point(corner).distance(partition) >= CLEARANCE - 1e-6 for corner in corners)
-    assert scenario.waypoint_radius == pytest.approx(2 * CLEARANCE)
+    assert all(Point(corner).distance(partition) >= CLEARANCES[0] - 1e-6 for corner in corners)  # the wider one
+    assert scenario.waypoint_radius == pytest.approx(WAYPOINT_RADIUS)
+
+
+def test_an_opening_narrower_than_the_wide_clearance_is_routed_with_the_narrow_one():
+    """A 0.8 m gap closes at 0.5 m of clearance (1 m needed) and stays open at 0.25 m: the route goes through it."""
+    settings = {
+        "name": "custom",
+        "geometry": "POLYGON ((0 0, 9.9 0, 9.9 11.2, 10.1 11.2, 10.1 0, 20 0, 20 12, 0 12, 0 0))",
+        "exits": [[20.0, 1.0, 20.0, 2.6]],
+        "spawn": [[0.5, 0.5, 9.4, 8.0]],
+    }
+    corners = build_scenario(settings).spawns[0].waypoints
+    assert corners and all(11.2 < y < 12.0 - CLEARANCE + 1e-6 for _, y in corners)
 
 
 def test_a_start_area_that_reaches_no_exit_is_refused_naming_it():
-    """A partition whose gap (0.4 m) is narrower than a body with its clearance: the left half reaches no exit."""
+    """A partition whose gap (0.4 m) is narrower than a body with the least clearance (0.5 m): the left half reaches
+    no exit."""
     settings = {
         "name": "custom",
         "geometry": "POLYGON ((0 0, 9.9 0, 9.9 11.6, 10.1 11.6, 10.1 0, 20 0, 20 12, 0 12, 0 0))",
