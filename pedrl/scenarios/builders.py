@@ -170,7 +170,9 @@ def custom(
     """A user's walkable area: ``geometry`` a WKT file holding one polygon (holes allowed), or that WKT text (what a
     checkpoint stores), read under the bounds of :func:`read_geometry`; ``exits`` segments ``[x1, y1, x2, y2]`` on
     its boundary, ``spawn`` boxes ``[x_min, y_min, x_max, y_max]`` (default: the whole area, each agent taking its
-    nearest exit). Every message names the key (``scenario.exits[1]``) and the value."""
+    nearest exit). A start area that cannot see its exit is routed round the walls
+    (:func:`~pedrl.scenarios.routes.with_routes`; the built-in scenarios see their exits or carry their own
+    waypoints). Every message names the key (``scenario.exits[1]``) and the value."""
     walkable = geometry if isinstance(geometry, Polygon) else read_geometry(geometry)
     exit_values = _entries("exits", exits, MAX_EXITS, required=True)
     lines = [
@@ -194,7 +196,7 @@ def custom(
                 f" area {bounds_text(walkable)}, with an area > 0"
             )
         areas.append(Spawn(area))
-    return Scenario("custom", walkable, tuple(lines), tuple(areas) or (Spawn(walkable),))
+    return with_routes(Scenario("custom", walkable, tuple(lines), tuple(areas) or (Spawn(walkable),)))
 
 
 BUILDERS: Final = {
@@ -256,10 +258,9 @@ def build_scenario(
                 f" {', '.join(allowed) or 'none'}"
             )
     try:
-        scenario = builder(**settings)
+        return builder(**settings)
     except (TypeError, shapely.errors.GEOSException) as err:
         raise ValueError(f"scenario {name!r} is invalid: {short_reason(err)}") from None
-    return with_routes(scenario)
 
 
 def check_scenario_sizes(config: Any) -> None:

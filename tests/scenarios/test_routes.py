@@ -1,6 +1,8 @@
 """Routes through any walkable area (:mod:`pedrl.scenarios.routes`): a spawn area that cannot see its exit gets the
 corners of the shortest path round the walls, built automatically for every scenario and WKT room."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import torch
@@ -8,7 +10,7 @@ from omegaconf import OmegaConf
 from shapely.geometry import LineString, Point
 
 from pedrl.cli import CONFIG_DIR
-from pedrl.scenarios import SCENARIOS, build_scenario
+from pedrl.scenarios import SCENARIOS, Scenario, build_scenario, custom
 from pedrl.scenarios.builders import BUILDERS
 from pedrl.scenarios.routes import CLEARANCE, CLEARANCES, WAYPOINT_RADIUS, with_routes
 from pedrl.sim.controllers import GreedyDoorController
@@ -26,9 +28,10 @@ def config(name: str) -> dict:
 
 
 def unrouted(name: str):
-    """The held-out room as its builder makes it, before :func:`with_routes` (the control)."""
-    settings = {key: value for key, value in config(name).items() if key != "name"}
-    return BUILDERS["custom"](**settings)
+    """The held-out room without its route (the control): its start areas aim straight at the exit."""
+    scenario = build_scenario(config(name))
+    spawns = tuple(replace(spawn, waypoints=()) for spawn in scenario.spawns)
+    return replace(scenario, spawns=spawns, waypoint_radius=Scenario.waypoint_radius)
 
 
 def greedy_out(scenario, motion: str = "continuous") -> tuple[float, float]:
@@ -104,6 +107,12 @@ def test_a_start_area_that_reaches_no_exit_is_refused_naming_it():
         build_scenario(settings)
     message = str(error.value)
     assert "\n" not in message and "spawn area 1 (bounds 0.5, 0.5, 9.4, 8)" in message and "reaches no exit" in message
+
+
+def test_a_room_built_from_python_is_routed_as_one_from_a_config():
+    settings = {key: value for key, value in config("partition_room").items() if key != "name"}
+    assert custom(**settings) == build_scenario(config("partition_room"))
+    assert custom(**settings).spawns[0].waypoints
 
 
 @pytest.mark.parametrize("name", [name for name in SCENARIOS if name != "custom"])
