@@ -299,7 +299,7 @@ def move_agents_sliding_torch(
     agents = torch.arange(num_agents, device=device)
     on_cpu = device.type == "cpu"  # early exits read the host; skipped elsewhere (same result)
 
-    wanted = velocities * active.unsqueeze(-1)  # (R, N, 2), the tangent part after a contact
+    wanted = commanded.clone()  # (R, N, 2), the tangent part after a contact
     current = positions.clone()
     going = active & (velocities != 0).any(-1)
     present = active.clone()
