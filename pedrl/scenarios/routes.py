@@ -81,7 +81,9 @@ def with_routes(scenario: Scenario) -> Scenario:
 def shortest_route(free: Polygon, start: Point, goal: Point) -> list[tuple[float, float]] | None:
     """The corners of the shortest path from ``start`` to ``goal`` within ``free`` (the walkable area shrunk by the
     clearance): ``[]`` when ``goal`` is in sight, None when no path exists."""
-    if _sees(free, start, goal):
+    area = free.buffer(SNAP)  # once: every sight test of the graph reads it
+    shapely.prepare(area)
+    if _sees(area, start, goal):
         return []
     corners = {
         (x, y)
@@ -94,7 +96,7 @@ def shortest_route(free: Polygon, start: Point, goal: Point) -> list[tuple[float
     graph.add_nodes_from(range(len(nodes)))
     for a in range(len(nodes)):
         for b in range(a + 1, len(nodes)):
-            if _sees(free, Point(nodes[a]), Point(nodes[b])):
+            if _sees(area, Point(nodes[a]), Point(nodes[b])):
                 graph.add_edge(a, b, weight=math.dist(nodes[a], nodes[b]))
     try:
         path = nx.shortest_path(graph, 0, 1, weight="weight")
@@ -103,9 +105,10 @@ def shortest_route(free: Polygon, start: Point, goal: Point) -> list[tuple[float
     return [nodes[node] for node in path[1:-1]]
 
 
-def _sees(free: Polygon, a: Point, b: Point) -> bool:
+def _sees(area: Polygon, a: Point, b: Point) -> bool:
+    """Whether the segment from ``a`` to ``b`` lies in ``area`` (the shrunk area grown by :data:`SNAP`)."""
     segment = LineString([a, b]) if not a.equals(b) else a
-    return bool(shapely.covers(free.buffer(SNAP), segment))
+    return bool(shapely.covers(area, segment))
 
 
 def _goal(scenario: Scenario, exit_index: int, clearance: float) -> Point:
