@@ -162,14 +162,14 @@ class Scene:
 
 def room_scene(room: RoomEnv, *, replica: int = 0) -> Scene:
     """The scene of replica ``replica`` of ``room`` as it stands (after ``room.reset(...)``): its agents' positions,
-    exits and the waypoints of their groups' routes not yet reached (the room skips those reached at the start)."""
+    exits and the waypoints of their routes not yet reached (the room skips those reached at the start)."""
     if not 0 <= replica < room.num_replicas:
         raise ValueError(f"replica={replica!r} is invalid: must be in [0, {room.num_replicas})")
+    waypoints = room.spawns.waypoints[replica].cpu().tolist()  # (N, K, 2), each agent's own route
+    lengths = room.spawns.route_length[replica].cpu().tolist()
     routes = [
-        tuple((float(x), float(y)) for x, y in spawn.waypoints.cpu().tolist())
-        for spawn, count in zip(room.geometry.spawns, room.spawn_counts, strict=True)
-        for _ in range(count)
-    ]  # agents are numbered group by group
+        tuple((float(x), float(y)) for x, y in route[:length]) for route, length in zip(waypoints, lengths, strict=True)
+    ]
     stage = room.stage[replica].cpu().tolist()
     return Scene(
         positions=room.positions[replica].cpu().double().numpy(),

@@ -170,9 +170,9 @@ def custom(
     """A user's walkable area: ``geometry`` a WKT file holding one polygon (holes allowed), or that WKT text (what a
     checkpoint stores), read under the bounds of :func:`read_geometry`; ``exits`` segments ``[x1, y1, x2, y2]`` on
     its boundary, ``spawn`` boxes ``[x_min, y_min, x_max, y_max]`` (default: the whole area, each agent taking its
-    nearest exit). A start area that cannot see its exit is routed round the walls
-    (:func:`~pedrl.scenarios.routes.with_routes`; the built-in scenarios see their exits or carry their own
-    waypoints). Every message names the key (``scenario.exits[1]``) and the value."""
+    exit by route length). A room that is not convex gets a route graph, and each walker its own route round the walls
+    (:func:`~pedrl.scenarios.routes.with_routes`; the built-in scenarios are convex or carry their own waypoints).
+    Every message names the key (``scenario.exits[1]``) and the value."""
     walkable = geometry if isinstance(geometry, Polygon) else read_geometry(geometry)
     exit_values = _entries("exits", exits, MAX_EXITS, required=True)
     lines = [

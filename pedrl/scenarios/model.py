@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import astuple, dataclass, field
 from typing import TYPE_CHECKING, Any, Final
 
 import shapely
@@ -38,6 +38,24 @@ class Spawn:
 
 
 @dataclass(frozen=True)
+class RouteGraph:
+    """The routes of a walkable area as plain numbers (:func:`pedrl.scenarios.routes.with_routes` builds it; the
+    simulation's :class:`~pedrl.sim.geometry.RouteTable` is made from it).
+
+    Attributes:
+        nodes: The route corners ``(x, y)`` (m), clear of the walls.
+        costs: ``costs[m][e]``: the route length (m) from node ``m`` to ``ends[e]``; inf where there is none.
+        next_node: ``next_node[m][e]``: the next node on that route; -1: the exit itself.
+        ends: A point inside each exit, the clearance in from its middle: where the routes end.
+    """
+
+    nodes: tuple[tuple[float, float], ...]
+    costs: tuple[tuple[float, ...], ...]
+    next_node: tuple[tuple[int, ...], ...]
+    ends: tuple[tuple[float, float], ...]
+
+
+@dataclass(frozen=True)
 class Scenario:
     """A walkable polygon with exits and spawn areas (shapely objects), plus named measurement lines.
 
@@ -48,6 +66,7 @@ class Scenario:
         spawns: The spawn areas.
         lines: Named measurement lines (e.g. ``"opening"`` across the bottleneck), for flows.
         waypoint_radius: Distance (m) at which a waypoint counts as reached.
+        routes: The area's routes to its exits, where some start may not see an exit (else None).
     """
 
     name: str
@@ -56,6 +75,7 @@ class Scenario:
     spawns: tuple[Spawn, ...]
     lines: Mapping[str, LineString] = field(default_factory=dict)
     waypoint_radius: float = 2.0
+    routes: RouteGraph | None = None
 
     def __post_init__(self) -> None:
         check_polygon(self.walkable, "the walkable area")
@@ -146,6 +166,7 @@ class Scenario:
             goal_depth=goal_depth,
             waypoint_radius=self.waypoint_radius,
             name=self.name,
+            routes=None if self.routes is None else astuple(self.routes),
             device=device,
         )
 

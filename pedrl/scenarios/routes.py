@@ -1,15 +1,17 @@
-"""Routes through any walkable area: the shortest path from a spawn area to an exit round the walls, as waypoints.
+"""Routes through any walkable area: each walker's shortest path to its exit round the walls, as waypoints.
 
 A walker senses its goal point (its distance and bearing, paper Table 1); in a room whose exit is out of sight from
-where it starts, that point lies behind a wall. :func:`with_routes` gives each spawn area that cannot see its exit
-the corners of the shortest path to it, which the room then serves as the walker's goal point in turn
-(:class:`~pedrl.sim.spawning.Spawns`: the route's next point, then the exit), on the torch path and the fast path
-alike, and the validation suite hands the same waypoints to JuPedSim.
+where it starts, that point lies behind a wall. :func:`with_routes` gives such a room (a walkable area that is not
+convex) a route graph, and the room gives each walker, at placement, its own route: the corners of its shortest path
+to its exit, which the room then serves as the walker's goal point in turn (:mod:`pedrl.sim.routing`,
+:class:`~pedrl.sim.spawning.Spawns`), on the torch path and the fast path alike; the validation suite and
+``pedrl-eval`` hand the same waypoints to JuPedSim. Route lengths also choose a walker's nearest exit.
 
-The path is the shortest one through a visibility graph (networkx, a dependency of torch) over the walkable area
-shrunk by a clearance (:data:`CLEARANCES`): its nodes are the shrunk area's corners, the spawn area's centre and a
-point the clearance inside the exit's middle; two nodes are joined when the segment between them lies in the shrunk
-area. Its waypoints are the path's corners, the clearance off the walls they turn round.
+The graph is a visibility graph (shapely for sight, networkx for Dijkstra, both dependencies already) over the
+walkable area shrunk by a clearance (:data:`CLEARANCES`): its nodes are the shrunk area's corners and a point the
+clearance inside each exit's middle; two nodes are joined when the segment between them lies in the shrunk area. A
+route's waypoints are corners, the clearance off the walls they turn round. JuPedSim's ``RoutingEngine`` (a
+navigation mesh) was not used: it is an optional extra here, and routes must exist without it.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ import shapely
 from shapely.geometry import LineString, Point, Polygon
 from shapely.ops import nearest_points
 
-from pedrl.scenarios.model import Scenario
+from pedrl.scenarios.model import RouteGraph, Scenario
 
 CLEARANCES: Final = (0.5, 0.25)
 """Distances (m) the route keeps from the walls, tried in turn: 0.5 m (a pedestrian's 0.2 m body and room to turn
@@ -39,70 +41,95 @@ SNAP: Final = 1e-7
 
 
 def with_routes(scenario: Scenario) -> Scenario:
-    """``scenario`` with a route for each spawn area that has none and cannot see its exit: the corners of the
-    shortest path from the area's centre to the exit. A spawn area heading for the nearest exit (``exit`` -1) that
-    sees none takes the exit of the shortest route. Spawn areas that see their exit, or have hand-made waypoints, are
-    kept as they are.
+    """``scenario`` with its :class:`~pedrl.scenarios.model.RouteGraph` where some start may not see an exit: the
+    walkable area is not convex and some spawn area has no hand-made waypoints. The graph's nodes are the corners of
+    the area shrunk by the first clearance of :data:`CLEARANCES` at which every such spawn area reaches an exit it may
+    take; the room then gives each walker its own route at placement (:mod:`pedrl.sim.routing`).
 
     Raises:
         ValueError: one line naming the spawn area (its index and bounds) from which no exit can be reached with
             :data:`CLEARANCE` from the walls.
     """
-    spawns = []
-    for index, spawn in enumerate(scenario.spawns):
-        if spawn.waypoints:
-            spawns.append(spawn)
-            continue
-        for clearance in CLEARANCES:
-            free = scenario.walkable.buffer(-clearance, join_style="mitre")
-            area = spawn.area
-            start = _inside(free, area.representative_point() if area.area else area.centroid)
-            exits = range(len(scenario.exits)) if spawn.exit < 0 else (spawn.exit,)
-            goals = {e: _goal(scenario, e, clearance) for e in exits}
-            reachable = {e: route for e in exits if (route := shortest_route(free, start, goals[e])) is not None}
-            if reachable:
-                break
-        else:
-            bounds = ", ".join(f"{value:g}" for value in spawn.area.bounds)
-            raise ValueError(
-                f"scenario spawn area {index} (bounds {bounds}) reaches no exit: no way to"
-                f" {'any exit' if spawn.exit < 0 else f'exit {spawn.exit}'} keeps {CLEARANCE:g} m from the walls"
-            )
-        if any(not route for route in reachable.values()):  # an exit in sight: the room's own choice stands
-            spawns.append(spawn)
-            continue
-        best = min(reachable, key=lambda e: _length(start, reachable[e], goals[e]))
-        spawns.append(replace(spawn, exit=best, waypoints=tuple(reachable[best])))
-    if tuple(spawns) == scenario.spawns:
+    routed = [index for index, spawn in enumerate(scenario.spawns) if not spawn.waypoints]
+    if not routed or _convex(scenario.walkable):
         return scenario
-    return replace(scenario, spawns=tuple(spawns), waypoint_radius=min(scenario.waypoint_radius, WAYPOINT_RADIUS))
+    for clearance in CLEARANCES:
+        graph, free = route_graph(scenario, clearance)
+        stuck = [index for index in routed if not _reaches(scenario, graph, free, index, clearance)]
+        if not stuck:
+            return replace(scenario, routes=graph, waypoint_radius=min(scenario.waypoint_radius, WAYPOINT_RADIUS))
+    spawn = scenario.spawns[stuck[0]]
+    bounds = ", ".join(f"{value:g}" for value in spawn.area.bounds)
+    raise ValueError(
+        f"scenario spawn area {stuck[0]} (bounds {bounds}) reaches no exit: no way to"
+        f" {'any exit' if spawn.exit < 0 else f'exit {spawn.exit}'} keeps {CLEARANCE:g} m from the walls"
+    )
 
 
-def shortest_route(free: Polygon, start: Point, goal: Point) -> list[tuple[float, float]] | None:
-    """The corners of the shortest path from ``start`` to ``goal`` within ``free`` (the walkable area shrunk by the
-    clearance): ``[]`` when ``goal`` is in sight, None when no path exists."""
+def route_graph(scenario: Scenario, clearance: float) -> tuple[RouteGraph, Polygon]:
+    """The visibility graph of ``scenario``'s walkable area shrunk by ``clearance`` (returned too): its corners'
+    shortest routes to each exit (networkx's Dijkstra from the point ``clearance`` inside each exit's middle)."""
+    free = scenario.walkable.buffer(-clearance, join_style="mitre")
+    corners = sorted(
+        {
+            (x, y)
+            for ring in (free.geoms if hasattr(free, "geoms") else (free,))
+            for boundary in (ring.exterior, *ring.interiors)
+            for x, y in boundary.coords
+        }
+    )
+    ends = [_goal(scenario, index, clearance) for index in range(len(scenario.exits))]
+    nodes = [*corners, *((end.x, end.y) for end in ends)]
+    graph = _visibility_graph(free, nodes)
+    costs = [[math.inf] * len(ends) for _ in corners]
+    next_node = [[-1] * len(ends) for _ in corners]
+    for exit_index in range(len(ends)):
+        end = len(corners) + exit_index
+        lengths, paths = nx.single_source_dijkstra(graph, end, weight="weight")
+        for node in range(len(corners)):
+            if node in lengths:
+                costs[node][exit_index] = lengths[node]
+                following = paths[node][-2]
+                next_node[node][exit_index] = following if following < len(corners) else -1
+    return (
+        RouteGraph(
+            tuple(corners), tuple(map(tuple, costs)), tuple(map(tuple, next_node)), tuple(nodes[len(corners) :])
+        ),
+        free,
+    )
+
+
+def _visibility_graph(free: Polygon, nodes: list[tuple[float, float]]) -> nx.Graph:
+    """``nodes`` joined where the segment between them lies in ``free``, weighted by its length."""
     area = free.buffer(SNAP)  # once: every sight test of the graph reads it
     shapely.prepare(area)
-    if _sees(area, start, goal):
-        return []
-    corners = {
-        (x, y)
-        for ring in (free.geoms if hasattr(free, "geoms") else (free,))
-        for boundary in (ring.exterior, *ring.interiors)
-        for x, y in boundary.coords
-    }
-    nodes = [(start.x, start.y), (goal.x, goal.y), *sorted(corners)]
     graph = nx.Graph()
     graph.add_nodes_from(range(len(nodes)))
     for a in range(len(nodes)):
         for b in range(a + 1, len(nodes)):
             if _sees(area, Point(nodes[a]), Point(nodes[b])):
                 graph.add_edge(a, b, weight=math.dist(nodes[a], nodes[b]))
-    try:
-        path = nx.shortest_path(graph, 0, 1, weight="weight")
-    except nx.NetworkXNoPath:
-        return None
-    return [nodes[node] for node in path[1:-1]]
+    return graph
+
+
+def _reaches(scenario: Scenario, graph: RouteGraph, free: Polygon, index: int, clearance: float) -> bool:
+    """Whether spawn area ``index`` (from a point inside it) sees an exit it may take, or a node with a route to one."""
+    spawn = scenario.spawns[index]
+    area = free.buffer(SNAP)
+    shapely.prepare(area)
+    start = _inside(free, spawn.area.representative_point() if spawn.area.area else spawn.area.centroid)
+    exits = range(len(scenario.exits)) if spawn.exit < 0 else (spawn.exit,)
+    if any(_sees(area, start, Point(graph.ends[e])) for e in exits):
+        return True
+    return any(
+        _sees(area, start, Point(node)) and any(math.isfinite(graph.costs[m][e]) for e in exits)
+        for m, node in enumerate(graph.nodes)
+    )
+
+
+def _convex(walkable: Polygon) -> bool:
+    """Whether every point of ``walkable`` sees every other one (a convex polygon without holes)."""
+    return not walkable.interiors and walkable.convex_hull.area - walkable.area <= 1e-9 * max(walkable.area, 1.0)
 
 
 def _sees(area: Polygon, a: Point, b: Point) -> bool:
@@ -132,9 +159,4 @@ def _inside(free: Polygon, point: Point) -> Point:
     return nearest_points(free, point)[0]
 
 
-def _length(start: Point, corners: list[tuple[float, float]], goal: Point) -> float:
-    points = [(start.x, start.y), *corners, (goal.x, goal.y)]
-    return sum(math.dist(a, b) for a, b in zip(points, points[1:], strict=False))
-
-
-__all__ = ["CLEARANCE", "CLEARANCES", "shortest_route", "with_routes"]
+__all__ = ["CLEARANCE", "CLEARANCES", "WAYPOINT_RADIUS", "route_graph", "with_routes"]

@@ -58,6 +58,7 @@ from pedrl.sim.room_checks import (
     read_options,
     step_memory,
 )
+from pedrl.sim.routing import MAX_QUEUE_WEIGHT
 from pedrl.sim.sensing import Observation, compiled_observe, feature_names, num_features, observe
 from pedrl.sim.spawning import MAX_DENSITY as MAX_DENSITY  # re-exported: pedrl.scenarios checks its spawn areas by it
 from pedrl.sim.spawning import PlacementError as PlacementError  # re-exported: raised by reset
@@ -138,6 +139,7 @@ class RoomEnv:
         time_step: float = 0.05,
         neighbour_repulsion: Sequence[float] = (8.0, 0.1),
         wall_repulsion: Sequence[float] = (5.0, 0.02),
+        queue_weight: float = 0.0,
         geometry: Geometry | None = None,
     ) -> None:
         """Validate the configuration and allocate the state (call :meth:`reset` before :meth:`step`).
@@ -179,11 +181,9 @@ class RoomEnv:
             reward_progress: Reward per metre by which a decision brings the agent closer to the goal point
                 (``>= 0``; 0 is the paper's Table 2, 1 the default). A dense signal for the sparse door
                 reward: walking to the door at 2 m/s earns ``2 * reward_progress`` per decision, standing still 0.
-            compile_sensing: Run the sensing through ``torch.compile`` (inductor; needs a C++ compiler on CPU). Off
-                by default: measured on a 2-core CPU at R = 20, N = 20 it saves about a third of the sensing, a few
-                percent of a learning decision, for 10 to 30 s of compilation per process, and the features differ
-                from the eager ones in the last bits (1e-6), so seeded runs are reproducible only with the same
-                setting.
+            compile_sensing: Run the sensing through ``torch.compile`` (inductor; needs a C++ compiler on CPU). Off by
+                default: about a third of the sensing saved for 10 to 30 s of compilation per process, and features
+                that differ from the eager ones in the last bits (docs/configuration.md).
             contact: What a move that would enter another body or a wall does (``CONTACT_MODELS``).
                 ``"stop"`` (default, the paper's reading): the mover stops for the rest of the decision, by
                 ``collision_rule``. ``"slide"``: it keeps the part of its move tangent to the contact for the rest of
@@ -217,6 +217,8 @@ class RoomEnv:
             neighbour_repulsion: ``[a, D]`` (strength, range m) of the direction rule for bodies: JuPedSim's
                 ``[8, 0.1]``.
             wall_repulsion: ``[b, B]`` for walls; JuPedSim's ``[5, 0.02]``.
+            queue_weight: How much an agent without an assigned exit weighs the queue at each exit when it chooses
+                one at placement (``>= 0``; 0: the exit of the shortest route; :mod:`pedrl.sim.routing`).
             geometry: Any walkable area (``pedrl.scenarios`` builds one from polygons); ``None`` is the paper's
                 room of ``width``, ``length`` and ``door_width`` (:meth:`Geometry.rectangle`), which are then
                 ignored except as the extent of the area. Its ``goal_depth`` is the geometry's own.
@@ -254,6 +256,7 @@ class RoomEnv:
         self.goal_depth = check_goal_depth(goal_depth)
         self.reward_progress = check_number("reward_progress", reward_progress, low=0.0, high=MAX_REWARD)
         self.compile_sensing = check_bool("compile_sensing", compile_sensing)
+        self.queue_weight = check_number("queue_weight", queue_weight, low=0.0, high=MAX_QUEUE_WEIGHT)
         self.params = RoomParams.of(self)
         self._build(self._checked_room(geometry))
 
@@ -429,7 +432,8 @@ class RoomEnv:
         self.speeds = torch.where(chosen, speeds, self.speeds)
         self.velocities = velocities_from(speeds=self.speeds, headings=self.headings)
         self.active = self.active | chosen
-        self.exit_index = torch.where(chosen, self.spawns.exits(self.positions), self.exit_index)
+        exits = self.spawns.assign(self.positions, chosen, max_speed=self.max_speed, queue_weight=self.queue_weight)
+        self.exit_index = torch.where(chosen, exits, self.exit_index)
         self.stage = torch.where(chosen, 0, self.stage)
         self._targets = self.spawns.route_point(self.stage, self.exit_index)
         self._advance_routes()

@@ -179,6 +179,28 @@ class SpawnArea:
 
 
 @dataclass(frozen=True, eq=False)
+class RouteTable:
+    """The routes of a walkable area (tensors, on the room's device).
+
+    Attributes:
+        nodes: Route corners ``(M, 2)`` (m), clear of the walls.
+        costs: Route length from each node to each exit's goal point ``(M, E)`` (m); inf: no route.
+        next_node: The next node on that route ``(M, E)`` int64; -1: the exit itself.
+        corners: Wall corners ``(C, 2)`` (m) that a line of sight keeps clear of
+            (:data:`pedrl.sim.routing.CORNER_CLEARANCE`): the ends of the walls, less the exits' own ends.
+    """
+
+    nodes: torch.Tensor
+    costs: torch.Tensor
+    next_node: torch.Tensor
+    corners: torch.Tensor
+
+    def to(self, device: str | torch.device) -> RouteTable:
+        """The same table on ``device``."""
+        return RouteTable(*(t.to(device) for t in (self.nodes, self.costs, self.next_node, self.corners)))
+
+
+@dataclass(frozen=True, eq=False)
 class Geometry:
     """Walls, exits and spawn areas of one walkable area, fixed at build time (for the simulation).
 
@@ -194,6 +216,8 @@ class Geometry:
             exit crosses (m), for the fast paths of the collision rules; a box of zero size disables them.
         waypoint_radius: Distance (m) at which an agent counts a waypoint as reached and aims at the next.
         name: A label (the scenario's name).
+        routes: The area's :class:`RouteTable` (:mod:`pedrl.sim.routing`), or None where every start sees every
+            exit.
         box_low: Lower corner of each wall's bounding box ``(S, 2)`` (m), derived from ``walls``: an axis-aligned
             wall's closest point to ``p`` is ``p`` clamped to its box (exact).
         box_high: Upper corner of each wall's bounding box ``(S, 2)`` (m), derived from ``walls``.
@@ -218,6 +242,7 @@ class Geometry:
     clear_box: tuple[float, float, float, float]
     waypoint_radius: float = 2.0
     name: str = "custom"
+    routes: RouteTable | None = None
     box_low: torch.Tensor = field(init=False, repr=False)
     box_high: torch.Tensor = field(init=False, repr=False)
     aligned_walls: torch.Tensor = field(init=False, repr=False)
@@ -248,10 +273,13 @@ class Geometry:
         goal_depth: float = 0.0,
         waypoint_radius: float = 2.0,
         name: str = "custom",
+        routes: Sequence[Any] | None = None,
         device: str | torch.device = "cpu",
     ) -> Geometry:
         """Build a geometry from plain coordinates (m): walls ``(S, 2, 2)``, exits ``(E, 2, 2)`` and their outward
         normals ``(E, 2)``; pads the walls to a multiple of :data:`WALL_PADDING` and moves everything to ``device``.
+        ``routes`` is ``(nodes (M, 2), costs (M, E), next_node (M, E), ends (E, 2))``: each node's route length to
+        the point ``ends[e]`` inside exit ``e`` (the goal points' distances from those points are added here).
         """
         walls = torch.as_tensor(walls, dtype=torch.float32).reshape(-1, 2, 2)
         exits = torch.as_tensor(exits, dtype=torch.float32).reshape(-1, 2, 2)
@@ -284,6 +312,7 @@ class Geometry:
             clear_box=tuple(float(v) for v in (bounds if clear_box is None else clear_box)),
             waypoint_radius=float(waypoint_radius),
             name=name,
+            routes=None if routes is None else _route_table(walls[:num_walls], exits, goals, *routes).to(device),
         )
 
     @classmethod
@@ -418,7 +447,23 @@ class Geometry:
             exit_normals=self.exit_normals.to(device),
             exit_goals=self.exit_goals.to(device),
             spawns=spawns,
+            routes=None if self.routes is None else self.routes.to(device),
         )
+
+
+def _route_table(walls: torch.Tensor, exits: torch.Tensor, goals: list, nodes, costs, next_node, ends) -> RouteTable:
+    """The :class:`RouteTable` of ``Geometry.build``'s ``routes``, for its real ``walls`` and ``exits``."""
+    ends = torch.as_tensor(ends, dtype=torch.float64).reshape(-1, 2)
+    last_leg = torch.linalg.vector_norm(torch.tensor(goals, dtype=torch.float64).reshape(-1, 2) - ends, dim=-1)
+    corners = torch.unique(walls.reshape(-1, 2), dim=0)
+    jambs = exits.reshape(-1, 2)
+    on_exit = ((corners.unsqueeze(1) - jambs) ** 2).sum(-1).lt(1e-8).any(-1)
+    return RouteTable(
+        nodes=torch.as_tensor(nodes, dtype=torch.float32).reshape(-1, 2),
+        costs=(torch.as_tensor(costs, dtype=torch.float64).reshape(-1, ends.shape[0]) + last_leg).float(),
+        next_node=torch.as_tensor(next_node, dtype=torch.int64).reshape(-1, ends.shape[0]),
+        corners=corners[~on_exit],
+    )
 
 
 def spawn_counts(num_agents: int, weights: Sequence[float]) -> tuple[int, ...]:

@@ -82,6 +82,7 @@ class RoomParams:
     time_step: float = setting(ANY)
     neighbour_repulsion: tuple[float, float] = setting(ANY)
     wall_repulsion: tuple[float, float] = setting(ANY)
+    queue_weight: float = setting(ANY)  # used at placement, in torch
 
     @classmethod
     def of(cls, room: Any) -> RoomParams:

@@ -1,8 +1,9 @@
 """Who starts where and heads where: the spawn groups of a walkable area as per-agent tables (pure torch).
 
 :class:`Spawns` numbers the agents group by group (``spawn_counts``), draws their start positions by rejection
-sampling in their spawn areas (or checks hand-placed ones), gives each its exit and walks it along its group's
-waypoints. :func:`check_density` refuses, before any compute, more bodies than a spawn area can hold.
+sampling in their spawn areas (or checks hand-placed ones), gives each its exit and its route there at placement
+(its group's hand-made waypoints, else its own shortest route, :mod:`pedrl.sim.routing`) and walks it along them.
+:func:`check_density` refuses, before any compute, more bodies than a spawn area can hold.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import torch
 
 from pedrl.sim.geometry import Geometry, X, Y, inside_polygon, wrap_angle
 from pedrl.sim.room_checks import read_option
+from pedrl.sim.routing import choose_exits, follow_routes, route_lengths
 
 MAX_DENSITY: Final = 0.35
 """Largest share of the free room area (where centres may lie) that the bodies may cover at placement."""
@@ -62,9 +64,10 @@ class Spawns:
         group: The spawn group of each agent ``(N,)`` int64.
         low: The lowest centre of each agent's drawing box ``(N, 2)`` (m): its spawn box shrunk by the radius.
         span: The extent of each agent's drawing box ``(N, 2)`` (m).
-        assigned_exit: The exit of each agent's group ``(N,)`` int64; -1: the nearest at placement.
-        waypoints: Each agent's route ``(N, K, 2)`` (m), NaN past the end of its group's route.
-        route_length: The number of waypoints of each agent's route ``(N,)`` int64.
+        assigned_exit: The exit of each agent's group ``(N,)`` int64; -1: chosen at placement (:meth:`assign`).
+        hand_made: Whether each agent's group has hand-made waypoints ``(N,)`` bool (else its route is its own).
+        waypoints: Each agent's route in each replica ``(R, N, K, 2)`` (m), NaN past its end; set at placement.
+        route_length: The number of waypoints of each agent's route ``(R, N)`` int64; set at placement.
         earlier_agents: ``(N, N)`` bool, true where the column's agent has a lower index than the row's.
         agent_radius, num_replicas, width, length, device: As given; num_agents: ``N = sum(counts)``.
     """
@@ -101,18 +104,22 @@ class Spawns:
         self.assigned_exit = torch.tensor(exits, device=device)[group]  # (N,), -1: nearest
         # another exit than its group's can be passed: only with two exits or more and an assigned one
         self.checks_exits = geometry.exits.shape[0] > 1 and any(exit_ >= 0 for exit_ in exits)
-        most = max(spawn.waypoints.shape[0] for spawn in geometry.spawns)
+        own = 0 if geometry.routes is None else geometry.routes.nodes.shape[0]  # a shortest route's longest
+        most = max(own, *(spawn.waypoints.shape[0] for spawn in geometry.spawns))
         routes = torch.full((len(geometry.spawns), most, 2), math.nan, device=device)
         for index, spawn in enumerate(geometry.spawns):
             routes[index, : spawn.waypoints.shape[0]] = spawn.waypoints
-        self.waypoints = routes[group]  # (N, K, 2), NaN past the end of a route
-        self.route_length = torch.tensor([s.waypoints.shape[0] for s in geometry.spawns], device=device)[group]
+        counts = torch.tensor([s.waypoints.shape[0] for s in geometry.spawns], device=device)
+        self.hand_made = (counts > 0)[group]
+        self.waypoints = routes[group].expand(num_replicas, -1, -1, -1).clone()  # (R, N, K, 2)
+        self.route_length = counts[group].expand(num_replicas, -1).clone()  # (R, N)
+        self.exit_widths = geometry.exit_spans.sqrt()
         self.earlier_agents = torch.ones(self.num_agents, self.num_agents, dtype=torch.bool, device=device).tril_(-1)
 
     @property
     def has_routes(self) -> bool:
-        """Whether any group has waypoints."""
-        return self.waypoints.shape[1] > 0
+        """Whether any agent may have waypoints."""
+        return self.waypoints.shape[2] > 0
 
     # ------------------------------------------------------------------ start
 
@@ -211,10 +218,26 @@ class Spawns:
 
     # ------------------------------------------------------------------ exits and routes
 
-    def exits(self, positions: torch.Tensor) -> torch.Tensor:
-        """The exit of each agent at ``positions`` ``(R, N, 2)``: its group's, else the nearest ``(R, N)`` int64."""
+    def assign(
+        self, positions: torch.Tensor, chosen: torch.Tensor, *, max_speed: float, queue_weight: float
+    ) -> torch.Tensor:
+        """The exit ``(R, N)`` int64 of each agent placed at ``positions`` ``(R, N, 2)``: its group's, else the one
+        of least route length (with ``queue_weight`` > 0, of least time with the queue weighed;
+        :func:`~pedrl.sim.routing.choose_exits`); the agents of the ``chosen`` replicas ``(R, 1)`` bool also get
+        their routes there (:attr:`waypoints`, :attr:`route_length`)."""
+        geometry = self.geometry
+        table = geometry.routes
+        lengths, first = route_lengths(positions, geometry.exit_goals, geometry.walls[: geometry.num_walls], table)
         assigned = self.assigned_exit.expand(positions.shape[:-1])
-        return torch.where(assigned >= 0, assigned, self.geometry.nearest_exits(positions))
+        exits = choose_exits(lengths, assigned, self.exit_widths, max_speed=max_speed, queue_weight=queue_weight)
+        if table is not None:
+            own = ~self.hand_made & chosen  # (R, N)
+            waypoints, length = follow_routes(first.gather(-1, exits.unsqueeze(-1)).squeeze(-1), exits, table)
+            self.waypoints[..., : waypoints.shape[2], :] = torch.where(
+                own[..., None, None], waypoints, self.waypoints[..., : waypoints.shape[2], :]
+            )
+            self.route_length = torch.where(own, length, self.route_length)
+        return exits
 
     def own_exit(self, left: torch.Tensor, positions: torch.Tensor, exit_index: torch.Tensor) -> torch.Tensor:
         """Which of the agents that ``left`` the room ``(R, N)`` at ``positions`` ``(R, N, 2)`` left through their
@@ -229,10 +252,10 @@ class Spawns:
     def route_point(self, stage: torch.Tensor, exit_index: torch.Tensor) -> torch.Tensor:
         """Waypoint ``stage`` of each agent's route ``(R, N, 2)``, or its exit's goal point past the route's end."""
         goals = self.geometry.exit_goals[exit_index]  # (R, N, 2)
-        if self.waypoints.shape[1] == 0:
+        if self.waypoints.shape[2] == 0:
             return goals
-        index = stage.clamp(max=self.waypoints.shape[1] - 1)[..., None, None].expand(-1, -1, 1, 2)
-        waypoint = torch.gather(self.waypoints.expand(self.num_replicas, -1, -1, -1), 2, index).squeeze(2)
+        index = stage.clamp(max=self.waypoints.shape[2] - 1)[..., None, None].expand(-1, -1, 1, 2)
+        waypoint = torch.gather(self.waypoints, 2, index).squeeze(2)
         return torch.where((stage < self.route_length).unsqueeze(-1), waypoint, goals)
 
     def advance(
@@ -246,7 +269,7 @@ class Spawns:
         decisions_per_second`` per decision, so they overshoot a small disc.)
         """
         radius = self.geometry.waypoint_radius
-        for _ in range(self.waypoints.shape[1]):  # fixed rounds, no host sync
+        for _ in range(self.waypoints.shape[2]):  # fixed rounds, no host sync
             current = self.route_point(stage, exit_index)
             direction = self.route_point(stage + 1, exit_index) - current
             direction = direction / torch.linalg.vector_norm(direction, dim=-1, keepdim=True).clamp_min(1e-9)

@@ -33,7 +33,7 @@ def act_room(r, state, actions, room, walls, exits, work, events, scratch):
 
     ``room`` is ``(speed_changes (9,), turn_changes (9,), max_speed, decision_length, num_substeps, radius, contact,
     door_first, time_gap, goal_frame, max_decisions, rewards (4,): goal, wall, agent, default, reward_progress,
-    assigned (R, N), exit_goals (X, 2), steer, steering (4,), waypoints (N, W, 2), route_length (N,),
+    assigned (R, N), exit_goals (X, 2), steer, steering (4,), waypoints (R, N, W, 2), route_length (R, N),
     waypoint_radius)``: ``steer`` is ``motion=continuous`` with the direction rule's ``(a, D, b, B)``; the last three
     the routes (flat: a parallel kernel takes no tuple in a tuple);
     ``exits`` ``(start, normal, tangent, span)``; ``work`` ``(R, N)``-shaped arrays of the move, the last the
@@ -134,16 +134,17 @@ def act_room(r, state, actions, room, walls, exits, work, events, scratch):
         else:
             reward[r, i] = zero
         positions[r, i, 0], positions[r, i, 1] = new_x, new_y
-        if routes[0].shape[1] > 0:
+        if routes[0].shape[2] > 0:
             _advance(r, i, positions, stage, exit_index, targets, routes, exit_goals)
 
 
 @cached_njit(nogil=True, inline="always")
-def _route_point(i, stage, exit_index, routes, exit_goals):
-    """``Spawns.route_point`` of agent ``i``: waypoint ``stage`` of its route, or its exit's goal point past it."""
+def _route_point(r, i, stage, exit_index, routes, exit_goals):
+    """``Spawns.route_point`` of agent ``i`` of room ``r``: waypoint ``stage`` of its route, or its exit's goal point
+    past it."""
     waypoints, route_length, _ = routes
-    if stage < route_length[i]:
-        return waypoints[i, stage, 0], waypoints[i, stage, 1]
+    if stage < route_length[r, i]:
+        return waypoints[r, i, stage, 0], waypoints[r, i, stage, 1]
     return exit_goals[exit_index, 0], exit_goals[exit_index, 1]
 
 
@@ -152,9 +153,9 @@ def _advance(r, i, positions, stage, exit_index, targets, routes, exit_goals):
     """``Spawns.advance`` of agent ``i`` of room ``r``: past each waypoint it reached (within the radius, or beyond
     the line through it across the way on), it aims at the next point."""
     route_length, radius = routes[1], routes[2]
-    while stage[r, i] < route_length[i]:
-        x, y = _route_point(i, stage[r, i], exit_index[r, i], routes, exit_goals)
-        next_x, next_y = _route_point(i, stage[r, i] + 1, exit_index[r, i], routes, exit_goals)
+    while stage[r, i] < route_length[r, i]:
+        x, y = _route_point(r, i, stage[r, i], exit_index[r, i], routes, exit_goals)
+        next_x, next_y = _route_point(r, i, stage[r, i] + 1, exit_index[r, i], routes, exit_goals)
         norm = max(np.sqrt((next_x - x) ** 2 + (next_y - y) ** 2), np.float32(1e-9))
         along_x, along_y = (next_x - x) / norm, (next_y - y) / norm
         off_x, off_y = positions[r, i, 0] - x, positions[r, i, 1] - y
@@ -164,4 +165,4 @@ def _advance(r, i, positions, stage, exit_index, targets, routes, exit_goals):
             stage[r, i] += 1
         else:
             break
-    targets[r, i, 0], targets[r, i, 1] = _route_point(i, stage[r, i], exit_index[r, i], routes, exit_goals)
+    targets[r, i, 0], targets[r, i, 1] = _route_point(r, i, stage[r, i], exit_index[r, i], routes, exit_goals)

@@ -1,5 +1,6 @@
-"""Routes through any walkable area (:mod:`pedrl.scenarios.routes`): a spawn area that cannot see its exit gets the
-corners of the shortest path round the walls, built automatically for every scenario and WKT room."""
+"""Routes through any walkable area (:mod:`pedrl.scenarios.routes`, :mod:`pedrl.sim.routing`): a room whose exit
+may be out of sight gets a route graph, built automatically for every scenario and WKT room, and each walker the
+corners of its own shortest path round the walls."""
 
 from dataclasses import replace
 
@@ -28,10 +29,18 @@ def config(name: str) -> dict:
 
 
 def unrouted(name: str):
-    """The held-out room without its route (the control): its start areas aim straight at the exit."""
-    scenario = build_scenario(config(name))
-    spawns = tuple(replace(spawn, waypoints=()) for spawn in scenario.spawns)
-    return replace(scenario, spawns=spawns, waypoint_radius=Scenario.waypoint_radius)
+    """The held-out room without its routes (the control): its walkers aim straight at the exit."""
+    return replace(build_scenario(config(name)), routes=None, waypoint_radius=Scenario.waypoint_radius)
+
+
+def routes_of(scenario, agents: int = 40, seed: int = 1) -> list[list[tuple[float, float]]]:
+    """The waypoints each of ``agents`` walkers placed with ``seed`` gets (replica 0)."""
+    env = scenario.room(num_replicas=1, num_agents=agents, device="cpu", agent_radius=0.2)
+    env.reset(seed=seed)
+    return [
+        [tuple(point) for point in route[:length]]
+        for route, length in zip(env.spawns.waypoints[0].tolist(), env.spawns.route_length[0].tolist(), strict=True)
+    ]
 
 
 def greedy_out(scenario, motion: str = "continuous") -> tuple[float, float]:
@@ -73,12 +82,14 @@ def test_greedy_walkers_leave_round_the_walls_that_hide_the_exit(name):
     assert out_without < out and walls_without >= 3 * walls
 
 
-def test_the_route_turns_round_the_partition_clear_of_its_end():
+def test_every_walker_turns_round_the_partition_clear_of_its_end():
+    """Each walker's own route passes over the partition's end (9 m), the wide clearance off it, in one or two
+    corners (one where the walker already sees the far corner)."""
     scenario = build_scenario(config("partition_room"))
-    corners = scenario.spawns[0].waypoints
-    assert len(corners) == 2 and all(y > 9.0 for _, y in corners)  # over the partition's end (9 m)
     partition = LineString([(10.0, 0.0), (10.0, 9.0)]).buffer(0.1)
-    assert all(Point(corner).distance(partition) >= CLEARANCES[0] - 1e-6 for corner in corners)  # the wider one
+    for corners in routes_of(scenario):
+        assert 1 <= len(corners) <= 2 and all(y > 9.0 for _, y in corners)
+        assert all(Point(corner).distance(partition) >= CLEARANCES[0] - 1e-5 for corner in corners)  # the wider one
     assert scenario.waypoint_radius == pytest.approx(WAYPOINT_RADIUS)
 
 
@@ -90,8 +101,8 @@ def test_an_opening_narrower_than_the_wide_clearance_is_routed_with_the_narrow_o
         "exits": [[20.0, 1.0, 20.0, 2.6]],
         "spawn": [[0.5, 0.5, 9.4, 8.0]],
     }
-    corners = build_scenario(settings).spawns[0].waypoints
-    assert corners and all(11.2 < y < 12.0 - CLEARANCE + 1e-6 for _, y in corners)
+    for corners in routes_of(build_scenario(settings), agents=10):
+        assert corners and all(11.2 < y < 12.0 - CLEARANCE + 1e-5 for _, y in corners)
 
 
 def test_a_start_area_that_reaches_no_exit_is_refused_naming_it():
@@ -112,11 +123,11 @@ def test_a_start_area_that_reaches_no_exit_is_refused_naming_it():
 def test_a_room_built_from_python_is_routed_as_one_from_a_config():
     settings = {key: value for key, value in config("partition_room").items() if key != "name"}
     assert custom(**settings) == build_scenario(config("partition_room"))
-    assert custom(**settings).spawns[0].waypoints
+    assert custom(**settings).routes is not None
 
 
 @pytest.mark.parametrize("name", [name for name in SCENARIOS if name != "custom"])
 def test_built_in_scenarios_keep_their_routes(name):
-    """Every built-in start area sees its exit or has its hand-made route: the routes leave them as they were."""
+    """Every built-in room is convex or has hand-made routes: the routes leave them as they were."""
     scenario = BUILDERS[name]()
     assert with_routes(scenario) == scenario

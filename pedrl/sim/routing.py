@@ -1,0 +1,158 @@
+"""Each walker's exit and its route there, chosen at placement (pure torch): the tactical and strategic levels.
+
+A room whose walkable area hides an exit from some start carries a :class:`RouteTable`: the nodes of a visibility
+graph of the area (its corners, kept clear of the walls), each node's route length to each exit and the next node on
+that route (built with the scenario, :func:`pedrl.scenarios.routes.with_routes`). At placement:
+
+- :func:`route_lengths`: a walker's route length to an exit is the straight line to the exit's goal point when it sees
+  it, else the shortest ``|p - node| + cost[node, exit]`` over the nodes it sees (the first node is its first
+  waypoint). Sight is a segment that crosses no wall and passes no wall corner closer than :data:`CORNER_CLEARANCE`
+  (a walker that barely sees past a corner goes round the corner's node instead of grazing it); a walker that sees
+  no node that way (it starts in a corner's shadow) takes the nodes it sees at all. Without a table, route lengths are
+  the straight lines.
+- :func:`choose_exits`: a walker without an assigned exit takes the one of least estimated time, its route length over
+  the top speed plus, with ``queue_weight`` > 0, ``queue_weight`` times the wait behind the walkers ahead of it (with a
+  shorter route) that head for the same exit, at :data:`SPECIFIC_FLOW` per metre of exit width. The walkers' choices
+  depend on each other; they are settled by fictitious play (Brown 1951): :data:`CHOICE_ROUNDS` rounds in which every
+  walker answers the mean of the others' earlier choices, which converges in congestion games such as this one
+  (Monderer and Shapley 1996). The choice is made once, at placement, and not revised during the walk.
+- :func:`follow_routes`: the walker's waypoints, its first node and then each next node, up to the exit.
+"""
+
+from __future__ import annotations
+
+from typing import Final
+
+import torch
+
+from pedrl.sim.geometry import RouteTable, X, Y
+
+__all__ = [
+    "CHOICE_ROUNDS",
+    "CORNER_CLEARANCE",
+    "MAX_QUEUE_WEIGHT",
+    "SPECIFIC_FLOW",
+    "choose_exits",
+    "follow_routes",
+    "route_lengths",
+    "sight",
+]
+
+CORNER_CLEARANCE: Final = 0.25
+"""Distance (m) from a wall corner within which a line of sight counts as blocked: a 0.2 m body and a margin."""
+SPECIFIC_FLOW: Final = 1.3
+"""Persons per second and metre of exit width that a queue drains at (SFPE Handbook's 1.3 /(m s) for doors)."""
+MAX_QUEUE_WEIGHT: Final = 100.0
+"""Largest ``queue_weight``: beyond it the route lengths no longer count."""
+CHOICE_ROUNDS: Final = 24
+"""Rounds of fictitious play that settle the walkers' exit choices when the queue is weighed."""
+
+
+def _cross(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    return a[..., X] * b[..., Y] - a[..., Y] * b[..., X]
+
+
+def sight(
+    points: torch.Tensor, targets: torch.Tensor, walls: torch.Tensor, corners: torch.Tensor | None
+) -> torch.Tensor:
+    """Whether each point ``(R, N, 2)`` sees each target ``(T, 2)``: ``(R, N, T)`` bool, true when the segment
+    between them crosses none of the ``walls`` ``(S, 2, 2)`` and, with ``corners`` ``(C, 2)``, passes none of them
+    closer than :data:`CORNER_CLEARANCE` (corners that close to the point itself do not count)."""
+    start = points[:, :, None, None, :]  # (R, N, 1, 1, 2)
+    span = targets[None, None, :, None, :] - start  # (R, N, T, 1, 2)
+    wall_start, wall_span = walls[:, 0], walls[:, 1] - walls[:, 0]  # (S, 2)
+    offset = wall_start - start  # (R, N, 1, S, 2)
+    denominator = _cross(span, wall_span)
+    along = _cross(offset, wall_span) / denominator  # where on the segment it meets the wall's line
+    across = _cross(offset, span) / denominator  # where on the wall
+    blocked = ((along >= 0) & (along <= 1) & (across >= 0) & (across <= 1)).any(-1)  # parallel: nan, not blocked
+    if corners is None or corners.shape[0] == 0:
+        return ~blocked
+    to_corner = corners - start  # (R, N, 1, C, 2)
+    length_sq = (span * span).sum(-1).clamp_min(1e-12)
+    t = ((to_corner * span).sum(-1) / length_sq).clamp(0.0, 1.0)
+    gap = to_corner - t.unsqueeze(-1) * span
+    near = (gap * gap).sum(-1) < CORNER_CLEARANCE**2
+    own = (to_corner * to_corner).sum(-1) < CORNER_CLEARANCE**2
+    return ~(blocked | (near & ~own).any(-1))
+
+
+def route_lengths(
+    positions: torch.Tensor, goals: torch.Tensor, walls: torch.Tensor, table: RouteTable | None
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Each walker's route length to each exit ``(R, N, E)`` (m) and the first node of that route ``(R, N, E)``
+    int64 (-1: straight to the exit's goal point), for walkers at ``positions`` ``(R, N, 2)``, exits' goal points
+    ``goals`` ``(E, 2)`` and the room's real ``walls``. Without a table: the straight lines."""
+    offsets = goals - positions.unsqueeze(-2)  # (R, N, E, 2)
+    straight = torch.linalg.vector_norm(offsets, dim=-1)
+    first = torch.full_like(straight, -1, dtype=torch.int64)
+    if table is None:
+        return straight, first
+    inf = torch.tensor(torch.inf, device=positions.device)
+    node_gap = torch.linalg.vector_norm(table.nodes - positions.unsqueeze(-2), dim=-1)  # (R, N, M)
+    via = node_gap.unsqueeze(-1) + table.costs  # (R, N, M, E)
+    lengths, first = None, None
+    for corners in (table.corners, None):  # clear of the corners, else any sight at all
+        sees_goal = sight(positions, goals, walls, corners)  # (R, N, E)
+        sees_node = sight(positions, table.nodes, walls, corners)  # (R, N, M)
+        best, node = torch.where(sees_node.unsqueeze(-1), via, inf).min(-2)  # (R, N, E)
+        length = torch.where(sees_goal, straight, best)
+        choice = torch.where(sees_goal, -1, node)
+        if lengths is None:
+            lengths, first = length, choice
+        else:
+            keep = torch.isfinite(lengths).any(-1, keepdim=True)  # (R, N, 1): some exit seen clear of corners
+            lengths, first = torch.where(keep, lengths, length), torch.where(keep, first, choice)
+    unseen = ~torch.isfinite(lengths).any(-1, keepdim=True)  # no route at all (rounding at a wall): straight lines
+    return torch.where(unseen, straight, lengths), torch.where(unseen, -1, first)
+
+
+def choose_exits(
+    lengths: torch.Tensor,
+    assigned: torch.Tensor,
+    widths: torch.Tensor,
+    *,
+    max_speed: float,
+    queue_weight: float,
+) -> torch.Tensor:
+    """Each walker's exit ``(R, N)`` int64: its ``assigned`` one ``(R, N)`` where that is >= 0, else the one of
+    least estimated time (module docstring) from the route ``lengths`` ``(R, N, E)`` (m) and the exits' ``widths``
+    ``(E,)`` (m); ties to the lower exit index."""
+    times = lengths / max_speed
+    fixed = assigned >= 0
+    choice = torch.where(fixed, assigned, times.argmin(-1))
+    if queue_weight <= 0 or lengths.shape[-1] == 1:
+        return choice
+    num_agents = lengths.shape[1]
+    index = torch.arange(num_agents, device=lengths.device)
+    # ahead[r, i, j, e]: walker j's route to e is shorter than walker i's (ties: the lower index is ahead)
+    mine, theirs = lengths.unsqueeze(2), lengths.unsqueeze(1)  # (R, N, 1, E), (R, 1, N, E)
+    earlier = (index[None, :] < index[:, None])[None, :, :, None]
+    ahead = ((theirs < mine) | ((theirs == mine) & earlier)).to(lengths.dtype)
+    wait = queue_weight / (SPECIFIC_FLOW * widths)  # s per walker ahead
+    one_hot = torch.nn.functional.one_hot(choice, lengths.shape[-1]).to(lengths.dtype)
+    mean = one_hot.clone()
+    for rounds in range(1, CHOICE_ROUNDS + 1):  # fixed rounds, no host sync
+        queue = torch.einsum("rije,rje->rie", ahead, mean)  # expected walkers ahead at each exit
+        answer = torch.where(fixed, assigned, (times + queue * wait).argmin(-1))
+        one_hot = torch.nn.functional.one_hot(answer, lengths.shape[-1]).to(lengths.dtype)
+        mean = mean + (one_hot - mean) / (rounds + 1)
+    return answer
+
+
+def follow_routes(first: torch.Tensor, exits: torch.Tensor, table: RouteTable) -> tuple[torch.Tensor, torch.Tensor]:
+    """The waypoints ``(R, N, M, 2)`` (NaN past a route's end) and route length ``(R, N)`` int64 of walkers whose
+    routes start at node ``first`` ``(R, N)`` (-1: none) towards ``exits`` ``(R, N)``: each node, then the next one
+    on the way to the exit, until the exit."""
+    num_nodes = table.nodes.shape[0]
+    shape = first.shape
+    waypoints = torch.full((*shape, num_nodes, 2), torch.nan, device=first.device)
+    length = torch.zeros(shape, dtype=torch.int64, device=first.device)
+    node = first
+    for step in range(num_nodes):  # a shortest route visits each node at most once
+        on = node >= 0
+        safe = node.clamp_min(0)
+        waypoints[:, :, step] = torch.where(on.unsqueeze(-1), table.nodes[safe], torch.nan)
+        length += on.to(torch.int64)
+        node = torch.where(on, table.next_node[safe, exits], -1)
+    return waypoints, length
