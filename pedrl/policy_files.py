@@ -135,12 +135,16 @@ def export_policy(checkpoint: str | Path, out: str | Path, *, device: str | torc
 
 
 def room_factory(
-    policy: TabularPolicy, scenario: Mapping[str, Any] | None = None, *, max_decisions: int | None = None
+    policy: TabularPolicy,
+    scenario: Mapping[str, Any] | None = None,
+    *,
+    max_decisions: int | None = None,
+    queue_weight: float | None = None,
 ) -> Callable[..., RoomEnv]:
     """``factory(num_replicas=, num_agents=, device=)`` building rooms of the policy's training config (bodies,
     speeds, sensing, rewards), in its own scenario or in ``scenario`` (a ``scenario`` config; a WKT file it names
-    is read), with trials of ``max_decisions`` decisions (None: the trained length). ``factory.scenario`` is the
-    :class:`~pedrl.scenarios.Scenario`.
+    is read), with trials of ``max_decisions`` decisions and exits chosen with ``queue_weight`` (None: as trained).
+    ``factory.scenario`` is the :class:`~pedrl.scenarios.Scenario`.
 
     Raises:
         TypeError: one line, for a ``policy`` that is not a :class:`~pedrl.rl.policy.TabularPolicy`.
@@ -148,13 +152,19 @@ def room_factory(
     """
     if not isinstance(policy, TabularPolicy):
         raise TypeError(f"policy={shown(policy)} is invalid: must be a TabularPolicy, as pedrl.load_policy returns")
-    env = room_settings(policy) | ({} if max_decisions is None else {"max_decisions": max_decisions})
+    overrides = overridden(max_decisions=max_decisions, queue_weight=queue_weight)
+    env = room_settings(policy) | overrides
     config = policy.metadata["config"]
     if scenario is not None:
         return env_factory(env, scenario)
-    if max_decisions is None and policy in _ROOMS:
+    if not overrides and policy in _ROOMS:
         return _ROOMS[policy]
     return env_factory(env, config.get("scenario"), files=False)
+
+
+def overridden(**settings: Any) -> dict[str, Any]:
+    """The room settings given (not None) of those an evaluation may change: ``max_decisions``, ``queue_weight``."""
+    return {key: value for key, value in settings.items() if value is not None}
 
 
 def room_settings(policy: TabularPolicy) -> dict[str, Any]:

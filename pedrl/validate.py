@@ -17,6 +17,7 @@ from omegaconf import DictConfig, ListConfig
 from pedrl.cli import CONFIG_DIR, checked_groups, hydra_output_dir, run_reporting_errors
 from pedrl.runtime import set_threads
 from pedrl.sim.checks import MAX_SEED, check_bool, check_choice, check_device, check_integer, check_number
+from pedrl.sim.routing import check_queue_weight
 from pedrl.trial.fused import check_fused
 from pedrl.validation.report import pass_count
 from pedrl.validation.runner import CHOICES, columns, validate
@@ -37,6 +38,7 @@ def run(cfg: DictConfig, *, run_dir: Path | None = None) -> dict[str, Any]:
     radius = cfg.get("radius")
     if radius is not None:
         radius = check_number("radius", radius, low=0.05, high=1.0)
+    queue_weight = check_queue_weight(cfg.get("queue_weight"))
     tests = cfg.get("tests")
     if tests is not None:
         if not isinstance(tests, list | ListConfig) or not tests:
@@ -80,6 +82,7 @@ def run(cfg: DictConfig, *, run_dir: Path | None = None) -> dict[str, Any]:
         seed=seed,
         device=device,
         radius=radius,
+        queue_weight=queue_weight,
         jupedsim=jupedsim,
         tensorboard=tensorboard,
         fused=fused,

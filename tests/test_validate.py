@@ -12,6 +12,7 @@ VALIDATE_CASES: list[tuple[str, tuple[str, ...]]] = [
     ("controller=both", ("checkpoint is missing", "controller=references")),
     ("controller=smart", ("controller='smart' is invalid", "all, both, references, learned, greedy, jupedsim")),
     ("controller=greedy epsilon=-1", ("epsilon=-1", "[0, 1]")),
+    ("controller=greedy queue_weight=1e9", ("queue_weight=1000000000.0", "[0, 100]")),
     ("controller=greedy tests=[lanes,queues]", ("tests='queues' is invalid", "rimea_1")),
     ("controller=greedy tests=lanes", ("tests='lanes' is invalid", "non-empty list")),
     ("controller=greedy seed=-1", ("seed=-1", "integer in")),

@@ -41,6 +41,7 @@ from pedrl.sim.checks import (
     check_number,
     first_line,
 )
+from pedrl.sim.routing import check_queue_weight
 from pedrl.trial.fused import check_fused
 
 CONTROLLERS: Final = ("learned", "greedy", "jupedsim")
@@ -107,6 +108,7 @@ def _prepare(cfg: DictConfig, controller: str, device: torch.device) -> tuple[An
         epsilon=float(cfg.epsilon),
         device=device,
         max_decisions=cfg.max_decisions,
+        queue_weight=cfg.get("queue_weight"),
         scenario=_scenario(cfg),
         jupedsim=jupedsim_model(cfg),
     )
@@ -213,6 +215,7 @@ def _validate_values(cfg: DictConfig) -> None:
     check_number("epsilon", cfg.get("epsilon"), low=0.0, high=1.0)
     if cfg.get("max_decisions") is not None:
         check_integer("max_decisions", cfg.max_decisions, minimum=1)
+    check_queue_weight(cfg.get("queue_weight"))
     check_integer("seed", cfg.get("seed"), minimum=0, maximum=MAX_SEED)
     threads = cfg.get("threads")
     if threads is not None:

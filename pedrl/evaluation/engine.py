@@ -33,7 +33,7 @@ from pedrl.evaluation.jupedsim_reference import JuPedSimReference
 from pedrl.evaluation.report import write_density_map, write_fundamental_diagram, write_scaling_json
 from pedrl.integrations.jupedsim import JuPedSimModel
 from pedrl.io import CsvWriter, RunLogger
-from pedrl.policy_files import load_policy, room_factory, room_settings
+from pedrl.policy_files import load_policy, overridden, room_factory, room_settings
 from pedrl.rl.policy import PolicyController
 from pedrl.scenarios import Scenario, paper_room
 from pedrl.sim import RoomEnv
@@ -96,6 +96,7 @@ def load_controller(
     epsilon: float,
     device: torch.device,
     max_decisions: int | None,
+    queue_weight: float | None = None,
     scenario: dict[str, Any] | None = None,
     jupedsim: JuPedSimModel | None = None,
     kind: str = "checkpoint",
@@ -115,10 +116,10 @@ def load_controller(
     other = {"checkpoint": "pass it as policy=", "policy": "pass it as checkpoint="}[kind]
     policy = load_policy(path, device=device, kind=kind, hint=other)
     try:  # the file's own room is stored in it and opens no file; the user's scenario may name a WKT file
-        factory = room_factory(policy, scenario, max_decisions=max_decisions)
+        factory = room_factory(policy, scenario, max_decisions=max_decisions, queue_weight=queue_weight)
     except (KeyError, TypeError) as err:  # a ValueError names the scenario's or max_decisions' bad value itself
         raise ValueError(f"the room of {kind} {str(path)!r} cannot be built ({first_line(err)})") from None
-    env_settings = room_settings(policy) | ({} if max_decisions is None else {"max_decisions": max_decisions})
+    env_settings = room_settings(policy) | overridden(max_decisions=max_decisions, queue_weight=queue_weight)
     label = (factory, env_settings, policy.num_processes, policy.num_tables, policy.metadata["algo"])
     if controller == "greedy":
         return LoadedPolicy(GreedyDoorController(epsilon=epsilon, generator=torch.Generator(device=device)), *label)

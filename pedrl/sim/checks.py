@@ -90,17 +90,19 @@ def shown(value: Any, *, limit: int = 80) -> str:
 
 
 def check_device(value: Any) -> torch.device:
-    """``value`` as a usable CPU or CUDA torch device, else a one-line ``ValueError``."""
+    """``value`` as a usable CPU or CUDA torch device, else a one-line ``ValueError`` that says why: not a device
+    name, a device type other than cpu and cuda, or a device this machine cannot use (torch's reason)."""
+    allowed = f"device={value!r} is invalid: must be cpu or cuda[:index], available here"
     try:
         device = torch.device(value)
-        if device.type not in DEVICE_TYPES:
-            raise ValueError(f"device type {device.type!r} is not supported")
+    except (RuntimeError, TypeError, ValueError):
+        raise ValueError(f"{allowed} (not a device name)") from None
+    if device.type not in DEVICE_TYPES:
+        raise ValueError(f"{allowed} (device type {device.type!r} is not supported)")
+    try:
         torch.empty(1, device=device)
-    except (RuntimeError, AssertionError, TypeError, ValueError) as error:
-        reason = first_line(error).split(". ")[0][:100]
-        raise ValueError(
-            f"device={value!r} is invalid: must be cpu or cuda[:index], available here ({reason})"
-        ) from None
+    except (RuntimeError, AssertionError) as error:
+        raise ValueError(f"{allowed} ({first_line(error).split('. ')[0][:100]})") from None
     return device
 
 

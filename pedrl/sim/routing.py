@@ -21,10 +21,11 @@ that route (built with the scenario, :func:`pedrl.scenarios.routes.with_routes`)
 
 from __future__ import annotations
 
-from typing import Final
+from typing import Any, Final
 
 import torch
 
+from pedrl.sim.checks import check_number
 from pedrl.sim.geometry import RouteTable, X, Y
 
 __all__ = [
@@ -32,6 +33,7 @@ __all__ = [
     "CORNER_CLEARANCE",
     "MAX_QUEUE_WEIGHT",
     "SPECIFIC_FLOW",
+    "check_queue_weight",
     "choose_exits",
     "follow_routes",
     "route_lengths",
@@ -46,6 +48,11 @@ MAX_QUEUE_WEIGHT: Final = 100.0
 """Largest ``queue_weight``: beyond it the route lengths no longer count."""
 CHOICE_ROUNDS: Final = 24
 """Rounds of fictitious play that settle the walkers' exit choices when the queue is weighed."""
+
+
+def check_queue_weight(value: Any) -> float | None:
+    """``value`` as a ``queue_weight`` (None: the room's own), or a one-line ``ValueError``/``TypeError``."""
+    return None if value is None else check_number("queue_weight", value, low=0.0, high=MAX_QUEUE_WEIGHT)
 
 
 def _cross(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:

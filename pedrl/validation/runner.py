@@ -46,6 +46,7 @@ def validate(
     seed: int,
     device: torch.device,
     radius: float | None = None,
+    queue_weight: float | None = None,
     jupedsim: Any = None,
     tensorboard: bool = True,
     fused: bool | None = None,
@@ -60,12 +61,15 @@ def validate(
     greedy reference runs in the checkpoint's room settings when there is one (same bodies, speeds, sensing), else in
     the defaults of :class:`~pedrl.sim.RoomEnv`; JuPedSim starts from the positions the same rooms give. The learned
     and greedy crowds run through the fused trial's kernels where they can (``fused``: None), or the torch loop
-    (False).
+    (False). ``queue_weight`` (None: the checkpoint's, else the room's default) sets how every column's walkers choose
+    their exits (:mod:`pedrl.sim.routing`).
     """
     budget = Budget(quick=quick)
     env_settings = dict(learned[1]) if learned is not None else {}
     if learned is None:
         env_settings["agent_radius"] = radius if radius is not None else DEFAULT_RADIUS
+    if queue_weight is not None:
+        env_settings["queue_weight"] = queue_weight
     crowds: dict[str, Any] = {}
     for name in columns(controller):
         if name == "learned" and learned is not None:
