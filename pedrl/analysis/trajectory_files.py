@@ -53,8 +53,11 @@ def write_pedpy_trajectory(path: str | Path, trajectories: Trajectories, *, firs
 
     Returns:
         The path written.
+
+    Raises:
+        TypeError, ValueError: one line naming the bad argument, before anything is written.
     """
-    path = Path(path)
+    path = _checked_writer_args(path, trajectories, first_id, DEFAULT_EXIT_DEPTH)
     frames, agents = np.nonzero(trajectories.active)  # row-major: sorted by frame, then agent
     xy = trajectories.positions[frames, agents]
     digits = _SIGNIFICANT_DIGITS.get(xy.dtype, 17)
@@ -164,8 +167,12 @@ def write_jupedsim_sqlite(
 
     Returns:
         The path written.
+
+    Raises:
+        TypeError, ValueError: one line naming the bad argument, before anything is written.
+        OSError: the file cannot be written (no partial file is left behind).
     """
-    path = Path(path)
+    path = _checked_writer_args(path, trajectories, first_id, exit_depth)
     frames, agents = np.nonzero(trajectories.active)
     xy = trajectories.positions[frames, agents].astype(np.float64)
     velocity = trajectories.velocities[frames, agents].astype(np.float64)
@@ -181,6 +188,7 @@ def write_jupedsim_sqlite(
     partial = path.with_name(f".{path.name}.partial")
     partial.unlink(missing_ok=True)
     connection = sqlite3.connect(partial)
+    written = False
     try:
         with connection:
             connection.execute(
@@ -203,9 +211,30 @@ def write_jupedsim_sqlite(
             )
             connection.executemany("INSERT INTO trajectory_data VALUES(?, ?, ?, ?, ?, ?)", rows)
             connection.execute("CREATE INDEX frame_id_idx ON trajectory_data(frame, id)")
+        written = True
     finally:
         connection.close()
+        if not written:
+            partial.unlink(missing_ok=True)
     partial.replace(path)
+    return path
+
+
+def _checked_writer_args(path: str | Path, trajectories: Trajectories, first_id: int, exit_depth: float) -> Path:
+    """``path`` as a ``Path`` once a trajectory writer's arguments are checked (one-line errors)."""
+    if not isinstance(trajectories, Trajectories):
+        raise TypeError(f"trajectories is a {type(trajectories).__name__}: must be pedrl.analysis.Trajectories")
+    if isinstance(first_id, bool) or not isinstance(first_id, int | np.integer) or not 0 <= first_id < 2**62:
+        raise ValueError(f"first_id={first_id!r} is invalid: must be an integer in [0, 2**62)")
+    if isinstance(exit_depth, bool) or not isinstance(exit_depth, int | float) or not 0 <= exit_depth <= 1e3:
+        raise ValueError(f"exit_depth={exit_depth!r} is invalid: must be a number of metres in [0, 1000]")
+    if not np.isfinite(trajectories.framerate):
+        raise ValueError(f"trajectories.framerate={trajectories.framerate!r} is invalid: must be finite and > 0")
+    path = Path(path)
+    if not path.parent.is_dir():
+        raise ValueError(f"path={str(path)!r} is invalid: its folder {str(path.parent)!r} does not exist")
+    if path.is_dir():
+        raise ValueError(f"path={str(path)!r} is invalid: it is a folder, not a file")
     return path
 
 

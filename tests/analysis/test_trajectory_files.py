@@ -1,3 +1,4 @@
+import sqlite3
 from pathlib import Path
 
 import numpy as np
@@ -200,3 +201,52 @@ def test_jupedsims_own_reader_opens_the_file_as_its_viewer_does(tmp_path: Path):
     assert recording.geometry().area == pytest.approx(20.0 * 30.0 + (2.0 + 2.0 + 2 * 2.5) / 2 * 2.5)  # with the apron
     first = recording.frame(0)
     assert sorted(agent.id for agent in first.agents) == list(np.nonzero(trial.active[0])[0])
+
+
+@pytest.mark.parametrize(
+    ("target", "kwargs", "message"),
+    [
+        ("trial.sqlite", {"first_id": -1}, "first_id=-1 is invalid"),
+        ("trial.sqlite", {"first_id": 1.5}, "first_id=1.5 is invalid"),
+        ("trial.sqlite", {"exit_depth": float("nan")}, "exit_depth=nan is invalid"),
+        ("missing/trial.sqlite", {}, "does not exist"),
+        (".", {}, "it is a folder"),
+    ],
+)
+def test_the_sqlite_writer_refuses_bad_arguments_in_one_line_before_writing(tmp_path: Path, target, kwargs, message):
+    with pytest.raises(ValueError, match=message) as error:
+        write_jupedsim_sqlite(tmp_path / target, exit_trial(), **kwargs)
+    assert "\n" not in str(error.value)
+    assert sorted(p.name for p in tmp_path.iterdir()) == []  # nothing written, no partial file
+    with pytest.raises(TypeError, match="must be pedrl.analysis.Trajectories"):
+        write_jupedsim_sqlite(tmp_path / "trial.sqlite", {"positions": []})
+
+
+def test_a_failed_sqlite_write_leaves_no_partial_file_and_keeps_the_old_one(tmp_path: Path, monkeypatch):
+    path = write_jupedsim_sqlite(tmp_path / "trial.sqlite", exit_trial())
+    before = path.read_bytes()
+
+    real_connect = sqlite3.connect
+
+    class FullDisk:
+        """A connection whose inserts fail as on a full disk."""
+
+        def __init__(self, target):
+            self.connection = real_connect(target)
+
+        def __getattr__(self, name):
+            return getattr(self.connection, name)
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            return self.connection.__exit__(*exc)
+
+        def executemany(self, *args):
+            raise sqlite3.OperationalError("database or disk is full")
+
+    monkeypatch.setattr(sqlite3, "connect", FullDisk)
+    with pytest.raises(sqlite3.OperationalError, match="disk is full"):
+        write_jupedsim_sqlite(path, exit_trial())
+    assert path.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == ["trial.sqlite"]
