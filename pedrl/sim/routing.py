@@ -65,6 +65,12 @@ def sight(
     """Whether each point ``(R, N, 2)`` sees each target ``(T, 2)``: ``(R, N, T)`` bool, true when the segment
     between them crosses none of the ``walls`` ``(S, 2, 2)`` and, with ``corners`` ``(C, 2)``, passes none of them
     closer than :data:`CORNER_CLEARANCE` (corners that close to the point itself do not count)."""
+    clear = ~_crossing(points, targets, walls)
+    return clear if corners is None else clear & ~_grazing(points, targets, corners)
+
+
+def _crossing(points: torch.Tensor, targets: torch.Tensor, walls: torch.Tensor) -> torch.Tensor:
+    """Whether the segment from each point ``(R, N, 2)`` to each target ``(T, 2)`` crosses a wall: ``(R, N, T)``."""
     start = points[:, :, None, None, :]  # (R, N, 1, 1, 2)
     span = targets[None, None, :, None, :] - start  # (R, N, T, 1, 2)
     wall_start, wall_span = walls[:, 0], walls[:, 1] - walls[:, 0]  # (S, 2)
@@ -72,16 +78,20 @@ def sight(
     denominator = _cross(span, wall_span)
     along = _cross(offset, wall_span) / denominator  # where on the segment it meets the wall's line
     across = _cross(offset, span) / denominator  # where on the wall
-    blocked = ((along >= 0) & (along <= 1) & (across >= 0) & (across <= 1)).any(-1)  # parallel: nan, not blocked
-    if corners is None or corners.shape[0] == 0:
-        return ~blocked
+    return ((along >= 0) & (along <= 1) & (across >= 0) & (across <= 1)).any(-1)  # parallel: nan, no crossing
+
+
+def _grazing(points: torch.Tensor, targets: torch.Tensor, corners: torch.Tensor) -> torch.Tensor:
+    """Whether the segment from each point to each target passes a corner ``(C, 2)`` closer than
+    :data:`CORNER_CLEARANCE`, bar the corners that close to the point itself: ``(R, N, T)``."""
+    start = points[:, :, None, None, :]
+    span = targets[None, None, :, None, :] - start  # (R, N, T, 1, 2)
     to_corner = corners - start  # (R, N, 1, C, 2)
-    length_sq = (span * span).sum(-1).clamp_min(1e-12)
-    t = ((to_corner * span).sum(-1) / length_sq).clamp(0.0, 1.0)
+    t = ((to_corner * span).sum(-1) / (span * span).sum(-1).clamp_min(1e-12)).clamp(0.0, 1.0)
     gap = to_corner - t.unsqueeze(-1) * span
     near = (gap * gap).sum(-1) < CORNER_CLEARANCE**2
     own = (to_corner * to_corner).sum(-1) < CORNER_CLEARANCE**2
-    return ~(blocked | (near & ~own).any(-1))
+    return (near & ~own).any(-1)
 
 
 def route_lengths(
@@ -90,26 +100,23 @@ def route_lengths(
     """Each walker's route length to each exit ``(R, N, E)`` (m) and the first node of that route ``(R, N, E)``
     int64 (-1: straight to the exit's goal point), for walkers at ``positions`` ``(R, N, 2)``, exits' goal points
     ``goals`` ``(E, 2)`` and the room's real ``walls``. Without a table: the straight lines."""
-    offsets = goals - positions.unsqueeze(-2)  # (R, N, E, 2)
-    straight = torch.linalg.vector_norm(offsets, dim=-1)
-    first = torch.full_like(straight, -1, dtype=torch.int64)
+    straight = torch.linalg.vector_norm(goals - positions.unsqueeze(-2), dim=-1)  # (R, N, E)
     if table is None:
-        return straight, first
+        return straight, torch.full_like(straight, -1, dtype=torch.int64)
     inf = torch.tensor(torch.inf, device=positions.device)
-    node_gap = torch.linalg.vector_norm(table.nodes - positions.unsqueeze(-2), dim=-1)  # (R, N, M)
-    via = node_gap.unsqueeze(-1) + table.costs  # (R, N, M, E)
-    lengths, first = None, None
-    for corners in (table.corners, None):  # clear of the corners, else any sight at all
-        sees_goal = sight(positions, goals, walls, corners)  # (R, N, E)
-        sees_node = sight(positions, table.nodes, walls, corners)  # (R, N, M)
-        best, node = torch.where(sees_node.unsqueeze(-1), via, inf).min(-2)  # (R, N, E)
-        length = torch.where(sees_goal, straight, best)
-        choice = torch.where(sees_goal, -1, node)
-        if lengths is None:
-            lengths, first = length, choice
-        else:
-            keep = torch.isfinite(lengths).any(-1, keepdim=True)  # (R, N, 1): some exit seen clear of corners
-            lengths, first = torch.where(keep, lengths, length), torch.where(keep, first, choice)
+    via = torch.linalg.vector_norm(table.nodes - positions.unsqueeze(-2), dim=-1).unsqueeze(-1) + table.costs
+    targets = torch.cat((goals, table.nodes))  # the exits' goal points, then the nodes
+    open_ = ~_crossing(positions, targets, walls)  # (R, N, E + M)
+    exits = goals.shape[0]
+
+    def through(sees: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        best, node = torch.where(sees[..., exits:].unsqueeze(-1), via, inf).min(-2)  # (R, N, E)
+        return torch.where(sees[..., :exits], straight, best), torch.where(sees[..., :exits], -1, node)
+
+    lengths, first = through(open_ & ~_grazing(positions, targets, table.corners))  # clear of the corners
+    plain_lengths, plain_first = through(open_)  # any sight at all
+    keep = torch.isfinite(lengths).any(-1, keepdim=True)  # (R, N, 1): some exit reached clear of the corners
+    lengths, first = torch.where(keep, lengths, plain_lengths), torch.where(keep, first, plain_first)
     unseen = ~torch.isfinite(lengths).any(-1, keepdim=True)  # no route at all (rounding at a wall): straight lines
     return torch.where(unseen, straight, lengths), torch.where(unseen, -1, first)
 
