@@ -25,6 +25,7 @@ LITERAL_LOOPS = {
     "pedrl/sim/step_kernel.py": "*",
     "pedrl/sim/sensing_kernel.py": "*",
     "pedrl/vq/encode_kernel.py": "*",
+    "pedrl/vq/pruned_kernel.py": "*",
     "pedrl/sim/motion/sliding.py": {"move_agents_sliding_torch"},
     "pedrl/sim/motion/sequential.py": {"move_agents_sequential_torch"},
 }

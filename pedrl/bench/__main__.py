@@ -1,7 +1,8 @@
 """``python -m pedrl.bench`` (``make bench``): speed figures written to ``outputs/bench/bench.json``.
 
 Sections:
-    sim       random-action stepping: env steps/s and agent-steps/s for (R, N) = (20, 20), (1000, 20), (20, 100)
+    sim       random-action stepping: env steps/s and agent-steps/s for (R, N) = (20, 20), (1000, 20), (20, 100);
+              and a reset of 8 x 40 walkers in the partition room with and without its routes
     kmeans    Lloyd iteration time on 200k x 28 with K = 4096 against scikit-learn and faiss (same data and init),
               and encode throughput
     e2e       end-to-end training decisions/s at R = 20, A = 20, K = 4096 through the real trainer loop
@@ -10,6 +11,8 @@ Sections:
               second busy torch process (--contention) and beside the code of another commit (--baseline)
     eval      pedrl-eval's recording of a batch (the greedy walker, 80 rooms of 100 and of 20 agents) through the fused
               trial's kernels against the torch loop, in agent-decisions/s and their ratio (target 3x at 100 agents)
+    literal   the literal presets' nearest-prototype search at one thread, K = 4096: us/state of the scan against the
+              batched search of pedrl.vq.pruned (the same ids), and the search's work per state
 """
 
 from __future__ import annotations
@@ -22,7 +25,7 @@ from pathlib import Path
 
 import torch
 
-SECTIONS = ("sim", "kmeans", "e2e", "eval")
+SECTIONS = ("sim", "kmeans", "e2e", "eval", "literal")
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -85,6 +88,11 @@ def main(argv: list[str] | None = None) -> dict:
 
         print("evaluation ...", flush=True)
         report.update(run_eval(quick=args.quick, device=args.device))
+    if "literal" in sections:
+        from pedrl.bench.literal import run as run_literal
+
+        print("literal encoding ...", flush=True)
+        report.update(run_literal(quick=args.quick))
     output = Path(args.output)
     output.parent.mkdir(parents=True, exist_ok=True)
     previous = json.loads(output.read_text()) if output.exists() else {}

@@ -24,8 +24,7 @@ from pedrl.sim.greedy_kernel import greedy_action
 from pedrl.sim.sensing_kernel import sense_room
 from pedrl.sim.step_kernel import act_room, act_scratch
 from pedrl.sim.streams import next_uniform
-from pedrl.vq.encode_kernel import draw_void, encode_room
-from pedrl.vq.tree import _STACK, LEAF_SIZE
+from pedrl.vq.encode_kernel import draw_void, encode_buffers, encode_room
 
 __all__ = ["fused_trial"]
 
@@ -60,8 +59,7 @@ def _run_process(
     batch = slice(first * num_agents, (first + rooms) * num_agents)  # the process's rooms, flat
     size = max(num_agents, walls[0].shape[0])
     distances, indices = np.empty((2, size), np.float32), np.empty((2, size), np.int64)
-    buffers = (np.empty(num_features, np.float32), np.empty(num_features, np.float32),
-               np.empty(_STACK, np.int64), np.empty(LEAF_SIZE, np.float32))  # fmt: skip
+    buffers = encode_buffers(num_agents, num_features)
     scratch = act_scratch(num_agents)
     errors = np.empty(rooms * num_agents, np.float32)
     slots = 1

@@ -30,7 +30,6 @@ from pedrl.rl.qlearning import td_update_torch
 from pedrl.sim import RoomEnv
 from pedrl.sim.sensing import void_draws
 from pedrl.trial import fused
-from pedrl.vq.tree import _STACK, LEAF_SIZE
 
 __all__ = ["TOLERANCES", "Tolerances", "TwinReport", "check_twins"]
 
@@ -230,7 +229,7 @@ def _compare_features(report, env: RoomEnv, features, expected, present, angles,
 def _encode(report, policy, obs, info, present, generator, process, encoder, void):
     """The torch path's rows of ``obs`` and the kernel's from the same features and void fillings, compared for the
     ``present`` agents; returns the torch rows and the void fillings (kept for a trial under ``void_draws=trial``)."""
-    from pedrl.vq.encode_kernel import encode_room
+    from pedrl.vq.encode_kernel import encode_buffers, encode_room
 
     rooms, agents = present.shape
     settings = policy.encoder.settings
@@ -242,8 +241,7 @@ def _encode(report, policy, obs, info, present, generator, process, encoder, voi
     base = policy.layout.of(rooms, agents, obs.device)[1].view(rooms, agents).numpy()
     mine = np.zeros((rooms, agents), np.int64)
     features, num_sensed = obs.contiguous().numpy(), info["num_sensed"].contiguous().numpy()
-    buffers = (np.empty(obs.shape[-1], np.float32), np.empty(obs.shape[-1], np.float32),
-               np.empty(_STACK, np.int64), np.empty(LEAF_SIZE, np.float32))  # fmt: skip
+    buffers = encode_buffers(agents, obs.shape[-1])
     for r in range(rooms):
         encode_room(r, process[r], present.numpy(), base, mine, features, num_sensed, fills,
                     fused._encoding(settings), *encoder, buffers)  # fmt: skip
