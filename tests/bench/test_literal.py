@@ -7,6 +7,7 @@ from pedrl._numba import numba_available
 from pedrl.bench.__main__ import main
 
 
+@pytest.mark.slow  # about 33 s on a cold numba cache; tests/vq/test_pruned.py checks the same ids in make test
 @pytest.mark.skipif(not numba_available(), reason="numba is off (PEDRL_NO_NUMBA)")
 def test_quick_literal_times_both_searches_and_finds_the_same_ids(tmp_path):
     report = main(["--quick", "--only", "literal", "--output", str(tmp_path / "bench.json")])
