@@ -131,7 +131,8 @@ def choose_exits(
 ) -> torch.Tensor:
     """Each walker's exit ``(R, N)`` int64: its ``assigned`` one ``(R, N)`` where that is >= 0, else the one of
     least estimated time (module docstring) from the route ``lengths`` ``(R, N, E)`` (m) and the exits' ``widths``
-    ``(E,)`` (m); ties to the lower exit index."""
+    ``(E,)`` (m); ties to the lower exit index. Weighing the queue holds an ``(R, N, N, E)`` table of who is ahead
+    of whom: 16 MB for RiMEA 9's 1000 walkers and 4 exits in one room."""
     times = lengths / max_speed
     fixed = assigned >= 0
     choice = torch.where(fixed, assigned, times.argmin(-1))
