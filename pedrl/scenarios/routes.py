@@ -54,8 +54,8 @@ def with_routes(scenario: Scenario) -> Scenario:
     if not routed or _convex(scenario.walkable):
         return scenario
     for clearance in CLEARANCES:
-        graph, free = route_graph(scenario, clearance)
-        stuck = [index for index in routed if not _reaches(scenario, graph, free, index, clearance)]
+        graph, free, area = route_graph(scenario, clearance)
+        stuck = [index for index in routed if not _reaches(scenario, graph, free, area, index)]
         if not stuck:
             return replace(scenario, routes=graph, waypoint_radius=min(scenario.waypoint_radius, WAYPOINT_RADIUS))
     spawn = scenario.spawns[stuck[0]]
@@ -66,10 +66,13 @@ def with_routes(scenario: Scenario) -> Scenario:
     )
 
 
-def route_graph(scenario: Scenario, clearance: float) -> tuple[RouteGraph, Polygon]:
-    """The visibility graph of ``scenario``'s walkable area shrunk by ``clearance`` (returned too): its corners'
-    shortest routes to each exit (networkx's Dijkstra from the point ``clearance`` inside each exit's middle)."""
+def route_graph(scenario: Scenario, clearance: float) -> tuple[RouteGraph, Polygon, Polygon]:
+    """The visibility graph of ``scenario``'s walkable area shrunk by ``clearance``: its corners' shortest routes to
+    each exit (networkx's Dijkstra from the point ``clearance`` inside each exit's middle); with the shrunk area and
+    that area grown by :data:`SNAP` and prepared, which every sight test reads."""
     free = scenario.walkable.buffer(-clearance, join_style="mitre")
+    area = free.buffer(SNAP)  # once: every sight test reads it
+    shapely.prepare(area)
     corners = sorted(
         {
             (x, y)
@@ -80,7 +83,7 @@ def route_graph(scenario: Scenario, clearance: float) -> tuple[RouteGraph, Polyg
     )
     ends = [_goal(scenario, index, clearance) for index in range(len(scenario.exits))]
     nodes = [*corners, *((end.x, end.y) for end in ends)]
-    graph = _visibility_graph(free, nodes)
+    graph = _visibility_graph(area, nodes)
     costs = [[math.inf] * len(ends) for _ in corners]
     next_node = [[-1] * len(ends) for _ in corners]
     for exit_index in range(len(ends)):
@@ -96,13 +99,13 @@ def route_graph(scenario: Scenario, clearance: float) -> tuple[RouteGraph, Polyg
             tuple(corners), tuple(map(tuple, costs)), tuple(map(tuple, next_node)), tuple(nodes[len(corners) :])
         ),
         free,
+        area,
     )
 
 
-def _visibility_graph(free: Polygon, nodes: list[tuple[float, float]]) -> nx.Graph:
-    """``nodes`` joined where the segment between them lies in ``free``, weighted by its length."""
-    area = free.buffer(SNAP)  # once: every sight test of the graph reads it
-    shapely.prepare(area)
+def _visibility_graph(area: Polygon, nodes: list[tuple[float, float]]) -> nx.Graph:
+    """``nodes`` joined where the segment between them lies in ``area`` (grown and prepared), weighted by its
+    length."""
     graph = nx.Graph()
     graph.add_nodes_from(range(len(nodes)))
     for a in range(len(nodes)):
@@ -112,11 +115,10 @@ def _visibility_graph(free: Polygon, nodes: list[tuple[float, float]]) -> nx.Gra
     return graph
 
 
-def _reaches(scenario: Scenario, graph: RouteGraph, free: Polygon, index: int, clearance: float) -> bool:
-    """Whether spawn area ``index`` (from a point inside it) sees an exit it may take, or a node with a route to one."""
+def _reaches(scenario: Scenario, graph: RouteGraph, free: Polygon, area: Polygon, index: int) -> bool:
+    """Whether spawn area ``index`` (from a point inside it) sees an exit it may take, or a node with a route to one;
+    ``free`` and ``area`` as :func:`route_graph` returns them."""
     spawn = scenario.spawns[index]
-    area = free.buffer(SNAP)
-    shapely.prepare(area)
     start = _inside(free, spawn.area.representative_point() if spawn.area.area else spawn.area.centroid)
     exits = range(len(scenario.exits)) if spawn.exit < 0 else (spawn.exit,)
     if any(_sees(area, start, Point(graph.ends[e])) for e in exits):
