@@ -180,6 +180,17 @@ def test_paper_experiments_state_their_budget(name, trials, compose, tmp_path):
     assert sum(p.trials for p in phases) == trials
 
 
+def test_paper_in_full_stages_follow_figure_6s_caption(compose, tmp_path):
+    """Figure 6: the curves of 1 to 8 agents end below 1.5 x 10^5 trials, those of 10 and 20 agents beyond
+    1.2 x 10^5; the trials grow with the learning agents (section 5.2)."""
+    phases = build_trainer(compose("train", ["experiment=paper_in_full"]), tmp_path).phases()
+    budgets = {p.num_agents: p.trials for p in phases}
+    assert list(budgets) == [1, 2, 3, 4, 5, 6, 7, 8, 10, 20]
+    assert all(budgets[m] < 150_000 for m in range(1, 9))
+    assert budgets[10] > 120_000 and budgets[20] > 120_000
+    assert list(budgets.values()) == sorted(budgets.values())
+
+
 @pytest.mark.parametrize("name", ["tuned_it", "tuned_in"])
 def test_tuned_experiments_keep_the_papers_room_and_table_3(name, compose):
     cfg = compose("train", [f"experiment={name}"])
