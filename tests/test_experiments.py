@@ -24,8 +24,15 @@ NAMES = {"pedrl.algos.VQQL": "vqql", "pedrl.algos.ITVQQL": "it_vqql", "pedrl.alg
 K_VALUES = [512, 1024, 2048, 4096, 8192, 16384]
 REWARDS = {"paper_vqql": "paper", "paper_it": "paper", "paper_in": "paper", "main": "crowd", "tuned_it": "tuned"}
 REWARDS |= {"main_heading": "tuned"}
-REWARDS |= {"tuned_in": "tuned", "pedestrian": "tuned", "pedestrian_mix": "tuned"}
+REWARDS |= {"tuned_in": "tuned", "pedestrian": "tuned", "pedestrian_mix": "tuned", "pedestrian_walk": "tuned"}
 REWARDS |= {"paper_it_full": "paper", "paper_in_full": "paper"}
+# the paper_faithful presets and the literal ones they build on
+FAITHFUL = {
+    "paper_faithful_vqql": "paper_vqql",
+    "paper_faithful_it": "paper_it_full",
+    "paper_faithful_in": "paper_in_full",
+}
+REWARDS |= dict.fromkeys(FAITHFUL, "paper")
 RESULTS = Path(CONFIG_DIR).parent / "docs" / "results.md"
 FORMER_COMMENTS = "## Measured figures formerly in the config comments"
 
@@ -90,10 +97,12 @@ def test_experiments_take_their_rewards_from_the_rewards_group(name, compose):
     body, choices = experiment_file(name)
     assert not [key for key in body.get("env", {}) if key.startswith("reward_")], "rewards come from conf/rewards/"
     expected = REWARDS.get(name)
-    bases = [c.removeprefix("experiment=") for c in choices if c.startswith("experiment=")]
-    inherited = [c for base in bases for c in experiment_file(base)[1] if c.startswith("rewards=")]
-    own = [c for c in choices if c.startswith("rewards=")]
-    assert own + inherited == ([f"rewards={expected}"] if expected else [])
+    rewards, pending = [], list(choices)
+    while pending:  # the file's own choices, then those of the experiments it builds on, and theirs
+        choice = pending.pop(0)
+        rewards += [choice] if choice.startswith("rewards=") else []
+        pending += experiment_file(choice.removeprefix("experiment="))[1] if choice.startswith("experiment=") else []
+    assert rewards == ([f"rewards={expected}"] if expected else [])
     env = compose("train", [f"experiment={name}"]).env
     rewards = OmegaConf.load(Path(CONFIG_DIR) / "rewards" / f"{expected or 'default'}.yaml")
     assert {key: env[key] for key in rewards} == OmegaConf.to_container(rewards)
@@ -189,6 +198,25 @@ def test_paper_in_full_stages_follow_figure_6s_caption(compose, tmp_path):
     assert all(budgets[m] < 150_000 for m in range(1, 9))
     assert budgets[10] > 120_000 and budgets[20] > 120_000
     assert list(budgets.values()) == sorted(budgets.values())
+
+
+@pytest.mark.parametrize("name", sorted(FAITHFUL))
+def test_paper_faithful_presets_keep_every_stated_choice(name, compose, tmp_path):
+    """A paper_faithful preset differs from its literal preset only in what the paper leaves open (the room's unit,
+    the door's width) and, for VQQL, in the budget of the paper's reference curve; its budget is the paper's."""
+
+    def flat(experiment):
+        return dict(leaves(OmegaConf.to_container(compose("train", [f"experiment={experiment}"]), resolve=True)))
+
+    faithful, literal = flat(name), flat(FAITHFUL[name])
+    open_choices = {"env.width": 30.0, "env.length": 50.0, "env.door_width": 4.0}
+    budget = {"algo.trials", "algo.iterations", "checkpoint_every"} if name == "paper_faithful_vqql" else set()
+    differ = {key for key in faithful.keys() | literal.keys() if faithful.get(key) != literal.get(key)}
+    assert differ == set(open_choices) | budget
+    assert {key: faithful[key] for key in open_choices} == open_choices
+    phases = build_trainer(compose("train", [f"experiment={name}"]), tmp_path).phases()
+    papers = {"paper_faithful_vqql": 109_686, "paper_faithful_it": 109_686, "paper_faithful_in": 990_000}
+    assert sum(p.trials for p in phases) == papers[name]
 
 
 @pytest.mark.parametrize("name", ["tuned_it", "tuned_in"])
