@@ -5,14 +5,19 @@ The states are those of a random walk in the paper's room (rooms of 20 agents), 
 do (raw distances, every weight 1) by a quantizer of ``K`` prototypes fitted on their first half; the second half is
 searched decision by decision, as the fused trial does: the scan state by state (:func:`pedrl.vq.tree.scan_point`,
 the path of the literal presets before the batched search), the batched search room by room, each agent from its
-previous decision's prototype.
+previous decision's prototype. Beside them, the matrix product that a BLAS library offers for the same search
+(``|q|^2 - 2 x . q`` by ``torch.addmm``, then ``argmin``), per room (20 states, as each process of a literal run
+has its own quantizer) and per decision (every room at once): its time, and how often float32 rounding of that
+expanded form gives another id than the scan (an exact search built on it must recheck those near-ties).
 
 Metrics (keys of the returned dict, best of ``repeats``):
     - ``literal_config``: rooms, agents, decisions, ``K``, states searched;
-    - ``literal_us_per_state``: ``{"scan", "pruned"}`` microseconds per state, and ``literal_speedup`` (scan / pruned);
+    - ``literal_us_per_state``: ``{"scan", "pruned", "matmul_room", "matmul_decision"}`` microseconds per state,
+      and ``literal_speedup`` (scan / pruned);
     - ``literal_work``: per state, the leaf pairs met (all), the leaves of the second and third passes (what the
       bounds left) and the exact distances taken;
-    - ``literal_same_ids``: whether the two gave the same ids (they must).
+    - ``literal_same_ids``: whether the scan and the batched search gave the same ids (they must);
+    - ``literal_matmul_other_ids``: the fraction of states whose matrix-product id differs from the scan's.
 
 Run: ``python -m pedrl.bench.literal [--quick]`` or ``python -m pedrl.bench --only literal``.
 """
@@ -107,8 +112,10 @@ def run(*, quick: bool = False, repeats: int = 3) -> dict:
         tic = time.perf_counter()
         _search_all(points, mask, pruned.kernel_arrays(), scratch, counts, new)
         best["pruned"] = min(best["pruned"], time.perf_counter() - tic)
+    product, other = _matmul(quantizer, raw[half:], repeats)
     states = int(mask.sum())
     per_state = {name: seconds / states * 1e6 for name, seconds in best.items()}
+    per_state |= product
     work = counts / states
     return {
         "literal_config": {
@@ -127,7 +134,35 @@ def run(*, quick: bool = False, repeats: int = 3) -> dict:
             "exact_distances": work[3],
         },  # fmt: skip
         "literal_same_ids": bool(np.array_equal(old[mask], new[mask])),
+        "literal_matmul_other_ids": float(np.mean(other.numpy()[mask] != old[mask])),
     }
+
+
+def _matmul(quantizer: Quantizer, raw: torch.Tensor, repeats: int) -> tuple[dict[str, float], torch.Tensor]:
+    """Microseconds per state of ``argmin(|q|^2 - 2 x . q)`` by room and by decision (every state of the batch
+    counted, present or not), and its ids ``(decisions, rooms, agents)``."""
+    points = quantizer.standardise(raw).to(torch.float32).contiguous()
+    prototypes = quantizer.prototypes.to(torch.float32)
+    norms, columns = (prototypes * prototypes).sum(1), prototypes.t().contiguous()
+    decisions, rooms = points.shape[:2]
+    ids = torch.empty(points.shape[:3], dtype=torch.int64)
+    timing, threads = {}, torch.get_num_threads()
+    torch.set_num_threads(1)  # as the numba kernels
+    for name, batches in (
+        ("matmul_room", points.reshape(decisions * rooms, AGENTS, -1)),
+        ("matmul_decision", points.reshape(decisions, rooms * AGENTS, -1)),
+    ):
+        out = torch.empty(batches.shape[1], norms.shape[0])
+        best = math.inf
+        for _ in range(repeats + 1):
+            tic = time.perf_counter()
+            for index, batch in enumerate(batches):
+                torch.addmm(norms, batch, columns, beta=1, alpha=-2, out=out)
+                ids.view(len(batches), -1)[index] = out.argmin(1)
+            best = min(best, time.perf_counter() - tic)
+        timing[name] = best / ids.numel() * 1e6
+    torch.set_num_threads(threads)
+    return timing, ids
 
 
 def main() -> None:
