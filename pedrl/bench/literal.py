@@ -152,13 +152,13 @@ def _matmul(quantizer: Quantizer, raw: torch.Tensor, repeats: int) -> tuple[dict
         ("matmul_room", points.reshape(decisions * rooms, AGENTS, -1)),
         ("matmul_decision", points.reshape(decisions, rooms * AGENTS, -1)),
     ):
-        out = torch.empty(batches.shape[1], norms.shape[0])
+        out, found = torch.empty(batches.shape[1], norms.shape[0]), ids.view(len(batches), -1)
         best = math.inf
         for _ in range(repeats + 1):
             tic = time.perf_counter()
             for index, batch in enumerate(batches):
                 torch.addmm(norms, batch, columns, beta=1, alpha=-2, out=out)
-                ids.view(len(batches), -1)[index] = out.argmin(1)
+                found[index] = out.argmin(1)
             best = min(best, time.perf_counter() - tic)
         timing[name] = best / ids.numel() * 1e6
     torch.set_num_threads(threads)
