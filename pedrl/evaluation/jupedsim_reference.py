@@ -23,7 +23,14 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from pedrl.evaluation.batch import BatchRecord
-from pedrl.integrations.jupedsim import JuPedSimModel, JuPedSimRun, pad_frames, simulate_room, walkable_with_aprons
+from pedrl.integrations.jupedsim import (
+    JuPedSimModel,
+    JuPedSimRun,
+    check_model,
+    pad_frames,
+    simulate_room,
+    walkable_with_aprons,
+)
 from pedrl.scenarios import Scenario
 from pedrl.sim import RoomEnv
 
@@ -41,9 +48,10 @@ class JuPedSimReference:
     model: JuPedSimModel
 
     def check(self, env: RoomEnv) -> None:
-        """One-line ``ValueError`` if a decision of ``env`` is not a whole number of JuPedSim steps, or the scenario
-        has no room for JuPedSim's exit aprons."""
+        """One-line ``ValueError`` if a decision of ``env`` is not a whole number of JuPedSim steps, the scenario
+        has no room for JuPedSim's exit aprons, or JuPedSim refuses the model's parameters at the room's body radius."""
         walkable_with_aprons(self.scenario)
+        check_model(replace(self.model, radius=env.agent_radius))
         steps = env.decision_length / self.model.dt
         if abs(steps - round(steps)) > 1e-6 * steps or round(steps) < 1:
             raise ValueError(

@@ -27,8 +27,10 @@ How the scenario maps onto JuPedSim:
   count as reached within the scenario's ``waypoint_radius``, joined by fixed transitions into one journey per
   distinct route. JuPedSim finds the way to each stage through the area itself (its routing engine). Unlike our
   simulation, where an agent leaves through any exit it passes, a JuPedSim agent leaves through its own exit only.
-- Models: the collision-free speed model (Tordeux, Chraibi, Seyfried 2016) or the social force model (Helbing,
-  Farkas, Vicsek 2000), with JuPedSim's own defaults except the values of :class:`JuPedSimModel`.
+- Models: any of JuPedSim's operational models (:data:`MODELS`: the collision-free speed model of Tordeux, Chraibi
+  and Seyfried 2016 and its V2 and V3, the anticipation velocity model, the generalized centrifugal force model, the
+  social force model of Helbing, Farkas and Vicsek 2000, WarpDriver), with JuPedSim's own defaults except the values
+  of :class:`JuPedSimModel`; :func:`check_model` has JuPedSim itself check them before a run.
 
 JuPedSim is optional (``pip install 'pedrl[jupedsim]'``): it is imported when :func:`simulate` runs, so importing
 this module needs only shapely and numpy.
@@ -66,6 +68,7 @@ __all__ = [
     "JuPedSimModel",
     "JuPedSimRun",
     "Scene",
+    "check_model",
     "installed",
     "model_from_settings",
     "pad_frames",
@@ -257,7 +260,7 @@ def _jupedsim_scene(
 ) -> tuple[Any, dict[int, tuple[int, _Journey]]]:
     """The JuPedSim simulation of the area, its exit stages, one journey per distinct route, and the agents; and
     each agent's JuPedSim id -> (agent index, its journey)."""
-    operational = jps.CollisionFreeSpeedModel() if model.model == "collision_free_speed" else jps.SocialForceModel()
+    operational = _operational_model(jps, model)
     try:
         simulation = jps.Simulation(model=operational, geometry=start.area, dt=model.dt)
         exit_stages = [simulation.add_exit_stage(apron) for apron in start.aprons]
@@ -443,17 +446,62 @@ def _import_jupedsim() -> Any:
     return jupedsim
 
 
+def _operational_model(jps: Any, model: JuPedSimModel) -> Any:
+    """JuPedSim's model object of ``model.model``, at its defaults (the anticipation model's random seed fixed)."""
+    builders = {
+        "collision_free_speed": jps.CollisionFreeSpeedModel,
+        "collision_free_speed_v2": jps.CollisionFreeSpeedModelV2,
+        "collision_free_speed_v3": jps.CollisionFreeSpeedModelV3,
+        "anticipation_velocity": lambda: jps.AnticipationVelocityModel(rng_seed=0),
+        "generalized_centrifugal_force": jps.GeneralizedCentrifugalForceModel,
+        "social_force": jps.SocialForceModel,
+        "warp_driver": jps.WarpDriverModel,
+    }
+    return builders[model.model]()
+
+
 def _agent_parameters(jps: Any, model: JuPedSimModel, position: np.ndarray, journey: int, stage: int) -> Any:
     common = {
         "position": (float(position[0]), float(position[1])),
         "desired_speed": model.desired_speed,
-        "radius": model.radius,
         "journey_id": journey,
         "stage_id": stage,
     }
-    if model.model == "collision_free_speed":
-        return jps.CollisionFreeSpeedModelAgentParameters(time_gap=model.time_gap, **common)
-    return jps.SocialForceModelAgentParameters(**common)
+    body = {"radius": model.radius}
+    timed = {"time_gap": model.time_gap, **body}
+    classes = {
+        "collision_free_speed": (jps.CollisionFreeSpeedModelAgentParameters, timed),
+        "collision_free_speed_v2": (jps.CollisionFreeSpeedModelV2AgentParameters, timed),
+        "collision_free_speed_v3": (jps.CollisionFreeSpeedModelV3AgentParameters, timed),
+        "anticipation_velocity": (jps.AnticipationVelocityModelAgentParameters, timed),
+        "generalized_centrifugal_force": (
+            jps.GeneralizedCentrifugalForceModelAgentParameters,
+            {"a_min": model.radius, "b_min": model.radius, "b_max": 2.0 * model.radius},
+        ),
+        "social_force": (jps.SocialForceModelAgentParameters, body),
+        "warp_driver": (jps.WarpDriverModelAgentParameters, {"orientation": (1.0, 0.0), **body}),
+    }
+    parameters, specific = classes[model.model]
+    return parameters(**common, **specific)
+
+
+def check_model(model: JuPedSimModel) -> None:
+    """Have JuPedSim check ``model``'s parameters (its own ``CheckModelConstraint``) on one agent in a 10 m square,
+    before any run: one-line ``ValueError`` naming the model when JuPedSim refuses them.
+
+    Raises:
+        ModuleNotFoundError: jupedsim is not installed.
+        ValueError: one line, JuPedSim's reason.
+    """
+    jps = _import_jupedsim()
+    square = Polygon([(0.0, 0.0), (10.0, 0.0), (10.0, 10.0), (0.0, 10.0)])
+    try:
+        simulation = jps.Simulation(model=_operational_model(jps, model), geometry=square, dt=model.dt)
+        exit_stage = simulation.add_exit_stage(Polygon([(9.0, 4.0), (10.0, 4.0), (10.0, 6.0), (9.0, 6.0)]))
+        journey = simulation.add_journey(jps.JourneyDescription([exit_stage]))
+        simulation.add_agent(_agent_parameters(jps, model, np.array([5.0, 5.0]), journey, exit_stage))
+    except RuntimeError as err:
+        raise ValueError(f"jupedsim.model={model.model} refuses its parameters: {first_line(err)}") from None
 
 
 def _points(name: str, value: Any, *, empty: bool = False) -> np.ndarray:

@@ -16,8 +16,27 @@ from numpy.typing import NDArray
 from pedrl.sim import RoomEnv
 from pedrl.sim.checks import check_choice, check_number, check_real
 
-MODELS: Final = ("collision_free_speed", "social_force")
-"""Operational models :func:`simulate` runs (JuPedSim's ``CollisionFreeSpeedModel`` and ``SocialForceModel``)."""
+MODELS: Final = (
+    "collision_free_speed",
+    "collision_free_speed_v2",
+    "collision_free_speed_v3",
+    "anticipation_velocity",
+    "generalized_centrifugal_force",
+    "social_force",
+    "warp_driver",
+)
+"""Operational models :func:`simulate` runs: JuPedSim's ``CollisionFreeSpeedModel`` (Tordeux, Chraibi & Seyfried 2016),
+its variants ``CollisionFreeSpeedModelV2`` (repulsion parameters per agent) and ``CollisionFreeSpeedModelV3``
+(anisotropic, direction-dependent ranges), ``AnticipationVelocityModel`` (Xu, Chraibi & Seyfried 2021, built to form
+lanes), ``GeneralizedCentrifugalForceModel`` (Chraibi, Seyfried & Schadschneider 2010), ``SocialForceModel``
+(Helbing, Farkas & Vicsek 2000) and ``WarpDriverModel`` (Wolinski et al. 2016)."""
+TIME_GAP_MODELS: Final = (
+    "collision_free_speed",
+    "collision_free_speed_v2",
+    "collision_free_speed_v3",
+    "anticipation_velocity",
+)
+"""The models that read the time gap ``T``; the others ignore it."""
 
 
 # ---------------------------------------------------------------------- the model
@@ -30,17 +49,20 @@ in [0.1, 10] s, the radius in (0, 2] m), checked with the config instead of fail
 class JuPedSimModel:
     """The JuPedSim model and the parameters pedrl sets; every other parameter keeps JuPedSim's default.
 
-    The defaults are JuPedSim 1.4's (``CollisionFreeSpeedModelAgentParameters``, ``Simulation``); its model-level
-    parameters stay at their defaults too (collision-free speed: neighbour repulsion strength 8, range 0.1 m, wall
-    repulsion strength 5, range 0.02 m; social force: body force 120000 kg/s^2, friction 240000 kg/(m s), mass
-    80 kg, reaction time 0.5 s, A = 2000 N, B = 0.08 m).
+    The defaults are JuPedSim 1.4's (``CollisionFreeSpeedModelAgentParameters``, ``Simulation``); every other
+    parameter of the models and their agents stays at JuPedSim's default (collision-free speed: neighbour repulsion
+    strength 8, range 0.1 m, wall repulsion strength 5, range 0.02 m; anticipation velocity: anticipation time 1 s,
+    reaction time 0.3 s, wall buffer 0.1 m, push-out strength 0.3, its random seed fixed at 0 so that a run repeats;
+    generalized centrifugal force: mass 1, tau 0.5 s, its ellipse's semi-axes a_min = b_min = ``radius`` and
+    b_max = 2 ``radius`` (its defaults at 0.2 m); social force: body force 120000 kg/s^2, friction 240000 kg/(m s),
+    mass 80 kg, reaction time 0.5 s, A = 2000 N, B = 0.08 m; warp driver: time horizon 2 s, step 0.5 s).
 
     Attributes:
-        model: ``collision_free_speed`` or ``social_force`` (:data:`MODELS`).
+        model: the operational model, one of :data:`MODELS`.
         desired_speed: v0, the free walking speed (m/s); JuPedSim's collision-free speed default 1.2 (its social
-            force default is 0.8; both models get this value). RiMEA test 1 uses 1.33.
-        time_gap: T, the time gap (s) of the collision-free speed model (its default 1.0); the social force model
-            ignores it.
+            force default is 0.8; every model gets this value). RiMEA test 1 uses 1.33.
+        time_gap: T, the time gap (s) of the models in :data:`TIME_GAP_MODELS` (default 1.0; the anticipation
+            velocity model's own is 1.06); the others ignore it.
         radius: body radius (m); JuPedSim's collision-free speed default 0.2. Pass the body size of the run compared.
         dt: JuPedSim's time step (s); its default 0.01.
 

@@ -107,7 +107,8 @@ def lanes(context: Context) -> TestResult:
 
 def measure_lanes(recording: Recording, direction: np.ndarray) -> dict[str, float | int | None]:
     """The lanes measures of one ratio's runs: mean ``Phi`` and its chance level over the counted frames, the
-    agent-frames counted, and the mean time to cross the 10 m area with the share of agents that did."""
+    agent-frames counted and the mean agents in the 10 m area per counted frame, and the mean time to cross the area
+    with the share of agents that did."""
     phi, counts, chance = lane_order_frames(
         recording.positions,
         recording.in_room,
@@ -126,6 +127,7 @@ def measure_lanes(recording: Recording, direction: np.ndarray) -> dict[str, floa
         "phi": float(phi.mean()) if phi.size else None,
         "phi_chance": float(chance.mean()) if chance.size else None,
         "agent_frames": int(counts.sum()),
+        "agents_in_area": float(counts.mean()) if counts.size else None,
         "crossing_s": float(times.mean()) if times.size else None,
         "crossed_share": times.size / agents,
     }
@@ -175,6 +177,7 @@ def judge_lanes(runs: Mapping[str, tuple[Recording, np.ndarray]]) -> TestResult:
             "crossing_s": per_ratio("crossing_s"),
             "crossing_feliciani_s": dict(FELICIANI_CROSSING),
             "crossed_share": per_ratio("crossed_share"),
+            "agents_in_area": per_ratio("agents_in_area"),
             "agent_frames": {label: measured.get(label, {}).get("agent_frames") for label in LANES_RATIOS},
         },
     )

@@ -10,6 +10,7 @@ from typing import Any, Final
 
 import torch
 
+from pedrl.integrations.jupedsim import check_model
 from pedrl.sim.controllers import GreedyDoorController
 from pedrl.validation.crowds import JuPedSimCrowd, PedrlCrowd
 from pedrl.validation.report import write_reports
@@ -79,7 +80,9 @@ def validate(
             crowds[name] = PedrlCrowd(greedy, env_settings, device, fused)
         elif name == "jupedsim":
             placement = PedrlCrowd(None, env_settings, device)
-            crowds[name] = JuPedSimCrowd(replace(jupedsim, radius=placement.radius), placement)
+            model = replace(jupedsim, radius=placement.radius)
+            check_model(model)  # JuPedSim's own parameter ranges, before any test runs
+            crowds[name] = JuPedSimCrowd(model, placement)
     results: dict[str, list[TestResult]] = {}
     figures: dict[str, dict[str, Any]] = {}
     timings: dict[str, float] = {}

@@ -14,7 +14,9 @@ pytest.importorskip("jupedsim")
 from pedrl.integrations.jupedsim import (  # noqa: E402
     EXIT_APRON_DEPTH,
     INSTALL_HINT,
+    MODELS,
     JuPedSimModel,
+    check_model,
     model_from_settings,
     room_scene,
     simulate,
@@ -40,7 +42,7 @@ def one_agent(scenario=CORRIDOR, **overrides):
     return simulate(scenario, **(arguments | overrides))
 
 
-@pytest.mark.parametrize("model", ["collision_free_speed", "social_force"])
+@pytest.mark.parametrize("model", [name for name in MODELS if name != "generalized_centrifugal_force"])
 def test_one_agent_walks_the_rimea_1_corridor_in_about_30_s(model):
     run = one_agent(model=JuPedSimModel(model=model, desired_speed=1.33))
     # 39.5 m at 1.33 m/s: 29.7 s; the social force model first accelerates (reaction time 0.5 s)
@@ -53,6 +55,37 @@ def test_one_agent_walks_the_rimea_1_corridor_in_about_30_s(model):
     speeds = np.linalg.norm(run.velocities()[:, 0], axis=-1)
     assert speeds[0] == 0.0 and speeds[10:-1] == pytest.approx(1.33, abs=0.01)
     assert speeds[-1] == pytest.approx(1.33, abs=0.05)  # over the part of the last interval before it left
+
+
+def test_the_generalized_centrifugal_force_model_walks_the_corridor_slower_than_its_desired_speed():
+    # its agents start at rest (speed 0) and relax to v0 with tau = 0.5 s, and the wall's repulsion slows them: 33.6 s
+    run = one_agent(model=JuPedSimModel(model="generalized_centrifugal_force", desired_speed=1.33))
+    assert 30.0 <= run.exit_time[0] <= 36.0
+
+
+def test_the_anticipation_model_repeats_a_run():
+    # its random seed is fixed, so two runs of a crowd give the same trajectories
+    model = JuPedSimModel(model="anticipation_velocity")
+    positions = [[0.5 + 0.6 * i, 0.5 + 0.5 * (i % 3)] for i in range(8)]
+    runs = [one_agent(positions=positions, exit_index=[0] * 8, waypoints=[[]] * 8, model=model) for _ in range(2)]
+    assert np.array_equal(runs[0].positions, runs[1].positions)
+
+
+@pytest.mark.parametrize(
+    ("model", "message"),
+    [
+        (
+            JuPedSimModel(model="generalized_centrifugal_force", radius=1.9),
+            "jupedsim.model=generalized_centrifugal_force refuses its parameters: Model constraint violation: AMin 1.9",
+        ),
+    ],
+)
+def test_jupedsim_checks_a_models_parameters_before_a_run_in_one_line(model, message):
+    with pytest.raises(ValueError) as error:
+        check_model(model)
+    assert message in str(error.value) and "\n" not in str(error.value)
+    for name in MODELS:
+        check_model(JuPedSimModel(model=name))  # every model's defaults pass
 
 
 def test_a_run_stops_at_max_time_with_everyone_still_inside():
@@ -145,7 +178,10 @@ def test_bad_input_fails_with_one_line(overrides, message):
 @pytest.mark.parametrize(
     ("settings", "message"),
     [
-        ({"model": "magic"}, "jupedsim.model='magic' is invalid: must be one of collision_free_speed, social_force"),
+        (
+            {"model": "magic"},
+            "jupedsim.model='magic' is invalid: must be one of collision_free_speed, collision_free_speed_v2",
+        ),
         ({"desired_speed": 0}, "jupedsim.desired_speed=0 is invalid"),
         ({"dt": -0.01}, "jupedsim.dt=-0.01 is invalid"),
         ({"speed": 1.0}, "jupedsim.speed is not a setting of the JuPedSim model"),

@@ -11,6 +11,7 @@ from pedrl.validation.lanes import (
     FELICIANI_PHI,
     LANE_ROW,
     LANES_AGENTS,
+    LANES_MIN_AGENTS,
     LANES_RATIOS,
     LANES_WIDTH,
     LANES_WINDOW,
@@ -94,6 +95,14 @@ def test_lanes_at_a_pedestrians_pace_pass_at_3_3_and_every_ratio_is_reported_bes
     assert row.details["phi_feliciani"] == FELICIANI_PHI and row.details["crossing_feliciani_s"] == FELICIANI_CROSSING
     assert set(row.details["phi"]) == {"5:1", "4:2", "3:3"} and row.details["agent_frames"]["3:3"] >= 300
     assert row.reference.startswith("ours:")
+    # the agents in the 10 m area per counted frame: the agent-frames over the frames counted
+    recording, direction = every_ratio(lanes=True)["3:3"]
+    _, counts, _ = lane_order_frames(
+        recording.positions, recording.in_room, direction, window=LANES_WINDOW, width=LANES_WIDTH, row=LANE_ROW,
+        min_agents=LANES_MIN_AGENTS,
+    )  # fmt: skip
+    assert row.details["agents_in_area"]["3:3"] == pytest.approx(counts.mean(), abs=1e-3)
+    assert LANES_MIN_AGENTS <= row.details["agents_in_area"]["3:3"] <= LANES_AGENTS
 
 
 def test_lanes_fail_random_mixing_at_the_experiments_density():

@@ -1,0 +1,126 @@
+"""What a quantizer sees of the neighbours (:mod:`pedrl.evaluation.neighbours`): hand-made quantizers whose answer is
+known (one that ignores the neighbours sees 1 prototype, one that reads them alone many), and a trained checkpoint
+through the command line."""
+
+import math
+import subprocess
+import sys
+
+import pytest
+import torch
+
+from pedrl.evaluation.neighbours import MEASURES, main, neighbour_sight, scenes_of, sight_of
+from pedrl.policy_files import load_policy
+from pedrl.sim import RoomEnv
+from pedrl.sim.sensing import ANGLE, DISTANCE, NUM_OWN_FEATURES, REL_SPEED, VELOCITY_ANGLE, num_features
+from pedrl.vq import Quantizer
+from pedrl.vq.encoder import EncoderSettings, StateEncoder
+from tests.refusals import train_checkpoint
+
+SPEEDS = (0.5, 1.0)
+
+
+def room(places: int = 4) -> RoomEnv:
+    return RoomEnv(num_replicas=places, num_agents=1, width=20.0, length=30.0)
+
+
+def crafted(env: RoomEnv, *, neighbours: bool, prototypes: int = 256) -> StateEncoder:
+    """An encoder whose prototypes differ only in the own heading (``neighbours=False``: the neighbour features weigh
+    0) or only in the nearest neighbour's three features (``True``: they alone weigh), spread over their ranges."""
+    settings = EncoderSettings.for_room(env)
+    features = num_features(env.num_neighbours, env.num_walls)
+    generator = torch.Generator().manual_seed(0)
+
+    def uniform(low: float, high: float) -> torch.Tensor:
+        return low + (high - low) * torch.rand(prototypes, generator=generator)
+
+    spread = torch.zeros(prototypes, features)
+    if neighbours:
+        distances = uniform(0.3, 6.0)
+        if settings.distance_transform == "log":
+            distances = distances.log1p()
+        spread[:, NUM_OWN_FEATURES + REL_SPEED] = uniform(-2.0, 2.0)
+        spread[:, NUM_OWN_FEATURES + DISTANCE] = distances
+        spread[:, NUM_OWN_FEATURES + ANGLE] = uniform(-math.pi, math.pi)
+    else:
+        spread[:, VELOCITY_ANGLE] = uniform(-math.pi, math.pi)
+    quantizer = Quantizer(mean=torch.zeros(features), std=torch.ones(features), prototypes=spread)
+    return StateEncoder(settings, quantizer)
+
+
+def sight(encoder: StateEncoder, env: RoomEnv):
+    scenes = scenes_of(env, speed_ratios=SPEEDS, seed=3)
+    return sight_of(encoder, env, scenes, speed_ratios=SPEEDS, samples=36, crowds=50, seed=3)
+
+
+def test_a_quantizer_that_ignores_the_neighbours_sees_one_prototype_for_every_neighbour_measure():
+    env = room()
+    result = sight(crafted(env, neighbours=False), env)
+    for measure in ("circling", "head_on", "receding", "crowds"):
+        assert result.counts[measure].tolist() == [[1] * 8], measure
+    assert result.mean("turning") > 4  # the control: the own heading is seen
+    assert not result.sees_neighbours()
+
+
+def test_a_quantizer_that_reads_the_neighbours_alone_sees_them_and_not_the_heading():
+    env = room()
+    result = sight(crafted(env, neighbours=True), env)
+    assert result.counts["turning"].tolist() == [[1] * 8]
+    for measure in ("circling", "head_on", "receding", "crowds"):
+        assert result.mean(measure) >= 3, measure
+    assert result.sees_neighbours()
+    assert result.sees_neighbours(1.0)
+    assert result.counts["circling"].shape == (1, len(SPEEDS) * 4)
+
+
+def test_the_crowds_are_random_but_seeded():
+    env = room()
+    encoder = crafted(env, neighbours=True)
+    first, again = sight(encoder, env), sight(encoder, env)
+    for measure in MEASURES:
+        assert torch.equal(first.counts[measure], again.counts[measure])
+
+
+@pytest.fixture(scope="module")
+def checkpoint(tmp_path_factory):
+    return train_checkpoint(tmp_path_factory)
+
+
+def test_a_trained_checkpoint_reports_every_measure(checkpoint):
+    policy = load_policy(checkpoint)
+    result = neighbour_sight(policy, places=3, speed_ratios=[1.0], samples=24, crowds=20, seed=0)
+    for measure in MEASURES:
+        counts = result.counts[measure]
+        assert counts.shape == (policy.num_processes, 3)
+        assert bool((counts >= 1).all()) and bool((counts <= min(24, result.num_prototypes)).all())
+
+
+@pytest.mark.parametrize(
+    ("arguments", "message"),
+    [
+        (["--places=0"], "places=0"),
+        (["--speeds", "0"], "speed_ratio=0.0"),
+        (["--speeds", "1.5"], "speed_ratio=1.5"),
+        (["--crowd-size=0"], "crowd_size=0"),
+        (["--seed=-1"], "seed=-1"),
+        (["--places=1e9"], "invalid int value"),
+        (["--places=10000", "--crowds=100000"], "too large"),
+        ([], "required"),
+    ],
+)
+def test_bad_arguments_are_refused_in_one_line_before_any_file_is_read(arguments, message, capsys, tmp_path):
+    argv = arguments if arguments == [] else [str(tmp_path / "absent.safetensors"), *arguments]
+    assert main(argv) == 2
+    error = capsys.readouterr().err.strip().splitlines()
+    assert len(error) == 1 and message in error[0], error
+
+
+def test_the_command_line_prints_a_row_per_file_and_speed(checkpoint):
+    result = subprocess.run(
+        [sys.executable, "-m", "pedrl.evaluation.neighbours", str(checkpoint), "--places", "2", "--speeds", "0.5",
+         "1", "--samples", "12", "--crowds", "10"],
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    rows = [line for line in result.stdout.splitlines() if line.startswith(f"| {checkpoint}")]
+    assert [row.split("|")[2].strip() for row in rows] == ["0.5", "1"]
