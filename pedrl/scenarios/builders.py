@@ -93,18 +93,33 @@ def bottleneck(
     )
 
 
-def corridor(*, length: float = 40.0, width: float = 5.0, spawn_length: float = 12.0) -> Scenario:
-    """A corridor ``[0, length] x [0, width]`` open at both ends; half the agents start in its first
-    ``spawn_length`` m and leave at ``x = length``, the other half the other way. Line ``"middle"`` crosses it."""
+def corridor(
+    *, length: float = 40.0, width: float = 5.0, spawn_length: float = 12.0, ratio: Sequence[float] = (1.0, 1.0)
+) -> Scenario:
+    """A corridor ``[0, length] x [0, width]`` open at both ends; the agents start in its two ends of
+    ``spawn_length`` m in the shares ``ratio`` (west end walking east : east end walking west; half and half by
+    default) and leave at the other end. Line ``"middle"`` crosses it."""
     _positive(length=length, width=width, spawn_length=spawn_length)
+    if (
+        isinstance(ratio, str | bytes)
+        or not isinstance(ratio, Sequence)
+        or len(ratio) != 2
+        or not all(isinstance(w, int | float) and not isinstance(w, bool) and math.isfinite(w) for w in ratio)
+        or min(ratio) < 0
+        or max(ratio) <= 0
+    ):
+        raise ValueError(
+            f"scenario.ratio={shown(ratio)} is invalid: must be two finite shares >= 0, at least one > 0 (west end"
+            " walking east, east end walking west)"
+        )
     if 2 * spawn_length > length:
         raise ValueError(f"scenario.spawn_length={spawn_length!r} is invalid: at most length / 2 = {length / 2!r} m")
     walkable = box(0.0, 0.0, length, width)
     east = LineString([(length, 0.0), (length, width)])
     west = LineString([(0.0, width), (0.0, 0.0)])
     spawns = (
-        Spawn(box(0.0, 0.0, spawn_length, width), exit=0),
-        Spawn(box(length - spawn_length, 0.0, length, width), exit=1),
+        Spawn(box(0.0, 0.0, spawn_length, width), weight=float(ratio[0]), exit=0),
+        Spawn(box(length - spawn_length, 0.0, length, width), weight=float(ratio[1]), exit=1),
     )
     lines = {"middle": LineString([(length / 2, 0.0), (length / 2, width)])}
     return Scenario("corridor", walkable, (east, west), spawns, lines)

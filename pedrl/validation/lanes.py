@@ -13,7 +13,6 @@ paywalled and was not read here. docs/validation-suite.md gives the test's defin
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import replace
 from typing import Final
 
 import numpy as np
@@ -70,11 +69,9 @@ LANES_SHUFFLES: Final = 8
 def lanes_corridor(ratio: tuple[int, int]) -> Scenario:
     """The 38 m x 3 m corridor, its 12 m ends holding the two groups in ``ratio`` (group 0, the first agents, walks
     to +x)."""
-    scenario = build_scenario(
-        {"name": "corridor", "length": LANES_LENGTH, "width": LANES_WIDTH, "spawn_length": LANES_SPAWN}
+    return build_scenario(
+        {"name": "corridor", "length": LANES_LENGTH, "width": LANES_WIDTH, "spawn_length": LANES_SPAWN, "ratio": ratio}
     )
-    spawns = tuple(replace(spawn, weight=float(weight)) for spawn, weight in zip(scenario.spawns, ratio, strict=True))
-    return replace(scenario, spawns=spawns)
 
 
 def lanes_directions(ratio: tuple[int, int], agents: int = LANES_AGENTS) -> np.ndarray:

@@ -58,6 +58,12 @@ def test_corridor_groups_head_for_opposite_ends_and_four_exits_take_the_nearest(
     env.reset(seed=0)
     assert env.exit_index[0].tolist() == [0] * 5 + [1] * 5
     assert (env.positions[0, :5, 0] <= 12.0).all() and (env.positions[0, 5:, 0] >= 28.0).all()
+    # the groups' shares: 5:1 of 54 (the lanes test's counterflow) puts 45 at the west end walking east
+    env = env_factory(
+        {**ENV, "agent_radius": 0.2}, {"name": "corridor", "width": 3.0, "length": 38.0, "ratio": [5, 1]}
+    )(num_replicas=1, num_agents=54)
+    env.reset(seed=0)
+    assert env.exit_index[0].tolist() == [0] * 45 + [1] * 9
     env = env_factory(ENV, {"name": "four_exits"})(num_replicas=1, num_agents=40)
     env.reset(seed=0)
     goals = env.geometry.exit_goals
@@ -109,6 +115,9 @@ BAD = [
     ({"name": "four_exits", "closed_exits": [0, 1, 2, 3]}, "at least one exit must stay open"),
     ({"name": "four_exits", "closed_exits": [7]}, "scenario.closed_exits holds 7"),
     ({"name": "corridor", "exits": [[0, 0, 1, 1]]}, "scenario.exits is set without scenario.geometry"),
+    ({"name": "corridor", "ratio": [1, -1]}, "scenario.ratio=[1, -1] is invalid: must be two finite shares >= 0"),
+    ({"name": "corridor", "ratio": [0, 0]}, "scenario.ratio=[0, 0] is invalid"),
+    ({"name": "corridor", "ratio": [3, 3, 3]}, "scenario.ratio=[3, 3, 3] is invalid"),
 ]
 
 
