@@ -67,6 +67,7 @@ __all__ = [
     "MODELS",
     "JuPedSimModel",
     "JuPedSimRun",
+    "JuPedSimRunError",
     "Scene",
     "check_model",
     "installed",
@@ -89,6 +90,10 @@ ROUTE_CHECK_PERIOD: Final = 0.1
 JuPedSim's default speed, and a tenth of the Python work of a check after every step."""
 STEP_TOLERANCE: Final = 1e-6
 """Relative tolerance of ``1 / (frame_rate * dt)`` being a whole number of JuPedSim steps per frame."""
+
+
+class JuPedSimRunError(ValueError):
+    """JuPedSim stopped a run it had accepted (one line: the model, the simulated time and JuPedSim's reason)."""
 
 
 # ---------------------------------------------------------------------- geometry
@@ -323,7 +328,14 @@ def _run_frames(
     recorded = num_frames
     for frame in range(1, num_frames + 1):
         for _ in range(steps_per_frame):
-            simulation.iterate()
+            try:
+                simulation.iterate()
+            except RuntimeError as err:  # the model put an agent where the area does not reach, for example
+                time = simulation.iteration_count() * model.dt
+                raise JuPedSimRunError(
+                    f"JuPedSim's {model.model} model stopped after {time:.2f} s in scenario {scenario.name!r}:"
+                    f" {first_line(err)}"
+                ) from None
             collect_departures(frame)
             if pass_waypoints and routing and simulation.iteration_count() % route_check_steps == 0:
                 _pass_waypoints(simulation, routing, scenario.waypoint_radius)

@@ -140,6 +140,11 @@ def invariants_row(tally: InvariantTally) -> TestResult:
     )
 
 
+def stopped(name: str, reason: str) -> TestResult:
+    """The row of a test whose run the simulator stopped (``reason``): failed, nothing measured."""
+    return TestResult(name, False, None, "", "the run stopped before its end", "", note=reason)
+
+
 def not_applicable(name: str, radius: float, reason: str) -> TestResult:
     """The row of a test whose crowd does not fit at ``radius``."""
     return TestResult(

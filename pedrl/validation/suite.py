@@ -23,6 +23,7 @@ import numpy as np
 from matplotlib.figure import Figure
 from shapely.geometry import LineString, box
 
+from pedrl.integrations.jupedsim import JuPedSimRunError
 from pedrl.scenarios import LIDDLE_FLOWS, LIDDLE_WIDTHS, Scenario, Spawn, build_scenario
 from pedrl.validation.crowds import Crowd
 from pedrl.validation.framework import (
@@ -32,6 +33,7 @@ from pedrl.validation.framework import (
     TestResult,
     invariants_row,
     not_applicable,
+    stopped,
 )
 from pedrl.validation.lanes import LANES_NAME, lanes
 from pedrl.validation.measures import (
@@ -500,6 +502,9 @@ def run_suite(
             outcome = test(context)
         except NotApplicableError as err:
             results.append(not_applicable(name, crowd.radius, str(err)))
+            continue
+        except JuPedSimRunError as err:  # a reference model that breaks down fails the test, the others still run
+            results.append(stopped(name, str(err)))
             continue
         if isinstance(outcome, tuple):
             outcome, figures[key] = outcome

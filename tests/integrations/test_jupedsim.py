@@ -199,3 +199,19 @@ def test_without_jupedsim_the_error_names_the_extra(monkeypatch):
     with pytest.raises(ModuleNotFoundError) as error:
         one_agent()
     assert str(error.value) == INSTALL_HINT == "jupedsim is not installed: pip install 'pedrl[jupedsim]'"
+
+
+def test_a_run_jupedsim_stops_is_one_line_naming_the_model_and_the_time(monkeypatch):
+    import jupedsim
+
+    from pedrl.integrations.jupedsim import JuPedSimRunError
+
+    def broken(self):
+        raise RuntimeError("Point (19.0, -0.0003) is outside of accessible area\nmore")
+
+    monkeypatch.setattr(jupedsim.Simulation, "iterate", broken)
+    with pytest.raises(JuPedSimRunError) as error:
+        one_agent(model=JuPedSimModel(model="warp_driver"))
+    message = str(error.value)
+    assert message.startswith("JuPedSim's warp_driver model stopped after 0.00 s in scenario 'rimea_1': Point (19.0")
+    assert "\n" not in message

@@ -409,6 +409,26 @@ def test_lanes_at_03_m_judge_3_3_and_report_the_ratios_that_do_not_fit_as_not_ru
     assert [row.status for row in rows] == ["n/a", "FAIL"] and "cannot be placed" in rows[0].note
 
 
+def test_a_run_the_simulator_stops_fails_its_test_in_one_line_and_the_others_still_run():
+    """JuPedSim may stop a run it accepted (its generalized centrifugal force model pushes a body out of the lanes
+    corridor after 87 s): that test's row fails with JuPedSim's reason, and the next test runs."""
+    from pedrl.integrations.jupedsim import JuPedSimRunError
+    from pedrl.validation.suite import LANES_NAME, run_suite
+
+    class Breaking(PedrlCrowd):
+        def simulate(self, scenario, **run):
+            if scenario.name == "corridor" and run["num_agents"] == 54:
+                raise JuPedSimRunError("JuPedSim's warp_driver model stopped after 3.00 s in scenario 'corridor': x")
+            return super().simulate(scenario, **run)
+
+    crowd = Breaking(GreedyDoorController(), {"agent_radius": 0.2})
+    rows, _ = run_suite(crowd, budget=Budget(quick=True), only=["lanes", "rimea_1", "invariants"])
+    by_name = {row.test: row for row in rows}
+    assert by_name[LANES_NAME].status == "FAIL" and by_name[LANES_NAME].value is None
+    assert by_name[LANES_NAME].note.startswith("JuPedSim's warp_driver model stopped after 3.00 s")
+    assert by_name[rimea_name(1)].passed
+
+
 def test_invariants_row_fails_when_nothing_was_simulated():
     """At 0.4 m RiMEA 6 is not applicable: a run of it alone simulates nothing, and the sanity row must not pass."""
     from pedrl.validation.suite import run_suite
