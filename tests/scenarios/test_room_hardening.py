@@ -11,6 +11,7 @@ import resource
 import subprocess
 import sys
 import time
+import warnings
 
 import pytest
 import torch
@@ -121,3 +122,47 @@ def test_a_5000_vertex_comb_room_trains_within_a_minute_and_2_gb(tmp_path):
     assert elapsed < 60.0 and peak < 2 * 2**30, (elapsed, peak)
     rows = (tmp_path / "run" / "learning_curve.csv").read_text().splitlines()
     assert len(rows) == 21  # a header and the 20 trials
+
+
+# ---------------------------------------------------------------------- messages that name the right thing
+ROOM = "POLYGON ((0 0, 12 0, 12 10, 0 10, 0 0))"
+EXITS = [[12.0, 4.0, 12.0, 6.0]]
+
+
+def refusal(config: dict) -> str:
+    """The one-line message ``build_scenario`` refuses ``config`` with; no warning may come before it."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with pytest.raises(ValueError) as error:
+            build_scenario({"name": "custom", "exits": EXITS} | config)
+    assert not caught, [str(warning.message) for warning in caught]
+    message = str(error.value)
+    assert "\n" not in message and "intersect" not in message and "nan m" not in message, message
+    return message
+
+
+@pytest.mark.parametrize(
+    ("wkt", "where"),
+    [
+        ("POLYGON ((0 0, 12 0, 12 NaN, 0 10, 0 0))", "vertex 3 of 5 of its outer ring, (12, nan)"),
+        ("POLYGON ((0 0, 1e400 0, 1e400 10, 0 10, 0 0))", "vertex 2 of 5 of its outer ring, (inf, 0)"),
+        ("POLYGON ((0 0, 12 0, 12 10, 0 10, 0 0), (1 1, 2 1, nan 2, 1 1))", "vertex 3 of 4 of its hole 0, (nan, 2)"),
+    ],
+    ids=["nan", "overflow", "nan-in-a-hole"],
+)
+def test_a_non_finite_coordinate_in_a_wkt_file_is_named_with_its_place(wkt, where, tmp_path):
+    """It was blamed on "a polygon must not intersect itself", after shapely's two warning lines."""
+    room = tmp_path / "room.wkt"
+    room.write_text(wkt)
+    message = refusal({"geometry": str(room)})
+    assert message.startswith(f"scenario.geometry={str(room)!r} is invalid: {where}"), message
+    assert "not a finite number" in message
+
+
+def test_coordinates_beyond_float32_are_refused_without_an_overflow_warning():
+    """A room and an exit at 1e39 m: numpy's overflow warning, then "nan m apart"."""
+    far_room = refusal({"geometry": "POLYGON ((0 0, 1e39 0, 1e39 10, 0 10, 0 0))", "exits": [[1e39, 4, 1e39, 6]]})
+    assert "it reaches 1e+39 m from the origin, beyond the range of float32 positions" in far_room
+    far_exit = refusal({"geometry": ROOM, "exits": [[12.0, 4.0, 12.0, 1e39]]})
+    assert far_exit.startswith("scenario.exits[0]=[12.0, 4.0, 12.0, 1e+39] is invalid: it reaches 1e+39 m"), far_exit
+    assert "at most 10000 m" in far_exit
