@@ -13,7 +13,7 @@ import shapely
 import torch
 from shapely.geometry import LineString, Polygon, box
 
-from pedrl.scenarios.model import MAX_EXITS, MAX_SPAWNS, PaperRoom, Scenario, Spawn
+from pedrl.scenarios.model import MAX_EXITS, MAX_SPAWNS, PaperRoom, Scenario, Spawn, overlapping_exits
 from pedrl.scenarios.polygons import MAX_COORDINATE, MISSING, TOLERANCE, bounds_text, float32_spacing, short_reason
 from pedrl.scenarios.routes import with_routes
 from pedrl.scenarios.wkt import MAX_WKT_BYTES, read_geometry
@@ -185,6 +185,14 @@ def custom(
                 f"scenario.exits[{index}]={shown(exit_values[index])} is invalid: it must be a segment on the boundary"
                 f" of the walkable area {bounds_text(walkable)}"
             )
+    overlap = overlapping_exits(lines)
+    if overlap is not None:
+        first, second, shared = overlap
+        raise ValueError(
+            f"scenario.exits[{first}]={shown(exit_values[first])} and scenario.exits[{second}]="
+            f"{shown(exit_values[second])} are invalid: they overlap by {shared:.6g} m; an opening is one exit (merge"
+            " them, or move one)"
+        )
     spawn_values = _entries("spawn", spawn, MAX_SPAWNS, required=False)
     grown = walkable.buffer(TOLERANCE)
     areas = []

@@ -15,9 +15,9 @@ import warnings
 
 import pytest
 import torch
-from shapely.geometry import Polygon
+from shapely.geometry import LineString, Polygon
 
-from pedrl.scenarios import build_scenario
+from pedrl.scenarios import Scenario, build_scenario
 from pedrl.sim import routing
 
 
@@ -166,3 +166,29 @@ def test_coordinates_beyond_float32_are_refused_without_an_overflow_warning():
     far_exit = refusal({"geometry": ROOM, "exits": [[12.0, 4.0, 12.0, 1e39]]})
     assert far_exit.startswith("scenario.exits[0]=[12.0, 4.0, 12.0, 1e+39] is invalid: it reaches 1e+39 m"), far_exit
     assert "at most 10000 m" in far_exit
+
+
+# ---------------------------------------------------------------------- degenerate rooms
+@pytest.mark.parametrize(
+    ("exits", "overlap"),
+    [
+        ([[12, 4, 12, 6], [12, 4, 12, 6]], "2 m"),  # the same exit twice
+        ([[12, 4, 12, 6], [12, 6, 12, 4]], "2 m"),  # drawn the other way round
+        ([[12, 4, 12, 6], [0, 2, 0, 3], [12, 5, 12, 7]], "1 m"),  # overlapping pieces of one wall
+    ],
+    ids=["identical", "reversed", "overlapping"],
+)
+def test_exits_that_overlap_are_refused_in_one_line_naming_both(exits, overlap):
+    """They were accepted without a word (two names for one opening, splitting its walkers)."""
+    message = refusal({"geometry": ROOM, "exits": exits})
+    second = len(exits) - 1
+    assert message.startswith(f"scenario.exits[0]={exits[0]} and scenario.exits[{second}]={exits[second]} are invalid")
+    assert f"they overlap by {overlap}" in message
+
+
+def test_exits_that_touch_end_to_end_or_at_a_corner_are_kept_and_a_python_room_names_its_exits():
+    touching = build_scenario({"name": "custom", "geometry": ROOM, "exits": [[12, 4, 12, 6], [12, 6, 12, 8]]})
+    corner = build_scenario({"name": "custom", "geometry": ROOM, "exits": [[12, 1, 12, 0], [12, 0, 11, 0]]})
+    assert len(touching.exits) == len(corner.exits) == 2
+    with pytest.raises(ValueError, match=r"^exits 0 \[\(12, 4\), \(12, 6\)\] and 1 \[\(12, 5\), \(12, 7\)\] are"):
+        Scenario("mine", touching.walkable, (touching.exits[0], LineString([(12, 5), (12, 7)])), touching.spawns)
