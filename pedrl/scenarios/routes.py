@@ -8,10 +8,11 @@ to its exit, which the room then serves as the walker's goal point in turn (:mod
 ``pedrl-eval`` hand the same waypoints to JuPedSim. Route lengths also choose a walker's nearest exit.
 
 The graph is a visibility graph (shapely for sight, networkx for Dijkstra, both dependencies already) over the
-walkable area shrunk by a clearance (:data:`CLEARANCES`): its nodes are the shrunk area's corners and a point the
-clearance inside each exit's middle; two nodes are joined when the segment between them lies in the shrunk area. A
-route's waypoints are corners, the clearance off the walls they turn round. JuPedSim's ``RoutingEngine`` (a
-navigation mesh) was not used: it is an optional extra here, and routes must exist without it.
+walkable area shrunk by a clearance (:data:`CLEARANCES`) and simplified within :data:`SIMPLIFY` (a wall of many short
+segments shrinks to a line of as many corners): its nodes are that area's corners, at most :data:`MAX_ROUTE_NODES`,
+and a point the clearance inside each exit's middle; two nodes are joined when the segment between them lies in the
+shrunk area. A route's waypoints are corners, the clearance off the walls they turn round. JuPedSim's
+``RoutingEngine`` (a navigation mesh) was not used: it is an optional extra here, and routes must exist without it.
 """
 
 from __future__ import annotations
