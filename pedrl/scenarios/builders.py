@@ -13,8 +13,8 @@ import shapely
 import torch
 from shapely.geometry import LineString, Polygon, box
 
-from pedrl.scenarios.model import MAX_EXITS, MAX_SPAWNS, PaperRoom, Scenario, Spawn
-from pedrl.scenarios.polygons import MAX_COORDINATE, MISSING, TOLERANCE, bounds_text, short_reason
+from pedrl.scenarios.model import MAX_EXITS, MAX_SPAWNS, PaperRoom, Scenario, Spawn, overlapping_exits
+from pedrl.scenarios.polygons import MAX_COORDINATE, MISSING, TOLERANCE, bounds_text, float32_spacing, short_reason
 from pedrl.scenarios.routes import with_routes
 from pedrl.scenarios.wkt import MAX_WKT_BYTES, read_geometry
 from pedrl.sim.checks import shown
@@ -200,6 +200,14 @@ def custom(
                 f"scenario.exits[{index}]={shown(exit_values[index])} is invalid: it must be a segment on the boundary"
                 f" of the walkable area {bounds_text(walkable)}"
             )
+    overlap = overlapping_exits(lines)
+    if overlap is not None:
+        first, second, shared = overlap
+        raise ValueError(
+            f"scenario.exits[{first}]={shown(exit_values[first])} and scenario.exits[{second}]="
+            f"{shown(exit_values[second])} are invalid: they overlap by {shared:.6g} m; an opening is one exit (merge"
+            " them, or move one)"
+        )
     spawn_values = _entries("spawn", spawn, MAX_SPAWNS, required=False)
     grown = walkable.buffer(TOLERANCE)
     areas = []
@@ -337,6 +345,12 @@ def _numbers(name: str, value: Any, count: int) -> torch.Tensor:
             numbers = None
     if numbers is None or not bool(torch.isfinite(numbers).all()):
         raise ValueError(f"{name}={shown(value)} is invalid: must be {count} finite numbers (m)")
+    farthest = float(numbers.abs().max())
+    if farthest > MAX_COORDINATE:  # before any geometry is made of it: float32 would make it inf
+        raise ValueError(
+            f"{name}={shown(value)} is invalid: it reaches {farthest:g} m from the origin,"
+            f" {float32_spacing(farthest)}; every |x| and |y| must be at most {MAX_COORDINATE:g} m"
+        )
     return numbers
 
 

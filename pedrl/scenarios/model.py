@@ -5,10 +5,11 @@ and turned into the tensors of :class:`pedrl.sim.Geometry` (:meth:`Scenario.geom
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import astuple, dataclass, field
 from typing import TYPE_CHECKING, Any, Final
 
+import numpy as np
 import shapely
 import torch
 from shapely.geometry import LineString, Point, Polygon, box
@@ -25,6 +26,8 @@ MAX_EXITS: Final = 1_000
 """Most exits of a scenario (``scenario.exits``)."""
 MAX_SPAWNS: Final = 1_000
 """Most spawn areas of a scenario (``scenario.spawn``)."""
+EXIT_OVERLAP: Final = 1e-3
+"""Length (m) of boundary two exits may share: more, and they overlap (two names for one opening), which is refused."""
 
 
 @dataclass(frozen=True)
@@ -92,6 +95,13 @@ class Scenario:
                     f"exit {index} {coords_text(exit_)} is invalid: it must be a segment on the boundary of the"
                     " walkable area"
                 )
+        overlap = overlapping_exits(self.exits)
+        if overlap is not None:
+            first, second, shared = overlap
+            raise ValueError(
+                f"exits {first} {coords_text(self.exits[first])} and {second} {coords_text(self.exits[second])} are"
+                f" invalid: they overlap by {shared:.6g} m; an opening is one exit (merge them, or move one)"
+            )
         if not self.spawns:
             raise ValueError(f"scenario {self.name!r} has no spawn area")
         grown = self.walkable.buffer(TOLERANCE)
@@ -213,6 +223,25 @@ class PaperRoom(Scenario):
         from pedrl.analysis.trajectories import RoomGeometry
 
         return RoomGeometry(width=self.width, length=self.length, door_width=self.door_width)
+
+
+def overlapping_exits(exits: Sequence[LineString]) -> tuple[int, int, float] | None:
+    """The first pair of ``exits`` ``(i, j)``, ``i < j``, that share more than :data:`EXIT_OVERLAP` of their length
+    (within :data:`TOLERANCE` of each other: the same segment, or two pieces of one wall that overlap), with that
+    length (m); None if no two do. Exits that only touch, end to end or at a corner, share none. Candidate pairs come
+    from a search tree, so a thousand exits cost no million tests."""
+    if len(exits) < 2:
+        return None
+    shapes = np.array(exits, dtype=object)
+    left, right = shapely.STRtree(shapes).query(shapes, predicate="dwithin", distance=TOLERANCE)
+    keep = left < right
+    left, right = left[keep], right[keep]
+    shared = shapely.length(shapely.intersection(shapes[left], shapely.buffer(shapes[right], TOLERANCE)))
+    hits = np.flatnonzero(shared > EXIT_OVERLAP)
+    if not hits.size:
+        return None
+    first = min(hits, key=lambda hit: (left[hit], right[hit]))
+    return int(left[first]), int(right[first]), float(min(shared[first], shapes[left[first]].length))
 
 
 def _segments(lines: Any) -> list[list[list[float]]]:

@@ -21,27 +21,54 @@ MISSING: Final = "???"
 
 
 def check_extent(polygon: Polygon, what: str) -> None:
-    """Refuse a polygon with a coordinate beyond :data:`MAX_COORDINATE`, where float32 positions would drift."""
-    coordinates = shapely.get_coordinates(polygon)
-    if not bool(np.isfinite(coordinates).all()):
-        raise ValueError(f"{what} is invalid: it holds a coordinate that is not a finite number")
-    farthest = float(np.abs(coordinates).max(initial=0.0))
+    """Refuse a polygon with a coordinate beyond :data:`MAX_COORDINATE`, where float32 positions would drift (or a
+    coordinate that is not a finite number, :func:`check_finite`)."""
+    check_finite(polygon, what)
+    farthest = float(np.abs(shapely.get_coordinates(polygon)).max(initial=0.0))
     if farthest > MAX_COORDINATE:
-        spacing = float(np.spacing(np.float32(farthest)))
-        finest = float(np.spacing(np.float32(MAX_COORDINATE))) * 1000
         raise ValueError(
-            f"{what} is invalid: it reaches {farthest:.6g} m from the origin, where float32 positions are"
-            f" {spacing:.2g} m apart; every |x| and |y| must be at most {MAX_COORDINATE:g} m ({finest:.1g} mm apart"
-            " there): move it near (0, 0)"
+            f"{what} is invalid: it reaches {farthest:.6g} m from the origin, {float32_spacing(farthest)}; every |x|"
+            f" and |y| must be at most {MAX_COORDINATE:g} m"
+            f" ({float(np.spacing(np.float32(MAX_COORDINATE))) * 1000:.1g} mm apart there): move it near (0, 0)"
         )
 
 
+def float32_spacing(distance: float) -> str:
+    """How far apart float32 positions are at ``distance`` (m) from the origin, for a message: beyond float32's
+    range (3.4e38) there are none."""
+    if distance >= float(np.finfo(np.float32).max):
+        return f"beyond the range of float32 positions ({float(np.finfo(np.float32).max):.2g} m)"
+    return f"where float32 positions are {float(np.spacing(np.float32(distance))):.2g} m apart"
+
+
+def check_finite(shape: Any, what: str) -> None:
+    """Refuse a geometry holding a coordinate that is not a finite number (NaN, or infinite: a number beyond
+    1.8e308 in WKT), naming the first such vertex and where it is: its ring (the outer ring or a hole) and its
+    place in it, counted from 1."""
+    rings = (
+        [("outer ring", shape.exterior), *((f"hole {index}", hole) for index, hole in enumerate(shape.interiors))]
+        if isinstance(shape, Polygon) and not shape.is_empty
+        else [("coordinates", shape)]
+    )
+    for name, ring in rings:
+        coordinates = shapely.get_coordinates(ring)
+        bad = np.flatnonzero(~np.isfinite(coordinates).all(-1))
+        if bad.size:
+            x, y = coordinates[bad[0]]
+            raise ValueError(
+                f"{what} is invalid: vertex {bad[0] + 1} of {len(coordinates)} of its {name}, ({x:g}, {y:g}), holds a"
+                " coordinate that is not a finite number: every coordinate must be a finite number (m)"
+            )
+
+
 def check_polygon(polygon: Polygon, what: str) -> None:
-    """Refuse anything but a valid, non-empty polygon; ``what`` names it in the one-line message."""
+    """Refuse anything but a valid, non-empty polygon of finite coordinates; ``what`` names it in the one-line
+    message."""
     if not isinstance(polygon, Polygon) or polygon.is_empty:
         raise ValueError(
             f"{what} is invalid: must be a non-empty polygon, got {getattr(polygon, 'geom_type', polygon)}"
         )
+    check_finite(polygon, what)  # before the validity test, which would blame a NaN on a self-intersection
     if not polygon.is_valid:
         reason = shapely.is_valid_reason(polygon)
         raise ValueError(f"{what} {bounds_text(polygon)} is invalid: {reason} (a polygon must not intersect itself)")

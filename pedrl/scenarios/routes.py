@@ -8,10 +8,11 @@ to its exit, which the room then serves as the walker's goal point in turn (:mod
 ``pedrl-eval`` hand the same waypoints to JuPedSim. Route lengths also choose a walker's nearest exit.
 
 The graph is a visibility graph (shapely for sight, networkx for Dijkstra, both dependencies already) over the
-walkable area shrunk by a clearance (:data:`CLEARANCES`): its nodes are the shrunk area's corners and a point the
-clearance inside each exit's middle; two nodes are joined when the segment between them lies in the shrunk area. A
-route's waypoints are corners, the clearance off the walls they turn round. JuPedSim's ``RoutingEngine`` (a
-navigation mesh) was not used: it is an optional extra here, and routes must exist without it.
+walkable area shrunk by a clearance (:data:`CLEARANCES`) and simplified within :data:`SIMPLIFY` (a wall of many short
+segments shrinks to a line of as many corners): its nodes are that area's corners, at most :data:`MAX_ROUTE_NODES`,
+and a point the clearance inside each exit's middle; two nodes are joined when the segment between them lies in the
+shrunk area. A route's waypoints are corners, the clearance off the walls they turn round. JuPedSim's
+``RoutingEngine`` (a navigation mesh) was not used: it is an optional extra here, and routes must exist without it.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from dataclasses import replace
 from typing import Final
 
 import networkx as nx
+import numpy as np
 import shapely
 from shapely.geometry import LineString, Point, Polygon
 from shapely.ops import nearest_points
@@ -38,6 +40,15 @@ WAYPOINT_RADIUS: Final = 0.6
 the room's wider default (2 m) would let it aim past the corner and into the wall it turns round."""
 SNAP: Final = 1e-7
 """Slack (m) of the test that a segment lies in the shrunk area (its corners lie on that area's boundary)."""
+SIMPLIFY: Final = 0.05
+"""Tolerance (m) of the simplification of the shrunk area, a quarter of a 0.2 m body's radius: a corner within it of
+the line through the corners kept beside it is left out (Douglas-Peucker, keeping the area's topology), and the routes
+are those round the simplified area, whose walls lie within it of the shrunk area's. A wall drawn with thousands of
+short segments (a comb of 0.2 m teeth, a curve exported from a drawing) shrinks to a line holding as many corners;
+an area with no corner that close to a straight line (every built-in and held-out room) is routed as it is."""
+MAX_ROUTE_NODES: Final = 1_000
+"""Most corners of a route graph: its sight tests grow as their square (a graph of 1,000 corners holds up to 500,000
+lines of sight, and takes seconds to build); a room whose shrunk area keeps more is refused before any compute."""
 
 
 def with_routes(scenario: Scenario) -> Scenario:
@@ -67,10 +78,19 @@ def with_routes(scenario: Scenario) -> Scenario:
 
 
 def route_graph(scenario: Scenario, clearance: float) -> tuple[RouteGraph, Polygon, Polygon]:
-    """The visibility graph of ``scenario``'s walkable area shrunk by ``clearance``: its corners' shortest routes to
-    each exit (networkx's Dijkstra from the point ``clearance`` inside each exit's middle); with the shrunk area and
-    that area grown by :data:`SNAP` and prepared, which every sight test reads."""
+    """The visibility graph of ``scenario``'s walkable area shrunk by ``clearance`` (and simplified within
+    :data:`SIMPLIFY`): its corners' shortest routes to each exit (networkx's Dijkstra from the point ``clearance``
+    inside each exit's middle); with the shrunk area and that area grown by :data:`SNAP` and prepared, which every
+    sight test reads.
+
+    Raises:
+        ValueError: one line naming the area's vertices and corners, where it keeps more than
+            :data:`MAX_ROUTE_NODES` corners.
+    """
     free = scenario.walkable.buffer(-clearance, join_style="mitre")
+    simple = free.simplify(SIMPLIFY)  # Douglas-Peucker, topology kept: some of free's corners, none moved
+    if shapely.get_num_coordinates(simple) < shapely.get_num_coordinates(free) and simple.is_valid:
+        free = simple  # drawn with many short segments: routed round the simplified area
     area = free.buffer(SNAP)  # once: every sight test reads it
     shapely.prepare(area)
     corners = sorted(
@@ -81,6 +101,13 @@ def route_graph(scenario: Scenario, clearance: float) -> tuple[RouteGraph, Polyg
             for x, y in boundary.coords
         }
     )
+    if len(corners) > MAX_ROUTE_NODES:
+        vertices = shapely.get_num_coordinates(scenario.walkable) - 1 - len(scenario.walkable.interiors)
+        raise ValueError(
+            f"scenario {scenario.name!r} is too intricate to route: its walkable area of {vertices} vertices keeps"
+            f" {len(corners)} corners {clearance:g} m in from the walls (simplified within {SIMPLIFY:g} m), at most"
+            f" {MAX_ROUTE_NODES}: draw it with fewer, longer walls"
+        )
     ends = [_goal(scenario, index, clearance) for index in range(len(scenario.exits))]
     nodes = [*corners, *((end.x, end.y) for end in ends)]
     graph = _visibility_graph(area, nodes)
@@ -105,13 +132,12 @@ def route_graph(scenario: Scenario, clearance: float) -> tuple[RouteGraph, Polyg
 
 def _visibility_graph(area: Polygon, nodes: list[tuple[float, float]]) -> nx.Graph:
     """``nodes`` joined where the segment between them lies in ``area`` (grown and prepared), weighted by its
-    length."""
+    length: each node's lines to the later nodes tested at once (:func:`_sees_all`), edges added in order."""
     graph = nx.Graph()
     graph.add_nodes_from(range(len(nodes)))
     for a in range(len(nodes)):
-        for b in range(a + 1, len(nodes)):
-            if _sees(area, Point(nodes[a]), Point(nodes[b])):
-                graph.add_edge(a, b, weight=math.dist(nodes[a], nodes[b]))
+        for b in (a + 1 + np.flatnonzero(_sees_all(area, nodes[a], nodes[a + 1 :]))).tolist():
+            graph.add_edge(a, b, weight=math.dist(nodes[a], nodes[b]))
     return graph
 
 
@@ -123,10 +149,8 @@ def _reaches(scenario: Scenario, graph: RouteGraph, free: Polygon, area: Polygon
     exits = range(len(scenario.exits)) if spawn.exit < 0 else (spawn.exit,)
     if any(_sees(area, start, Point(graph.ends[e])) for e in exits):
         return True
-    return any(
-        _sees(area, start, Point(node)) and any(math.isfinite(graph.costs[m][e]) for e in exits)
-        for m, node in enumerate(graph.nodes)
-    )
+    routed = [node for m, node in enumerate(graph.nodes) if any(math.isfinite(graph.costs[m][e]) for e in exits)]
+    return bool(_sees_all(area, (start.x, start.y), routed).any())
 
 
 def _convex(walkable: Polygon) -> bool:
@@ -138,6 +162,18 @@ def _sees(area: Polygon, a: Point, b: Point) -> bool:
     """Whether the segment from ``a`` to ``b`` lies in ``area`` (the shrunk area grown by :data:`SNAP`)."""
     segment = LineString([a, b]) if not a.equals(b) else a
     return bool(shapely.covers(area, segment))
+
+
+def _sees_all(area: Polygon, a: tuple[float, float], others: list[tuple[float, float]]) -> np.ndarray:
+    """:func:`_sees` from ``a`` to each of ``others``, at once: ``(len(others),)`` bool."""
+    if not others:
+        return np.zeros(0, dtype=bool)
+    ends = np.asarray(others, dtype=float).reshape(-1, 2)
+    start = np.broadcast_to(np.asarray(a, dtype=float), ends.shape)
+    same = (ends == start).all(-1)  # a segment of no length is the point itself
+    shapes = shapely.linestrings(np.stack((start, ends), axis=1))
+    shapes[same] = shapely.points(ends[same])
+    return shapely.covers(area, shapes)
 
 
 def _goal(scenario: Scenario, exit_index: int, clearance: float) -> Point:
@@ -161,4 +197,4 @@ def _inside(free: Polygon, point: Point) -> Point:
     return nearest_points(free, point)[0]
 
 
-__all__ = ["CLEARANCE", "CLEARANCES", "WAYPOINT_RADIUS", "route_graph", "with_routes"]
+__all__ = ["CLEARANCE", "CLEARANCES", "MAX_ROUTE_NODES", "SIMPLIFY", "WAYPOINT_RADIUS", "route_graph", "with_routes"]

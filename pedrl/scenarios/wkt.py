@@ -11,6 +11,7 @@ from __future__ import annotations
 import os
 import re
 import stat
+import warnings
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Final
@@ -136,7 +137,9 @@ def parse_wkt(text: str, *, what: str = "scenario.geometry") -> Polygon:
     if vertices > MAX_VERTICES:
         raise ValueError(f"{what} is invalid: it holds {vertices} vertices, at most {MAX_VERTICES}")
     try:
-        shape = shapely.from_wkt(text)
+        with warnings.catch_warnings():  # a NaN or an overflowing number: named below, as a non-finite coordinate
+            warnings.simplefilter("ignore", RuntimeWarning)
+            shape = shapely.from_wkt(text)
     except (shapely.errors.GEOSException, ValueError, TypeError) as err:
         raise ValueError(f"{what} is invalid: not WKT ({short_reason(err)})") from None
     if shape is not None and (shapely.has_z(shape) or getattr(shapely, "has_m", lambda _: False)(shape)):

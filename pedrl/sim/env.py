@@ -44,11 +44,11 @@ from pedrl.sim.motion import (
 from pedrl.sim.params import RoomParams
 from pedrl.sim.rewards import MAX_REWARD, compute_rewards
 from pedrl.sim.room_checks import (
+    check_action_set,
     check_actions,
     check_extent,
     check_goal_depth,
     check_motion,
-    check_ratios,
     check_rewards,
     check_rules,
     check_substep_length,
@@ -242,10 +242,7 @@ class RoomEnv:
         self.num_walls = check_integer("num_walls", num_walls, minimum=0, maximum=wall_count)
         self.action_frame = check_choice("action_frame", action_frame, ACTION_FRAMES)
         goal_frame = self.action_frame == "goal"
-        self.speed_ratios = check_ratios(
-            "speed_ratios", speed_ratios, unit="fraction of max_speed", bounds=(0.0, 1.0) if goal_frame else None
-        )
-        self.turn_ratios = check_ratios("turn_ratios", turn_ratios, unit="fraction of pi", noop=not goal_frame)
+        self.speed_ratios, self.turn_ratios = check_action_set(speed_ratios, turn_ratios, goal_frame=goal_frame)
         self.rewards = check_rewards(reward_goal, reward_crash_wall, reward_crash_agent, reward_default)
         self.substep_length = check_substep_length(substep_length, agent_radius)
         self.collision_rule, self.collision_order, self.contact = check_rules(collision_rule, collision_order, contact)

@@ -89,6 +89,44 @@ def check_ratios(
     return ratios
 
 
+MAX_SPEED_CHANGE: Final = 1.0
+"""Largest ``|speed_ratios[i]|`` of the heading frame (a change of ``max_speed``): speeds are kept in ``[0,
+max_speed]``, so a larger change does what this one does."""
+MAX_TURN: Final = 1.0
+"""Largest ``|turn_ratios[j]|`` (fractions of pi): a turn, or an offset from the goal's bearing, within +-pi."""
+
+
+def check_action_set(
+    speed_ratios: Any, turn_ratios: Any, *, goal_frame: bool
+) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """``(speed_ratios, turn_ratios)`` checked (:func:`check_ratios`) and bounded: the heading frame's speed changes
+    within +-:data:`MAX_SPEED_CHANGE`, the goal frame's speeds in [0, 1], every turn within +-:data:`MAX_TURN` (+-pi);
+    and not degenerate: some speed above 0 (else no walker ever moves) and two turns apart (else no walker can
+    choose its heading). Each refusal is one line naming the value and what is allowed."""
+    speeds = check_ratios(
+        "speed_ratios", speed_ratios, unit="fraction of max_speed", bounds=(0.0, 1.0) if goal_frame else None
+    )
+    turns = check_ratios("turn_ratios", turn_ratios, unit="fraction of pi", noop=not goal_frame)
+    for name, ratios, most, what in (
+        ("speed_ratios", speeds, MAX_SPEED_CHANGE, "a speed change in [-1, 1] (fraction of max_speed)"),
+        ("turn_ratios", turns, MAX_TURN, "a turn in [-1, 1] (fraction of pi: within +-pi)"),
+    ):
+        for index, ratio in enumerate(ratios):
+            if abs(ratio) > most:
+                raise ValueError(f"{name}[{index}]={ratio!r} is invalid: each is {what}")
+    if max(speeds) <= 0.0:
+        raise ValueError(
+            f"speed_ratios={list(speeds)} is invalid: at least one must be above 0 (fraction of max_speed), else no"
+            " walker ever moves"
+        )
+    if len(set(turns)) == 1:
+        raise ValueError(
+            f"turn_ratios={list(turns)} is invalid: all alike, so no walker can choose its heading; at least two must"
+            " differ (fraction of pi)"
+        )
+    return speeds, turns
+
+
 def check_rewards(goal: Any, crash_wall: Any, crash_agent: Any, default: Any) -> RewardTable:
     """The rewards of Table 2 (``reward_goal``, ``reward_crash_wall``, ``reward_crash_agent``, ``reward_default``),
     each within ``[-MAX_REWARD, MAX_REWARD]``."""

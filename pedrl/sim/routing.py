@@ -48,6 +48,12 @@ MAX_QUEUE_WEIGHT: Final = 100.0
 """Largest ``queue_weight``: beyond it the route lengths no longer count."""
 CHOICE_ROUNDS: Final = 24
 """Rounds of fictitious play that settle the walkers' exit choices when the queue is weighed."""
+SIGHT_CHUNK_BYTES: Final = 64 * 2**20
+"""Most bytes the temporaries of one chunk of the sight tests take: a room of thousands of walls and corners tests its
+lines of sight chunk by chunk, its memory bounded whatever its size (a 5,000-vertex wall once asked for 2 GB at
+once)."""
+SIGHT_BYTES: Final = 64
+"""Bytes of temporaries per point, target and wall (or corner) of a sight test: a measured upper bound."""
 
 
 def check_queue_weight(value: Any) -> float | None:
@@ -69,8 +75,37 @@ def sight(
     return clear if corners is None else clear & ~_grazing(points, targets, corners)
 
 
+def _in_chunks(test, points: torch.Tensor, targets: torch.Tensor, items: torch.Tensor) -> torch.Tensor:
+    """``test(points, targets, items)`` ``(R, N, T)`` bool, computed in chunks of point-target pairs whose
+    temporaries, :data:`SIGHT_BYTES` per pair and item (wall or corner), stay under :data:`SIGHT_CHUNK_BYTES`: the
+    memory of a room of many walls or corners is bounded, and every pair's answer is the one of the whole at once
+    (each pair's test reads only its own point and target)."""
+    shape = (*points.shape[:-1], targets.shape[0])
+    pairs_per_chunk = max(1, SIGHT_CHUNK_BYTES // (SIGHT_BYTES * max(items.shape[0], 1)))
+    flat = points.reshape(-1, 2)
+    count, num_targets = flat.shape[0], targets.shape[0]
+    if count * num_targets <= pairs_per_chunk:
+        return test(points, targets, items)
+    out = torch.empty(count, num_targets, dtype=torch.bool, device=points.device)
+    point_step = max(1, pairs_per_chunk // max(num_targets, 1))
+    target_step = min(num_targets, pairs_per_chunk)
+    for start in range(0, count, point_step):
+        chunk = flat[start : start + point_step].unsqueeze(0)  # (1, P, 2)
+        for first in range(0, num_targets, target_step):
+            out[start : start + point_step, first : first + target_step] = test(
+                chunk, targets[first : first + target_step], items
+            )[0]
+    return out.reshape(shape)
+
+
 def _crossing(points: torch.Tensor, targets: torch.Tensor, walls: torch.Tensor) -> torch.Tensor:
-    """Whether the segment from each point ``(R, N, 2)`` to each target ``(T, 2)`` crosses a wall: ``(R, N, T)``."""
+    """Whether the segment from each point ``(R, N, 2)`` to each target ``(T, 2)`` crosses a wall: ``(R, N, T)``,
+    in bounded chunks (:func:`_in_chunks`)."""
+    return _in_chunks(_crossing_all, points, targets, walls)
+
+
+def _crossing_all(points: torch.Tensor, targets: torch.Tensor, walls: torch.Tensor) -> torch.Tensor:
+    """:func:`_crossing` at once: ``(R, N, T, S)`` temporaries."""
     start = points[:, :, None, None, :]  # (R, N, 1, 1, 2)
     span = targets[None, None, :, None, :] - start  # (R, N, T, 1, 2)
     wall_start, wall_span = walls[:, 0], walls[:, 1] - walls[:, 0]  # (S, 2)
@@ -83,7 +118,13 @@ def _crossing(points: torch.Tensor, targets: torch.Tensor, walls: torch.Tensor) 
 
 def _grazing(points: torch.Tensor, targets: torch.Tensor, corners: torch.Tensor) -> torch.Tensor:
     """Whether the segment from each point to each target passes a corner ``(C, 2)`` closer than
-    :data:`CORNER_CLEARANCE`, bar the corners that close to the point itself: ``(R, N, T)``."""
+    :data:`CORNER_CLEARANCE`, bar the corners that close to the point itself: ``(R, N, T)``, in bounded chunks
+    (:func:`_in_chunks`)."""
+    return _in_chunks(_grazing_all, points, targets, corners)
+
+
+def _grazing_all(points: torch.Tensor, targets: torch.Tensor, corners: torch.Tensor) -> torch.Tensor:
+    """:func:`_grazing` at once: ``(R, N, T, C)`` temporaries."""
     start = points[:, :, None, None, :]
     span = targets[None, None, :, None, :] - start  # (R, N, T, 1, 2)
     to_corner = corners - start  # (R, N, 1, C, 2)

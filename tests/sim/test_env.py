@@ -303,6 +303,37 @@ def test_runs_on_cuda_like_on_cpu():
         ({"speed_ratios": (-1.0, -0.5, -0.25, -0.1, 0.1, 0.1, 0.25, 0.5, 1.0)}, "speed_ratios[4]=0.1"),
         ({"turn_ratios": (0.0, 0.0, 0.0, float("nan"), 0.0, 0.0, 0.0, 0.0, 0.0)}, "turn_ratios[3]=nan"),
         ({"speed_ratios": "fast"}, "speed_ratios"),
+        # bounds of the action set, and degenerate ones
+        (
+            {"turn_ratios": (-0.75, -0.25, -0.08, -0.025, 0.0, 0.025, 0.08, 0.25, 1e30)},
+            "turn_ratios[8]=1e+30 is invalid: each is a turn in [-1, 1]",
+        ),
+        (
+            {
+                "action_frame": "goal",
+                "speed_ratios": (1.0,) * 9,
+                "turn_ratios": (-4.0, -0.25, -0.1, -0.05, 0.0, 0.05, 0.1, 0.25, 0.5),
+            },
+            "turn_ratios[0]=-4.0 is invalid",
+        ),
+        (
+            {"speed_ratios": (-1.0, -0.5, -0.25, -0.1, 0.0, 0.1, 0.25, 0.5, 3.0)},
+            "speed_ratios[8]=3.0 is invalid: each is a speed change in [-1, 1]",
+        ),
+        (
+            {"speed_ratios": (0.0,) * 9},
+            "speed_ratios=[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0] is invalid: at least one must be above 0",
+        ),
+        ({"speed_ratios": (-1.0, -0.5, -0.25, -0.1, 0.0, -0.1, -0.25, -0.5, -1.0)}, "at least one must be above 0"),
+        (
+            {"action_frame": "goal", "speed_ratios": (0.0,) * 9, "turn_ratios": (0.0,) * 9},
+            "at least one must be above 0",
+        ),
+        (
+            {"turn_ratios": (0.0,) * 9},
+            "turn_ratios=[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0] is invalid: all alike",
+        ),
+        ({"action_frame": "goal", "speed_ratios": (1.0,) * 9, "turn_ratios": (0.1,) * 9}, "turn_ratios=[0.1, 0.1, 0.1"),
         ({"reward_goal": float("nan")}, "reward_goal=nan"),
         ({"reward_crash_wall": "a lot"}, "reward_crash_wall='a lot'"),
         ({"substep_length": 0.5}, "substep_length=0.5"),
@@ -315,6 +346,15 @@ def test_invalid_configuration_raises_one_line_value_error(kwargs, fragment):
         RoomEnv(**kwargs)
     message = str(error.value)
     assert fragment in message and "\n" not in message
+
+
+def test_the_widest_action_sets_are_kept():
+    """Turns of a half turn either way and speed changes of the whole top speed are the bounds, and allowed."""
+    env = RoomEnv(
+        speed_ratios=(-1.0, -1.0, -0.5, -0.1, 0.0, 0.1, 0.5, 1.0, 1.0),
+        turn_ratios=(-1.0, -0.5, 0, 0, 0, 0, 0, 0.5, 1.0),
+    )
+    assert env.turn_ratios[0] == -1.0 and env.speed_ratios[-1] == 1.0
 
 
 def test_too_many_agents_message_names_n_and_the_room():
