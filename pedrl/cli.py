@@ -75,6 +75,44 @@ def check_group_choices(
                 fail(program, f"{key}={option!r} is invalid: must be one of {', '.join(options)}")
 
 
+def check_added_keys(program: str, args: list[str], config_dir: str | Path, config_name: str) -> None:
+    """Refuse a ``+key=value`` (or ``++key=value``) override whose key the composed config does not have: no code
+    reads a key that is not in the config, so the value would be ignored without a word. One line naming it and the
+    nearest key: ``pedrl-validate: error: +lanes_ratio=[5,1] is invalid: lanes_ratio is not a setting of
+    pedrl-validate, and nothing reads an added key (its settings: ...)``. Group choices (``+experiment=main``) and
+    Hydra's own keys are left to Hydra."""
+    added = []
+    for arg in args:
+        key, sep, _ = arg.partition("=")
+        if not arg.startswith("+") or not sep:
+            continue
+        key = key.lstrip("+")
+        if key.startswith("hydra") or (Path(config_dir) / key).is_dir():
+            continue
+        added.append((arg, key))
+    if not added:
+        return
+    config = _composed_config(config_dir, config_name, args)
+    if config is None:
+        return  # Hydra's own error follows
+    for arg, key in added:
+        parent, _, leaf = key.rpartition(".")
+        node = OmegaConf.select(config, parent, default=None) if parent else config
+        if OmegaConf.is_dict(node) and leaf in list(node.keys()):  # a key it has (its value may be ??? or null)
+            continue
+        near = nearest_key(key, config)
+        if near is not None:
+            hint = f"did you mean {near}={'...'}?"
+        else:
+            names = [str(name) for name in node if str(name) != "hydra"] if OmegaConf.is_dict(node) else []
+            hint = f"the keys of {parent or 'the config'}: {', '.join(sorted(names)[:20])}" if names else ""
+        fail(
+            program,
+            f"{arg} is invalid: {key} is not a setting of {program}, and nothing reads an added key"
+            + (f" ({hint})" if hint else ""),
+        )
+
+
 def checked_groups(
     program: str, config_dir: str | Path, groups: tuple[str, ...] | None = None, config_name: str | None = None
 ) -> Callable[[Callable[..., T]], Callable[..., T]]:
@@ -89,6 +127,7 @@ def checked_groups(
             if args or kwargs:
                 return main(*args, **kwargs)
             check_group_choices(program, sys.argv[1:], config_dir, groups)
+            check_added_keys(program, sys.argv[1:], config_dir, name)
             return run_hydra_reporting_errors(program, main, config_dir=config_dir, config_name=name)
 
         return run
@@ -172,7 +211,7 @@ def describe_hydra_error(err: Exception, *, config_dir: str | Path, config_name:
             text = f"{text.rstrip('.')}: {(str(err.__cause__).strip().splitlines() or [''])[0]}"
         return text or type(err).__name__
     key = str(full_key)
-    new_key = "" if key.startswith("hydra.") else f"a new key needs +{override.group(1)}=..."
+    new_key = ""  # no `+key=` advice: an added key is refused too (check_added_keys), as nothing reads it
     config = _composed_config(config_dir, config_name, argv)
     if config is None:
         return f"{key} is not a key of the config" + (f" ({new_key})" if new_key else "")
