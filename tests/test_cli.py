@@ -308,3 +308,33 @@ def test_a_full_disk_during_a_run_names_the_run_folder(tmp_path, monkeypatch, ca
     assert exit_info.value.code == 2
     error = capsys.readouterr().err.strip()
     assert error == f"pedrl-train: error: cannot write in {str(tmp_path / 'run')!r}: No space left on device"
+
+
+OUTPUT_CASES = [
+    ("pedrl-train", "checkpoints", "file", ("output folder", "/checkpoints' is invalid: it is a file")),
+    ("pedrl-train", "summary.json", "folder", ("output file", "/summary.json' is invalid: it is a folder")),
+    ("pedrl-validate", "trajectories", "file", ("output folder", "/trajectories' is invalid: it is a file")),
+    ("pedrl-validate", "trajectories/greedy", "file", ("trajectories/greedy' is invalid: it is a file",)),
+    ("pedrl-validate", "validation.md", "folder", ("output file", "/validation.md' is invalid: it is a folder")),
+]
+
+
+@pytest.mark.parametrize(("program", "name", "kind", "fragments"), OUTPUT_CASES, ids=lambda case: str(case))
+def test_an_output_that_cannot_be_written_is_refused_before_any_compute(
+    program, name, kind, fragments, tmp_path, checkpoint, capsys
+):
+    """A file where a folder goes (or the reverse) in the run folder was found only when the run wrote there, after
+    its compute; now one line naming it, before the first trial, and nothing is written."""
+    run_dir = tmp_path / "run"
+    path = run_dir / name
+    path.parent.mkdir(parents=True)
+    if kind == "file":
+        path.write_text("keep me")
+    else:
+        path.mkdir()
+    args = [*_any_program_args(program, tmp_path, checkpoint), f"hydra.run.dir={run_dir}"]
+    outcome = run_hydra_main(ALL_PROGRAMS[program], args, capsys)
+    assert_refused(outcome, program, (str(run_dir), *fragments))
+    written = {str(p.relative_to(run_dir)) for p in run_dir.rglob("*") if ".hydra" not in p.parts}
+    assert written - {"train.log", "validate.log", ".hydra"} == {name, *map(str, Path(name).parents)} - {"."}
+    assert kind == "folder" or path.read_text() == "keep me"
