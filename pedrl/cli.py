@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import difflib
-import errno
 import functools
+import math
 import os
 import re
 import sys
@@ -33,8 +34,6 @@ CONFIG_NAMES = {
     "pedrl-export": "export",
 }
 """Primary config (``conf/<name>.yaml``) of each console command."""
-DISK_ERRORS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EIO, errno.EFBIG})
-"""Errors of a write that name no file (a full disk fails at ``close``): blamed on the run folder being written."""
 
 
 def run_reporting_errors(program: str, action: Callable[[], T]) -> T:
@@ -76,6 +75,44 @@ def check_group_choices(
                 fail(program, f"{key}={option!r} is invalid: must be one of {', '.join(options)}")
 
 
+def check_added_keys(program: str, args: list[str], config_dir: str | Path, config_name: str) -> None:
+    """Refuse a ``+key=value`` (or ``++key=value``) override whose key the composed config does not have: no code
+    reads a key that is not in the config, so the value would be ignored without a word. One line naming it and the
+    nearest key: ``pedrl-validate: error: +lanes_ratio=[5,1] is invalid: lanes_ratio is not a setting of
+    pedrl-validate, and nothing reads an added key (its settings: ...)``. Group choices (``+experiment=main``) and
+    Hydra's own keys are left to Hydra."""
+    added = []
+    for arg in args:
+        key, sep, _ = arg.partition("=")
+        if not arg.startswith("+") or not sep:
+            continue
+        key = key.lstrip("+")
+        if key.startswith("hydra") or (Path(config_dir) / key).is_dir():
+            continue
+        added.append((arg, key))
+    if not added:
+        return
+    config = _composed_config(config_dir, config_name, args)
+    if config is None:
+        return  # Hydra's own error follows
+    for arg, key in added:
+        parent, _, leaf = key.rpartition(".")
+        node = OmegaConf.select(config, parent, default=None) if parent else config
+        if OmegaConf.is_dict(node) and leaf in list(node.keys()):  # a key it has (its value may be ??? or null)
+            continue
+        near = nearest_key(key, config)
+        if near is not None:
+            hint = f"did you mean {near}={'...'}?"
+        else:
+            names = [str(name) for name in node if str(name) != "hydra"] if OmegaConf.is_dict(node) else []
+            hint = f"the keys of {parent or 'the config'}: {', '.join(sorted(names)[:20])}" if names else ""
+        fail(
+            program,
+            f"{arg} is invalid: {key} is not a setting of {program}, and nothing reads an added key"
+            + (f" ({hint})" if hint else ""),
+        )
+
+
 def checked_groups(
     program: str, config_dir: str | Path, groups: tuple[str, ...] | None = None, config_name: str | None = None
 ) -> Callable[[Callable[..., T]], Callable[..., T]]:
@@ -90,6 +127,7 @@ def checked_groups(
             if args or kwargs:
                 return main(*args, **kwargs)
             check_group_choices(program, sys.argv[1:], config_dir, groups)
+            check_added_keys(program, sys.argv[1:], config_dir, name)
             return run_hydra_reporting_errors(program, main, config_dir=config_dir, config_name=name)
 
         return run
@@ -173,7 +211,7 @@ def describe_hydra_error(err: Exception, *, config_dir: str | Path, config_name:
             text = f"{text.rstrip('.')}: {(str(err.__cause__).strip().splitlines() or [''])[0]}"
         return text or type(err).__name__
     key = str(full_key)
-    new_key = "" if key.startswith("hydra.") else f"a new key needs +{override.group(1)}=..."
+    new_key = ""  # no `+key=` advice: an added key is refused too (check_added_keys), as nothing reads it
     config = _composed_config(config_dir, config_name, argv)
     if config is None:
         return f"{key} is not a key of the config" + (f" ({new_key})" if new_key else "")
@@ -266,12 +304,8 @@ def _describe_override_failure(err: Exception) -> str:
 
 
 def _describe_write_error(err: OSError) -> str:
-    """:func:`describe_os_error`; a write error that names no file (``ENOSPC`` at ``close``) names the run (or
-    sweep) folder Hydra was writing in, as :class:`OutputDirCheck` saw it."""
-    folder = OutputDirCheck.folder if err.filename is None and err.errno in DISK_ERRORS else None
-    if folder is None:
-        return describe_os_error(err)
-    return f"cannot write in {str(folder)!r}: {err.strerror or err}"
+    """:func:`describe_os_error` (kept for the callers above)."""
+    return describe_os_error(err)
 
 
 def fail(program: str, message: str) -> NoReturn:
@@ -280,10 +314,66 @@ def fail(program: str, message: str) -> NoReturn:
     sys.exit(2)
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """The ``argparse`` parser of the ``python -m`` tools: a mistake on the command line (a missing argument, a value
+    of the wrong type or out of bounds: :func:`integer_arg`, :func:`number_arg`) ends in one line and exit code 2,
+    ``<prog>: error: argument --agents: '1e9' is invalid: must be an integer in [1, 1000]``, where argparse prints
+    its usage first."""
+
+    def error(self, message: str) -> NoReturn:
+        fail(self.prog, f"{message} ({self.prog} --help lists the arguments)")
+
+
+def integer_arg(low: int, high: int | None = None) -> Callable[[str], int]:
+    """An argparse ``type``: an integer in ``[low, high]`` (``high`` None: no upper bound)."""
+    allowed = f"an integer in [{low}, {high}]" if high is not None else f"an integer >= {low}"
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = None
+        if value is None or value < low or (high is not None and value > high):
+            raise argparse.ArgumentTypeError(f"{text!r} is invalid: must be {allowed}")
+        return value
+
+    return parse
+
+
+def number_arg(low: float, high: float | None = None, *, low_open: bool = False) -> Callable[[str], float]:
+    """An argparse ``type``: a finite number in ``[low, high]`` (``(low, high]`` if ``low_open``)."""
+    bracket = "(" if low_open else "["
+    allowed = (
+        f"a number in {bracket}{low:g}, {high:g}]"
+        if high is not None
+        else f"a number {'>' if low_open else '>='} {low:g}"
+    )
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        inside = math.isfinite(value) and (value > low if low_open else value >= low)
+        if not inside or (high is not None and value > high):
+            raise argparse.ArgumentTypeError(f"{text!r} is invalid: must be {allowed}")
+        return value
+
+    return parse
+
+
 def describe_os_error(err: OSError) -> str:
-    """One line naming the path a file-system error is about and the reason: ``cannot use '/x': Permission denied``."""
-    path = err.filename if err.filename is not None else "?"
-    return f"cannot use {str(path)!r}: {err.strerror or err}"
+    """One line naming the path a file-system error is about and the reason: ``cannot use '/x': Permission denied``.
+
+    A write error that names no file (``ENOSPC`` at ``close``; pedrl's own writers name theirs, see
+    :func:`pedrl.io.files.named`) names the folder being written in: the run (or sweep) folder as
+    :class:`OutputDirCheck` saw it, else the working directory, where relative outputs go:
+    ``cannot write in '/runs/a': No space left on device``.
+    """
+    if err.filename is not None:
+        return f"cannot use {str(err.filename)!r}: {err.strerror or err}"
+    folder = OutputDirCheck.folder if OutputDirCheck.folder is not None else Path.cwd()
+    return f"cannot write in {str(folder)!r}: {err.strerror or err}"
 
 
 class OutputDirCheck(Callback):

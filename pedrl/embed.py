@@ -9,11 +9,12 @@ and exit code 2.
 
 from __future__ import annotations
 
-import argparse
+from pathlib import Path
 
-from pedrl.cli import fail
+from pedrl.cli import OneLineParser, describe_os_error, fail
 from pedrl.configs import embed_geometry
 from pedrl.io import CheckpointError
+from pedrl.io.files import check_outputs
 
 PROGRAM = "python -m pedrl.embed"
 DESCRIPTION = (
@@ -24,15 +25,21 @@ DESCRIPTION = (
 
 def main(argv: list[str] | None = None) -> None:
     """Parse the command line and re-export the checkpoint."""
-    parser = argparse.ArgumentParser(prog=PROGRAM, description=DESCRIPTION)
+    parser = OneLineParser(prog=PROGRAM, description=DESCRIPTION)
     parser.add_argument("checkpoint", help="a .safetensors checkpoint whose scenario.geometry names a WKT file")
     parser.add_argument("wkt", help="the WKT file it was trained on")
     parser.add_argument("--output", default=None, help="where to write the re-exported checkpoint (default: in place)")
     args = parser.parse_args(argv)
-    try:
+    try:  # the file written is checked before the checkpoint is read
+        if args.output is not None:
+            check_outputs(files=[args.output])
+        elif Path(args.checkpoint).is_file():
+            check_outputs(files=[args.checkpoint])
         written = embed_geometry(args.checkpoint, args.wkt, output=args.output)
     except (CheckpointError, ValueError) as err:
         fail(PROGRAM, str(err))
+    except OSError as err:
+        fail(PROGRAM, describe_os_error(err))
     print(f"{PROGRAM}: {str(written)!r} now holds its room")
 
 

@@ -14,6 +14,7 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from pedrl.cli import CONFIG_DIR, checked_groups, run_reporting_errors
+from pedrl.io.files import check_outputs
 from pedrl.sim.checks import check_device
 
 
@@ -29,6 +30,7 @@ def export(cfg: DictConfig) -> Path:
             raise ValueError(f"{key}={value!r} is invalid: must be a path ending in .safetensors")
     if Path(cfg.out).resolve() == Path(cfg.checkpoint).resolve():
         raise ValueError(f"out={cfg.out!r} is invalid: it is the checkpoint itself, which would be overwritten")
+    check_outputs(files=[cfg.out])  # before the checkpoint is read
     return export_policy(cfg.checkpoint, cfg.out, device=check_device(cfg.get("device", "cpu")))
 
 

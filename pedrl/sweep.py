@@ -14,7 +14,6 @@ only in ``seed`` are pooled into one point (mean over jobs, standard deviation o
 
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 import math
@@ -199,9 +198,9 @@ def main(argv: Sequence[str] | None = None) -> None:
 
     A missing or unfinished sweep directory ends in one line on stderr and exit code 2.
     """
-    from pedrl.cli import run_reporting_errors
+    from pedrl.cli import OneLineParser, run_reporting_errors
 
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="pedrl-sweep",
         description="Summarise a pedrl-train sweep: sweep_summary.csv and sweep_k.png in the sweep directory.",
     )

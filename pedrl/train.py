@@ -26,7 +26,7 @@ from pedrl.cli import (
     run_reporting_errors,
 )
 from pedrl.io import CheckpointError
-from pedrl.io.files import replace_atomically
+from pedrl.io.files import check_outputs, replace_atomically
 from pedrl.io.lock import RunFolderInUseError, run_folder_lock
 from pedrl.runtime import launcher_threads, set_threads
 
@@ -44,6 +44,7 @@ def train(cfg: DictConfig, *, run_dir: str | Path | None = None) -> TrainResult:
     if resume_from is not None and resume_from.parent.name == "checkpoints":
         run_dir = resume_from.parent.parent  # continue writing into the run that holds the checkpoint
     trainer = build_trainer(cfg, run_dir)
+    check_outputs(*output_paths(run_dir, tensorboard=bool(cfg.logger.get("tensorboard", False))))
     set_threads(cfg.get("threads") if cfg.get("threads") is not None else launcher_threads())
     torch.manual_seed(int(cfg.seed))
     with run_folder_lock(run_dir):  # one run per folder: a second one (or a resume) is refused in one line
@@ -56,6 +57,14 @@ def train(cfg: DictConfig, *, run_dir: str | Path | None = None) -> TrainResult:
             return result
         _write_outputs(result, trainer)
     return result
+
+
+def output_paths(run_dir: Path, *, tensorboard: bool) -> tuple[list[Path], list[Path]]:
+    """The folders and files a run writes under ``run_dir``, checked before any compute
+    (:func:`pedrl.io.files.check_outputs`)."""
+    folders = [run_dir, run_dir / "checkpoints", *([run_dir / "tb"] if tensorboard else [])]
+    files = [run_dir / name for name in ("learning_curve.csv", "learning_curve.png", "summary.json")]
+    return folders, [*files, run_dir / "checkpoints" / "last.safetensors"]
 
 
 def _write_outputs(result: TrainResult, trainer: Trainer) -> None:

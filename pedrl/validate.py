@@ -15,6 +15,7 @@ import torch
 from omegaconf import DictConfig, ListConfig
 
 from pedrl.cli import CONFIG_DIR, checked_groups, hydra_output_dir, run_reporting_errors
+from pedrl.io.files import check_outputs
 from pedrl.runtime import set_threads
 from pedrl.sim.checks import MAX_SEED, check_bool, check_choice, check_device, check_integer, check_number
 from pedrl.sim.routing import check_queue_weight
@@ -58,6 +59,16 @@ def run(cfg: DictConfig, *, run_dir: Path | None = None) -> dict[str, Any]:
 
     model_from_settings(cfg.get("jupedsim"))  # every value given is checked, whether or not this run uses it
     jupedsim = jupedsim_model(cfg.get("jupedsim")) if "jupedsim" in columns(controller) else None
+    run_dir = run_dir or hydra_output_dir()
+    folders = [
+        run_dir,
+        run_dir / "figures",
+        run_dir / "trajectories",
+        *(run_dir / "trajectories" / name for name in columns(controller)),
+    ]
+    if tensorboard:
+        folders.append(run_dir / "tb")
+    check_outputs(folders, [run_dir / "validation.json", run_dir / "validation.md"])  # before any compute
     set_threads(cfg.get("threads"))
     learned = None
     if checkpoint is not None:
@@ -73,7 +84,7 @@ def run(cfg: DictConfig, *, run_dir: Path | None = None) -> dict[str, Any]:
                 f" {own:g} m (leave radius null)"
             )
     return validate(
-        run_dir=run_dir or hydra_output_dir(),
+        run_dir=run_dir,
         learned=learned,
         controller=controller,
         epsilon=epsilon,

@@ -18,6 +18,7 @@ import pytest
 from hydra.core.global_hydra import GlobalHydra
 
 import pedrl.evaluate
+import pedrl.export
 import pedrl.plot
 import pedrl.train
 import pedrl.validate
@@ -126,17 +127,18 @@ def _any_program_args(program: str, tmp_path: Path, checkpoint: Path) -> list[st
 
 
 UNKNOWN_KEY_CASES: list[tuple[str, str, tuple[str, ...]]] = [
-    ("pedrl-train", "env.widht=5", ("env.widht is not a key of the config", "did you mean env.width?", "+env.widht=")),
-    ("pedrl-train", "foo=1", ("foo is not a key of the config", "top-level keys are", "seed", "+foo=")),
+    ("pedrl-train", "env.widht=5", ("env.widht is not a key of the config", "did you mean env.width?")),
+    ("pedrl-train", "foo=1", ("foo is not a key of the config", "top-level keys are", "seed")),
     ("pedrl-train", "num_prototypes=64", ("num_prototypes is not a key", "did you mean vq.num_prototypes?")),
-    ("pedrl-train", "envv.width=5", ("envv is not a key of the config", "did you mean env?", "+envv.width=")),
+    ("pedrl-train", "envv.width=5", ("envv is not a key of the config", "did you mean env?")),
     ("pedrl-train", "seed.x=1", ("seed.x is not a key of the config", "seed is a value")),
     ("pedrl-train", "env.speed_ratios.x=1", ("'env.speed_ratios.x=1' cannot be applied",)),
     ("pedrl-train", "foo=[1,", ("'foo=[1,' is not a valid override", "key=value")),
     ("pedrl-train", "hydra.run.dirr=x", ("hydra.run.dirr is not a key", "did you mean hydra.run.dir?")),
-    ("pedrl-eval", "trails=3", ("trails is not a key of the config", "did you mean trials?", "+trails=")),
+    ("pedrl-eval", "trails=3", ("trails is not a key of the config", "did you mean trials?")),
     ("pedrl-plot", "ouptut=x.png", ("ouptut is not a key of the config", "did you mean output?")),
     ("pedrl-validate", "seeed=1", ("seeed is not a key of the config", "did you mean seed?")),
+    ("pedrl-validate", "lanes.ratio=5", ("lanes is not a key of the config", "top-level keys are", "quick")),
 ]
 
 
@@ -159,9 +161,10 @@ def test_unknown_key_in_a_sweep_is_one_line(tmp_path, capsys):
     assert_refused(outcome, "pedrl-train", ("env.widht is not a key", "did you mean env.width?"))
 
 
-def test_new_keys_and_hydra_keys_still_work(tmp_path, capsys):
-    """``+key=value`` adds a key and a valid ``hydra.*`` override is Hydra's: the check refuses neither."""
-    args = ["--cfg", "job", *TRAIN_BASE, "+note=hello", "hydra.job.chdir=false", f"hydra.run.dir={tmp_path / 'r'}"]
+def test_hydra_keys_and_existing_keys_with_plus_still_work(tmp_path, capsys):
+    """A valid ``hydra.*`` override is Hydra's, and ``++key=value`` of a key the config has sets it: the checks
+    refuse neither."""
+    args = ["--cfg", "job", *TRAIN_BASE, "++seed=7", "hydra.job.chdir=false", f"hydra.run.dir={tmp_path / 'r'}"]
     capsys.readouterr()
     saved = sys.argv
     sys.argv = ["pedrl.train.py", *args]
@@ -171,8 +174,35 @@ def test_new_keys_and_hydra_keys_still_work(tmp_path, capsys):
         sys.argv = saved
         GlobalHydra.instance().clear()
     captured = capsys.readouterr()
-    assert "note: hello" in captured.out, captured.err
+    assert "seed: 7" in captured.out, captured.err
     assert "error" not in captured.err
+
+
+ADDED_KEY_CASES = [
+    ("pedrl-validate", "+lanes_ratio=[5,1]", ("+lanes_ratio=[5,1] is invalid", "lanes_ratio is not a setting")),
+    ("pedrl-train", "+note=hello", ("+note=hello is invalid", "nothing reads an added key", "seed")),
+    ("pedrl-train", "+vq.foo=1", ("+vq.foo=1 is invalid", "the keys of vq", "num_prototypes")),
+    ("pedrl-eval", "++trails=3", ("++trails=3 is invalid", "did you mean trials")),
+    ("pedrl-plot", "+ouptut=x.png", ("+ouptut=x.png is invalid", "did you mean output")),
+    ("pedrl-export", "+oot=p.safetensors", ("+oot=p.safetensors is invalid", "did you mean out")),
+]
+
+
+@pytest.mark.parametrize(("program", "override", "fragments"), ADDED_KEY_CASES, ids=lambda case: str(case))
+def test_an_added_key_that_nothing_reads_is_refused_by_every_entry_point(
+    program, override, fragments, tmp_path, checkpoint, capsys
+):
+    """``+key=value`` of a key the config lacks was accepted and ignored (exit 0): nothing reads it. Now one line
+    naming it, before Hydra writes anything."""
+    run_dir = tmp_path / "run"
+    if program == "pedrl-export":
+        args = [f"checkpoint={checkpoint}", f"out={tmp_path / 'p.safetensors'}"]
+    else:
+        args = [*_any_program_args(program, tmp_path, checkpoint), f"hydra.run.dir={run_dir}"]
+    module = pedrl.export if program == "pedrl-export" else ALL_PROGRAMS[program]
+    outcome = run_hydra_main(module, [*args, override], capsys)
+    assert_refused(outcome, program, fragments)
+    assert not run_dir.exists() and not (tmp_path / "p.safetensors").exists()
 
 
 def _full_disk(run_dir: Path, tmp_path: Path, read_only_dir: Path) -> tuple[list[str], tuple[str, ...]]:
@@ -278,3 +308,33 @@ def test_a_full_disk_during_a_run_names_the_run_folder(tmp_path, monkeypatch, ca
     assert exit_info.value.code == 2
     error = capsys.readouterr().err.strip()
     assert error == f"pedrl-train: error: cannot write in {str(tmp_path / 'run')!r}: No space left on device"
+
+
+OUTPUT_CASES = [
+    ("pedrl-train", "checkpoints", "file", ("output folder", "/checkpoints' is invalid: it is a file")),
+    ("pedrl-train", "summary.json", "folder", ("output file", "/summary.json' is invalid: it is a folder")),
+    ("pedrl-validate", "trajectories", "file", ("output folder", "/trajectories' is invalid: it is a file")),
+    ("pedrl-validate", "trajectories/greedy", "file", ("trajectories/greedy' is invalid: it is a file",)),
+    ("pedrl-validate", "validation.md", "folder", ("output file", "/validation.md' is invalid: it is a folder")),
+]
+
+
+@pytest.mark.parametrize(("program", "name", "kind", "fragments"), OUTPUT_CASES, ids=lambda case: str(case))
+def test_an_output_that_cannot_be_written_is_refused_before_any_compute(
+    program, name, kind, fragments, tmp_path, checkpoint, capsys
+):
+    """A file where a folder goes (or the reverse) in the run folder was found only when the run wrote there, after
+    its compute; now one line naming it, before the first trial, and nothing is written."""
+    run_dir = tmp_path / "run"
+    path = run_dir / name
+    path.parent.mkdir(parents=True)
+    if kind == "file":
+        path.write_text("keep me")
+    else:
+        path.mkdir()
+    args = [*_any_program_args(program, tmp_path, checkpoint), f"hydra.run.dir={run_dir}"]
+    outcome = run_hydra_main(ALL_PROGRAMS[program], args, capsys)
+    assert_refused(outcome, program, (str(run_dir), *fragments))
+    written = {str(p.relative_to(run_dir)) for p in run_dir.rglob("*") if ".hydra" not in p.parts}
+    assert written - {"train.log", "validate.log", ".hydra"} == {name, *map(str, Path(name).parents)} - {"."}
+    assert kind == "folder" or path.read_text() == "keep me"

@@ -5,6 +5,7 @@ How a catalogue case runs and what it asserts: :mod:`tests.refusals`. The evalua
 is tested in ``tests/evaluation/``.
 """
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -14,9 +15,11 @@ import pytest
 import pedrl.evaluate
 from tests.refusals import (
     EVAL_BASE,
+    HYDRA_OWN,
     assert_nothing_computed,
     assert_refused,
     catalogue,
+    read_only_folder,
     run_hydra_main,
     train_checkpoint,
 )
@@ -108,3 +111,65 @@ def test_eval_refuses(overrides, fragments, checkpoint, tmp_path, capsys):
     outcome = run_hydra_main(pedrl.evaluate, [*args, f"hydra.run.dir={run_dir}"], capsys)
     assert_refused(outcome, "pedrl-eval", fragments)
     assert_nothing_computed(run_dir)
+
+
+def _read_only_trajectories(run_dir: Path, read_only: Path) -> None:
+    (run_dir / "trajectories").symlink_to(read_only, target_is_directory=True)
+
+
+OUTPUT_CASES: list[tuple[str, object, tuple[str, ...]]] = [
+    (
+        "trajectories_a_file",
+        lambda run, _: (run / "trajectories").write_text(""),
+        ("/trajectories'", "it is a file", "must be a folder"),
+    ),
+    ("trajectories_read_only", _read_only_trajectories, ("trajectories", "cannot be written in")),
+    (
+        "sqlite_a_folder",
+        lambda run, _: (run / "trajectories" / "agents_2" / "trial_000.sqlite").mkdir(parents=True),
+        ("agents_2/trial_000.sqlite'", "it is a folder", "must be a file"),
+    ),
+    (
+        "txt_a_folder",
+        lambda run, _: (run / "trajectories" / "agents_3" / "trial_001.txt").mkdir(parents=True),
+        ("agents_3/trial_001.txt'", "it is a folder"),
+    ),
+    (
+        "wkt_a_folder",
+        lambda run, _: (run / "trajectories" / "geometry.wkt").mkdir(parents=True),
+        ("trajectories/geometry.wkt'", "it is a folder"),
+    ),
+    (
+        "reference_table_a_folder",
+        lambda run, _: (run / "greedy" / "scaling.csv").mkdir(parents=True),
+        ("greedy/scaling.csv'", "it is a folder"),
+    ),
+]
+
+
+@pytest.fixture
+def read_only_dir(tmp_path):
+    yield from read_only_folder(tmp_path)
+
+
+@pytest.mark.parametrize(("make", "fragments"), catalogue(OUTPUT_CASES, {case[0] for case in OUTPUT_CASES}, named=True))
+def test_eval_checks_every_output_before_compute(make, fragments, checkpoint, read_only_dir, tmp_path, capsys):
+    """An output path that cannot be written is refused before the first trial, so no table is left half-written."""
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    make(run_dir, read_only_dir)
+    before = _names(run_dir)
+    args = [f"checkpoint={checkpoint}", *EVAL_BASE, "export.trials=2", f"hydra.run.dir={run_dir}"]
+    outcome = run_hydra_main(pedrl.evaluate, args, capsys)
+    assert_refused(outcome, "pedrl-eval", ("output", str(run_dir), *fragments))
+    assert _names(run_dir) - HYDRA_OWN == before  # no scaling.csv, no trajectory
+
+
+def _names(folder: Path) -> set[str]:
+    """The names of everything under ``folder`` (links not followed), Hydra's ``.hydra/`` left out."""
+    names: set[str] = set()
+    for _, dirs, files in os.walk(folder):
+        if ".hydra" in dirs:
+            dirs.remove(".hydra")
+        names.update(dirs, files)
+    return names

@@ -312,3 +312,41 @@ def test_quick_experiments_learn(name, minimum, compose, tmp_path):
     assert result.final["success_rate_mean"] > minimum
     assert result.final["success_rate_mean"] > 3 * phases[0]["gather_success_rate"]
     assert phases[-1]["gather_success_rate"] > phases[0]["gather_success_rate"]
+
+
+def debug_jobs(name):
+    """The overrides of every job ``pedrl-train experiment=<name> debug=default`` runs: one, or one per value of its
+    sweep (``hydra.sweeper.params``)."""
+    base = [f"experiment={name}", "debug=default"]
+    with initialize_config_dir(version_base="1.3", config_dir=CONFIG_DIR):
+        params = hydra_compose("train", base, return_hydra_config=True).hydra.sweeper.params or {}
+    jobs = [base]
+    for key, values in params.items():
+        jobs = [[*job, f"{key}={value}"] for job in jobs for value in str(values).split(",")]
+    return jobs
+
+
+@pytest.mark.parametrize("name", EXPERIMENTS)
+def test_every_preset_composes_with_debug_and_passes_the_checks(name, compose, tmp_path):
+    """Any preset can be smoke-tested with debug=default: every job it runs (each K of k_sweep's sweep) composes and
+    passes every check made before compute (main's 80 bodies did not fit the debug room; k_sweep's K above 1200 did
+    not fit its gather)."""
+    for overrides in debug_jobs(name):
+        cfg = compose("train", overrides)
+        assert cfg.env.max_decisions <= 30 and cfg.vq.max_iterations <= 10, "debug shrinks every budget"
+        trainer = build_trainer(cfg, tmp_path / "_".join(overrides).replace("=", "-"))
+        assert trainer.phases()
+
+
+def test_the_main_jobs_debug_run_trains_end_to_end(tmp_path, capsys):
+    """``pedrl-train experiment=main debug=default``, the main job's smoke run, as a user runs it."""
+    import pedrl.train
+    from tests.refusals import run_hydra_main
+
+    run_dir = tmp_path / "main"
+    outcome = run_hydra_main(pedrl.train, ["experiment=main", "debug=default", f"hydra.run.dir={run_dir}"], capsys)
+    assert outcome.code in (0, None), outcome.stderr
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["algo"] == "it_vqql" and 0.0 <= summary["final"]["success_rate_mean"] <= 1.0
+    assert (run_dir / "checkpoints" / "last.safetensors").is_file()
+    assert load_checkpoint(run_dir / "checkpoints" / "last.safetensors").metadata["config"]["algo"]["num_agents"] == 20

@@ -145,6 +145,8 @@ def test_the_python_api_refuses_an_argument_of_the_wrong_type_in_one_line(call, 
         (["out=p.safetensors", "device=gpu"], ("device='gpu' is invalid",)),
         (["out=p.safetensors", "oot=q.safetensors"], ("oot is not a key of the config",)),
         ([], ("out is missing: pass out=",)),
+        (["out=DIR/folder.safetensors"], ("output file", "folder.safetensors' is invalid: it is a folder")),
+        (["out=DIR/a_file/p.safetensors"], ("output file", "a_file' is a file, not a folder")),
     ],
 )
 def test_pedrl_export_refuses_bad_input_in_one_line(args, fragments, trained, tmp_path, capsys):
@@ -153,9 +155,43 @@ def test_pedrl_export_refuses_bad_input_in_one_line(args, fragments, trained, tm
     if not any(a.startswith("checkpoint=") for a in args):
         args.append(f"checkpoint={checkpoint}")
     args = [a if not a.startswith("out=") or "/" in a else f"out={tmp_path / a[4:]}" for a in args]
+    args = [a.replace("DIR", str(tmp_path)) for a in args]
+    (tmp_path / "folder.safetensors").mkdir()
+    (tmp_path / "a_file").write_text("keep me")
     outcome = run_hydra_main(pedrl.export, args, capsys)
     assert_refused(outcome, "pedrl-export", fragments)
-    assert not list(tmp_path.glob("*.safetensors")), "nothing is written"
+    assert not [path for path in tmp_path.glob("*.safetensors") if path.is_file()], "nothing is written"
+
+
+def test_a_full_disk_names_the_file_being_written(trained, tmp_path, monkeypatch, capsys):
+    """ENOSPC at a write that names no file (as a full disk fails at ``fsync`` or ``close``): the line names the
+    file, where it said "cannot use '?'"; the old file is kept whole and no temporary is left."""
+    import errno
+
+    import pedrl.io.files
+
+    checkpoint, _ = trained
+    out = tmp_path / "policy.safetensors"
+    out.write_bytes(b"the old file")
+
+    def full(fd: int) -> None:
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(pedrl.io.files.os, "fsync", full)
+    outcome = run_hydra_main(pedrl.export, [f"checkpoint={checkpoint}", f"out={out}"], capsys)
+    assert outcome.lines == [f"pedrl-export: error: cannot write checkpoint {str(out)!r}: No space left on device"]
+    assert out.read_bytes() == b"the old file" and sorted(tmp_path.iterdir()) == [out]
+
+
+def test_a_write_error_naming_no_file_and_no_run_folder_names_the_working_folder(tmp_path, monkeypatch):
+    import errno
+
+    from pedrl.cli import OutputDirCheck, describe_os_error
+
+    monkeypatch.setattr(OutputDirCheck, "folder", None)
+    monkeypatch.chdir(tmp_path)
+    message = describe_os_error(OSError(errno.ENOSPC, "No space left on device"))
+    assert message == f"cannot write in {str(tmp_path)!r}: No space left on device"
 
 
 def test_pedrl_export_and_eval_policy_as_console_scripts(trained, tmp_path):

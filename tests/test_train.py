@@ -115,7 +115,7 @@ TRAIN_CASES: list[tuple[str, tuple[str, ...]]] = [
     ("vq.weight_neighbours=-1", ("vq.weight_neighbours=-1", "a number > 0")),
     ("vq.per_process=maybe", ("vq.per_process='maybe'", "true or false")),
     ("vq.distance_transform=sqrt", ("vq.distance_transform='sqrt'", "none, log")),
-    ("+vq.foo=1", ("vq.foo is not a quantizer setting", "num_prototypes")),
+    ("+vq.foo=1", ("+vq.foo=1 is invalid", "vq.foo is not a setting", "num_prototypes")),
     # ---- VQQL (conf/algo/vqql.yaml)
     ("algo.trials=0", ("trials=0", "integer in [2, 1000000000]")),
     ("algo.trials=abc", ("trials='abc'", "integer in")),

@@ -17,7 +17,6 @@ Sections:
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import platform
@@ -29,19 +28,39 @@ SECTIONS = ("sim", "kmeans", "e2e", "eval", "literal")
 
 
 def main(argv: list[str] | None = None) -> dict:
-    parser = argparse.ArgumentParser(prog="python -m pedrl.bench", description=__doc__.splitlines()[0])
+    from pedrl.cli import OneLineParser, integer_arg
+    from pedrl.io.files import output_problem
+
+    parser = OneLineParser(prog="python -m pedrl.bench", description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="small sizes, for a smoke check")
     parser.add_argument("--device", default="cpu", help="cpu or cuda")
     parser.add_argument("--only", default=",".join(SECTIONS), help=f"comma-separated sections of {SECTIONS}")
     parser.add_argument("--output", default="outputs/bench/bench.json", help="where the JSON goes")
-    parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's, one per core)")
+    parser.add_argument(
+        "--threads", type=integer_arg(1, 4096), default=None, help="torch CPU threads (default: torch's, one per core)"
+    )
     parser.add_argument("--rooms", default=None, help="e2e: comma-separated E values (default 1,4,16,32; quick 1,2)")
-    parser.add_argument("--trials", type=int, default=None, help="e2e: timed trials per E, the best kept (default 3)")
+    parser.add_argument(
+        "--trials", type=integer_arg(1, 1000), default=None, help="e2e: timed trials per E, the best kept (default 3)"
+    )
     parser.add_argument("--contention", action="store_true", help="e2e: also measure beside a busy torch process")
     parser.add_argument(
         "--baseline", default=None, metavar="COMMIT", help="e2e: also measure COMMIT's code (temporary worktree), first"
     )
     args = parser.parse_args(argv)
+    rooms = None
+    if args.rooms:
+        try:
+            rooms = [int(value) for value in args.rooms.split(",")]
+        except ValueError:
+            rooms = []
+        if not rooms or min(rooms) < 1:
+            parser.error(f"--rooms={args.rooms!r} is invalid: must be comma-separated integers >= 1, e.g. 1,4,16")
+    if not (args.device == "cpu" or args.device == "cuda" or args.device.startswith("cuda:")):
+        parser.error(f"--device={args.device!r} is invalid: must be cpu or cuda[:index]")
+    problem = output_problem(args.output)
+    if problem is not None:
+        parser.error(f"--output: {problem}")
     if args.threads is not None:
         torch.set_num_threads(args.threads)
         os.environ["OMP_NUM_THREADS"] = str(args.threads)  # the same for the --baseline subprocess
@@ -72,7 +91,6 @@ def main(argv: list[str] | None = None) -> dict:
         from pedrl.bench.e2e import run as run_e2e
 
         print("end to end ...", flush=True)
-        rooms = [int(value) for value in args.rooms.split(",")] if args.rooms else None
         report.update(
             run_e2e(
                 quick=args.quick,

@@ -14,7 +14,6 @@ scikit-learn and faiss are optional (`pip install pedrl[bench]`); when missing, 
 
 from __future__ import annotations
 
-import argparse
 import functools
 import json
 import math
@@ -197,10 +196,12 @@ def _encode_seconds(states: torch.Tensor, prototypes: torch.Tensor, *, device: s
 
 def main() -> None:
     """Command line: prints the result of `run` as JSON."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    from pedrl.cli import OneLineParser, integer_arg
+
+    parser = OneLineParser(prog="python -m pedrl.bench.kmeans", description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="small problem")
-    parser.add_argument("--device", default="cpu")
-    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--device", default="cpu", choices=("cpu", "cuda"))
+    parser.add_argument("--repeats", type=integer_arg(1, 1000), default=3)
     arguments = parser.parse_args()
     print(json.dumps(run(quick=arguments.quick, device=arguments.device, repeats=arguments.repeats), indent=2))
 

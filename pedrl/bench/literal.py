@@ -24,7 +24,6 @@ Run: ``python -m pedrl.bench.literal [--quick]`` or ``python -m pedrl.bench --on
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import time
@@ -167,9 +166,11 @@ def _matmul(quantizer: Quantizer, raw: torch.Tensor, repeats: int) -> tuple[dict
 
 def main() -> None:
     """Command line: prints the result of `run` as JSON."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    from pedrl.cli import OneLineParser, integer_arg
+
+    parser = OneLineParser(prog="python -m pedrl.bench.literal", description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="small problem")
-    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--repeats", type=integer_arg(1, 1000), default=3)
     arguments = parser.parse_args()
     print(json.dumps(run(quick=arguments.quick, repeats=arguments.repeats), indent=2))
 

@@ -25,10 +25,12 @@ from pedrl.evaluation.engine import (
     evaluate_policy,
     load_controller,
     measurement_point,
+    output_paths,
     room_geometry,
     write_scaling,
 )
 from pedrl.integrations.jupedsim import INSTALL_HINT, JuPedSimModel, installed, model_from_settings
+from pedrl.io.files import check_outputs
 from pedrl.runtime import set_threads
 from pedrl.sim import RoomEnv
 from pedrl.sim.checks import (
@@ -71,9 +73,12 @@ def evaluate(cfg: DictConfig, *, run_dir: str | Path | None = None) -> list[dict
     run_dir = Path(run_dir) if run_dir is not None else hydra_output_dir()
     device = torch.device(cfg.device)
     runs = [(name, *_prepare(cfg, name, device)) for name in controllers(cfg)]
+    settings = settings_from_config(cfg)
+    for index, (name, policy, envs, _) in enumerate(runs):  # every output writable, before the first trial
+        folder = run_dir if index == 0 else run_dir / name
+        check_outputs(*output_paths(folder, settings, list(envs), processes=policy.processes))
 
     # ---- the evaluations, from plain values
-    settings = settings_from_config(cfg)
     rows: list[dict[str, Any]] = []
     for index, (name, policy, envs, geometry) in enumerate(runs):
         rows += evaluate_policy(

@@ -340,6 +340,33 @@ class EvalSettings:
     fused: bool | None = None
 
 
+def output_paths(
+    run_dir: str | Path, settings: EvalSettings, counts: Sequence[int], *, processes: int
+) -> tuple[list[Path], list[Path]]:
+    """The folders and files :func:`evaluate_policy` writes under ``run_dir`` for the agent counts ``counts`` of a
+    policy of ``processes`` learning processes: what is checked before any compute
+    (:func:`pedrl.io.files.check_outputs`)."""
+    run_dir = Path(run_dir)
+    folders = [run_dir]
+    files = [run_dir / "scaling.csv", run_dir / "scaling.json"]
+    files += [run_dir / f"fundamental_diagram.{ext}" for ext in ("csv", "png")]
+    if settings.tensorboard:
+        folders.append(run_dir / "tb")
+    exported = min(settings.export_trials, settings.trials * processes)
+    if exported:
+        folders.append(run_dir / "trajectories")
+        files.append(run_dir / "trajectories" / "geometry.wkt")
+    for agents in counts:
+        files += [run_dir / f"density_map_{agents}.{ext}" for ext in ("npy", "png")]
+        if settings.animation:
+            files.append(run_dir / f"animation_{agents}.gif")
+        if exported:
+            folder = run_dir / "trajectories" / f"agents_{agents}"
+            folders.append(folder)
+            files += [folder / f"trial_{run:03d}.{ext}" for run in range(exported) for ext in ("txt", "sqlite")]
+    return folders, files
+
+
 def build_rooms(
     policy: LoadedPolicy, counts: Sequence[int], *, trials_per_batch: int, device: torch.device
 ) -> dict[int, RoomEnv]:
@@ -390,7 +417,7 @@ def evaluate_policy(
     logger = RunLogger(run_dir, tensorboard=settings.tensorboard)
     if config_text is not None:
         logger.log_text("eval/config", "```\n" + config_text + "```")
-    table = CsvWriter(run_dir / "scaling.csv", SCALING_COLUMNS)
+    table: CsvWriter | None = None  # started at the first row: a run failing before it leaves no header-only table
     diagrams: dict[int, FundamentalDiagram] = {}
     rows: list[dict[str, Any]] = []
     print(
@@ -409,6 +436,7 @@ def evaluate_policy(
             stats, diagram, density = simulate_agent_count(env, policy, settings, geometry, point, run_dir)
             row = stats.row(agents, settings.controller)
             rows.append(row)
+            table = table or CsvWriter(run_dir / "scaling.csv", SCALING_COLUMNS)
             table.write(row)
             diagrams[agents] = diagram
             title = f"{label}: {agents} agents, {row['trials']} trials"
@@ -435,7 +463,8 @@ def evaluate_policy(
         )
         logger.log_figure("eval/fundamental_diagram", figure)
     finally:
-        table.close()
+        if table is not None:
+            table.close()
         logger.close()
     write_scaling_json(run_dir, rows)
     return rows

@@ -28,9 +28,12 @@ import torch
 
 from pedrl.policy_files import load_policy, room_factory
 from pedrl.rl.policy import TabularPolicy
-from pedrl.sim.checks import check_integer, check_number
+from pedrl.sim.checks import MAX_SEED, check_integer, check_number
 from pedrl.sim.sensing import observe
 from pedrl.vq.encoder import StateEncoder
+
+MAX_AGENTS = 1000
+"""The most bodies in a resolution room (the room itself may hold fewer: its density check)."""
 
 
 @dataclass(frozen=True)
@@ -140,11 +143,11 @@ def heading_resolution(
     """
     if not isinstance(policy, TabularPolicy):
         raise TypeError(f"policy is a {type(policy).__name__}: must be a TabularPolicy, as pedrl.load_policy returns")
-    check_integer("agents", agents, minimum=1, maximum=1000)
+    check_integer("agents", agents, minimum=1, maximum=MAX_AGENTS)
     check_integer("positions", positions, minimum=1, maximum=10_000)
     check_integer("headings", headings, minimum=2, maximum=100_000)
     check_number("speed_ratio", speed_ratio, low=0.0, high=1.0)
-    check_integer("seed", seed, minimum=0, maximum=2**31 - 1)
+    check_integer("seed", seed, minimum=0, maximum=MAX_SEED)
     room = room_factory(policy)(num_replicas=positions, num_agents=agents, device=policy.device)
     ids = turn_ids(
         policy.encoder,
@@ -167,32 +170,40 @@ def distinct_counts(ids: torch.Tensor) -> torch.Tensor:
     return 1 + (ordered[:, 1:] != ordered[:, :-1]).sum(1)
 
 
+PROGRAM = "python -m pedrl.evaluation.resolution"
+
+
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="python -m pedrl.evaluation.resolution",
+    from pedrl.cli import OneLineParser, integer_arg, number_arg
+
+    parser = OneLineParser(
+        prog=PROGRAM,
         description="Prototypes a learned quantizer gives an agent turning on the spot (the bearing's resolution).",
     )
     parser.add_argument("checkpoints", nargs="+", help="training checkpoints or exported policies (.safetensors)")
-    parser.add_argument("--agents", type=int, nargs="+", default=[1], help="bodies in the room (1: a lone agent)")
-    parser.add_argument("--positions", type=int, default=25, help="random placements")
-    parser.add_argument("--headings", type=int, default=360, help="evenly spaced headings of the turn")
-    parser.add_argument("--speed", type=float, default=0.5, help="the turning agent's speed, fraction of top speed")
-    parser.add_argument("--seed", type=int, default=0, help="placements and void fillings")
+    parser.add_argument(
+        "--agents", type=integer_arg(1, MAX_AGENTS), nargs="+", default=[1], help="bodies in the room (1: alone)"
+    )
+    parser.add_argument("--positions", type=integer_arg(1, 10_000), default=25, help="random placements")
+    parser.add_argument("--headings", type=integer_arg(2, 100_000), default=360, help="headings of the turn")
+    parser.add_argument(
+        "--speed", type=number_arg(0.0, 1.0), default=0.5, help="the turning agent's speed, fraction of top speed"
+    )
+    parser.add_argument("--seed", type=integer_arg(0, MAX_SEED), default=0, help="placements and void fillings")
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    from pedrl.cli import fail
+
     args = _parser().parse_args(argv)
-    try:
-        for agents in args.agents:  # every argument checked before the first file is read
-            check_integer("agents", agents, minimum=1, maximum=1000)
-        check_integer("positions", args.positions, minimum=1, maximum=10_000)
-        check_integer("headings", args.headings, minimum=2, maximum=100_000)
-        check_number("speed", args.speed, low=0.0, high=1.0)
+    try:  # every argument and every room checked before the first turn
         policies = [load_policy(path) for path in args.checkpoints]
+        for policy in policies:
+            for agents in args.agents:  # the room's own checks: the bodies fit, the memory suffices
+                room_factory(policy)(num_replicas=args.positions, num_agents=agents, device=policy.device)
     except ValueError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
+        fail(PROGRAM, str(err))
     print("| checkpoint | agents | K | prototypes per turn | degrees per prototype | changes per turn |")
     print("|---|---|---|---|---|---|")
     for path, policy in zip(args.checkpoints, policies, strict=True):

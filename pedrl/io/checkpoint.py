@@ -84,7 +84,8 @@ def save_checkpoint(path: str | os.PathLike, *, tensors: dict[str, torch.Tensor]
     try:
         return replace_atomically(path, lambda temporary: save_file(cpu_tensors, str(temporary), metadata=encoded))
     except (SafetensorError, OSError) as err:
-        raise CheckpointError(f"cannot write checkpoint {str(path)!r}: {first_line(err)}") from None
+        reason = err.strerror if isinstance(err, OSError) and err.strerror else first_line(err)
+        raise CheckpointError(f"cannot write checkpoint {str(path)!r}: {reason}") from None
 
 
 def _file_kind(path: Path) -> str:

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import os
 import secrets
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 FILE_MODE = 0o666
@@ -64,11 +64,22 @@ def replace_atomically(path: str | os.PathLike, write: Callable[[Path], None]) -
         with open(temporary, "rb+") as handle:
             os.fsync(handle.fileno())
         os.replace(temporary, path)
+    except OSError as err:
+        temporary.unlink(missing_ok=True)
+        raise named(err, path) from err
     except BaseException:
         temporary.unlink(missing_ok=True)
         raise
     fsync_folder(path.parent)
     return path
+
+
+def named(err: OSError, path: str | os.PathLike) -> OSError:
+    """``err`` if it names a file, else the same error naming ``path`` (a full disk fails at a write or ``close``
+    that names no file): the message a user sees then says which file could not be written."""
+    if err.filename is not None:
+        return err
+    return OSError(err.errno, err.strerror or str(err), str(path)) if err.errno is not None else err
 
 
 def fsync_folder(folder: Path) -> None:
@@ -78,3 +89,61 @@ def fsync_folder(folder: Path) -> None:
         os.fsync(fd)
     finally:
         os.close(fd)
+
+
+def output_problem(
+    path: str | os.PathLike, *, folder: bool = False, probed: dict[Path, str | None] | None = None
+) -> str | None:
+    """Why ``path`` cannot be written as an output ``folder`` (or file), in one line naming it; None when it can.
+
+    A folder must be a folder (or not exist yet), a file must not be a folder; every existing part of the path above
+    it must be a folder, and the nearest existing one must take a new file: a file is written into it and removed
+    again (permission bits alone do not tell: root ignores them, a read-only mount does not show in them). Nothing
+    else is created. ``probed`` caches the probe per folder across calls.
+    """
+    path = Path(path)
+    kind = "folder" if folder else "file"
+    allowed = "must be a folder this user can write in" if folder else "must be a file this user can write, or absent"
+    where = f"output {kind} {str(path)!r} is invalid"
+    if folder and path.exists() and not path.is_dir():
+        return f"{where}: it is a file; {allowed}"
+    if not folder and path.is_dir():
+        return f"{where}: it is a folder; {allowed}"
+    existing = path if folder and path.is_dir() else path.parent
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        return f"{where}: {str(existing)!r} is a file, not a folder; {allowed}"
+    cache = probed if probed is not None else {}
+    if existing not in cache:
+        cache[existing] = _write_probe(existing)
+    reason = cache[existing]
+    if reason is not None:
+        return (
+            f"{where}: {'it' if existing == path else repr(str(existing))} cannot be written in ({reason}); {allowed}"
+        )
+    return None
+
+
+def _write_probe(folder: Path) -> str | None:
+    """Why a file cannot be created in ``folder``, or None when one can (it is created and removed again)."""
+    import tempfile
+
+    try:
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as err:
+        return err.strerror or type(err).__name__
+    return None
+
+
+def check_outputs(folders: Iterable[str | os.PathLike] = (), files: Iterable[str | os.PathLike] = ()) -> None:
+    """Raise a one-line ``ValueError`` naming the first output folder or file that cannot be written
+    (:func:`output_problem`): called before any compute, so that a bad path costs no run and leaves no half-written
+    output behind."""
+    probed: dict[Path, str | None] = {}
+    for paths, folder in ((folders, True), (files, False)):
+        for path in paths:
+            problem = output_problem(path, folder=folder, probed=probed)
+            if problem is not None:
+                raise ValueError(problem)

@@ -21,7 +21,7 @@ from typing import Any
 
 import torch
 
-from pedrl.io.files import replace_atomically
+from pedrl.io.files import named, replace_atomically
 
 # TensorBoard is imported lazily: it is slow to import and runs that disable it never pay for it.
 
@@ -138,12 +138,18 @@ class CsvWriter:
                 writer.writerow({c: row.get(c, "") for c in self.columns})
 
     def write(self, row: Mapping[str, Any]) -> None:
-        self._writer.writerow({c: _format(row.get(c, "")) for c in self.columns})
-        self._handle.flush()
+        try:
+            self._writer.writerow({c: _format(row.get(c, "")) for c in self.columns})
+            self._handle.flush()
+        except OSError as err:  # a full disk names no file: name the table
+            raise named(err, self.path) from err
 
     def close(self) -> None:
         if not self._handle.closed:
-            self._handle.close()
+            try:
+                self._handle.close()
+            except OSError as err:
+                raise named(err, self.path) from err
 
 
 def _complete_rows(path: Path, keep_rows) -> list[dict[str, str]]:

@@ -9,10 +9,10 @@ allowed distance, the largest bottleneck error over 0.25. It prints one row per 
 
 from __future__ import annotations
 
-import argparse
 import math
 import time
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 import torch
@@ -64,14 +64,23 @@ def fit(env: Mapping[str, Any], time_gaps: Sequence[float], *, seed: int = 0) ->
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="python -m pedrl.validation.calibrate", description=__doc__.split("\n")[0])
-    parser.add_argument("--experiment", default="pedestrian_walk", help="a conf/experiment preset (its env settings)")
-    parser.add_argument("--time-gaps", type=float, nargs="+", default=[0.35, 0.4, 0.45, 0.5], help="T values (s)")
-    parser.add_argument("--seed", type=int, default=0)
+    from pedrl.cli import CONFIG_DIR, OneLineParser, integer_arg, number_arg
+    from pedrl.sim.checks import MAX_SEED
+
+    presets = sorted(path.stem for path in (Path(CONFIG_DIR) / "experiment").glob("*.yaml"))
+    parser = OneLineParser(prog="python -m pedrl.validation.calibrate", description=__doc__.split("\n")[0])
+    parser.add_argument(
+        "--experiment", default="pedestrian_walk", choices=presets, help="a conf/experiment preset (its env settings)"
+    )
+    parser.add_argument(
+        "--time-gaps",
+        type=number_arg(0.0, 10.0, low_open=True),
+        nargs="+",
+        default=[0.35, 0.4, 0.45, 0.5],
+        help="T values (s)",
+    )
+    parser.add_argument("--seed", type=integer_arg(0, MAX_SEED), default=0)
     args = parser.parse_args(argv)
-    bad = [gap for gap in args.time_gaps if not (math.isfinite(gap) and gap > 0)]
-    if bad:
-        parser.error(f"--time-gaps {bad[0]!r} is invalid: each must be a finite number > 0 (s)")
     torch.set_num_threads(1)
     chosen, rows = fit(experiment_env(args.experiment), args.time_gaps, seed=args.seed)
     print("| time_gap (s) | RiMEA 4 RMS (m/s, band 0.335) | bottleneck largest error (band 0.25) | score | s |")

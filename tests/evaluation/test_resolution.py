@@ -8,7 +8,7 @@ import sys
 import pytest
 import torch
 
-from pedrl.evaluation.resolution import distinct_counts, heading_resolution, main, turn_ids
+from pedrl.evaluation.resolution import distinct_counts, heading_resolution, turn_ids
 from pedrl.policy_files import load_policy
 from pedrl.sim import RoomEnv
 from pedrl.vq import Quantizer
@@ -78,16 +78,6 @@ def test_a_trained_quantizer_resolves_more_headings_in_its_own_room_than_one_pro
     assert result.degrees_per_prototype == pytest.approx(360.0 / result.mean)
     again = heading_resolution(policy, agents=2, positions=4, headings=72, seed=0)
     assert torch.equal(result.distinct, again.distinct)
-
-
-@pytest.mark.parametrize(
-    ("argument", "message"),
-    [("--positions=0", "positions=0"), ("--speed=2", "speed=2.0"), ("--agents=0", "agents=0")],
-)
-def test_bad_arguments_are_refused_in_one_line_before_any_file_is_read(argument, message, capsys, tmp_path):
-    assert main([str(tmp_path / "absent.safetensors"), argument]) == 2
-    error = capsys.readouterr().err.strip().splitlines()
-    assert len(error) == 1 and message in error[0]
 
 
 def test_the_command_line_prints_a_row_per_file_and_agent_count(checkpoint):

@@ -70,3 +70,31 @@ def test_a_temporary_left_by_a_kill_is_removed(tmp_path):
     CsvWriter(path, COLUMNS, keep_rows=lambda row: True).close()
     assert os.listdir(tmp_path) == ["learning_curve.csv"]
     assert len(read_csv(path)) == 2
+
+
+def test_a_full_disk_names_the_table(tmp_path):
+    """A row flushed on a full disk fails with ENOSPC and no file name: the error names the table, so that the line a
+    user sees says which file could not be written (it said "cannot use '?'")."""
+    import errno
+
+    from pedrl.cli import describe_os_error
+
+    writer = CsvWriter(tmp_path / "scaling.csv", ["a"])
+
+    class Full:
+        closed = False
+
+        def write(self, text: str = "") -> None:
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+        flush = close = write
+
+    writer._handle.close()
+    writer._handle = Full()
+    writer._writer = csv.DictWriter(writer._handle, fieldnames=["a"])
+    with pytest.raises(OSError) as raised:
+        writer.write({"a": 1})
+    assert describe_os_error(raised.value) == f"cannot use {str(tmp_path / 'scaling.csv')!r}: No space left on device"
+    with pytest.raises(OSError) as raised:
+        writer.close()
+    assert raised.value.filename == str(tmp_path / "scaling.csv")
