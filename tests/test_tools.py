@@ -11,11 +11,13 @@ import pytest
 
 import pedrl.bench.__main__
 import pedrl.embed
+import pedrl.evaluation.neighbours
 import pedrl.evaluation.resolution
 import pedrl.sweep
 import pedrl.validation.calibrate
 
 RESOLUTION = "python -m pedrl.evaluation.resolution"
+NEIGHBOURS = "python -m pedrl.evaluation.neighbours"
 CALIBRATE = "python -m pedrl.validation.calibrate"
 BENCH = "python -m pedrl.bench"
 EMBED = "python -m pedrl.embed"
@@ -34,6 +36,20 @@ CASES = [
      ("--speed", "'2' is invalid", "number in [0, 1]")),
     ("resolution-speed-nan", pedrl.evaluation.resolution.main, RESOLUTION, ["C", "--speed=nan"],
      ("--speed", "'nan' is invalid")),
+    ("neighbours-no-argument", pedrl.evaluation.neighbours.main, NEIGHBOURS, [], ("required: checkpoints",)),
+    ("neighbours-places-0", pedrl.evaluation.neighbours.main, NEIGHBOURS, ["C", "--places=0"],
+     ("--places", "'0' is invalid", "integer in [1, 10000]")),
+    ("neighbours-speed-0", pedrl.evaluation.neighbours.main, NEIGHBOURS, ["C", "--speeds", "0.5", "0"],
+     ("--speeds", "'0' is invalid", "number in (0, 1]")),
+    ("neighbours-speed-1.5", pedrl.evaluation.neighbours.main, NEIGHBOURS, ["C", "--speeds", "1.5"],
+     ("--speeds", "'1.5' is invalid")),
+    ("neighbours-crowd-size-0", pedrl.evaluation.neighbours.main, NEIGHBOURS, ["C", "--crowd-size=0"],
+     ("--crowd-size", "'0' is invalid")),
+    ("neighbours-seed--1", pedrl.evaluation.neighbours.main, NEIGHBOURS, ["C", "--seed=-1"], ("--seed", "'-1'")),
+    ("neighbours-places-1e9", pedrl.evaluation.neighbours.main, NEIGHBOURS, ["C", "--places=1e9"],
+     ("'1e9' is invalid",)),
+    ("neighbours-too-large", pedrl.evaluation.neighbours.main, NEIGHBOURS, ["C", "--places=10000", "--crowds=100000"],
+     ("too large", "at most 50,000,000 bodies")),
     ("calibrate-experiment", pedrl.validation.calibrate.main, CALIBRATE, ["--experiment", "nope"],
      ("--experiment", "invalid choice: 'nope'", "pedestrian_walk")),
     ("calibrate-seed", pedrl.validation.calibrate.main, CALIBRATE, ["--seed", "-1"], ("--seed", "'-1' is invalid")),

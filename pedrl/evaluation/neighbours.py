@@ -324,31 +324,33 @@ def check_sight_arguments(
         )
 
 
-class _Parser(argparse.ArgumentParser):
-    """argparse that refuses in one line (no usage dump)."""
-
-    def error(self, message: str) -> None:  # type: ignore[override]
-        raise ValueError(message)
+PROGRAM: Final = "python -m pedrl.evaluation.neighbours"
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = _Parser(
-        prog="python -m pedrl.evaluation.neighbours",
-        description="Prototypes a learned quantizer gives an agent as its neighbours move round it.",
+    from pedrl.cli import OneLineParser, integer_arg, number_arg
+
+    parser = OneLineParser(
+        prog=PROGRAM, description="Prototypes a learned quantizer gives an agent as its neighbours move round it."
     )
     parser.add_argument("checkpoints", nargs="+", help="training checkpoints or exported policies (.safetensors)")
-    parser.add_argument("--places", type=int, default=25, help="random placements of the agent")
-    parser.add_argument("--speeds", type=float, nargs="+", default=[0.5, 1.0], help="its speeds, of the top speed")
-    parser.add_argument("--samples", type=int, default=72, help="bearings, distances and headings per measure")
-    parser.add_argument("--crowds", type=int, default=400, help="random crowds per place and speed")
-    parser.add_argument("--crowd-size", type=int, default=7, help="neighbours in a crowd")
-    parser.add_argument("--seed", type=int, default=0, help="placements, crowds and void fillings")
+    parser.add_argument("--places", type=integer_arg(1, 10_000), default=25, help="random placements of the agent")
+    parser.add_argument(
+        "--speeds", type=number_arg(0.0, 1.0, low_open=True), nargs="+", default=[0.5, 1.0],
+        help="its speeds, fractions of the top speed",
+    )  # fmt: skip
+    parser.add_argument("--samples", type=integer_arg(2, 100_000), default=72, help="bearings, distances, headings")
+    parser.add_argument("--crowds", type=integer_arg(1, 100_000), default=400, help="random crowds per place, speed")
+    parser.add_argument("--crowd-size", type=integer_arg(1, 100), default=7, help="neighbours in a crowd")
+    parser.add_argument("--seed", type=integer_arg(0, 2**31 - 1), default=0, help="placements, crowds, fillings")
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    try:
-        args = _parser().parse_args(argv)
+    from pedrl.cli import fail
+
+    args = _parser().parse_args(argv)
+    try:  # every argument and every file checked before the first measure
         check_sight_arguments(
             places=args.places,
             speed_ratios=args.speeds,
@@ -359,8 +361,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         )
         policies = [load_policy(path) for path in args.checkpoints]
     except (ValueError, TypeError) as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
+        fail(PROGRAM, str(err))
     print("| checkpoint | speed | K | " + " | ".join(MEASURES) + " | sees neighbours |")
     print("|---|---|---|" + "---|" * len(MEASURES) + "---|")
     for path, policy in zip(args.checkpoints, policies, strict=True):

@@ -9,7 +9,7 @@ import sys
 import pytest
 import torch
 
-from pedrl.evaluation.neighbours import MEASURES, main, neighbour_sight, scenes_of, sight_of
+from pedrl.evaluation.neighbours import MEASURES, neighbour_sight, scenes_of, sight_of
 from pedrl.policy_files import load_policy
 from pedrl.sim import RoomEnv
 from pedrl.sim.sensing import ANGLE, DISTANCE, NUM_OWN_FEATURES, REL_SPEED, VELOCITY_ANGLE, num_features
@@ -93,26 +93,6 @@ def test_a_trained_checkpoint_reports_every_measure(checkpoint):
         counts = result.counts[measure]
         assert counts.shape == (policy.num_processes, 3)
         assert bool((counts >= 1).all()) and bool((counts <= min(24, result.num_prototypes)).all())
-
-
-@pytest.mark.parametrize(
-    ("arguments", "message"),
-    [
-        (["--places=0"], "places=0"),
-        (["--speeds", "0"], "speed_ratio=0.0"),
-        (["--speeds", "1.5"], "speed_ratio=1.5"),
-        (["--crowd-size=0"], "crowd_size=0"),
-        (["--seed=-1"], "seed=-1"),
-        (["--places=1e9"], "invalid int value"),
-        (["--places=10000", "--crowds=100000"], "too large"),
-        ([], "required"),
-    ],
-)
-def test_bad_arguments_are_refused_in_one_line_before_any_file_is_read(arguments, message, capsys, tmp_path):
-    argv = arguments if arguments == [] else [str(tmp_path / "absent.safetensors"), *arguments]
-    assert main(argv) == 2
-    error = capsys.readouterr().err.strip().splitlines()
-    assert len(error) == 1 and message in error[0], error
 
 
 def test_the_command_line_prints_a_row_per_file_and_speed(checkpoint):
