@@ -138,7 +138,7 @@ def sight_ids(
         velocities: ``(S, C, M, 2)`` each neighbour's velocity (m/s) in the same frame.
         own_headings: ``(S, C)`` the agent's heading in each configuration (None: the scene's).
         alone: the neighbours are not sensed (the agent is alone).
-        generator: random void fillings, drawn once per scene and configuration.
+        generator: random void fillings, drawn once per scene and kept over its configurations.
         processes: learning processes of ``encoder`` to encode with.
     """
     num_scenes, configurations, members, _ = offsets.shape
@@ -173,8 +173,13 @@ def sight_ids(
         num_neighbours=room.num_neighbours,
         num_walls=room.num_walls,
     )
-    num_sensed = obs.num_sensed[:, 0]
-    prepared = encoder.prepare(obs.features[:, 0], num_sensed, 0, generator)
+    features = obs.features[:, 0].view(num_scenes, configurations, -1)
+    sensed_counts = obs.num_sensed[:, 0].view(num_scenes, configurations)
+    # configuration by configuration, so that random void fillings are drawn once per scene (at the first) and kept
+    prepared = torch.stack(
+        [encoder.prepare(features[:, c], sensed_counts[:, c], c, generator) for c in range(configurations)], dim=1
+    ).view(batch, -1)
+    num_sensed = sensed_counts.reshape(batch)
     ids = [
         encoder.encode_prepared(prepared, num_sensed, torch.full_like(num_sensed, process)).view(
             num_scenes, configurations

@@ -104,3 +104,23 @@ def test_the_command_line_prints_a_row_per_file_and_speed(checkpoint):
     assert result.returncode == 0, result.stderr
     rows = [line for line in result.stdout.splitlines() if line.startswith(f"| {checkpoint}")]
     assert [row.split("|")[2].strip() for row in rows] == ["0.5", "1"]
+
+
+def test_random_void_fillings_are_kept_over_a_scene():
+    # prototypes over the second neighbour's distance: with one neighbour that slot is void and filled at random, once
+    # per scene; neither the circling neighbour (at a constant 1 m) nor the control's turn may be credited with the
+    # spread of fresh fillings
+    env = room()
+    settings = EncoderSettings.for_room(env, void_features="random")
+    features = num_features(env.num_neighbours, env.num_walls)
+    prototypes = torch.zeros(256, features)
+    # 97 prototypes 0.375 m apart, their boundaries clear of the fillings' values here (float32 jitters them by 1e-6)
+    prototypes = prototypes[:97]
+    prototypes[:, NUM_OWN_FEATURES + 3 + DISTANCE] = torch.linspace(0.0, 36.0, 97)
+    encoder = StateEncoder(
+        settings, Quantizer(mean=torch.zeros(features), std=torch.ones(features), prototypes=prototypes)
+    )
+    scenes = scenes_of(env, speed_ratios=SPEEDS, seed=3)
+    result = sight_of(encoder, env, scenes, speed_ratios=SPEEDS, samples=36, crowds=5, seed=3)
+    assert result.counts["circling"].tolist() == [[1] * 8]
+    assert result.counts["turning"].tolist() == [[1] * 8]
