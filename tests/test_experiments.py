@@ -25,6 +25,7 @@ K_VALUES = [512, 1024, 2048, 4096, 8192, 16384]
 REWARDS = {"paper_vqql": "paper", "paper_it": "paper", "paper_in": "paper", "main": "crowd", "tuned_it": "tuned"}
 REWARDS |= {"main_heading": "tuned"}
 REWARDS |= {"tuned_in": "tuned", "pedestrian": "tuned", "pedestrian_mix": "tuned", "pedestrian_walk": "tuned"}
+REWARDS |= {"pedestrian_lanes": "tuned"}
 REWARDS |= {"paper_it_full": "paper", "paper_in_full": "paper"}
 # the paper_faithful presets and the literal ones they build on
 FAITHFUL = {
