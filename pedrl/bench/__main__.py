@@ -17,6 +17,7 @@ Sections:
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import platform
@@ -27,7 +28,9 @@ import torch
 SECTIONS = ("sim", "kmeans", "e2e", "eval", "literal")
 
 
-def main(argv: list[str] | None = None) -> dict:
+def _arguments(argv: list[str] | None) -> tuple[argparse.Namespace, list[int] | None, list[str]]:
+    """The command line checked at the door (one line and exit code 2 for a mistake): the arguments, the e2e room
+    counts and the sections to run; sets the thread count."""
     from pedrl.cli import OneLineParser, integer_arg
     from pedrl.io.files import output_problem
 
@@ -70,6 +73,11 @@ def main(argv: list[str] | None = None) -> dict:
         parser.error(f"--only={args.only!r} names unknown sections {unknown}: allowed {', '.join(SECTIONS)}")
     if args.device.startswith("cuda") and not torch.cuda.is_available():
         parser.error(f"--device={args.device!r} is invalid here: no CUDA GPU is available")
+    return args, rooms, sections
+
+
+def main(argv: list[str] | None = None) -> dict:
+    args, rooms, sections = _arguments(argv)
     report: dict = {
         "device": args.device,
         "device_name": torch.cuda.get_device_name() if args.device.startswith("cuda") else platform.processor(),
