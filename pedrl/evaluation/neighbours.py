@@ -355,30 +355,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     from pedrl.cli import fail
 
     args = _parser().parse_args(argv)
+    settings = {
+        "places": args.places,
+        "speed_ratios": args.speeds,
+        "samples": args.samples,
+        "crowds": args.crowds,
+        "crowd_size": args.crowd_size,
+        "seed": args.seed,
+    }
     try:  # every argument and every file checked before the first measure
-        check_sight_arguments(
-            places=args.places,
-            speed_ratios=args.speeds,
-            samples=args.samples,
-            crowds=args.crowds,
-            crowd_size=args.crowd_size,
-            seed=args.seed,
-        )
+        check_sight_arguments(**settings)
         policies = [load_policy(path) for path in args.checkpoints]
     except (ValueError, TypeError) as err:
         fail(PROGRAM, str(err))
     print("| checkpoint | speed | K | " + " | ".join(MEASURES) + " | sees neighbours |")
     print("|---|---|---|" + "---|" * len(MEASURES) + "---|")
     for path, policy in zip(args.checkpoints, policies, strict=True):
-        sight = neighbour_sight(
-            policy,
-            places=args.places,
-            speed_ratios=args.speeds,
-            samples=args.samples,
-            crowds=args.crowds,
-            crowd_size=args.crowd_size,
-            seed=args.seed,
-        )
+        sight = neighbour_sight(policy, **settings)
         for ratio in sight.speed_ratios:
             cells = " | ".join(f"{sight.mean(m, ratio):.1f} ± {sight.std(m, ratio):.1f}" for m in MEASURES)
             verdict = "yes" if sight.sees_neighbours(ratio) else "no"
