@@ -30,13 +30,6 @@ its variants ``CollisionFreeSpeedModelV2`` (repulsion parameters per agent) and 
 (anisotropic, direction-dependent ranges), ``AnticipationVelocityModel`` (Xu, Chraibi & Seyfried 2021, built to form
 lanes), ``GeneralizedCentrifugalForceModel`` (Chraibi, Seyfried & Schadschneider 2010), ``SocialForceModel``
 (Helbing, Farkas & Vicsek 2000) and ``WarpDriverModel`` (Wolinski et al. 2016)."""
-TIME_GAP_MODELS: Final = (
-    "collision_free_speed",
-    "collision_free_speed_v2",
-    "collision_free_speed_v3",
-    "anticipation_velocity",
-)
-"""The models that read the time gap ``T``; the others ignore it."""
 
 
 # ---------------------------------------------------------------------- the model
@@ -61,8 +54,8 @@ class JuPedSimModel:
         model: the operational model, one of :data:`MODELS`.
         desired_speed: v0, the free walking speed (m/s); JuPedSim's collision-free speed default 1.2 (its social
             force default is 0.8; every model gets this value). RiMEA test 1 uses 1.33.
-        time_gap: T, the time gap (s) of the models in :data:`TIME_GAP_MODELS` (default 1.0; the anticipation
-            velocity model's own is 1.06); the others ignore it.
+        time_gap: T, the time gap (s) of the collision-free speed models and the anticipation velocity model (default
+            1.0; the anticipation velocity model's own is 1.06); the others ignore it.
         radius: body radius (m); JuPedSim's collision-free speed default 0.2. Pass the body size of the run compared.
         dt: JuPedSim's time step (s); its default 0.01.
 
