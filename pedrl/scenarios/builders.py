@@ -93,6 +93,10 @@ def bottleneck(
     )
 
 
+MAX_SHARE: Final = 1e6
+"""Largest share of a corridor's ``ratio``: the shares only split the agents, and their sum must stay finite."""
+
+
 def corridor(
     *, length: float = 40.0, width: float = 5.0, spawn_length: float = 12.0, ratio: Sequence[float] = (1.0, 1.0)
 ) -> Scenario:
@@ -106,11 +110,11 @@ def corridor(
         or len(ratio) != 2
         or not all(isinstance(w, int | float) and not isinstance(w, bool) and math.isfinite(w) for w in ratio)
         or min(ratio) < 0
-        or max(ratio) <= 0
+        or not 0 < max(ratio) <= MAX_SHARE
     ):
         raise ValueError(
-            f"scenario.ratio={shown(ratio)} is invalid: must be two finite shares >= 0, at least one > 0 (west end"
-            " walking east, east end walking west)"
+            f"scenario.ratio={shown(ratio)} is invalid: must be two shares in [0, {MAX_SHARE:g}], at least one > 0"
+            " (west end walking east, east end walking west)"
         )
     if 2 * spawn_length > length:
         raise ValueError(f"scenario.spawn_length={spawn_length!r} is invalid: at most length / 2 = {length / 2!r} m")

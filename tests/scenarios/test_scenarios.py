@@ -115,7 +115,8 @@ BAD = [
     ({"name": "four_exits", "closed_exits": [0, 1, 2, 3]}, "at least one exit must stay open"),
     ({"name": "four_exits", "closed_exits": [7]}, "scenario.closed_exits holds 7"),
     ({"name": "corridor", "exits": [[0, 0, 1, 1]]}, "scenario.exits is set without scenario.geometry"),
-    ({"name": "corridor", "ratio": [1, -1]}, "scenario.ratio=[1, -1] is invalid: must be two finite shares >= 0"),
+    ({"name": "corridor", "ratio": [1, -1]}, "scenario.ratio=[1, -1] is invalid: must be two shares in [0, 1e+06]"),
+    ({"name": "corridor", "ratio": [1e308, 1e308]}, "scenario.ratio=[1e+308, 1e+308] is invalid"),
     ({"name": "corridor", "ratio": [0, 0]}, "scenario.ratio=[0, 0] is invalid"),
     ({"name": "corridor", "ratio": [3, 3, 3]}, "scenario.ratio=[3, 3, 3] is invalid"),
 ]
