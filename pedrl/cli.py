@@ -48,7 +48,7 @@ def run_reporting_errors(program: str, action: Callable[[], T]) -> T:
     except InstantiationException as err:
         message = str(err.__cause__ or err)
     except OSError as err:  # a read-only folder, a file where a folder should be, a full disk (named by its folder)
-        message = _describe_write_error(err)
+        message = describe_os_error(err)
     fail(program, message)
 
 
@@ -102,7 +102,7 @@ def check_added_keys(program: str, args: list[str], config_dir: str | Path, conf
             continue
         near = nearest_key(key, config)
         if near is not None:
-            hint = f"did you mean {near}={'...'}?"
+            hint = f"did you mean {near}=...?"
         else:
             names = [str(name) for name in node if str(name) != "hydra"] if OmegaConf.is_dict(node) else []
             hint = f"the keys of {parent or 'the config'}: {', '.join(sorted(names)[:20])}" if names else ""
@@ -164,12 +164,12 @@ def run_hydra_reporting_errors(program: str, main: Callable[[], T], *, config_di
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # Python's advice: no second error at exit
         sys.exit(1)
     except OSError as err:
-        message = _describe_write_error(err)
+        message = describe_os_error(err)
     except ValueError as err:  # logging.config: "Unable to configure handler 'file'" from the log file's OSError
         if not isinstance(err.__cause__, OSError):
             message = _describe_override_failure(err)
         else:
-            message = _describe_write_error(err.__cause__)
+            message = describe_os_error(err.__cause__)
     except Exception as err:
         message = _describe_override_failure(err)
     fail(program, message)
@@ -301,11 +301,6 @@ def _describe_override_failure(err: Exception) -> str:
             return f"{line!r} cannot be applied to the config ({reason})" if line else reason
         traceback = traceback.tb_next
     raise err
-
-
-def _describe_write_error(err: OSError) -> str:
-    """:func:`describe_os_error` (kept for the callers above)."""
-    return describe_os_error(err)
 
 
 def fail(program: str, message: str) -> NoReturn:
