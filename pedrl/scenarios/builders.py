@@ -14,7 +14,7 @@ import torch
 from shapely.geometry import LineString, Polygon, box
 
 from pedrl.scenarios.model import MAX_EXITS, MAX_SPAWNS, PaperRoom, Scenario, Spawn, overlapping_exits
-from pedrl.scenarios.polygons import MAX_COORDINATE, MISSING, TOLERANCE, bounds_text, float32_spacing, short_reason
+from pedrl.scenarios.polygons import MAX_COORDINATE, MISSING, TOLERANCE, bounds_text, check_reach, short_reason
 from pedrl.scenarios.routes import with_routes
 from pedrl.scenarios.wkt import MAX_WKT_BYTES, read_geometry
 from pedrl.sim.checks import shown
@@ -349,12 +349,7 @@ def _numbers(name: str, value: Any, count: int) -> torch.Tensor:
             numbers = None
     if numbers is None or not bool(torch.isfinite(numbers).all()):
         raise ValueError(f"{name}={shown(value)} is invalid: must be {count} finite numbers (m)")
-    farthest = float(numbers.abs().max())
-    if farthest > MAX_COORDINATE:  # before any geometry is made of it: float32 would make it inf
-        raise ValueError(
-            f"{name}={shown(value)} is invalid: it reaches {farthest:g} m from the origin,"
-            f" {float32_spacing(farthest)}; every |x| and |y| must be at most {MAX_COORDINATE:g} m"
-        )
+    check_reach(float(numbers.abs().max()), f"{name}={shown(value)}")  # before float32 geometry makes it inf
     return numbers
 
 

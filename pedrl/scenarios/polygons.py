@@ -24,7 +24,12 @@ def check_extent(polygon: Polygon, what: str) -> None:
     """Refuse a polygon with a coordinate beyond :data:`MAX_COORDINATE`, where float32 positions would drift (or a
     coordinate that is not a finite number, :func:`check_finite`)."""
     check_finite(polygon, what)
-    farthest = float(np.abs(shapely.get_coordinates(polygon)).max(initial=0.0))
+    check_reach(float(np.abs(shapely.get_coordinates(polygon)).max(initial=0.0)), what)
+
+
+def check_reach(farthest: float, what: str) -> None:
+    """Refuse ``what`` reaching ``farthest`` (m, its largest ``|x|`` or ``|y|``) beyond :data:`MAX_COORDINATE`, in one
+    line naming the distance and float32's spacing there."""
     if farthest > MAX_COORDINATE:
         raise ValueError(
             f"{what} is invalid: it reaches {farthest:.6g} m from the origin, {float32_spacing(farthest)}; every |x|"
