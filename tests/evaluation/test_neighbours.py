@@ -15,6 +15,7 @@ from pedrl.sim import RoomEnv
 from pedrl.sim.sensing import ANGLE, DISTANCE, NUM_OWN_FEATURES, REL_SPEED, VELOCITY_ANGLE, num_features
 from pedrl.vq import Quantizer
 from pedrl.vq.encoder import EncoderSettings, StateEncoder
+from tests.evaluation.test_resolution import encoder_over
 from tests.refusals import train_checkpoint
 
 SPEEDS = (0.5, 1.0)
@@ -24,9 +25,15 @@ def room(places: int = 4) -> RoomEnv:
     return RoomEnv(num_replicas=places, num_agents=1, width=20.0, length=30.0)
 
 
-def crafted(env: RoomEnv, *, neighbours: bool, prototypes: int = 256) -> StateEncoder:
-    """An encoder whose prototypes differ only in the own heading (``neighbours=False``: the neighbour features weigh
-    0) or only in the nearest neighbour's three features (``True``: they alone weigh), spread over their ranges."""
+def over_heading(env: RoomEnv, prototypes: int = 256) -> StateEncoder:
+    """An encoder whose prototypes differ only in the own heading, spread over its range: the neighbours weigh 0."""
+    angles = -math.pi + 2.0 * math.pi * torch.rand(prototypes, generator=torch.Generator().manual_seed(0))
+    return encoder_over(VELOCITY_ANGLE, angles, env)
+
+
+def over_nearest_neighbour(env: RoomEnv, prototypes: int = 256) -> StateEncoder:
+    """An encoder whose prototypes differ only in the nearest neighbour's three features, spread over their ranges:
+    they alone weigh."""
     settings = EncoderSettings.for_room(env)
     features = num_features(env.num_neighbours, env.num_walls)
     generator = torch.Generator().manual_seed(0)
@@ -35,15 +42,12 @@ def crafted(env: RoomEnv, *, neighbours: bool, prototypes: int = 256) -> StateEn
         return low + (high - low) * torch.rand(prototypes, generator=generator)
 
     spread = torch.zeros(prototypes, features)
-    if neighbours:
-        distances = uniform(0.3, 6.0)
-        if settings.distance_transform == "log":
-            distances = distances.log1p()
-        spread[:, NUM_OWN_FEATURES + REL_SPEED] = uniform(-2.0, 2.0)
-        spread[:, NUM_OWN_FEATURES + DISTANCE] = distances
-        spread[:, NUM_OWN_FEATURES + ANGLE] = uniform(-math.pi, math.pi)
-    else:
-        spread[:, VELOCITY_ANGLE] = uniform(-math.pi, math.pi)
+    distances = uniform(0.3, 6.0)
+    if settings.distance_transform == "log":
+        distances = distances.log1p()
+    spread[:, NUM_OWN_FEATURES + REL_SPEED] = uniform(-2.0, 2.0)
+    spread[:, NUM_OWN_FEATURES + DISTANCE] = distances
+    spread[:, NUM_OWN_FEATURES + ANGLE] = uniform(-math.pi, math.pi)
     quantizer = Quantizer(mean=torch.zeros(features), std=torch.ones(features), prototypes=spread)
     return StateEncoder(settings, quantizer)
 
@@ -55,7 +59,7 @@ def sight(encoder: StateEncoder, env: RoomEnv):
 
 def test_a_quantizer_that_ignores_the_neighbours_sees_one_prototype_for_every_neighbour_measure():
     env = room()
-    result = sight(crafted(env, neighbours=False), env)
+    result = sight(over_heading(env), env)
     for measure in ("circling", "head_on", "receding", "crowds"):
         assert result.counts[measure].tolist() == [[1] * 8], measure
     assert result.mean("turning") > 4  # the control: the own heading is seen
@@ -64,7 +68,7 @@ def test_a_quantizer_that_ignores_the_neighbours_sees_one_prototype_for_every_ne
 
 def test_a_quantizer_that_reads_the_neighbours_alone_sees_them_and_not_the_heading():
     env = room()
-    result = sight(crafted(env, neighbours=True), env)
+    result = sight(over_nearest_neighbour(env), env)
     assert result.counts["turning"].tolist() == [[1] * 8]
     for measure in ("circling", "head_on", "receding", "crowds"):
         assert result.mean(measure) >= 3, measure
@@ -75,7 +79,7 @@ def test_a_quantizer_that_reads_the_neighbours_alone_sees_them_and_not_the_headi
 
 def test_the_crowds_are_random_but_seeded():
     env = room()
-    encoder = crafted(env, neighbours=True)
+    encoder = over_nearest_neighbour(env)
     first, again = sight(encoder, env), sight(encoder, env)
     for measure in MEASURES:
         assert torch.equal(first.counts[measure], again.counts[measure])
@@ -111,15 +115,8 @@ def test_random_void_fillings_are_kept_over_a_scene():
     # per scene; neither the circling neighbour (at a constant 1 m) nor the control's turn may be credited with the
     # spread of fresh fillings
     env = room()
-    settings = EncoderSettings.for_room(env, void_features="random")
-    features = num_features(env.num_neighbours, env.num_walls)
-    prototypes = torch.zeros(256, features)
     # 97 prototypes 0.375 m apart, their boundaries clear of the fillings' values here (float32 jitters them by 1e-6)
-    prototypes = prototypes[:97]
-    prototypes[:, NUM_OWN_FEATURES + 3 + DISTANCE] = torch.linspace(0.0, 36.0, 97)
-    encoder = StateEncoder(
-        settings, Quantizer(mean=torch.zeros(features), std=torch.ones(features), prototypes=prototypes)
-    )
+    encoder = encoder_over(NUM_OWN_FEATURES + 3 + DISTANCE, torch.linspace(0.0, 36.0, 97), env, void_features="random")
     scenes = scenes_of(env, speed_ratios=SPEEDS, seed=3)
     result = sight_of(encoder, env, scenes, speed_ratios=SPEEDS, samples=36, crowds=5, seed=3)
     assert result.counts["circling"].tolist() == [[1] * 8]
