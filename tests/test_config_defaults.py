@@ -22,6 +22,8 @@ from omegaconf import OmegaConf
 from pedrl.algos.base import Trainer, VQSettings
 from pedrl.algos.registry import ENV_RUN_ARGUMENTS, TRAINER_CLASSES, TRAINER_RUN_ARGUMENTS
 from pedrl.cli import CONFIG_DIR
+from pedrl.configs import AREA_SETTINGS
+from pedrl.scenarios import paper_room
 from pedrl.sim import RoomEnv
 
 CONF = Path(CONFIG_DIR)
@@ -73,9 +75,12 @@ def python_defaults(name: str) -> dict[str, Any]:
     if name.startswith("algo/"):
         defaults = keyword_defaults(algo_class(Path(name).stem))
         return {k: v for k, v in defaults.items() if k not in TRAINER_RUN_ARGUMENTS}
-    if name == "env/room.yaml":
+    if name == "env/room.yaml":  # the room's settings, and the paper's room's sizes (the scenario's)
         defaults = keyword_defaults(RoomEnv)
-        return {k: v for k, v in defaults.items() if k not in ENV_RUN_ARGUMENTS}
+        area = inspect.signature(paper_room).parameters
+        return {k: v for k, v in defaults.items() if k not in ENV_RUN_ARGUMENTS} | {
+            name: area[name].default for name in AREA_SETTINGS
+        }
     if name == "vq/default.yaml":
         return {field.name: field.default for field in dataclasses.fields(VQSettings)}
     raise KeyError(name)

@@ -11,7 +11,7 @@ from pedrl._numba import numba_available
 from pedrl.algos import VQQL
 from pedrl.rl import kernels as rl_kernels
 from pedrl.rl import zeros_q_values
-from pedrl.sim import RoomEnv
+from pedrl.scenarios import paper_room
 from pedrl.sim.motion import sequential_kernel
 from pedrl.trial import fused_kernels
 from pedrl.vq import tree
@@ -37,7 +37,7 @@ KERNELS = {
 
 def run_trials(num_agents: int, prototypes: int, rooms_per_process: int, fused: bool) -> None:
     trainer = VQQL(
-        env=functools.partial(RoomEnv, width=12.0, length=12.0, door_width=3.0, max_decisions=40),
+        env=functools.partial(paper_room(width=12.0, length=12.0, door_width=3.0).room, max_decisions=40),
         vq={"num_prototypes": prototypes, "max_iterations": 2},
         num_agents=num_agents,
         trials=1,
@@ -82,8 +82,9 @@ def test_numba_can_be_switched_off_for_the_torch_code(tmp_path):
     script = (
         "import functools, json, torch\n"
         "from pedrl.algos import VQQL\n"
-        "from pedrl.sim import RoomEnv\n"
-        "t = VQQL(env=functools.partial(RoomEnv, width=12.0, length=12.0, door_width=3.0, max_decisions=40),"
+        "from pedrl.scenarios import paper_room\n"
+        "room = paper_room(width=12.0, length=12.0, door_width=3.0).room\n"
+        "t = VQQL(env=functools.partial(room, max_decisions=40),"
         " vq={'num_prototypes': 256, 'max_iterations': 2}, num_agents=6, trials=6, gather_trials=2, processes=2,"
         " progress=False, tensorboard=False, seed=3, fused=False)\n"
         "r = t.fit()\n"

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import functools
 import json
 import os
 import shutil
@@ -67,13 +66,13 @@ def measure(*, rooms: Sequence[int], trials: int, quick: bool, device: str) -> l
     """Agent-decisions per second of the VQQL loop (``run_trial``) at R = 20, N = 20, for each E in ``rooms``."""
     from pedrl.algos import VQQL
     from pedrl.rl import zeros_q_values
-    from pedrl.sim import RoomEnv
+    from pedrl.scenarios import paper_room
 
     prototypes = QUICK_PROTOTYPES if quick else PROTOTYPES
     rows = []
     for rooms_per_process in rooms:
         trainer = VQQL(
-            env=functools.partial(RoomEnv),
+            env=paper_room().room,
             vq={"num_prototypes": prototypes, "max_iterations": 3, "max_states": 100_000},
             num_agents=AGENTS,
             trials=1,

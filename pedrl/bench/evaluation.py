@@ -14,7 +14,7 @@ from typing import Final
 import torch
 
 from pedrl.evaluation.engine import record_batch
-from pedrl.sim import RoomEnv
+from pedrl.scenarios import paper_room
 from pedrl.sim.actions import GOAL_SPEED_RATIOS, GOAL_TURN_RATIOS
 from pedrl.sim.controllers import GreedyDoorController
 
@@ -40,7 +40,7 @@ def run(*, quick: bool = False, device: str = "cpu") -> dict:
     for rooms, agents in ((8, 40),) if quick else SIZES:
         rates = {}
         for fused in (False, True):
-            env = RoomEnv(num_replicas=rooms, num_agents=agents, **MAIN_ROOM)
+            env = paper_room().room(num_replicas=rooms, num_agents=agents, **MAIN_ROOM)
             env.reset(seed=0)
             record_batch(env, GreedyDoorController(), fused=fused)  # compiles, warms the caches
             env.reset(seed=1)

@@ -15,7 +15,7 @@ from typing import Final
 
 import torch
 
-from pedrl.sim import RoomEnv
+from pedrl.scenarios import paper_room
 from pedrl.sim.actions import NUM_ACTIONS
 
 __all__ = ["SIZES", "run", "time_stepping"]
@@ -45,7 +45,7 @@ def time_stepping(
     Returns:
         ``{"replicas", "agents", "steps", "seconds", "env_steps_per_s", "agent_steps_per_s"}``.
     """
-    env = RoomEnv(num_replicas=num_replicas, num_agents=num_agents, device=device)
+    env = paper_room().room(num_replicas=num_replicas, num_agents=num_agents, device=device)
     env.reset(seed=seed)
     generator = torch.Generator(device=env.device).manual_seed(seed)
     shape = (num_replicas, num_agents)

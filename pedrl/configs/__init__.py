@@ -19,6 +19,7 @@ A config stored in a checkpoint is also bounded before anything walks it (:func:
 from pedrl.configs.embed import embed_geometry
 from pedrl.configs.names import ALGO_TARGETS, ENV_CLASSES, KNOWN_TARGETS, VOID_FEATURES_DEFAULTS, check_names_no_code
 from pedrl.configs.rooms import (
+    AREA_SETTINGS,
     ENV_RUN_ARGUMENTS,
     MAX_MIX,
     MAX_MIX_AGENTS,
@@ -26,6 +27,7 @@ from pedrl.configs.rooms import (
     config_settings,
     env_factory,
     mix_rooms,
+    room_keywords,
     setting_names,
 )
 from pedrl.configs.stored import (
@@ -41,6 +43,7 @@ from pedrl.configs.stored import (
 
 __all__ = [
     "ALGO_TARGETS",
+    "AREA_SETTINGS",
     "ENV_CLASSES",
     "ENV_RUN_ARGUMENTS",
     "HISTORICAL_VALUES",
@@ -59,6 +62,7 @@ __all__ = [
     "embed_geometry",
     "env_factory",
     "mix_rooms",
+    "room_keywords",
     "setting_names",
     "stored_env",
     "stored_value",

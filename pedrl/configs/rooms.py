@@ -15,8 +15,11 @@ from pedrl.scenarios import build_scenario, inline_geometry
 from pedrl.sim import RoomEnv
 from pedrl.sim.checks import shown
 
-ENV_RUN_ARGUMENTS: Final = ("num_replicas", "num_agents", "device", "geometry")
-"""Room arguments supplied at run time (not config values): the geometry comes from the ``scenario`` config."""
+ENV_RUN_ARGUMENTS: Final = ("num_replicas", "num_agents", "device")
+"""Room arguments supplied at run time (not config values); the walkable area comes from the ``scenario`` config."""
+AREA_SETTINGS: Final = ("width", "length", "door_width")
+"""``env`` keys that describe the walkable area, not the room: the sizes of the paper's room (``scenario=paper_room``,
+:func:`pedrl.scenarios.paper_room`)."""
 MAX_MIX: Final = 16
 """Most rooms of a ``mix`` (training across scenarios)."""
 MAX_MIX_AGENTS: Final = 10_000
@@ -48,21 +51,29 @@ def env_factory(
         ValueError: one line, for a key the room does not take or a bad scenario (values are validated when the room
             is built).
     """
-    settings = config_settings("env", env, ENV_CLASSES, supplied=ENV_RUN_ARGUMENTS)
+    settings = config_settings("env", env, ENV_CLASSES, supplied=ENV_RUN_ARGUMENTS, area=AREA_SETTINGS)
     built = build_scenario(scenario, room=settings, files=files)
+    room = room_keywords(settings)
 
     def factory(*, num_replicas: int, num_agents: int, device: str | Any = "cpu") -> RoomEnv:
-        return built.room(num_replicas=num_replicas, num_agents=num_agents, device=device, **settings)
+        return built.room(num_replicas=num_replicas, num_agents=num_agents, device=device, **room)
 
     factory.scenario = built  # type: ignore[attr-defined]
     return factory
 
 
+def room_keywords(env: Mapping[str, Any]) -> dict[str, Any]:
+    """The keyword settings of a room (:meth:`pedrl.scenarios.Scenario.room`) of an ``env`` config or mapping: its
+    keys but ``_target_`` and the walkable area's (:data:`AREA_SETTINGS`, the scenario's)."""
+    return {key: value for key, value in env.items() if key != "_target_" and key not in AREA_SETTINGS}
+
+
 def config_settings(
-    section: str, node: Any, classes: Mapping[str, type], *, supplied: tuple[str, ...]
+    section: str, node: Any, classes: Mapping[str, type], *, supplied: tuple[str, ...], area: tuple[str, ...] = ()
 ) -> dict[str, Any]:
     """The settings of the ``section`` node of a config (``env``) for the class its ``_target_`` selects among
-    ``classes``: every other key, each a keyword parameter of that class but the ``supplied`` ones.
+    ``classes``: every other key, each a keyword parameter of that class but the ``supplied`` ones, or one of the
+    ``area`` keys (the walkable area's, which the scenario takes).
 
     Raises:
         ValueError: one line, for a node that is not a mapping, an unknown ``_target_`` or a key the class does
@@ -73,7 +84,7 @@ def config_settings(
     target = node.get("_target_")
     if not isinstance(target, str) or target not in classes:
         raise ValueError(f"{section}._target_={target!r} is invalid: must be one of {', '.join(classes)}")
-    allowed = [name for name in setting_names(classes[target]) if name not in supplied]
+    allowed = [name for name in setting_names(classes[target]) if name not in supplied] + list(area)
     settings = {key: value for key, value in node.items() if key != "_target_"}
     for key in settings:
         if key not in allowed:

@@ -333,7 +333,8 @@ def parallel_env(
     crowd_epsilon: float = 0.0,
     **room_kwargs: Any,
 ) -> PedestrianParallelEnv:
-    """Build ``RoomEnv(num_replicas=1, **room_kwargs)`` in ``scenario`` and wrap it in a :class:`PedestrianParallelEnv`.
+    """Build a room of one replica in ``scenario`` (:meth:`pedrl.scenarios.Scenario.room`) and wrap it in a
+    :class:`PedestrianParallelEnv`.
 
     Args:
         render_mode: Only ``None``.
@@ -341,18 +342,17 @@ def parallel_env(
             ...}``); ``None``: the paper's room of ``width``, ``length`` and ``door_width``.
         crowd, learners, crowd_epsilon: a learned crowd for the agents after the first ``learners`` (see
             :class:`PedestrianParallelEnv`).
-        **room_kwargs: ``RoomEnv`` keywords (``num_agents``, ``width``, ``max_decisions``, ``device``...).
+        **room_kwargs: The room's keywords (``num_agents``, ``max_decisions``, ``device``...), and the paper's room's
+            ``width``, ``length`` and ``door_width``.
 
     Raises:
         ValueError: For an invalid room keyword or scenario (one-line messages) or ``num_replicas`` other than 1.
     """
-    if scenario is not None:
-        from pedrl.scenarios import build_scenario
+    from pedrl.configs import room_keywords
+    from pedrl.scenarios import build_scenario
 
-        built = build_scenario({"name": scenario} if isinstance(scenario, str) else scenario, room=room_kwargs)
-        room = built.room(**{"num_replicas": 1, **room_kwargs})
-    else:
-        room = RoomEnv(**{"num_replicas": 1, **room_kwargs})
+    built = build_scenario({"name": scenario} if isinstance(scenario, str) else scenario, room=room_kwargs)
+    room = built.room(**{"num_replicas": 1, **room_keywords(room_kwargs)})
     return PedestrianParallelEnv(
         room, render_mode=render_mode, crowd=crowd, learners=learners, crowd_epsilon=crowd_epsilon
     )

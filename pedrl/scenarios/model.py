@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import astuple, dataclass, field
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Final
 
 import numpy as np
@@ -15,9 +15,8 @@ import torch
 from shapely.geometry import LineString, Point, Polygon, box
 
 from pedrl.scenarios.polygons import TOLERANCE, bounds_text, check_extent, check_polygon, coords_text
-from pedrl.sim.checks import check_number
 from pedrl.sim.env import MAX_DENSITY, RoomEnv
-from pedrl.sim.geometry import Geometry, SpawnArea, spawn_counts
+from pedrl.sim.geometry import Geometry, RouteTable, SpawnArea, spawn_counts
 
 if TYPE_CHECKING:
     from pedrl.analysis.trajectories import AreaGeometry
@@ -41,24 +40,6 @@ class Spawn:
 
 
 @dataclass(frozen=True)
-class RouteGraph:
-    """The routes of a walkable area as plain numbers (:func:`pedrl.scenarios.routes.with_routes` builds it; the
-    simulation's :class:`~pedrl.sim.geometry.RouteTable` is made from it).
-
-    Attributes:
-        nodes: The route corners ``(x, y)`` (m), clear of the walls.
-        costs: ``costs[m][e]``: the route length (m) from node ``m`` to ``ends[e]``; inf where there is none.
-        next_node: ``next_node[m][e]``: the next node on that route; -1: the exit itself.
-        ends: A point inside each exit, the clearance in from its middle: where the routes end.
-    """
-
-    nodes: tuple[tuple[float, float], ...]
-    costs: tuple[tuple[float, ...], ...]
-    next_node: tuple[tuple[int, ...], ...]
-    ends: tuple[tuple[float, float], ...]
-
-
-@dataclass(frozen=True)
 class Scenario:
     """A walkable polygon with exits and spawn areas (shapely objects), plus named measurement lines.
 
@@ -69,7 +50,8 @@ class Scenario:
         spawns: The spawn areas.
         lines: Named measurement lines (e.g. ``"opening"`` across the bottleneck), for flows.
         waypoint_radius: Distance (m) at which a waypoint counts as reached.
-        routes: The area's routes to its exits, where some start may not see an exit (else None).
+        routes: The area's routes to its exits (:class:`~pedrl.sim.geometry.RouteTable`,
+            :func:`~pedrl.scenarios.routes.with_routes`), where some start may not see an exit (else None).
     """
 
     name: str
@@ -78,7 +60,7 @@ class Scenario:
     spawns: tuple[Spawn, ...]
     lines: Mapping[str, LineString] = field(default_factory=dict)
     waypoint_radius: float = 2.0
-    routes: RouteGraph | None = None
+    routes: RouteTable | None = None
 
     def __post_init__(self) -> None:
         check_polygon(self.walkable, "the walkable area")
@@ -137,15 +119,15 @@ class Scenario:
                     f" there ({MAX_DENSITY:.0%} of its free area)"
                 )
 
-    def room(self, **room_kwargs: Any) -> RoomEnv:
-        """``RoomEnv(**room_kwargs)`` in this scenario: the room validates every value (its own estimate of the
-        spawn areas' room included), then :meth:`check_capacity` checks the agents against the exact free areas.
+    def room(self, **settings: Any) -> RoomEnv:
+        """A room in this scenario: ``RoomEnv(self.geometry(), **settings)`` (``num_replicas``, ``num_agents``,
+        ``device`` and the room's settings); the room validates every value (its own estimate of the spawn areas'
+        room included), then :meth:`check_capacity` checks the agents against the exact free areas.
 
         Raises:
             ValueError: one line naming the bad value.
         """
-        goal_depth = check_number("goal_depth", room_kwargs.get("goal_depth", 0.0), low=0.0, high=math.inf)
-        room = RoomEnv(**room_kwargs, geometry=self.geometry(goal_depth=goal_depth))
+        room = RoomEnv(self.geometry(), **settings)
         self.check_capacity(room.num_agents, room.agent_radius)
         return room
 
@@ -176,7 +158,7 @@ class Scenario:
             goal_depth=goal_depth,
             waypoint_radius=self.waypoint_radius,
             name=self.name,
-            routes=None if self.routes is None else astuple(self.routes),
+            routes=self.routes,
             device=device,
         )
 

@@ -24,10 +24,12 @@ from typing import Final
 import networkx as nx
 import numpy as np
 import shapely
+import torch
 from shapely.geometry import LineString, Point, Polygon
 from shapely.ops import nearest_points
 
-from pedrl.scenarios.model import RouteGraph, Scenario
+from pedrl.scenarios.model import Scenario
+from pedrl.sim.geometry import RouteTable
 
 CLEARANCES: Final = (0.5, 0.25)
 """Distances (m) the route keeps from the walls, tried in turn: 0.5 m (a pedestrian's 0.2 m body and room to turn
@@ -52,7 +54,7 @@ lines of sight, and takes seconds to build); a room whose shrunk area keeps more
 
 
 def with_routes(scenario: Scenario) -> Scenario:
-    """``scenario`` with its :class:`~pedrl.scenarios.model.RouteGraph` where some start may not see an exit: the
+    """``scenario`` with its :class:`~pedrl.sim.geometry.RouteTable` where some start may not see an exit: the
     walkable area is not convex and some spawn area has no hand-made waypoints. The graph's nodes are the corners of
     the area shrunk by the first clearance of :data:`CLEARANCES` at which every such spawn area reaches an exit it may
     take; the room then gives each walker its own route at placement (:mod:`pedrl.sim.routing`).
@@ -77,7 +79,7 @@ def with_routes(scenario: Scenario) -> Scenario:
     )
 
 
-def route_graph(scenario: Scenario, clearance: float) -> tuple[RouteGraph, Polygon, Polygon]:
+def route_graph(scenario: Scenario, clearance: float) -> tuple[RouteTable, Polygon, Polygon]:
     """The visibility graph of ``scenario``'s walkable area shrunk by ``clearance`` (and simplified within
     :data:`SIMPLIFY`): its corners' shortest routes to each exit (networkx's Dijkstra from the point ``clearance``
     inside each exit's middle); with the shrunk area and that area grown by :data:`SNAP` and prepared, which every
@@ -121,13 +123,13 @@ def route_graph(scenario: Scenario, clearance: float) -> tuple[RouteGraph, Polyg
                 costs[node][exit_index] = lengths[node]
                 following = paths[node][-2]
                 next_node[node][exit_index] = following if following < len(corners) else -1
-    return (
-        RouteGraph(
-            tuple(corners), tuple(map(tuple, costs)), tuple(map(tuple, next_node)), tuple(nodes[len(corners) :])
-        ),
-        free,
-        area,
+    table = RouteTable(
+        nodes=torch.tensor(corners, dtype=torch.float64).reshape(-1, 2),
+        lengths=torch.tensor(costs, dtype=torch.float64).reshape(-1, len(ends)),
+        next_node=torch.tensor(next_node, dtype=torch.int64).reshape(-1, len(ends)),
+        ends=torch.tensor(nodes[len(corners) :], dtype=torch.float64).reshape(-1, 2),
     )
+    return table, free, area
 
 
 def _visibility_graph(area: Polygon, nodes: list[tuple[float, float]]) -> nx.Graph:
@@ -141,15 +143,18 @@ def _visibility_graph(area: Polygon, nodes: list[tuple[float, float]]) -> nx.Gra
     return graph
 
 
-def _reaches(scenario: Scenario, graph: RouteGraph, free: Polygon, area: Polygon, index: int) -> bool:
+def _reaches(scenario: Scenario, graph: RouteTable, free: Polygon, area: Polygon, index: int) -> bool:
     """Whether spawn area ``index`` (from a point inside it) sees an exit it may take, or a node with a route to one;
     ``free`` and ``area`` as :func:`route_graph` returns them."""
     spawn = scenario.spawns[index]
     start = _inside(free, spawn.area.representative_point() if spawn.area.area else spawn.area.centroid)
     exits = range(len(scenario.exits)) if spawn.exit < 0 else (spawn.exit,)
-    if any(_sees(area, start, Point(graph.ends[e])) for e in exits):
+    ends, lengths = graph.ends.tolist(), graph.lengths.tolist()
+    if any(_sees(area, start, Point(ends[e])) for e in exits):
         return True
-    routed = [node for m, node in enumerate(graph.nodes) if any(math.isfinite(graph.costs[m][e]) for e in exits)]
+    routed = [
+        tuple(node) for m, node in enumerate(graph.nodes.tolist()) if any(math.isfinite(lengths[m][e]) for e in exits)
+    ]
     return bool(_sees_all(area, (start.x, start.y), routed).any())
 
 

@@ -1,4 +1,5 @@
-"""Batched room simulation: geometry, dynamics, sensing, rewards and ``RoomEnv`` (pure torch, no I/O)."""
+"""Batched room simulation: the compiled walkable area, dynamics, sensing, rewards and ``RoomEnv`` (pure torch, no
+I/O)."""
 
 from pedrl.sim.actions import (
     ACTION_FRAMES,
@@ -15,7 +16,7 @@ from pedrl.sim.actions import (
     velocities_from,
 )
 from pedrl.sim.env import PlacementError, RoomEnv
-from pedrl.sim.geometry import NUM_WALLS, WALL_NAMES, Geometry, SpawnArea, X, Y, build_walls, wrap_angle
+from pedrl.sim.geometry import Geometry, RouteTable, SpawnArea, X, Y, wrap_angle
 from pedrl.sim.motion import Movement, move_agents
 from pedrl.sim.rewards import RewardTable, compute_rewards
 from pedrl.sim.sensing import (
@@ -37,8 +38,6 @@ __all__ = [
     "DEFAULT_TURN_RATIOS",
     "NOOP_ACTION",
     "NUM_ACTIONS",
-    "NUM_WALLS",
-    "WALL_NAMES",
     "X",
     "Y",
     "Movement",
@@ -47,10 +46,10 @@ __all__ = [
     "RewardTable",
     "RoomEnv",
     "Geometry",
+    "RouteTable",
     "SpawnArea",
     "Spawns",
     "apply_actions",
-    "build_walls",
     "compute_rewards",
     "decode_actions",
     "encode_actions",

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
+from dataclasses import replace
 from typing import Any, Final
 
 import torch
@@ -31,7 +32,7 @@ from pedrl.sim.checks import (
     check_number,
     check_real,
 )
-from pedrl.sim.geometry import NUM_WALLS, Geometry, X, Y, spawn_counts
+from pedrl.sim.geometry import Geometry, X, Y, extent, spawn_counts
 from pedrl.sim.motion import (
     Motion,
     Movement,
@@ -46,7 +47,7 @@ from pedrl.sim.rewards import MAX_REWARD, compute_rewards
 from pedrl.sim.room_checks import (
     check_action_set,
     check_actions,
-    check_extent,
+    check_area,
     check_goal_depth,
     check_motion,
     check_rewards,
@@ -74,7 +75,7 @@ MAX_RESET_SEED: Final = 2**64 - 1
 
 
 class RoomEnv:
-    """R replicas of a walkable area (the paper's room by default), each holding N agents that must leave by an exit.
+    """R replicas of a walkable area (a scenario's, compiled), each holding N agents that must leave by an exit.
 
     Every replica and agent shares one trial clock (paper section 5): an agent's trial ends when it reaches
     the door (``terminated``) or when its replica's clock reaches ``max_decisions`` (``truncated``); it is
@@ -89,7 +90,8 @@ class RoomEnv:
         active: Agents still in their trial ``(R, N)`` bool.
         params: The validated settings (:class:`~pedrl.sim.params.RoomParams`), with what the fast path supports.
         state: The rooms' state (:class:`~pedrl.sim.state.RoomState`); :meth:`load_state` sets it.
-        geometry: Walls, exits and spawn areas (:class:`~pedrl.sim.geometry.Geometry`).
+        geometry: The walkable area: walls, exits, spawn areas and routes (:class:`~pedrl.sim.geometry.Geometry`),
+            on ``device``, its goal points at ``goal_depth``.
         motion: The constants of a decision's movement by the contact model (:class:`~pedrl.sim.motion.Motion`).
         motion_model: The ``motion`` setting, ``"step"`` or ``"continuous"``.
         exit_index: The exit each agent heads for ``(R, N)`` int64: its group's, or the nearest at placement.
@@ -107,13 +109,11 @@ class RoomEnv:
 
     def __init__(
         self,
+        area: Geometry,
         *,
         num_replicas: int = 1,
         num_agents: int = 20,
         device: str | torch.device = "cpu",
-        width: float = 60.0,
-        length: float = 100.0,
-        door_width: float = 2.0,
         agent_radius: float = 0.4,
         max_speed: float = 2.5,
         decisions_per_second: float = 1.0,
@@ -140,17 +140,16 @@ class RoomEnv:
         neighbour_repulsion: Sequence[float] = (8.0, 0.1),
         wall_repulsion: Sequence[float] = (5.0, 0.02),
         queue_weight: float = 0.0,
-        geometry: Geometry | None = None,
     ) -> None:
         """Validate the configuration and allocate the state (call :meth:`reset` before :meth:`step`).
 
         Args:
+            area: The walkable area, compiled (:class:`~pedrl.sim.geometry.Geometry`): a scenario's
+                (``pedrl.scenarios``; ``Scenario.room`` builds a room in it, the paper's room with
+                ``pedrl.scenarios.paper_room``); its goal points are moved to ``goal_depth``.
             num_replicas: Number R of independent rooms stepped together.
             num_agents: Number N of agents per room.
             device: Torch device of every tensor.
-            width: Room width along x (m).
-            length: Room length along y (m); the door is in the side ``y = length``.
-            door_width: Width of the door gap (m), at least one body diameter and at most ``width``.
             agent_radius: Body radius (m).
             max_speed: Maximum speed (m/s).
             decisions_per_second: Decisions per simulated second (1/s).
@@ -176,8 +175,8 @@ class RoomEnv:
                 ``"random"`` (a random permutation per decision, random sequential update) or ``"door_first"``
                 (nearest to the goal point first, ties at random: a queue moves up together instead of each
                 follower stalling for a decision whenever it happens to act before its leader).
-            goal_depth: How far behind the door plane the goal point lies (m, ``>= 0``): the reference line of
-                the state (paper Table 1) runs to ``(width / 2, length + goal_depth)``. 0 is the door centre.
+            goal_depth: How far behind each exit its goal point lies (m, ``>= 0``): the reference line of the state
+                (paper Table 1) runs to it. 0 is the exit's centre.
             reward_progress: Reward per metre by which a decision brings the agent closer to the goal point
                 (``>= 0``; 0 is the paper's Table 2, 1 the default). A dense signal for the sparse door
                 reward: walking to the door at 2 m/s earns ``2 * reward_progress`` per decision, standing still 0.
@@ -219,9 +218,6 @@ class RoomEnv:
             wall_repulsion: ``[b, B]`` for walls; JuPedSim's ``[5, 0.02]``.
             queue_weight: How much an agent without an assigned exit weighs the queue at each exit when it chooses
                 one at placement (``>= 0``; 0: the exit of the shortest route; :mod:`pedrl.sim.routing`).
-            geometry: Any walkable area (``pedrl.scenarios`` builds one from polygons); ``None`` is the paper's
-                room of ``width``, ``length`` and ``door_width`` (:meth:`Geometry.rectangle`), which are then
-                ignored except as the extent of the area. Its ``goal_depth`` is the geometry's own.
 
         Raises:
             ValueError: With a one-line message naming the bad value, for any invalid argument, including more
@@ -231,15 +227,12 @@ class RoomEnv:
         self.num_replicas = check_integer("num_replicas", num_replicas, minimum=1)
         self.num_agents = check_integer("num_agents", num_agents, minimum=1)
         self.device = check_device(device)
-        self.width, self.length, self.door_width, self.agent_radius = check_extent(
-            width=width, length=length, door_width=door_width, agent_radius=agent_radius, geometry=geometry
-        )
+        self.agent_radius = check_area(area, agent_radius)
         self.max_speed = check_real("max_speed", max_speed, unit="m/s", positive=True)
         self.decisions_per_second = check_real("decisions_per_second", decisions_per_second, unit="1/s", positive=True)
         self.max_decisions = check_integer("max_decisions", max_decisions, minimum=1)
         self.num_neighbours = check_integer("num_neighbours", num_neighbours, minimum=0)
-        wall_count = NUM_WALLS if geometry is None else geometry.num_walls
-        self.num_walls = check_integer("num_walls", num_walls, minimum=0, maximum=wall_count)
+        self.num_walls = check_integer("num_walls", num_walls, minimum=0, maximum=area.num_walls)
         self.action_frame = check_choice("action_frame", action_frame, ACTION_FRAMES)
         goal_frame = self.action_frame == "goal"
         self.speed_ratios, self.turn_ratios = check_action_set(speed_ratios, turn_ratios, goal_frame=goal_frame)
@@ -255,19 +248,15 @@ class RoomEnv:
         self.compile_sensing = check_bool("compile_sensing", compile_sensing)
         self.queue_weight = check_number("queue_weight", queue_weight, low=0.0, high=MAX_QUEUE_WEIGHT)
         self.params = RoomParams.of(self)
-        self._build(self._checked_room(geometry))
+        self._build(self._checked_room(area))
 
-    def _checked_room(self, geometry: Geometry | None) -> Geometry:
-        """The walkable area (the paper's room when ``geometry`` is None), with the checks that need it: the agents
-        fit in the spawn areas, the sub-steps and the memory of a decision."""
-        if geometry is None:
-            geometry = Geometry.rectangle(
-                width=self.width, length=self.length, door_width=self.door_width, goal_depth=self.goal_depth
-            )
-        self.spawn_counts = spawn_counts(self.num_agents, [spawn.weight for spawn in geometry.spawns])
-        check_density(
-            geometry, self.spawn_counts, self.num_agents, agent_radius=self.agent_radius, room=(self.width, self.length)
-        )
+    def _checked_room(self, area: Geometry) -> Geometry:
+        """The walkable area with its goal points at ``goal_depth``, and the checks that need it: the agents fit in
+        the spawn areas, the sub-steps and the memory of a decision."""
+        if area.goal_depth != self.goal_depth:
+            area = replace(area, goal_depth=self.goal_depth)
+        self.spawn_counts = spawn_counts(self.num_agents, [spawn.weight for spawn in area.spawns])
+        check_density(area, self.spawn_counts, self.num_agents, agent_radius=self.agent_radius, room=extent(area))
         self.decision_length = 1.0 / self.decisions_per_second
         self.num_substeps = check_time_steps(
             check_substeps(self.max_speed, self.decisions_per_second, self.substep_length), self
@@ -277,7 +266,7 @@ class RoomEnv:
             device=self.device,
             advice="fewer agents or replicas (processes, rooms_per_process, trials_per_batch)",
         )
-        return geometry
+        return area
 
     def _build(self, geometry: Geometry) -> None:
         """The constants (geometry on the device, spawn tables, action tables), the generator and the state, zero
@@ -288,7 +277,7 @@ class RoomEnv:
             self.spawn_counts,
             agent_radius=self.agent_radius,
             num_replicas=self.num_replicas,
-            room=(self.width, self.length),
+            room=extent(geometry),
             device=self.device,
         )
         constants = (self.geometry, self.agent_radius, self.decision_length, self.num_substeps)

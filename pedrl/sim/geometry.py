@@ -1,27 +1,15 @@
 """Geometry of the simulation: wall segments, exits, spawn areas and routes, as tensors (pure torch).
 
 A walkable area is bounded by wall segments and exit segments. An agent leaves through any exit: it has left once
-its centre is on the far side of an exit segment (within the exit's span). :class:`Geometry` holds this for
-any polygon, and :meth:`Geometry.build` is its one builder: ``pedrl.scenarios`` calls it with the segments of a
-shapely polygon (every scenario, the paper's room included), and :meth:`Geometry.rectangle` calls it with the
-paper's room written out by hand, for a room given no geometry (this package may not import shapely).
+its centre is on the far side of an exit segment (within the exit's span). :class:`Geometry` is the compiled form of
+a walkable area, the one the simulation reads; its one description is a scenario of ``pedrl.scenarios`` (the paper's
+room one of them), which :meth:`Geometry.build` compiles from the segments of a shapely polygon (this package may
+not import shapely). Routes, where an area has them, are a :class:`RouteTable` (built with the scenario).
 
-The paper's room is ``[0, width] x [0, length]`` (metres). The door is a gap of ``door_width`` centred on the side
-``y = length``; the goal point is ``(width / 2, length + goal_depth)``, the door centre by default. The five
-walls, in this order:
-
-====  ===========  =====================================
- 0    bottom       ``(0, 0) - (width, 0)``
- 1    right        ``(width, 0) - (width, length)``
- 2    top_right    ``(width, length) - (door_right, length)``
- 3    top_left     ``(door_left, length) - (0, length)``
- 4    left         ``(0, length) - (0, 0)``
-====  ===========  =====================================
-
-The general geometry pads its walls to a multiple of :data:`WALL_PADDING` with points far away, so that
-rooms of different shapes share tensor shapes. Segments are ``(S, 2, 2)`` tensors: segment ``s`` runs from
-``segments[s, 0]`` to ``segments[s, 1]``.
-Point tensors have any leading shape, e.g. ``(R, N, 2)``, with axis constants ``X = 0``, ``Y = 1``.
+The compiled area pads its walls to a multiple of :data:`WALL_PADDING` with points far away, so that rooms of
+different shapes share tensor shapes. Segments are ``(S, 2, 2)`` tensors: segment ``s`` runs from ``segments[s, 0]``
+to ``segments[s, 1]``. Point tensors have any leading shape, e.g. ``(R, N, 2)``, with axis constants ``X = 0``,
+``Y = 1``.
 """
 
 from __future__ import annotations
@@ -35,9 +23,6 @@ import torch
 
 X: Final = 0
 Y: Final = 1
-NUM_WALLS: Final = 5
-"""Walls of the paper's rectangular room (:func:`build_walls`)."""
-WALL_NAMES: Final = ("bottom", "right", "top_right", "top_left", "left")
 TWO_PI: Final = 2.0 * math.pi
 
 
@@ -53,33 +38,6 @@ def wrap_angle(angles: torch.Tensor) -> torch.Tensor:
     wrapped = math.pi - torch.remainder(math.pi - angles, TWO_PI)
     # remainder can round up to exactly 2 pi in float32, which would give -pi: the same direction as pi.
     return wrapped.masked_fill_(wrapped <= -math.pi, math.pi)
-
-
-def build_walls(*, width: float, length: float, door_width: float, device: str | torch.device = "cpu") -> torch.Tensor:
-    """The five wall segments of the room, in the documented order.
-
-    Args:
-        width: Room width along x (m).
-        length: Room length along y (m); the door is in the side ``y = length``.
-        door_width: Width of the door gap (m), centred at ``x = width / 2``.
-        device: Device of the returned tensor.
-
-    Returns:
-        Wall segments, float32 ``(5, 2, 2)`` (m).
-    """
-    door_left = width / 2.0 - door_width / 2.0
-    door_right = width / 2.0 + door_width / 2.0
-    return torch.tensor(
-        [
-            [[0.0, 0.0], [width, 0.0]],
-            [[width, 0.0], [width, length]],
-            [[width, length], [door_right, length]],
-            [[door_left, length], [0.0, length]],
-            [[0.0, length], [0.0, 0.0]],
-        ],
-        dtype=torch.float32,
-        device=device,
-    )
 
 
 def closest_points_on_segments(points: torch.Tensor, segments: torch.Tensor) -> torch.Tensor:
@@ -180,44 +138,69 @@ class SpawnArea:
 
 @dataclass(frozen=True, eq=False)
 class RouteTable:
-    """The routes of a walkable area (tensors, on the room's device).
+    """The routes of a walkable area: a visibility graph's nodes, each node's route length to each exit and the next
+    node on that route (``pedrl.scenarios`` builds it with the scenario; the one route type of the package).
 
     Attributes:
-        nodes: Route corners ``(M, 2)`` (m), clear of the walls.
-        costs: Route length from each node to each exit's goal point ``(M, E)`` (m); inf: no route.
+        nodes: Route corners ``(M, 2)`` float64 (m), clear of the walls.
+        lengths: Route length from each node to ``ends[e]`` ``(M, E)`` float64 (m); inf: no route.
         next_node: The next node on that route ``(M, E)`` int64; -1: the exit itself.
-        corners: Wall corners ``(C, 2)`` (m) that a line of sight keeps clear of
-            (:data:`pedrl.sim.routing.CORNER_CLEARANCE`): the ends of the walls, less the exits' own ends.
+        ends: Where the routes end ``(E, 2)`` float64 (m): a point inside each exit, the clearance in from its middle.
+
+    A compiled area (:class:`Geometry`) derives from it what the room reads: the route lengths to its goal points
+    (:attr:`Geometry.route_costs`), the nodes in float32 (:attr:`Geometry.route_nodes`) and the wall corners a line
+    of sight keeps clear of (:attr:`Geometry.route_corners`).
     """
 
     nodes: torch.Tensor
-    costs: torch.Tensor
+    lengths: torch.Tensor
     next_node: torch.Tensor
-    corners: torch.Tensor
+    ends: torch.Tensor
+
+    __hash__ = None  # equal by value, as the scenario that holds it
+
+    def __eq__(self, other: object) -> bool:
+        """The same routes: every tensor equal (dtype and device included)."""
+        if not isinstance(other, RouteTable):
+            return NotImplemented
+        return all(
+            torch.equal(a, b) and a.dtype == b.dtype for a, b in zip(self.tensors(), other.tensors(), strict=True)
+        )
+
+    def tensors(self) -> tuple[torch.Tensor, ...]:
+        """``(nodes, lengths, next_node, ends)``."""
+        return self.nodes, self.lengths, self.next_node, self.ends
 
     def to(self, device: str | torch.device) -> RouteTable:
         """The same table on ``device``."""
-        return RouteTable(*(t.to(device) for t in (self.nodes, self.costs, self.next_node, self.corners)))
+        return RouteTable(*(t.to(device) for t in self.tensors()))
 
 
 @dataclass(frozen=True, eq=False)
 class Geometry:
-    """Walls, exits and spawn areas of one walkable area, fixed at build time (for the simulation).
+    """A walkable area compiled for the simulation: walls, exits, spawn areas and routes as tensors on one device.
 
     Attributes:
         walls: Wall segments ``(S, 2, 2)`` float32 (m), the ``num_walls`` real ones first, then padding points.
         num_walls: Number of real wall segments.
         exits: Exit segments ``(E, 2, 2)`` float32 (m), on the boundary.
         exit_normals: Unit normals ``(E, 2)`` pointing out of the walkable area through each exit.
-        exit_goals: Goal point of each exit ``(E, 2)`` (m): its centre, ``goal_depth`` behind the exit.
         spawns: The spawn areas (at least one).
         bounds: ``(x_min, y_min, x_max, y_max)`` of the walkable area (m).
         clear_box: An axis-aligned box ``(x_min, y_min, x_max, y_max)`` inside the walkable area that no wall or
             exit crosses (m), for the fast paths of the collision rules; a box of zero size disables them.
+        goal_depth: How far behind each exit its goal point lies (m, ``>= 0``): the room's ``goal_depth``.
         waypoint_radius: Distance (m) at which an agent counts a waypoint as reached and aims at the next.
         name: A label (the scenario's name).
         routes: The area's :class:`RouteTable` (:mod:`pedrl.sim.routing`), or None where every start sees every
             exit.
+        exit_goals: Goal point of each exit ``(E, 2)`` float32 (m), derived: its centre, ``goal_depth`` behind it.
+        route_nodes: ``routes.nodes`` in float32 ``(M, 2)`` (m), derived; None without routes.
+        route_costs: Route length from each node to each exit's goal point ``(M, E)`` float32 (m), derived:
+            ``routes.lengths`` plus the last leg from the route's end to the goal point; None without routes.
+        route_corners: Wall corners ``(C, 2)`` float32 (m) that a line of sight keeps clear of
+            (:data:`pedrl.sim.routing.CORNER_CLEARANCE`), derived: the ends of the walls, less the exits' own ends;
+            None without routes.
         box_low: Lower corner of each wall's bounding box ``(S, 2)`` (m), derived from ``walls``: an axis-aligned
             wall's closest point to ``p`` is ``p`` clamped to its box (exact).
         box_high: Upper corner of each wall's bounding box ``(S, 2)`` (m), derived from ``walls``.
@@ -229,20 +212,25 @@ class Geometry:
         exit_spans: Squared length of each exit ``(E,)`` (m^2), derived from ``exits``: a point is within an exit's
             span when its offset from ``exits[:, 0]`` projects onto the tangent in ``[0, exit_spans]``.
 
-    The derived attributes are computed once, at build time; the kernels read them as they are.
+    The derived attributes are computed when the geometry is made (``dataclasses.replace`` with another
+    ``goal_depth`` recomputes the goal points); the kernels read them as they are.
     """
 
     walls: torch.Tensor
     num_walls: int
     exits: torch.Tensor
     exit_normals: torch.Tensor
-    exit_goals: torch.Tensor
     spawns: tuple[SpawnArea, ...]
     bounds: tuple[float, float, float, float]
     clear_box: tuple[float, float, float, float]
+    goal_depth: float = 0.0
     waypoint_radius: float = 2.0
     name: str = "custom"
     routes: RouteTable | None = None
+    exit_goals: torch.Tensor = field(init=False, repr=False)
+    route_nodes: torch.Tensor | None = field(init=False, repr=False)
+    route_costs: torch.Tensor | None = field(init=False, repr=False)
+    route_corners: torch.Tensor | None = field(init=False, repr=False)
     box_low: torch.Tensor = field(init=False, repr=False)
     box_high: torch.Tensor = field(init=False, repr=False)
     aligned_walls: torch.Tensor = field(init=False, repr=False)
@@ -259,6 +247,18 @@ class Geometry:
         tangents = self.exits[:, 1] - self.exits[:, 0]
         object.__setattr__(self, "exit_tangents", tangents)
         object.__setattr__(self, "exit_spans", (tangents * tangents).sum(-1))
+        depth = self.goal_depth
+        goals = [  # in float64 from the float32 exits, then rounded once
+            [(a[X] + b[X]) / 2.0 + depth * n[X], (a[Y] + b[Y]) / 2.0 + depth * n[Y]]
+            for (a, b), n in zip(self.exits.double().tolist(), self.exit_normals.double().tolist(), strict=True)
+        ]
+        object.__setattr__(
+            self, "exit_goals", torch.tensor(goals, dtype=torch.float32, device=self.device).reshape(-1, 2)
+        )
+        nodes, costs, corners = (None, None, None) if self.routes is None else _routes_for(self, goals)
+        object.__setattr__(self, "route_nodes", nodes)
+        object.__setattr__(self, "route_costs", costs)
+        object.__setattr__(self, "route_corners", corners)
 
     @classmethod
     def build(
@@ -273,13 +273,12 @@ class Geometry:
         goal_depth: float = 0.0,
         waypoint_radius: float = 2.0,
         name: str = "custom",
-        routes: Sequence[Any] | None = None,
+        routes: RouteTable | None = None,
         device: str | torch.device = "cpu",
     ) -> Geometry:
         """Build a geometry from plain coordinates (m): walls ``(S, 2, 2)``, exits ``(E, 2, 2)`` and their outward
         normals ``(E, 2)``; pads the walls to a multiple of :data:`WALL_PADDING` and moves everything to ``device``.
-        ``routes`` is ``(nodes (M, 2), costs (M, E), next_node (M, E), ends (E, 2))``: each node's route length to
-        the point ``ends[e]`` inside exit ``e`` (the goal points' distances from those points are added here).
+        The compiler of ``pedrl.scenarios`` (``Scenario.geometry``) is its caller.
         """
         walls = torch.as_tensor(walls, dtype=torch.float32).reshape(-1, 2, 2)
         exits = torch.as_tensor(exits, dtype=torch.float32).reshape(-1, 2, 2)
@@ -287,10 +286,6 @@ class Geometry:
         num_walls = walls.shape[0]
         padding = -num_walls % WALL_PADDING
         walls = torch.cat((walls, torch.full((padding, 2, 2), FAR)))
-        goals = [
-            [(a[X] + b[X]) / 2.0 + goal_depth * n[X], (a[Y] + b[Y]) / 2.0 + goal_depth * n[Y]]
-            for (a, b), n in zip(exits.double().tolist(), normals.double().tolist(), strict=True)
-        ]
         spawns = tuple(
             replace(
                 spawn,
@@ -306,51 +301,13 @@ class Geometry:
             num_walls=num_walls,
             exits=exits.to(device),
             exit_normals=normals.to(device),
-            exit_goals=torch.tensor(goals, dtype=torch.float32, device=device).reshape(-1, 2),
             spawns=spawns,
             bounds=tuple(float(v) for v in bounds),
             clear_box=tuple(float(v) for v in (bounds if clear_box is None else clear_box)),
+            goal_depth=float(goal_depth),
             waypoint_radius=float(waypoint_radius),
             name=name,
-            routes=None if routes is None else _route_table(walls[:num_walls], exits, goals, *routes).to(device),
-        )
-
-    @classmethod
-    def rectangle(
-        cls,
-        *,
-        width: float,
-        length: float,
-        door_width: float,
-        goal_depth: float = 0.0,
-        device: str | torch.device = "cpu",
-    ) -> Geometry:
-        """The paper's room: ``[0, width] x [0, length]`` with a door of ``door_width`` centred in ``y = length``.
-
-        A thin call of :meth:`build`, the builder of every scenario, with the room's segments written out: its five
-        walls are :func:`build_walls`; agents spawn anywhere in the room and leave through the door. The
-        ``paper_room`` scenario of ``pedrl.scenarios`` builds the same area through shapely: the same numbers, its
-        walls and spawn edges in shapely's order (starting at ``(width, 0)``), and it simulates the same to the bit
-        (``tests/sim/test_scenario_golden.py``).
-        """
-        width, length = float(width), float(length)
-        door_left, door_right = width / 2.0 - door_width / 2.0, width / 2.0 + door_width / 2.0
-        edges = torch.tensor(
-            [[[0.0, 0.0], [width, 0.0]], [[width, 0.0], [width, length]], [[width, length], [0.0, length]],
-             [[0.0, length], [0.0, 0.0]]]
-        )  # fmt: skip
-        room = SpawnArea(
-            box=(0.0, 0.0, width, length), edges=edges, area=width * length, perimeter=2.0 * (width + length)
-        )
-        return cls.build(
-            walls=build_walls(width=width, length=length, door_width=door_width),
-            exits=[[[door_right, length], [door_left, length]]],
-            exit_normals=[[0.0, 1.0]],
-            spawns=(room,),
-            bounds=(0.0, 0.0, width, length),
-            goal_depth=goal_depth,
-            name="paper_room",
-            device=device,
+            routes=None if routes is None else routes.to(device),
         )
 
     # ------------------------------------------------------------------ properties
@@ -445,25 +402,30 @@ class Geometry:
             walls=self.walls.to(device),
             exits=self.exits.to(device),
             exit_normals=self.exit_normals.to(device),
-            exit_goals=self.exit_goals.to(device),
             spawns=spawns,
             routes=None if self.routes is None else self.routes.to(device),
         )
 
 
-def _route_table(walls: torch.Tensor, exits: torch.Tensor, goals: list, nodes, costs, next_node, ends) -> RouteTable:
-    """The :class:`RouteTable` of ``Geometry.build``'s ``routes``, for its real ``walls`` and ``exits``."""
-    ends = torch.as_tensor(ends, dtype=torch.float64).reshape(-1, 2)
-    last_leg = torch.linalg.vector_norm(torch.tensor(goals, dtype=torch.float64).reshape(-1, 2) - ends, dim=-1)
-    corners = torch.unique(walls.reshape(-1, 2), dim=0)
-    jambs = exits.reshape(-1, 2)
-    on_exit = ((corners.unsqueeze(1) - jambs) ** 2).sum(-1).lt(1e-8).any(-1)
-    return RouteTable(
-        nodes=torch.as_tensor(nodes, dtype=torch.float32).reshape(-1, 2),
-        costs=(torch.as_tensor(costs, dtype=torch.float64).reshape(-1, ends.shape[0]) + last_leg).float(),
-        next_node=torch.as_tensor(next_node, dtype=torch.int64).reshape(-1, ends.shape[0]),
-        corners=corners[~on_exit],
+def _routes_for(geometry: Geometry, goals: list) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """What the room reads of ``geometry.routes`` for its goal points ``goals`` (float64 lists): the nodes in float32,
+    the route lengths to the goal points (the last leg added in float64, then rounded once) and the wall corners
+    that a line of sight keeps clear of (the ends of the real walls, less the exits' own ends)."""
+    routes, device = geometry.routes, geometry.device
+    ends = routes.ends.to(torch.float64)
+    last_leg = torch.linalg.vector_norm(
+        torch.tensor(goals, dtype=torch.float64, device=device).reshape(-1, 2) - ends, dim=-1
     )
+    corners = torch.unique(geometry.walls[: geometry.num_walls].reshape(-1, 2), dim=0)
+    jambs = geometry.exits.reshape(-1, 2)
+    on_exit = ((corners.unsqueeze(1) - jambs) ** 2).sum(-1).lt(1e-8).any(-1)
+    return routes.nodes.to(torch.float32), (routes.lengths + last_leg).float(), corners[~on_exit]
+
+
+def extent(geometry: Geometry) -> tuple[float, float]:
+    """The ``(width, length)`` of ``geometry``'s bounds (m): its extent along x and y."""
+    x_min, y_min, x_max, y_max = geometry.bounds
+    return x_max - x_min, y_max - y_min
 
 
 def spawn_counts(num_agents: int, weights: Sequence[float]) -> tuple[int, ...]:

@@ -1,5 +1,5 @@
 """The constants of a batch of rooms, :class:`RoomParams`: every setting of :class:`pedrl.sim.RoomEnv` but the batch
-shape, the device and the geometry, validated, with what the fast path (the fused numba trial) supports of each.
+shape, the device and the walkable area, validated, with what the fast path (the fused numba trial) supports of each.
 
 Each field declares its fast-path support with :func:`setting`: every value (:data:`ANY`), or only some
 (:func:`only`). :meth:`RoomParams.fast_path_reason` is an allow-list computed from those declarations, so a new
@@ -54,9 +54,6 @@ def _shown(value: Any) -> str:
 class RoomParams:
     """The validated settings of a room (``RoomEnv(...)``'s arguments of the same names; units and meanings there)."""
 
-    width: float = setting(ANY)
-    length: float = setting(ANY)
-    door_width: float = setting(ANY)
     agent_radius: float = setting(ANY)
     max_speed: float = setting(ANY)
     decisions_per_second: float = setting(ANY)

@@ -11,7 +11,7 @@ import torch
 
 from pedrl.sim.actions import NOOP_INDEX, NUM_SPEED_CHANGES, count_substeps
 from pedrl.sim.checks import check_choice, check_number, check_real
-from pedrl.sim.geometry import Geometry
+from pedrl.sim.geometry import Geometry, extent
 from pedrl.sim.motion import COLLISION_RULES, CONTACT_MODELS
 from pedrl.sim.rewards import MAX_REWARD, RewardTable
 
@@ -24,42 +24,28 @@ MAX_SUBSTEPS: Final = 1000
 collision rule loops over them, so ``max_speed=1e5`` (250 000 sub-steps) hung and ``1e9`` tried to allocate 20 GB."""
 
 
-def check_extent(
-    *, width: Any, length: Any, door_width: Any, agent_radius: Any, geometry: Any
-) -> tuple[float, float, float, float]:
-    """``(width, length, door_width, agent_radius)`` checked: positive, a body fits through the door (every exit of
-    ``geometry``) and in the room; with a ``geometry``, ``width`` and ``length`` are the extent of its bounds."""
-    checked_width = check_real("width", width, unit="m", positive=True)
-    checked_length = check_real("length", length, unit="m", positive=True)
-    checked_door = check_real("door_width", door_width, unit="m", positive=True)
+def check_area(area: Any, agent_radius: Any) -> float:
+    """``agent_radius`` checked against the walkable ``area`` (a compiled :class:`~pedrl.sim.geometry.Geometry`):
+    positive, a body fits through every exit and in the area's extent."""
+    if not isinstance(area, Geometry):
+        raise ValueError(
+            f"area of type {type(area).__name__} is invalid: must be a pedrl.sim.Geometry (a scenario's,"
+            " pedrl.scenarios: Scenario.geometry() or Scenario.room(...))"
+        )
     radius = check_real("agent_radius", agent_radius, unit="m", positive=True)
-    if geometry is None:
-        if checked_door > checked_width:
-            raise ValueError(
-                f"door_width={door_width!r} is invalid: the door must fit in its wall, at most width={width!r} m"
-            )
-        if 2.0 * radius > checked_door:
-            raise ValueError(
-                f"agent_radius={agent_radius!r} is invalid: a body must fit through the door, at most"
-                f" door_width / 2 = {checked_door / 2.0!r} m"
-            )
-    elif not isinstance(geometry, Geometry):
-        raise ValueError(f"geometry of type {type(geometry).__name__} is invalid: must be a pedrl.sim.Geometry")
-    else:
-        checked_width = geometry.bounds[2] - geometry.bounds[0]
-        checked_length = geometry.bounds[3] - geometry.bounds[1]
-        narrowest = float(torch.linalg.vector_norm(geometry.exits[:, 1] - geometry.exits[:, 0], dim=-1).min())
-        if 2.0 * radius > narrowest:
-            raise ValueError(
-                f"agent_radius={agent_radius!r} is invalid: a body must fit through every exit, at most"
-                f" {narrowest / 2.0:g} m (half the narrowest exit)"
-            )
-    if 2.0 * radius >= min(checked_width, checked_length):
+    narrowest = float(torch.linalg.vector_norm(area.exits[:, 1] - area.exits[:, 0], dim=-1).min())
+    if 2.0 * radius > narrowest:
+        raise ValueError(
+            f"agent_radius={agent_radius!r} is invalid: a body must fit through every exit, at most"
+            f" {narrowest / 2.0:g} m (half the narrowest exit)"
+        )
+    width, length = extent(area)
+    if 2.0 * radius >= min(width, length):
         raise ValueError(
             f"agent_radius={agent_radius!r} is invalid: a body must fit in the room, less than"
-            f" min(width, length) / 2 = {min(checked_width, checked_length) / 2.0!r} m"
+            f" min(width, length) / 2 = {min(width, length) / 2.0!r} m"
         )
-    return checked_width, checked_length, checked_door, radius
+    return radius
 
 
 def check_ratios(

@@ -1,8 +1,9 @@
 """Each walker's exit and its route there, chosen at placement (pure torch): the tactical and strategic levels.
 
-A room whose walkable area hides an exit from some start carries a :class:`RouteTable`: the nodes of a visibility
-graph of the area (its corners, kept clear of the walls), each node's route length to each exit and the next node on
-that route (built with the scenario, :func:`pedrl.scenarios.routes.with_routes`). At placement:
+A room whose walkable area hides an exit from some start carries a :class:`~pedrl.sim.geometry.RouteTable`: the nodes
+of a visibility graph of the area (its corners, kept clear of the walls), each node's route length to each exit and
+the next node on that route (built with the scenario, :func:`pedrl.scenarios.routes.with_routes`), which the compiled
+area (:class:`~pedrl.sim.geometry.Geometry`) reads for its goal points. At placement:
 
 - :func:`route_lengths`: a walker's route length to an exit is the straight line to the exit's goal point when it sees
   it, else the shortest ``|p - node| + cost[node, exit]`` over the nodes it sees (the first node is its first
@@ -26,7 +27,7 @@ from typing import Any, Final
 import torch
 
 from pedrl.sim.checks import check_number
-from pedrl.sim.geometry import RouteTable, X, Y
+from pedrl.sim.geometry import Geometry, X, Y
 
 __all__ = [
     "CHOICE_ROUNDS",
@@ -135,18 +136,18 @@ def _grazing_all(points: torch.Tensor, targets: torch.Tensor, corners: torch.Ten
     return (near & ~own).any(-1)
 
 
-def route_lengths(
-    positions: torch.Tensor, goals: torch.Tensor, walls: torch.Tensor, table: RouteTable | None
-) -> tuple[torch.Tensor, torch.Tensor]:
+def route_lengths(positions: torch.Tensor, geometry: Geometry) -> tuple[torch.Tensor, torch.Tensor]:
     """Each walker's route length to each exit ``(R, N, E)`` (m) and the first node of that route ``(R, N, E)``
-    int64 (-1: straight to the exit's goal point), for walkers at ``positions`` ``(R, N, 2)``, exits' goal points
-    ``goals`` ``(E, 2)`` and the room's real ``walls``. Without a table: the straight lines."""
+    int64 (-1: straight to the exit's goal point), for walkers at ``positions`` ``(R, N, 2)`` in the compiled area
+    ``geometry`` (its exits' goal points, real walls and routes). Without routes: the straight lines."""
+    goals, walls = geometry.exit_goals, geometry.walls[: geometry.num_walls]
     straight = torch.linalg.vector_norm(goals - positions.unsqueeze(-2), dim=-1)  # (R, N, E)
-    if table is None:
+    if geometry.routes is None:
         return straight, torch.full_like(straight, -1, dtype=torch.int64)
+    nodes = geometry.route_nodes
     inf = torch.tensor(torch.inf, device=positions.device)
-    via = torch.linalg.vector_norm(table.nodes - positions.unsqueeze(-2), dim=-1).unsqueeze(-1) + table.costs
-    targets = torch.cat((goals, table.nodes))  # the exits' goal points, then the nodes
+    via = torch.linalg.vector_norm(nodes - positions.unsqueeze(-2), dim=-1).unsqueeze(-1) + geometry.route_costs
+    targets = torch.cat((goals, nodes))  # the exits' goal points, then the nodes
     open_ = ~_crossing(positions, targets, walls)  # (R, N, E + M)
     exits = goals.shape[0]
 
@@ -154,7 +155,7 @@ def route_lengths(
         best, node = torch.where(sees[..., exits:].unsqueeze(-1), via, inf).min(-2)  # (R, N, E)
         return torch.where(sees[..., :exits], straight, best), torch.where(sees[..., :exits], -1, node)
 
-    lengths, first = through(open_ & ~_grazing(positions, targets, table.corners))  # clear of the corners
+    lengths, first = through(open_ & ~_grazing(positions, targets, geometry.route_corners))  # clear of the corners
     plain_lengths, plain_first = through(open_)  # any sight at all
     keep = torch.isfinite(lengths).any(-1, keepdim=True)  # (R, N, 1): some exit reached clear of the corners
     lengths, first = torch.where(keep, lengths, plain_lengths), torch.where(keep, first, plain_first)
@@ -196,11 +197,12 @@ def choose_exits(
     return answer
 
 
-def follow_routes(first: torch.Tensor, exits: torch.Tensor, table: RouteTable) -> tuple[torch.Tensor, torch.Tensor]:
+def follow_routes(first: torch.Tensor, exits: torch.Tensor, geometry: Geometry) -> tuple[torch.Tensor, torch.Tensor]:
     """The waypoints ``(R, N, M, 2)`` (NaN past a route's end) and route length ``(R, N)`` int64 of walkers whose
-    routes start at node ``first`` ``(R, N)`` (-1: none) towards ``exits`` ``(R, N)``: each node, then the next one
-    on the way to the exit, until the exit."""
-    num_nodes = table.nodes.shape[0]
+    routes start at node ``first`` ``(R, N)`` (-1: none) towards ``exits`` ``(R, N)`` in the compiled area
+    ``geometry`` (with routes): each node, then the next one on the way to the exit, until the exit."""
+    nodes, next_node = geometry.route_nodes, geometry.routes.next_node
+    num_nodes = nodes.shape[0]
     shape = first.shape
     waypoints = torch.full((*shape, num_nodes, 2), torch.nan, device=first.device)
     length = torch.zeros(shape, dtype=torch.int64, device=first.device)
@@ -208,7 +210,7 @@ def follow_routes(first: torch.Tensor, exits: torch.Tensor, table: RouteTable) -
     for step in range(num_nodes):  # a shortest route visits each node at most once
         on = node >= 0
         safe = node.clamp_min(0)
-        waypoints[:, :, step] = torch.where(on.unsqueeze(-1), table.nodes[safe], torch.nan)
+        waypoints[:, :, step] = torch.where(on.unsqueeze(-1), nodes[safe], torch.nan)
         length += on.to(torch.int64)
-        node = torch.where(on, table.next_node[safe, exits], -1)
+        node = torch.where(on, next_node[safe, exits], -1)
     return waypoints, length

@@ -226,13 +226,12 @@ class Spawns:
         :func:`~pedrl.sim.routing.choose_exits`); the agents of the ``chosen`` replicas ``(R, 1)`` bool also get
         their routes there (:attr:`waypoints`, :attr:`route_length`)."""
         geometry = self.geometry
-        table = geometry.routes
-        lengths, first = route_lengths(positions, geometry.exit_goals, geometry.walls[: geometry.num_walls], table)
+        lengths, first = route_lengths(positions, geometry)
         assigned = self.assigned_exit.expand(positions.shape[:-1])
         exits = choose_exits(lengths, assigned, self.exit_widths, max_speed=max_speed, queue_weight=queue_weight)
-        if table is not None:
+        if geometry.routes is not None:
             own = ~self.hand_made & chosen  # (R, N)
-            waypoints, length = follow_routes(first.gather(-1, exits.unsqueeze(-1)).squeeze(-1), exits, table)
+            waypoints, length = follow_routes(first.gather(-1, exits.unsqueeze(-1)).squeeze(-1), exits, geometry)
             self.waypoints[..., : waypoints.shape[2], :] = torch.where(
                 own[..., None, None], waypoints, self.waypoints[..., : waypoints.shape[2], :]
             )

@@ -17,6 +17,7 @@ import numpy as np
 import torch
 
 from pedrl.analysis import Recording
+from pedrl.configs import room_keywords
 from pedrl.integrations.jupedsim import pad_frames, simulate_room
 from pedrl.scenarios import Scenario
 from pedrl.sim import RoomEnv
@@ -84,7 +85,8 @@ class PedrlCrowd:
     ) -> RoomEnv:
         """The room of a run (``placed``: the agents are placed by hand, so the spawn areas' capacity is not
         checked); raises a one-line ``ValueError`` when the agents cannot fit."""
-        settings = {key: value for key, value in self.env_settings.items() if key not in ("_target_", "max_decisions")}
+        settings = room_keywords(self.env_settings)
+        settings.pop("max_decisions", None)
         if max_speed is not None:
             settings["max_speed"] = max_speed
         rate = float(settings.get("decisions_per_second", 1.0))
@@ -96,7 +98,7 @@ class PedrlCrowd:
             device=self.device,
         )
         if placed:
-            return RoomEnv(**room, geometry=scenario.geometry(goal_depth=float(settings.get("goal_depth", 0.0))))
+            return RoomEnv(scenario.geometry(), **room)
         return scenario.room(**room)
 
     def start(

@@ -1,7 +1,7 @@
 """Write ``paper_room_golden.npz``: seeded trajectories of the rectangular room, the reference for the geometry.
 
-Generated once with the rectangle-only simulation (commit 63ec6e9, before polygons): the paper's room as a polygon
-scenario must give the same features, positions, rewards and flags to the bit (``tests/sim/test_scenario_golden.py``).
+Generated once with the rectangle-only simulation (before polygons): the paper's room as a polygon scenario must give
+the same features, positions, rewards and flags to the bit (``tests/sim/test_scenario_golden.py``).
 Run ``python tests/data/make_paper_room_golden.py`` only to regenerate after a deliberate change of the dynamics.
 """
 
@@ -10,7 +10,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from pedrl.sim import COARSE_TURN_RATIOS, RoomEnv
+from pedrl.scenarios import paper_room
+from pedrl.sim import COARSE_TURN_RATIOS
 
 CASES = {
     # name: (room kwargs, decisions)
@@ -29,7 +30,10 @@ CASES = {
 
 def simulate(kwargs: dict, decisions: int, seed: int = 7) -> dict[str, np.ndarray]:
     """Features, positions, rewards, reached and crash flags of a seeded run under seeded random actions."""
-    env = RoomEnv(**{"turn_ratios": COARSE_TURN_RATIOS, **kwargs})  # the action set the golden runs were recorded with
+    sizes = {key: value for key, value in kwargs.items() if key in ("width", "length", "door_width")}
+    settings = {key: value for key, value in kwargs.items() if key not in sizes}
+    # the action set the golden runs were recorded with
+    env = paper_room(**sizes).room(**{"turn_ratios": COARSE_TURN_RATIOS, **settings})
     actions = torch.Generator().manual_seed(seed + 1)
     obs, _ = env.reset(seed=seed)
     record = {"features": [obs], "positions": [env.positions], "reward": [], "reached": [], "crashed": []}

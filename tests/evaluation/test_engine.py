@@ -21,6 +21,7 @@ from pedrl.analysis import RoomGeometry, read_pedpy_trajectory
 from pedrl.cli import CONFIG_DIR
 from pedrl.evaluation import SCALING_COLUMNS, evaluate, print_table
 from pedrl.io import CheckpointError, read_csv
+from pedrl.scenarios import paper_room
 from pedrl.train import train
 
 REQUIRED_COLUMNS = ("agents", "fails_pct", "fails_std", "mean_speed", "speed_std")
@@ -351,17 +352,16 @@ def test_contacts_count_bodies_and_walls_apart():
     """A lone walker running straight at full speed in a small room hits walls and never a body; two walkers put
     face to face hit each other: each lands in its own column."""
     from pedrl.evaluation.engine import record_batch
-    from pedrl.sim import RoomEnv
 
     class Straight:
         def act(self, env, obs, info):
             return torch.full(env.active.shape, 8 * 9 + 4)  # full speed up, no turn
 
-    alone = RoomEnv(num_replicas=8, num_agents=1, width=4.0, length=4.0, door_width=1.0, max_decisions=10)
+    alone = paper_room(width=4.0, length=4.0, door_width=1.0).room(num_replicas=8, num_agents=1, max_decisions=10)
     record = record_batch(alone, Straight())
     assert record.crashes.sum() == 0 and record.wall_crashes.sum() > 0
 
-    pair = RoomEnv(num_replicas=1, num_agents=2, width=10.0, length=10.0, max_decisions=3)
+    pair = paper_room(width=10.0, length=10.0).room(num_replicas=1, num_agents=2, max_decisions=3)
     east, west = 0.0, float(np.pi)
     options = {"positions": [[[3.0, 5.0], [5.0, 5.0]]], "headings": [[east, west]], "speeds": [[2.5, 2.5]]}
     with pytest.MonkeyPatch.context() as patch:
@@ -374,10 +374,9 @@ def test_contacts_count_bodies_and_walls_apart():
 # ---------------------------------------------------------------------- the fast path (fused trial kernels)
 def sparse_room(rule: str = "stop"):
     """Few walkers in a wide room, acting nearest the door first: both paths must walk the same trajectories."""
-    from pedrl.sim import RoomEnv
-
-    return RoomEnv(num_replicas=3, num_agents=4, width=30.0, length=20.0, door_width=6.0, max_decisions=40,
-                   contact=rule, collision_order="door_first")  # fmt: skip
+    return paper_room(width=30.0, length=20.0, door_width=6.0).room(
+        num_replicas=3, num_agents=4, max_decisions=40, contact=rule, collision_order="door_first"
+    )
 
 
 @pytest.mark.skipif(not numba_available(), reason="numba is off (PEDRL_NO_NUMBA)")
@@ -424,9 +423,8 @@ def test_the_fast_path_is_on_by_default_and_agrees_with_the_torch_loop(checkpoin
 
 def test_fused_true_is_refused_in_one_line_where_the_kernels_cannot_run(tmp_path, monkeypatch):
     from pedrl.evaluation.engine import check_fused_controller
-    from pedrl.sim import RoomEnv
     from pedrl.sim.controllers import GreedyDoorController
 
-    env = RoomEnv(num_replicas=2, num_agents=4, width=10.0, length=10.0, collision_rule="simultaneous")
+    env = paper_room(width=10.0, length=10.0).room(num_replicas=2, num_agents=4, collision_rule="simultaneous")
     with pytest.raises(ValueError, match=r"^fused=true is invalid: the fused trial cannot run with collision_rule="):
         check_fused_controller(GreedyDoorController(), [env])

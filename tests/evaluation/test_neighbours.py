@@ -11,6 +11,7 @@ import torch
 
 from pedrl.evaluation.neighbours import MEASURES, neighbour_sight, scenes_of, sight_of
 from pedrl.policy_files import load_policy
+from pedrl.scenarios import paper_room
 from pedrl.sim import RoomEnv
 from pedrl.sim.sensing import ANGLE, DISTANCE, NUM_OWN_FEATURES, REL_SPEED, VELOCITY_ANGLE, num_features
 from pedrl.vq import Quantizer
@@ -22,7 +23,7 @@ SPEEDS = (0.5, 1.0)
 
 
 def room(places: int = 4) -> RoomEnv:
-    return RoomEnv(num_replicas=places, num_agents=1, width=20.0, length=30.0)
+    return paper_room(width=20.0, length=30.0).room(num_replicas=places, num_agents=1)
 
 
 def over_heading(env: RoomEnv, prototypes: int = 256) -> StateEncoder:

@@ -10,6 +10,7 @@ import torch
 
 from pedrl.evaluation.resolution import distinct_counts, heading_resolution, turn_ids
 from pedrl.policy_files import load_policy
+from pedrl.scenarios import paper_room
 from pedrl.sim import RoomEnv
 from pedrl.vq import Quantizer
 from pedrl.vq.encoder import EncoderSettings, StateEncoder
@@ -19,7 +20,7 @@ HEADING = 1  # the own heading feature: the angle of the velocity to the referen
 
 
 def room(agents: int = 1, positions: int = 6) -> RoomEnv:
-    return RoomEnv(num_replicas=positions, num_agents=agents, width=20.0, length=30.0)
+    return paper_room(width=20.0, length=30.0).room(num_replicas=positions, num_agents=agents)
 
 
 def encoder_over(column: int, values: torch.Tensor, env: RoomEnv, **choices) -> StateEncoder:

@@ -13,9 +13,11 @@ pettingzoo = pytest.importorskip("pettingzoo")
 from pettingzoo.test import parallel_api_test, parallel_seed_test  # noqa: E402
 
 from pedrl.integrations.pettingzoo import PedestrianParallelEnv, parallel_env  # noqa: E402
-from pedrl.sim import NOOP_ACTION, RoomEnv  # noqa: E402
+from pedrl.scenarios import paper_room  # noqa: E402
+from pedrl.sim import NOOP_ACTION  # noqa: E402
 
-SMALL = {"width": 6.0, "length": 8.0, "door_width": 1.5, "num_agents": 5, "max_decisions": 30}
+SIZES = {"width": 6.0, "length": 8.0, "door_width": 1.5}
+SMALL = {**SIZES, "num_agents": 5, "max_decisions": 30}
 """A small room that random walkers can leave within the trial."""
 UP = math.pi / 2
 PLACED = [[3.0, 7.4], [1.0, 1.0], [5.0, 1.0], [1.0, 3.0], [5.0, 3.0]]
@@ -62,7 +64,7 @@ def test_seeded_rollouts_repeat_and_equal_room_env_stepped_directly():
     which RoomEnv is given explicitly, and it leaves; the others walk at random until the clock stops them.
     """
     first, second = parallel_env(**SMALL), parallel_env(**SMALL)
-    room = RoomEnv(num_replicas=1, **SMALL)
+    room = paper_room(**SIZES).room(num_replicas=1, num_agents=5, max_decisions=30)
     options = {"positions": PLACED, "headings": [UP, 0.0, 1.0, 2.0, 3.0], "speeds": [room.max_speed] + [0.0] * 4}
     obs_first, _ = first.reset(seed=7, options=options)
     obs_second, _ = second.reset(seed=7, options=options)
@@ -202,7 +204,7 @@ def test_spaces_are_the_same_objects_per_agent_and_distinct_between_agents():
 
 def test_more_than_one_replica_is_a_value_error():
     with pytest.raises(ValueError, match=r"^env\.num_replicas=2 is invalid"):
-        PedestrianParallelEnv(RoomEnv(num_replicas=2, **SMALL))
+        PedestrianParallelEnv(paper_room(**SIZES).room(num_replicas=2, num_agents=5, max_decisions=30))
     with pytest.raises(ValueError, match=r"num_replicas=2"):
         parallel_env(num_replicas=2, **SMALL)
     with pytest.raises(ValueError, match=r"render_mode='human'"):

@@ -9,7 +9,7 @@ from safetensors.torch import load_file, save_file
 from pedrl.io import CheckpointError
 from pedrl.io.checkpoint import METADATA_KEY
 from pedrl.rl import TableLayout, TabularPolicy
-from pedrl.sim import RoomEnv
+from pedrl.scenarios import paper_room
 from pedrl.vq import ProcessQuantizers, Quantizer
 from pedrl.vq.encoder import EncoderSettings, StateEncoder
 
@@ -54,7 +54,7 @@ def test_the_training_layout_gives_e_consecutive_rooms_to_each_process():
 
 
 def small_policy(per_process=False):
-    env = RoomEnv(num_replicas=2, num_agents=5, width=8.0, length=8.0, door_width=2.0, max_decisions=6)
+    env = paper_room(width=8.0, length=8.0, door_width=2.0).room(num_replicas=2, num_agents=5, max_decisions=6)
     obs, info = env.reset(seed=3)
     settings = EncoderSettings(
         num_neighbours=env.num_neighbours,

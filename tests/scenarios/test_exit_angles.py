@@ -36,8 +36,8 @@ def greedy_out(angle: float, contact: str, motion: str = "step", decisions: int 
     wkt, exit_ = turned_room(angle)
     geometry = build_scenario({"name": "custom", "geometry": wkt, "exits": [exit_]}).geometry()
     env = RoomEnv(
-        num_agents=10, num_replicas=2, geometry=geometry, width=40.0, length=40.0, agent_radius=0.2, max_speed=1.34,
-        contact=contact, motion=motion, max_decisions=decisions, **GOAL,
+        geometry, num_agents=10, num_replicas=2, agent_radius=0.2, max_speed=1.34, contact=contact, motion=motion,
+        max_decisions=decisions, **GOAL,
     )  # fmt: skip
     obs, info = env.reset(seed=0)
     controller = GreedyDoorController(epsilon=0.0, generator=torch.Generator().manual_seed(0))

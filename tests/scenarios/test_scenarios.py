@@ -102,7 +102,7 @@ def test_custom_geometry_from_wkt_with_a_hole(tmp_path):
     geometry = scenario.geometry()
     assert geometry.num_walls == 5 + 4  # the outer ring, split by the exit, and the pillar
     assert geometry.exit_normals.tolist() == [[1.0, 0.0]]
-    env = RoomEnv(num_replicas=2, num_agents=10, geometry=geometry)
+    env = RoomEnv(geometry, num_replicas=2, num_agents=10)
     env.reset(seed=0)
     assert (env.positions[..., 0] <= 4.0).all()
     assert not env.geometry.inside(torch.tensor([[6.0, 5.0]])).any()  # the pillar is not walkable
@@ -167,7 +167,7 @@ def test_spawn_areas_are_split_by_weight_and_checked():
         (build_scenario({"name": "paper_room"}, room={"width": 20.0, "length": 10.0}).exits[0],),
         (Spawn(box(0, 0, 5, 10), weight=3.0), Spawn(box(15, 0, 20, 10), weight=1.0)),
     )
-    env = RoomEnv(num_replicas=1, num_agents=8, geometry=scenario.geometry())
+    env = RoomEnv(scenario.geometry(), num_replicas=1, num_agents=8)
     env.reset(seed=1)
     assert env.spawn_counts == (6, 2)
     assert (env.positions[0, :6, 0] <= 5).all() and (env.positions[0, 6:, 0] >= 15).all()

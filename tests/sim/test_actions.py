@@ -5,7 +5,8 @@ import math
 import pytest
 import torch
 
-from pedrl.sim import COARSE_TURN_RATIOS, DEFAULT_TURN_RATIOS, RoomEnv
+from pedrl.scenarios import paper_room
+from pedrl.sim import COARSE_TURN_RATIOS, DEFAULT_TURN_RATIOS
 from pedrl.sim.controllers import GreedyDoorController
 
 STEP = 2.5  # m, a full-speed decision at the default max_speed
@@ -32,7 +33,9 @@ def test_any_heading_lines_up_within_four_decisions():
 
 def lone_walkers_out(turns: tuple[float, ...]) -> float:
     """Share of lone greedy walkers (bodies of 0.45 m) that pass a 1 m door of the paper's room in 200 decisions."""
-    env = RoomEnv(num_replicas=200, num_agents=1, door_width=1.0, agent_radius=0.45, turn_ratios=turns, contact="slide")
+    env = paper_room(door_width=1.0).room(
+        num_replicas=200, num_agents=1, agent_radius=0.45, turn_ratios=turns, contact="slide"
+    )
     obs, info = env.reset(seed=1)
     controller = GreedyDoorController()
     out = torch.zeros(env.num_replicas, 1, dtype=torch.bool)

@@ -1,20 +1,21 @@
-"""conf/env/room.yaml builds a RoomEnv and mirrors the constructor's defaults."""
+"""conf/env/room.yaml builds a room (through the scenario group's area) and mirrors the defaults of the room's
+settings and of the paper's room."""
 
 import inspect
 from pathlib import Path
 
-import hydra
 from omegaconf import OmegaConf
 
+from pedrl.configs import AREA_SETTINGS, env_factory
+from pedrl.scenarios import paper_room
 from pedrl.sim import RoomEnv
 
 CONFIG = Path(__file__).resolve().parents[2] / "conf" / "env" / "room.yaml"
-RUN_TIME = {"num_replicas", "num_agents", "device", "geometry"}  # geometry: built from the scenario group
+RUN_TIME = {"num_replicas", "num_agents", "device", "area"}  # area: compiled from the scenario group
 
 
-def test_room_config_instantiates_with_run_time_arguments():
-    cfg = OmegaConf.load(CONFIG)
-    env = hydra.utils.instantiate(cfg, num_replicas=2, num_agents=5, device="cpu")
+def test_room_config_builds_a_room_with_run_time_arguments():
+    env = env_factory(OmegaConf.to_container(OmegaConf.load(CONFIG)))(num_replicas=2, num_agents=5, device="cpu")
     assert isinstance(env, RoomEnv)
     assert (env.num_replicas, env.num_agents, env.device.type) == (2, 5, "cpu")
     assert isinstance(env.speed_ratios, tuple) and all(isinstance(v, float) for v in env.speed_ratios)
@@ -23,10 +24,13 @@ def test_room_config_instantiates_with_run_time_arguments():
 
 
 def test_room_config_lists_every_parameter_with_the_constructor_default():
+    """The room's settings take RoomEnv's defaults; the paper's room's sizes take paper_room's."""
     cfg = OmegaConf.to_container(OmegaConf.load(CONFIG))
     assert cfg.pop("_target_") == "pedrl.sim.RoomEnv"
     parameters = inspect.signature(RoomEnv.__init__).parameters
     expected = {name: p.default for name, p in parameters.items() if name != "self" and name not in RUN_TIME}
+    area = inspect.signature(paper_room).parameters
+    expected |= {name: area[name].default for name in AREA_SETTINGS}
     assert set(cfg) == set(expected)
     for name, default in expected.items():
         value = tuple(cfg[name]) if isinstance(cfg[name], list) else cfg[name]

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from pedrl._numba import numba_available
 from pedrl.algos.registry import env_factory
-from pedrl.scenarios import SCENARIOS
+from pedrl.scenarios import SCENARIOS, paper_room
 from pedrl.sim import RoomEnv
 from pedrl.sim.actions import NUM_ACTIONS, NUM_TURNS, velocities_from
 from pedrl.sim.controllers import GreedyDoorController
@@ -54,7 +54,7 @@ def check_bodies(env: RoomEnv, start: torch.Tensor, acting: torch.Tensor) -> Non
 
 
 def test_stop_is_the_default_contact_model():
-    env = RoomEnv(num_agents=2)
+    env = paper_room().room(num_agents=2)
     assert env.contact == "stop" and env.time_gap == 1.0
 
 
@@ -72,7 +72,7 @@ def test_stop_is_the_default_contact_model():
 )
 def test_bad_contact_settings_give_one_line_errors(kwargs, fragments):
     with pytest.raises(ValueError) as error:
-        RoomEnv(num_agents=2, **kwargs)
+        paper_room().room(num_agents=2, **kwargs)
     message = str(error.value)
     assert "\n" not in message
     for fragment in fragments:
@@ -85,7 +85,7 @@ def test_bad_contact_settings_give_one_line_errors(kwargs, fragments):
 def random_scene(seed: int, num_agents: int, room: tuple[float, float, float], speed_scale: float):
     """Placed bodies (no overlaps) with random velocities up to ``max_speed`` and a few inactive agents."""
     width, length, door_width = room
-    env = RoomEnv(num_replicas=2, num_agents=num_agents, width=width, length=length, door_width=door_width)
+    env = paper_room(width=width, length=length, door_width=door_width).room(num_replicas=2, num_agents=num_agents)
     env.reset(seed=seed)
     generator = torch.Generator().manual_seed(seed)
     shape = (2, num_agents)
@@ -146,15 +146,8 @@ def test_invariants_hold_after_every_step(seed, num_agents, room, rule, compiled
     width, length, door_width = room
     capacity = int(0.3 * (width - 0.8) * (length - 0.8) / (math.pi * 0.16))
     num_agents = min(num_agents, capacity, 60 if compiled else 20)
-    env = RoomEnv(
-        num_replicas=2,
-        num_agents=num_agents,
-        width=width,
-        length=length,
-        door_width=door_width,
-        max_decisions=30,
-        contact=rule,
-        reward_progress=0.0,
+    env = paper_room(width=width, length=length, door_width=door_width).room(
+        num_replicas=2, num_agents=num_agents, max_decisions=30, contact=rule, reward_progress=0.0
     )
     shape = (2, num_agents)
     generator = torch.Generator().manual_seed(seed)
@@ -219,7 +212,7 @@ def door_post_run(contact: str) -> tuple[bool, int]:
     Returns:
         Whether it got out, and its wall contacts.
     """
-    env = RoomEnv(num_agents=1, width=6.0, length=8.0, door_width=1.2, max_decisions=15, contact=contact)
+    env = paper_room(width=6.0, length=8.0, door_width=1.2).room(num_agents=1, max_decisions=15, contact=contact)
     heading = math.radians(90.0 - 30.0)
     env.reset(seed=0, options={"positions": [[[1.6, 6.4]]], "headings": [[heading]], "speeds": [[1.0]]})
     contacts = 0
@@ -246,8 +239,8 @@ def test_every_sliding_rule_gets_a_body_past_a_door_post(rule):
 
 def follow_run(contact: str, order: str = "random") -> tuple[list[float], int]:
     """A leader walking at 1 m/s and a follower 3 m behind it that always wants full speed: (gaps, body contacts)."""
-    env = RoomEnv(
-        num_agents=2, width=6.0, length=60.0, door_width=2.0, max_decisions=40, contact=contact, collision_order=order
+    env = paper_room(width=6.0, length=60.0, door_width=2.0).room(
+        num_agents=2, max_decisions=40, contact=contact, collision_order=order
     )
     up = math.pi / 2
     env.reset(seed=0, options={"positions": [[[3.0, 5.0], [3.0, 2.0]]], "headings": [[up, up]], "speeds": [[1.0, 2.5]]})
@@ -282,7 +275,7 @@ def test_yield_follows_the_order_of_action():
 def greedy_crowd_run(rule: str) -> tuple[float, float]:
     """100 greedy walkers (10 % random actions) in the paper's room: (share out in 200 decisions, contacts per
     agent)."""
-    env = RoomEnv(num_replicas=4, num_agents=100, contact=rule, collision_order="door_first")
+    env = paper_room().room(num_replicas=4, num_agents=100, contact=rule, collision_order="door_first")
     controller = GreedyDoorController(epsilon=0.1, generator=torch.Generator().manual_seed(0))
     obs, info = env.reset(seed=3)
     out = torch.zeros(env.num_replicas, env.num_agents, dtype=torch.bool)

@@ -10,6 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from pedrl._numba import numba_available
+from pedrl.scenarios import paper_room
 from pedrl.sim import RoomEnv
 from pedrl.sim.actions import NUM_ACTIONS
 from pedrl.sim.motion import Steering
@@ -30,7 +31,10 @@ needs_numba = pytest.mark.skipif(not numba_available(), reason="numba is off (PE
 
 
 def continuous(**kwargs) -> RoomEnv:
-    return RoomEnv(**({"motion": "continuous", "agent_radius": 0.2, "max_speed": 1.34} | GOAL | kwargs))
+    """A room of the paper's shape (``width``, ``length`` and ``door_width`` among ``kwargs``) on the walking layer."""
+    sizes = {key: kwargs.pop(key) for key in ("width", "length", "door_width") if key in kwargs}
+    settings = {"motion": "continuous", "agent_radius": 0.2, "max_speed": 1.34} | GOAL | kwargs
+    return paper_room(**sizes).room(**settings)
 
 
 @pytest.mark.parametrize(
@@ -51,7 +55,7 @@ def continuous(**kwargs) -> RoomEnv:
 def test_bad_motion_settings_give_one_line_errors(kwargs, fragments):
     base = {"contact": "yield"} if kwargs.get("motion") == "continuous" and "contact" not in kwargs else {}
     with pytest.raises(ValueError) as error:
-        RoomEnv(num_agents=2, **(base | kwargs))
+        paper_room().room(num_agents=2, **base | kwargs)
     message = str(error.value)
     assert "\n" not in message
     for fragment in fragments:
@@ -63,7 +67,7 @@ def test_the_time_step_is_at_most_0_05_s(decisions_per_second):
     env = continuous(num_agents=2, decisions_per_second=decisions_per_second)
     assert env.decision_length / env.num_substeps <= 0.05 + 1e-12
     assert env.motion.steering == Steering()  # JuPedSim's defaults
-    assert RoomEnv(num_agents=2, contact="yield").motion.steering is None  # the step model keeps its own
+    assert paper_room().room(num_agents=2, contact="yield").motion.steering is None  # the step model keeps its own
 
 
 def test_the_direction_rule_turns_away_from_a_body_ahead_and_a_wall():

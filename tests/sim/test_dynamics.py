@@ -8,6 +8,7 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from pedrl.scenarios import paper_room
 from pedrl.sim import RoomEnv
 from pedrl.sim.actions import (
     DEFAULT_SPEED_RATIOS,
@@ -22,7 +23,7 @@ from pedrl.sim.actions import (
     encode_actions,
     velocities_from,
 )
-from pedrl.sim.geometry import Geometry, build_walls, distances_to_segments
+from pedrl.sim.geometry import distances_to_segments
 from pedrl.sim.motion import Motion, move_agents, move_agents_sequential
 from pedrl.sim.reference import move_agents_literal, move_agents_sequential_literal
 
@@ -97,11 +98,16 @@ def test_goal_frame_actions_set_the_speed_and_the_heading_from_the_bearing_of_th
 def test_goal_frame_walkers_go_straight_out_and_bad_ratios_are_refused():
     """Full speed at offset 0 takes every walker of an open room out by the shortest line; a speed ratio outside
     [0, 1] is refused in one line (in the heading frame it is a change, -1 allowed)."""
-    env = RoomEnv(
-        num_replicas=2, num_agents=8, width=10.0, length=10.0, door_width=3.0, max_decisions=20,
-        action_frame="goal", speed_ratios=GOAL_SPEED_RATIOS, turn_ratios=GOAL_TURN_RATIOS,
-        contact="yield", collision_order="door_first",
-    )  # fmt: skip
+    env = paper_room(width=10.0, length=10.0, door_width=3.0).room(
+        num_replicas=2,
+        num_agents=8,
+        max_decisions=20,
+        action_frame="goal",
+        speed_ratios=GOAL_SPEED_RATIOS,
+        turn_ratios=GOAL_TURN_RATIOS,
+        contact="yield",
+        collision_order="door_first",
+    )
     env.reset(seed=3)
     straight = torch.full((2, 8), 8 * 9 + 4)
     start = env.positions.clone()
@@ -114,9 +120,9 @@ def test_goal_frame_walkers_go_straight_out_and_bad_ratios_are_refused():
     # nobody needs more decisions than the straight line at full speed allows, plus the queue at the door
     assert env.decisions.max() <= math.ceil(float(to_door.max()) / 2.5) + 8
     with pytest.raises(ValueError, match=r"^speed_ratios\[0\]=-1.0 is invalid: with action_frame=goal"):
-        RoomEnv(action_frame="goal")
+        paper_room().room(action_frame="goal")
     with pytest.raises(ValueError, match=r"^action_frame='door' is invalid: must be one of heading, goal$"):
-        RoomEnv(action_frame="door")
+        paper_room().room(action_frame="door")
 
 
 def test_half_turn_takes_two_decisions():
@@ -154,12 +160,12 @@ def test_count_substeps(max_speed, decision_length, substep_length, expected):
 
 
 def test_touches_walls_equals_segment_distance_test():
-    geometry = Geometry.rectangle(width=6.0, length=8.0, door_width=1.2)
+    geometry = paper_room(width=6.0, length=8.0, door_width=1.2).geometry()
     generator = torch.Generator().manual_seed(0)
     radius = 0.4
     points = torch.rand(20000, 2, generator=generator) * torch.tensor([6.0 + 4 * radius, 8.0 + 4 * radius])
     points -= 2 * radius
-    distance = distances_to_segments(points.double(), build_walls(width=6.0, length=8.0, door_width=1.2).double())
+    distance = distances_to_segments(points.double(), geometry.walls[: geometry.num_walls].double())
     nearest = distance.amin(-1)
     decided = (nearest - radius).abs() > 1e-4  # away from float ties
     touches = geometry.touches_walls(points, radius=radius)
@@ -186,13 +192,8 @@ def _cap(width: float, length: float, radius: float = 0.4) -> int:
 def test_move_agents_equals_the_literal_substep_rule(seed, num_replicas, num_agents, room, decisions_per_second):
     width, length, door_width = room
     num_agents = min(num_agents, _cap(width, length))
-    env = RoomEnv(
-        num_replicas=num_replicas,
-        num_agents=num_agents,
-        width=width,
-        length=length,
-        door_width=door_width,
-        decisions_per_second=decisions_per_second,
+    env = paper_room(width=width, length=length, door_width=door_width).room(
+        num_replicas=num_replicas, num_agents=num_agents, decisions_per_second=decisions_per_second
     )
     env.reset(seed=seed)
     generator = torch.Generator().manual_seed(seed)
@@ -218,7 +219,7 @@ def test_move_agents_equals_the_literal_substep_rule(seed, num_replicas, num_age
 
 
 def test_standing_agent_that_is_walked_into_is_not_penalised():
-    geometry = Geometry.rectangle(width=60.0, length=100.0, door_width=2.0)
+    geometry = paper_room().geometry()
     # the mover's first sub-step (2.5 / 7 = 0.357 m) would bring the centres to 0.843 m apart, the second to
     # 0.486 m: it is blocked in sub-step 2 and stays after sub-step 1
     positions = torch.tensor([[[10.0, 50.0], [11.2, 50.0]]])
@@ -237,7 +238,7 @@ def test_standing_agent_that_is_walked_into_is_not_penalised():
 
 def test_dense_rooms_match_the_reference_and_exercise_every_event():
     """A crowded small room, many decisions: agent crashes, wall crashes and arrivals all happen."""
-    env = RoomEnv(num_replicas=3, num_agents=12, width=5.0, length=6.0, door_width=1.0)
+    env = paper_room(width=5.0, length=6.0, door_width=1.0).room(num_replicas=3, num_agents=12)
     env.reset(seed=3)
     generator = torch.Generator().manual_seed(3)
     counts = {"crashed_agent": 0, "crashed_wall": 0, "reached": 0}
@@ -272,7 +273,7 @@ def _sequential(positions, velocities, priority=None, geometry=None):
         positions=positions,
         velocities=velocities,
         active=torch.ones(1, num_agents, dtype=torch.bool),
-        motion=Motion(geometry or Geometry.rectangle(width=60.0, length=100.0, door_width=2.0), 0.4, 1.0, 7),
+        motion=Motion(geometry or paper_room().geometry(), 0.4, 1.0, 7),
         priority=torch.tensor([priority if priority is not None else list(range(num_agents))], dtype=torch.float32),
     )
 
@@ -290,7 +291,7 @@ def test_a_leader_caught_by_a_faster_follower_keeps_walking(priority):
 @pytest.mark.parametrize("rule", ["sequential", "simultaneous"])
 def test_two_agents_below_the_door_heading_for_its_centre(rule):
     """Simultaneously both stop at every decision and stay frozen for ever; sequentially both leave."""
-    geometry = Geometry.rectangle(width=60.0, length=100.0, door_width=2.0)
+    geometry = paper_room().geometry()
     positions = torch.tensor([[[29.5, 97.0], [30.5, 97.0]]])
     active = torch.ones(1, 2, dtype=torch.bool)
     reached = torch.zeros_like(active)
@@ -322,7 +323,9 @@ def test_two_agents_below_the_door_heading_for_its_centre(rule):
 def test_move_agents_sequential_equals_the_literal_agent_by_agent_loop(seed, num_replicas, num_agents, room):
     width, length, door_width = room
     num_agents = min(num_agents, _cap(width, length))
-    env = RoomEnv(num_replicas=num_replicas, num_agents=num_agents, width=width, length=length, door_width=door_width)
+    env = paper_room(width=width, length=length, door_width=door_width).room(
+        num_replicas=num_replicas, num_agents=num_agents
+    )
     env.reset(seed=seed)
     generator = torch.Generator().manual_seed(seed)
     shape = (num_replicas, num_agents)

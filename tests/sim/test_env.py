@@ -7,7 +7,8 @@ import pytest
 import torch
 
 import pedrl.sim.env as env_module
-from pedrl.sim import NOOP_ACTION, PlacementError, RoomEnv, build_walls
+from pedrl.scenarios import paper_room
+from pedrl.sim import NOOP_ACTION, PlacementError, RoomEnv
 from pedrl.sim.actions import NUM_ACTIONS
 
 UP, DOWN, RIGHT, LEFT = math.pi / 2, -math.pi / 2, 0.0, math.pi
@@ -28,7 +29,7 @@ def _place(env: RoomEnv, positions, headings, speeds):
 
 @pytest.mark.parametrize(("distance", "decisions_per_second"), [(10.3, 1.0), (3.0, 2.0), (0.9, 1.0), (26.1, 0.5)])
 def test_agent_heading_at_the_door_reaches_it_in_the_expected_decisions(distance, decisions_per_second):
-    env = RoomEnv(**TABLE_2, num_agents=1, decisions_per_second=decisions_per_second)
+    env = paper_room().room(**TABLE_2, num_agents=1, decisions_per_second=decisions_per_second)
     _place(env, [(30.0, 100.0 - distance)], [UP], [env.max_speed])
     per_decision = env.max_speed / decisions_per_second  # m, straight up at full speed
     expected = math.ceil(distance / per_decision)
@@ -51,7 +52,7 @@ def test_agent_heading_at_the_door_reaches_it_in_the_expected_decisions(distance
 
 def test_head_on_agents_both_stop_and_both_get_the_agent_penalty():
     """Under the simultaneous rule both stop at the same sub-step (the sequential rule: test_dynamics)."""
-    env = RoomEnv(**TABLE_2, num_agents=2, collision_rule="simultaneous")
+    env = paper_room().room(**TABLE_2, num_agents=2, collision_rule="simultaneous")
     gap = 5.0
     _place(env, [(20.0, 50.0), (20.0 + gap, 50.0)], [RIGHT, LEFT], [env.max_speed] * 2)
     _, reward, terminated, _, info = env.step(_noop(env))
@@ -70,7 +71,7 @@ def test_head_on_agents_both_stop_and_both_get_the_agent_penalty():
 
 
 def test_agent_driven_into_a_wall_stops_inside_the_room():
-    env = RoomEnv(**TABLE_2, num_agents=1)
+    env = paper_room().room(**TABLE_2, num_agents=1)
     start = 2.0
     _place(env, [(30.0, start)], [DOWN], [env.max_speed])
     _, reward, _, _, info = env.step(_noop(env))
@@ -85,7 +86,7 @@ def test_agent_driven_into_a_wall_stops_inside_the_room():
 
 
 def test_agent_driven_into_a_door_post_stops_below_it():
-    env = RoomEnv(**TABLE_2, num_agents=1)
+    env = paper_room().room(**TABLE_2, num_agents=1)
     _place(env, [(29.0, 98.0)], [UP], [env.max_speed])  # straight at the left door post (29, 100)
     _, reward, terminated, _, info = env.step(_noop(env))
     assert reward.tolist() == [[-15.0]] and not terminated.any() and info["crashed_wall"].all()
@@ -94,7 +95,7 @@ def test_agent_driven_into_a_door_post_stops_below_it():
 
 
 def test_walking_into_a_standing_agent_penalises_only_the_mover():
-    env = RoomEnv(**TABLE_2, num_agents=2)
+    env = paper_room().room(**TABLE_2, num_agents=2)
     _place(env, [(10.0, 50.0), (12.0, 50.0)], [RIGHT, LEFT], [env.max_speed, 0.0])
     _, reward, _, _, info = env.step(_noop(env))
     assert reward.tolist() == [[-4.0, 0.0]]
@@ -103,7 +104,7 @@ def test_walking_into_a_standing_agent_penalises_only_the_mover():
 
 
 def test_actions_change_speed_and_heading_before_moving():
-    env = RoomEnv(**TABLE_2, num_agents=1)
+    env = paper_room().room(**TABLE_2, num_agents=1)
     _place(env, [(30.0, 50.0)], [RIGHT], [0.0])
     full_speed_left_turn = 8 * 9 + 7  # +1.0 max_speed, +0.25 pi
     env.step(torch.tensor([[full_speed_left_turn]]))
@@ -117,7 +118,7 @@ def test_actions_change_speed_and_heading_before_moving():
 
 
 def test_truncation_at_max_decisions():
-    env = RoomEnv(**TABLE_2, num_replicas=2, num_agents=3, max_decisions=4)
+    env = paper_room().room(**TABLE_2, num_replicas=2, num_agents=3, max_decisions=4)
     env.reset(seed=0)
     for decision in range(1, 5):
         obs, reward, terminated, truncated, info = env.step(_noop(env))
@@ -131,7 +132,7 @@ def test_truncation_at_max_decisions():
 
 
 def test_arrival_on_the_last_decision_is_terminated_not_truncated():
-    env = RoomEnv(**TABLE_2, num_agents=2, max_decisions=2)
+    env = paper_room().room(**TABLE_2, num_agents=2, max_decisions=2)
     _place(env, [(30.0, 96.0), (10.0, 10.0)], [UP, UP], [env.max_speed, 0.0])
     env.step(_noop(env))
     _, reward, terminated, truncated, _ = env.step(_noop(env))
@@ -140,7 +141,7 @@ def test_arrival_on_the_last_decision_is_terminated_not_truncated():
 
 
 def test_info_keys_shapes_and_dtypes():
-    env = RoomEnv(num_replicas=3, num_agents=4)
+    env = paper_room().room(num_replicas=3, num_agents=4)
     obs, info = env.reset(seed=1)
     obs, reward, terminated, truncated, info = env.step(torch.randint(0, NUM_ACTIONS, (3, 4)))
     assert set(info) == {
@@ -161,15 +162,11 @@ def test_info_keys_shapes_and_dtypes():
     assert info["neighbour_mask"].shape == (3, 4, 7) and info["speed"].dtype == torch.float32
     assert isinstance(info["decision"], int) and info["decision"] == 1
     assert env.num_actions == 81 and env.num_features == 28
-    assert (
-        env.width == 60.0
-        and env.geometry.num_walls == 5
-        and env.geometry.walls[:5].tolist() == build_walls(width=60.0, length=100.0, door_width=2.0).tolist()
-    )
+    assert env.geometry.bounds == (0.0, 0.0, 60.0, 100.0) and env.geometry.num_walls == 5
 
 
 def test_reset_places_agents_apart_clear_of_walls_standing():
-    env = RoomEnv(num_replicas=5, num_agents=60, width=20.0, length=25.0, door_width=2.0)
+    env = paper_room(width=20.0, length=25.0, door_width=2.0).room(num_replicas=5, num_agents=60)
     _, info = env.reset(seed=2)
     gaps = torch.cdist(env.positions, env.positions) + torch.eye(60) * 1e3
     assert gaps.min() >= 2 * env.agent_radius
@@ -198,16 +195,16 @@ def _rollout(env: RoomEnv, seed: int, steps: int, action_seed: int = 0, change=N
 
 
 def test_same_seed_same_trajectories():
-    first = _rollout(RoomEnv(num_replicas=2, num_agents=10), seed=7, steps=40)
-    second = _rollout(RoomEnv(num_replicas=2, num_agents=10), seed=7, steps=40)
+    first = _rollout(paper_room().room(num_replicas=2, num_agents=10), seed=7, steps=40)
+    second = _rollout(paper_room().room(num_replicas=2, num_agents=10), seed=7, steps=40)
     for a, b in zip(first, second, strict=True):
         assert all(torch.equal(x, y) for x, y in zip(a, b, strict=True))
-    other = _rollout(RoomEnv(num_replicas=2, num_agents=10), seed=8, steps=1)
+    other = _rollout(paper_room().room(num_replicas=2, num_agents=10), seed=8, steps=1)
     assert not torch.equal(first[0][1], other[0][1])
 
 
 def test_reset_with_seed_reseeds_the_same_env():
-    env = RoomEnv(num_agents=10)
+    env = paper_room().room(num_agents=10)
     env.reset(seed=3)
     start = env.positions
     env.step(torch.randint(0, NUM_ACTIONS, (1, 10)))
@@ -223,8 +220,8 @@ def test_replicas_are_independent():
         actions[0] = (actions[0] + 17) % NUM_ACTIONS
         return actions
 
-    base = _rollout(RoomEnv(num_replicas=3, num_agents=15), seed=11, steps=30)
-    changed = _rollout(RoomEnv(num_replicas=3, num_agents=15), seed=11, steps=30, change=replica_zero_turns)
+    base = _rollout(paper_room().room(num_replicas=3, num_agents=15), seed=11, steps=30)
+    changed = _rollout(paper_room().room(num_replicas=3, num_agents=15), seed=11, steps=30, change=replica_zero_turns)
     assert not torch.equal(base[-1][1][0], changed[-1][1][0])
     for a, b in zip(base, changed, strict=True):
         for x, y in zip(a, b, strict=True):
@@ -232,7 +229,7 @@ def test_replicas_are_independent():
 
 
 def test_partial_reset_only_touches_the_chosen_replicas():
-    env = RoomEnv(num_replicas=3, num_agents=6, max_decisions=50)
+    env = paper_room().room(num_replicas=3, num_agents=6, max_decisions=50)
     env.reset(seed=4)
     generator = torch.Generator().manual_seed(4)
     for _ in range(5):
@@ -252,7 +249,7 @@ def test_partial_reset_only_touches_the_chosen_replicas():
 
 
 def test_hand_placed_scene_with_partial_reset_ignores_other_replicas_rows():
-    env = RoomEnv(num_replicas=2, num_agents=2)
+    env = paper_room().room(num_replicas=2, num_agents=2)
     env.reset(seed=0)
     kept = env.positions[1].clone()
     positions = torch.tensor([[[5.0, 5.0], [7.0, 5.0]], [[-1.0, -1.0], [-1.0, -1.0]]])  # row 1 invalid but unused
@@ -262,8 +259,8 @@ def test_hand_placed_scene_with_partial_reset_ignores_other_replicas_rows():
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="CUDA is not available")
 def test_runs_on_cuda_like_on_cpu():
-    cpu = _rollout(RoomEnv(num_replicas=2, num_agents=8), seed=5, steps=10)
-    env = RoomEnv(num_replicas=2, num_agents=8, device="cuda")
+    cpu = _rollout(paper_room().room(num_replicas=2, num_agents=8), seed=5, steps=10)
+    env = paper_room().room(num_replicas=2, num_agents=8, device="cuda")
     obs, _ = env.reset(seed=5)
     assert obs.device.type == "cuda" and env.positions.device.type == "cuda"
     for _ in range(10):
@@ -342,15 +339,16 @@ def test_runs_on_cuda_like_on_cpu():
     ],
 )
 def test_invalid_configuration_raises_one_line_value_error(kwargs, fragment):
+    sizes = {key: kwargs.pop(key) for key in ("width", "length", "door_width") if key in kwargs}
     with pytest.raises(ValueError) as error:
-        RoomEnv(**kwargs)
+        paper_room(**sizes).room(**kwargs)
     message = str(error.value)
     assert fragment in message and "\n" not in message
 
 
 def test_the_widest_action_sets_are_kept():
     """Turns of a half turn either way and speed changes of the whole top speed are the bounds, and allowed."""
-    env = RoomEnv(
+    env = paper_room().room(
         speed_ratios=(-1.0, -1.0, -0.5, -0.1, 0.0, 0.1, 0.5, 1.0, 1.0),
         turn_ratios=(-1.0, -0.5, 0, 0, 0, 0, 0, 0.5, 1.0),
     )
@@ -359,19 +357,19 @@ def test_the_widest_action_sets_are_kept():
 
 def test_too_many_agents_message_names_n_and_the_room():
     with pytest.raises(ValueError, match=r"num_agents=10000 .*60\.0 m x 100\.0 m room"):
-        RoomEnv(num_agents=10000)
+        paper_room().room(num_agents=10000)
 
 
 def test_failed_placement_names_n_and_the_room(monkeypatch):
     monkeypatch.setattr(env_module, "MAX_PLACEMENT_ROUNDS", 1)
-    env = RoomEnv(num_agents=15, width=5.0, length=6.0, door_width=1.0)
+    env = paper_room(width=5.0, length=6.0, door_width=1.0).room(num_agents=15)
     with pytest.raises(PlacementError, match=r"num_agents=15 .*5\.0 m x 6\.0 m room") as error:
         env.reset(seed=0)
     assert isinstance(error.value, ValueError) and "\n" not in str(error.value)
 
 
 def test_dense_but_allowed_rooms_are_placed():
-    env = RoomEnv(num_replicas=3, num_agents=15, width=5.0, length=6.0, door_width=1.0)
+    env = paper_room(width=5.0, length=6.0, door_width=1.0).room(num_replicas=3, num_agents=15)
     env.reset(seed=0)
     gaps = torch.cdist(env.positions, env.positions) + torch.eye(15) * 1e3
     assert gaps.min() >= 2 * env.agent_radius
@@ -392,14 +390,14 @@ def test_dense_but_allowed_rooms_are_placed():
     ],
 )
 def test_invalid_reset_options(options, fragment):
-    env = RoomEnv(num_agents=2)
+    env = paper_room().room(num_agents=2)
     with pytest.raises(ValueError) as error:
         env.reset(options=options)
     assert fragment in str(error.value) and "\n" not in str(error.value)
 
 
 def test_step_checks_its_input():
-    env = RoomEnv(num_replicas=2, num_agents=3)
+    env = paper_room().room(num_replicas=2, num_agents=3)
     with pytest.raises(RuntimeError, match="before reset"):
         env.step(torch.zeros(2, 3, dtype=torch.int64))
     env.reset(seed=0)
@@ -414,7 +412,7 @@ def test_step_checks_its_input():
 def test_a_queue_to_the_door_moves_up_together_when_the_front_acts_first(order):
     """Leader and follower 0.85 m apart walk to the door at the same speed: the follower only stalls (and is
     penalised) when it acts before its leader, which door_first never lets happen."""
-    env = RoomEnv(num_replicas=8, num_agents=2, collision_order=order)
+    env = paper_room().room(num_replicas=8, num_agents=2, collision_order=order)
     positions = [[(30.0, 60.0), (30.0, 59.15)]] * 8
     env.reset(seed=0, options={"positions": positions, "headings": [[UP, UP]] * 8, "speeds": [[2.0, 2.0]] * 8})
     crashes = 0
@@ -427,7 +425,7 @@ def test_a_queue_to_the_door_moves_up_together_when_the_front_acts_first(order):
 
 def test_progress_reward_and_time_cost_by_default():
     """One decision straight at the door at full speed: -1 (time cost) + 2.5 (metres of approach)."""
-    env = RoomEnv(num_agents=1)
+    env = paper_room().room(num_agents=1)
     _place(env, [(30.0, 50.0)], [UP], [env.max_speed])
     _, reward, _, _, _ = env.step(_noop(env))
     assert reward.item() == pytest.approx(-1.0 + env.max_speed)
@@ -443,8 +441,9 @@ def test_progress_reward_and_time_cost_by_default():
 def test_compiled_sensing_is_not_recompiled_per_trial_and_matches_eager_sensing():
     from torch._dynamo.utils import counters
 
-    kwargs = dict(num_replicas=2, num_agents=5, width=8.0, length=10.0, door_width=1.5)
-    compiled, eager = RoomEnv(**kwargs, compile_sensing=True), RoomEnv(**kwargs)
+    kwargs = dict(num_replicas=2, num_agents=5)
+    room = paper_room(width=8.0, length=10.0, door_width=1.5)
+    compiled, eager = room.room(**kwargs, compile_sensing=True), room.room(**kwargs)
     generator = torch.Generator().manual_seed(0)
 
     def run_trial(seed: int) -> None:
@@ -469,7 +468,7 @@ def test_compiled_sensing_is_not_recompiled_per_trial_and_matches_eager_sensing(
 @pytest.mark.parametrize("seed", [1.5, 2**70, True, -1, "3", 2**64])
 def test_room_reset_refuses_a_seed_that_is_not_an_integer_in_range(seed):
     """``reset(seed=1.5)`` truncated to 1 and ``reset(seed=2**70)`` overflowed with a traceback."""
-    env = RoomEnv(num_replicas=1, num_agents=2, width=10.0, length=10.0)
+    env = paper_room(width=10.0, length=10.0).room(num_replicas=1, num_agents=2)
     with pytest.raises(ValueError, match=r"^seed=.* is invalid: must be an integer in \[0, 18446744073709551615\]"):
         env.reset(seed=seed)
     env.reset(seed=2**64 - 1)  # the widest a torch generator takes: derived seeds (seed * 10007 + phase) fit

@@ -1,19 +1,18 @@
-"""The room: walls, door, point-segment distances, angle wrapping."""
+"""The compiled walkable area: walls, exits, goal points, point-segment distances, angle wrapping."""
 
 import math
+from dataclasses import replace
 
 import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from pedrl.scenarios import paper_room
 from pedrl.sim.geometry import (
     FAR,
-    NUM_WALLS,
-    WALL_NAMES,
     WALL_PADDING,
     Geometry,
     SpawnArea,
-    build_walls,
     closest_points_on_segments,
     distances_to_segments,
     inside_polygon,
@@ -24,27 +23,38 @@ from pedrl.sim.geometry import (
 PI32 = torch.tensor(math.pi, dtype=torch.float32).item()
 
 
-def test_walls_are_the_five_documented_segments_in_order():
-    walls = build_walls(width=60.0, length=100.0, door_width=2.0)
-    expected = [
-        [[0, 0], [60, 0]],
-        [[60, 0], [60, 100]],
-        [[60, 100], [31, 100]],
-        [[29, 100], [0, 100]],
-        [[0, 100], [0, 0]],
-    ]
-    assert walls.shape == (NUM_WALLS, 2, 2) and walls.dtype == torch.float32
-    assert walls.tolist() == expected
-    assert WALL_NAMES == ("bottom", "right", "top_right", "top_left", "left")
+NUM_WALLS = 5
+"""Walls of the paper's room."""
 
 
-def test_rectangle_describes_walls_door_goal_and_padding():
-    room = Geometry.rectangle(width=60.0, length=100.0, door_width=2.0, goal_depth=1.5)
-    assert room.num_walls == NUM_WALLS and room.walls.shape == (WALL_PADDING, 2, 2)
-    assert torch.equal(room.walls[:NUM_WALLS], build_walls(width=60.0, length=100.0, door_width=2.0))
+def paper_walls(*, width: float, length: float, door_width: float) -> torch.Tensor:
+    """The paper's room written out by hand ``(5, 2, 2)``: bottom, right, top right of the door, top left, left."""
+    left, right = width / 2 - door_width / 2, width / 2 + door_width / 2
+    return torch.tensor(
+        [
+            [[0.0, 0.0], [width, 0.0]],
+            [[width, 0.0], [width, length]],
+            [[width, length], [right, length]],
+            [[left, length], [0.0, length]],
+            [[0.0, length], [0.0, 0.0]],
+        ]
+    )
+
+
+def rectangle(*, width: float, length: float, door_width: float, goal_depth: float = 0.0) -> Geometry:
+    """The paper's room compiled, as every room has it: through its scenario."""
+    return paper_room(width=width, length=length, door_width=door_width).geometry(goal_depth=goal_depth)
+
+
+def test_the_paper_room_compiles_to_its_walls_door_goal_and_padding():
+    """The scenario's walls are the five written out by hand (in shapely's order, from the door's left post)."""
+    room = rectangle(width=60.0, length=100.0, door_width=2.0, goal_depth=1.5)
+    assert room.num_walls == NUM_WALLS and room.walls.shape == (WALL_PADDING, 2, 2) and room.name == "paper_room"
+    walls = paper_walls(width=60.0, length=100.0, door_width=2.0)
+    assert torch.equal(room.walls[:NUM_WALLS], walls.roll(2, dims=0))
     assert (room.walls[NUM_WALLS:] == FAR).all()  # padding: far-away points
     assert room.exits.tolist() == [[[31.0, 100.0], [29.0, 100.0]]] and room.exit_normals.tolist() == [[0.0, 1.0]]
-    assert room.exit_goals.tolist() == [[30.0, 101.5]]
+    assert room.exit_goals.tolist() == [[30.0, 101.5]] and room.goal_depth == 1.5
     assert room.diagonal == math.hypot(60.0, 100.0)
     assert room.bounds == room.clear_box == (0.0, 0.0, 60.0, 100.0)
     # the padding is never touched nor among the nearest walls
@@ -52,9 +62,17 @@ def test_rectangle_describes_walls_door_goal_and_padding():
     assert room.squared_wall_distances(points)[:, NUM_WALLS:].min() > 1e11
 
 
+def test_another_goal_depth_moves_the_goal_points_and_nothing_else():
+    """``replace(area, goal_depth=...)`` recomputes the derived goal points as if compiled with that depth."""
+    room = rectangle(width=10.0, length=12.0, door_width=3.0)
+    deeper = replace(room, goal_depth=2.0)
+    assert torch.equal(deeper.exit_goals, rectangle(width=10.0, length=12.0, door_width=3.0, goal_depth=2.0).exit_goals)
+    assert deeper.exit_goals.tolist() == [[5.0, 14.0]] and torch.equal(deeper.walls, room.walls)
+
+
 def test_derived_attributes_are_public_and_follow_the_segments():
     """What the kernels read: each wall's box, whether all walls are axis-aligned, each exit's tangent and span."""
-    room = Geometry.rectangle(width=10.0, length=12.0, door_width=3.0)
+    room = rectangle(width=10.0, length=12.0, door_width=3.0)
     assert torch.equal(room.box_low, room.walls.amin(1)) and torch.equal(room.box_high, room.walls.amax(1))
     assert room.axis_aligned
     assert room.exit_tangents.tolist() == [[-3.0, 0.0]] and room.exit_spans.tolist() == [9.0]
@@ -69,7 +87,7 @@ def test_derived_attributes_are_public_and_follow_the_segments():
 
 
 def test_exits_are_passed_only_through_their_span_and_within_the_depth():
-    room = Geometry.rectangle(width=10.0, length=10.0, door_width=2.0)
+    room = rectangle(width=10.0, length=10.0, door_width=2.0)
     points = torch.tensor([[5.0, 10.0], [5.0, 10.3], [4.1, 10.2], [3.9, 10.2], [5.0, 9.99], [5.0, 10.6]])
     assert room.passes_exits(points, depth=0.5).tolist() == [True, True, True, False, False, False]
     assert room.inside(torch.tensor([[5.0, 5.0], [5.0, 10.5], [-1.0, 5.0], [9.9, 0.1]])).tolist() == [
@@ -122,7 +140,7 @@ def test_point_segment_distance_and_closest_point_analytic():
 
 
 def test_distances_broadcast_over_batches():
-    segments = build_walls(width=60.0, length=100.0, door_width=2.0)
+    segments = paper_walls(width=60.0, length=100.0, door_width=2.0)
     points = torch.tensor([[[30.0, 10.0], [5.0, 99.0]], [[59.0, 50.0], [30.0, 99.5]]])  # (R=2, N=2, 2)
     distance = distances_to_segments(points, segments)
     assert distance.shape == (2, 2, NUM_WALLS)
@@ -132,7 +150,7 @@ def test_distances_broadcast_over_batches():
 
 
 def test_room_wall_queries_equal_the_general_segment_functions():
-    room = Geometry.rectangle(width=10.0, length=12.0, door_width=3.0)
+    room = rectangle(width=10.0, length=12.0, door_width=3.0)
     generator = torch.Generator().manual_seed(1)
     points = torch.rand(3, 50, 2, generator=generator) * torch.tensor([14.0, 16.0]) - 2.0
     torch.testing.assert_close(room.closest_wall_points(points), closest_points_on_segments(points, room.walls))

@@ -6,10 +6,11 @@ import inspect
 
 import pytest
 
+from pedrl.scenarios import paper_room
 from pedrl.sim import RoomEnv
 from pedrl.sim.params import ANY, RoomParams, only, setting, undeclared
 
-BATCH_ARGUMENTS = {"self", "num_replicas", "num_agents", "device", "geometry"}
+BATCH_ARGUMENTS = {"self", "num_replicas", "num_agents", "device", "area"}
 """RoomEnv's arguments that are not settings of the room: the batch shape, the device and the walkable area."""
 
 
@@ -27,21 +28,21 @@ def test_a_field_without_a_declaration_is_found():
 
     @dataclasses.dataclass(frozen=True)
     class Planted:
-        width: float = setting(ANY)
+        max_speed: float = setting(ANY)
         new_option: bool = False
 
     assert undeclared(Planted) == ["new_option"]
 
 
 def test_the_params_are_the_validated_arguments():
-    env = RoomEnv(
-        num_agents=3, width=10.0, length=12.0, contact="yield", speed_ratios=[0, 0, 0, 0, 0, 0.1, 0.2, 0.5, 1]
+    env = paper_room(width=10.0, length=12.0).room(
+        num_agents=3, contact="yield", speed_ratios=[0, 0, 0, 0, 0, 0.1, 0.2, 0.5, 1]
     )
-    assert env.params.width == 10.0 and env.params.contact == "yield"
+    assert env.params.contact == "yield"
     assert env.params.speed_ratios == (0, 0, 0, 0, 0, 0.1, 0.2, 0.5, 1)
     assert env.params.substep_length == env.agent_radius  # None means the body radius
     with pytest.raises(dataclasses.FrozenInstanceError):
-        env.params.width = 5.0
+        env.params.max_speed = 5.0
 
 
 @pytest.mark.parametrize(
@@ -54,7 +55,7 @@ def test_the_params_are_the_validated_arguments():
     ],
 )
 def test_the_fast_path_runs_what_the_declarations_allow(settings, reason):
-    env = RoomEnv(num_agents=3, width=10.0, length=12.0, **settings)
+    env = paper_room(width=10.0, length=12.0).room(num_agents=3, **settings)
     assert env.fast_path_reason() == reason
 
 

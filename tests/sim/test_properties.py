@@ -6,6 +6,7 @@ import torch
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
+from pedrl.scenarios import paper_room
 from pedrl.sim import RoomEnv
 from pedrl.sim.actions import NUM_ACTIONS
 from pedrl.sim.geometry import distances_to_segments
@@ -24,7 +25,8 @@ def check_state(env: RoomEnv) -> None:
     x, y = env.positions[..., 0].double(), env.positions[..., 1].double()
     assert ((env.speeds >= 0) & (env.speeds <= env.max_speed)).all()
     assert torch.isfinite(env.positions).all()
-    inside = (x > 0) & (x < env.width) & (y > 0) & (y < env.length)
+    x_min, y_min, x_max, y_max = env.geometry.bounds
+    inside = (x > x_min) & (x < x_max) & (y > y_min) & (y < y_max)
     assert (inside | ~active).all()
     wall_distance = distances_to_segments(env.positions.double(), env.geometry.walls.double()).amin(-1)
     assert ((wall_distance >= r - TOLERANCE) | ~active).all()
@@ -50,13 +52,8 @@ def test_invariants_hold_after_every_step(seed, num_replicas, num_agents, room, 
     width, length, door_width = room
     # dense rooms hold at most 60 agents: keeps every tensor small enough for one intra-op thread
     num_agents = min(num_agents, _capacity(width, length), 100 if width >= 60.0 else 60)
-    env = RoomEnv(
-        num_replicas=num_replicas,
-        num_agents=num_agents,
-        width=width,
-        length=length,
-        door_width=door_width,
-        max_decisions=70,
+    env = paper_room(width=width, length=length, door_width=door_width).room(
+        num_replicas=num_replicas, num_agents=num_agents, max_decisions=70
     )
     shape = (num_replicas, num_agents)
     env.reset(seed=seed)
@@ -79,7 +76,7 @@ def test_invariants_hold_after_every_step(seed, num_replicas, num_agents, room, 
         assert torch.equal(ended, before & ~env.active)  # trials end exactly once, inactive stays inactive
         assert not (env.active & ~before).any()
         assert torch.equal(terminated, info["reached"])
-        assert (env.positions[..., 1][terminated] >= env.length).all()  # through the door, then inactive
+        assert (env.positions[..., 1][terminated] >= env.geometry.bounds[3]).all()  # through the door, then inactive
         velocities = env.speeds.unsqueeze(-1) * torch.stack((env.headings.cos(), env.headings.sin()), dim=-1)
         torch.testing.assert_close(env.velocities[env.active], velocities[env.active], atol=1e-5, rtol=1e-5)
         if truncated.any():

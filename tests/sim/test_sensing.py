@@ -5,8 +5,7 @@ import math
 import pytest
 import torch
 
-from pedrl.sim import RoomEnv
-from pedrl.sim.geometry import Geometry
+from pedrl.scenarios import paper_room
 from pedrl.sim.sensing import (
     distance_indices,
     feature_indices,
@@ -56,18 +55,18 @@ def expected_state(positions, speeds, headings, agent, k=7, w=2):
         else:
             features += [0.0, 0.0, 0.0]
     left, right = WIDTH / 2 - DOOR / 2, WIDTH / 2 + DOOR / 2
-    segments = [
+    segments = [  # in the order of the compiled paper room (shapely's, from the door's left post): ties go first
+        ((left, LENGTH), (0, LENGTH)),
+        ((0, LENGTH), (0, 0)),
         ((0, 0), (WIDTH, 0)),
         ((WIDTH, 0), (WIDTH, LENGTH)),
         ((WIDTH, LENGTH), (right, LENGTH)),
-        ((left, LENGTH), (0, LENGTH)),
-        ((0, LENGTH), (0, 0)),
     ]
     walls = []
     for a, b in segments:
         cx, cy = _closest_on_segment((px, py), a, b)
         walls.append((math.hypot(cx - px, cy - py), _wrap(math.atan2(cy - py, cx - px) - phi)))
-    walls.sort()
+    walls.sort(key=lambda wall: wall[0])  # stable: equally near walls in the area's order
     for distance, angle in walls[:w]:
         features += [distance, angle]
     return features
@@ -92,7 +91,7 @@ SCENES = {
 @pytest.mark.parametrize("scene", list(SCENES))
 def test_features_of_a_hand_built_scene_equal_table_1(scene):
     positions, speeds, headings = SCENES[scene]
-    env = RoomEnv(num_agents=len(positions), width=WIDTH, length=LENGTH, door_width=DOOR)
+    env = paper_room(width=WIDTH, length=LENGTH, door_width=DOOR).room(num_agents=len(positions))
     obs, info = env.reset(
         options={"positions": [positions], "speeds": [speeds], "headings": [headings]},
     )
@@ -113,7 +112,7 @@ def test_feature_names_follow_the_layout():
     assert names[3 + 3 * 6 : 3 + 3 * 7] == ["neighbour6_rel_speed", "neighbour6_distance", "neighbour6_angle"]
     assert names[24:] == ["wall0_distance", "wall0_angle", "wall1_distance", "wall1_angle"]
     assert feature_names(0, 0) == ["speed", "velocity_angle", "door_distance"]
-    assert RoomEnv(num_agents=2).feature_names == names
+    assert paper_room().room(num_agents=2).feature_names == names
 
 
 @pytest.mark.parametrize(
@@ -143,7 +142,7 @@ def test_feature_indices_other_layouts_and_errors():
 
 
 def _scene_obs(num_agents: int, seed: int):
-    env = RoomEnv(num_replicas=4, num_agents=num_agents)
+    env = paper_room().room(num_replicas=4, num_agents=num_agents)
     obs, info = env.reset(seed=seed)
     return env, obs, info
 
@@ -222,7 +221,7 @@ def test_fill_void_neighbours_rejects_a_wrong_layout():
 
 
 def test_inactive_agents_are_neither_observers_nor_sensed():
-    room = Geometry.rectangle(width=WIDTH, length=LENGTH, door_width=DOOR)
+    room = paper_room(width=WIDTH, length=LENGTH, door_width=DOOR).geometry()
     positions = torch.tensor([[[10.0, 10.0], [11.0, 10.0], [13.0, 10.0], [30.0, 50.0]]])
     sensed = torch.tensor([[True, False, True, True]])
     observation = observe(
@@ -245,7 +244,7 @@ def test_inactive_agents_are_neither_observers_nor_sensed():
 
 @pytest.mark.parametrize(("num_neighbours", "num_walls"), [(0, 0), (2, 5), (10, 1)])
 def test_other_numbers_of_neighbours_and_walls(num_neighbours, num_walls):
-    env = RoomEnv(num_replicas=2, num_agents=5, num_neighbours=num_neighbours, num_walls=num_walls)
+    env = paper_room().room(num_replicas=2, num_agents=5, num_neighbours=num_neighbours, num_walls=num_walls)
     obs, info = env.reset(seed=0)
     assert obs.shape == (2, 5, 3 + 3 * num_neighbours + 2 * num_walls)
     assert info["neighbour_mask"].shape == (2, 5, num_neighbours)

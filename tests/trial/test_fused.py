@@ -23,6 +23,7 @@ from pedrl._numba import numba_available
 from pedrl.algos.registry import env_factory
 from pedrl.io import read_csv
 from pedrl.rl.policy import TabularPolicy
+from pedrl.scenarios import paper_room
 from pedrl.sim import RoomEnv
 from pedrl.sim.actions import GOAL_SPEED_RATIOS, GOAL_TURN_RATIOS
 from pedrl.sim.sensing import MIN_VOID_DISTANCE, observe
@@ -213,7 +214,7 @@ def train(
 ) -> tuple[list[float], torch.Tensor]:
     """Success rates of ``trials`` learning trials in 8 small rooms (``rooms_per_process`` E of them learning into
     each process's tables), and the tables after them."""
-    env = RoomEnv(num_replicas=8, num_agents=10, width=12, length=12, door_width=3, contact="yield")
+    env = paper_room(width=12, length=12, door_width=3).room(num_replicas=8, num_agents=10, contact="yield")
     shared = policies(env, 8 // rooms_per_process)["shared"]
     policy = TabularPolicy(shared.encoder, shared.q_values.zero_(), rooms_per_process=rooms_per_process)
     generator = torch.Generator().manual_seed(seed)
@@ -284,8 +285,8 @@ def test_kernel_threads_follow_torch_s_and_sleep_when_idle():
 
 
 def test_fused_true_is_refused_in_one_line_where_it_cannot_run():
-    env = RoomEnv(num_replicas=2, num_agents=4, width=10, length=10, collision_rule="simultaneous")
-    policy = policies(RoomEnv(num_replicas=2, num_agents=4, width=10, length=10), 2)["shared"]
+    env = paper_room(width=10, length=10).room(num_replicas=2, num_agents=4, collision_rule="simultaneous")
+    policy = policies(paper_room(width=10, length=10).room(num_replicas=2, num_agents=4), 2)["shared"]
     with pytest.raises(ValueError, match=r"^fused=true is invalid: .*collision_rule=simultaneous"):
         run_trial(env, policy, epsilon=0.1, generator=torch.Generator(), learn=False, fused=True)
     stats = run_trial(env, policy, epsilon=0.1, generator=torch.Generator(), learn=False)  # null: the torch loop
@@ -322,7 +323,8 @@ def test_a_walker_that_senses_no_neighbour_learns_on_both_paths(algo, tmp_path):
 
     from pedrl.algos import INVQQL, ITVQQL
 
-    room = functools.partial(RoomEnv, width=12.0, length=12.0, door_width=3.0, max_decisions=30, num_neighbours=0)
+    paper = paper_room(width=12.0, length=12.0, door_width=3.0)
+    room = functools.partial(paper.room, max_decisions=30, num_neighbours=0)
     common = dict(env=room, vq={"num_prototypes": 32, "max_iterations": 2}, trials=2, gather_trials=2, processes=2,
                   progress=False, tensorboard=False, seed=1, run_dir=tmp_path)  # fmt: skip
     for fused_path in (True, False):
@@ -334,6 +336,6 @@ def test_a_walker_that_senses_no_neighbour_learns_on_both_paths(algo, tmp_path):
         result = trainer.fit()
         assert 0.0 <= result.final["success_rate_mean"] <= 1.0
     encoder = functools.partial(EncoderSettings, num_walls=2, max_distance=10.0, max_speed=2.0)
-    for build in (lambda: RoomEnv(num_neighbours=-1), lambda: encoder(num_neighbours=-1)):
+    for build in (lambda: paper_room().room(num_neighbours=-1), lambda: encoder(num_neighbours=-1)):
         with pytest.raises(ValueError, match=r"^num_neighbours=-1 is invalid: must be an integer >= 0$"):
             build()

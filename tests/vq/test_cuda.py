@@ -4,6 +4,7 @@ import pytest
 import torch
 
 from pedrl.rl import epsilon_greedy, td_update, zeros_q_values
+from pedrl.scenarios import paper_room
 from pedrl.vq import Quantizer, UnionQuantizer
 from pedrl.vq.kmeans import kmeans, nearest_prototype
 
@@ -52,11 +53,10 @@ def test_quantizers_and_q_learning_on_cuda():
 def test_sequential_collision_rule_on_cuda_equals_the_cpu_on_a_hand_built_scene():
     """A queue at the door and two agents heading for one spot: the bounded, sync-free rounds of the GPU path give
     the CPU's (convergence-tested) outcome."""
-    from pedrl.sim import RoomEnv
     from pedrl.sim.actions import velocities_from
     from pedrl.sim.motion import move_agents_sequential
 
-    env = RoomEnv(num_replicas=1, num_agents=4, width=8.0, length=10.0, door_width=1.5)
+    env = paper_room(width=8.0, length=10.0, door_width=1.5).room(num_replicas=1, num_agents=4)
     positions = torch.tensor([[[4.0, 9.0], [4.0, 8.1], [3.0, 5.0], [5.0, 5.0]]])
     speeds = torch.tensor([[1.0, 2.5, 2.0, 2.0]])
     headings = torch.tensor([[1.5708, 1.5708, 0.0, 3.1416]])  # up, up, towards each other
@@ -66,7 +66,7 @@ def test_sequential_collision_rule_on_cuda_equals_the_cpu_on_a_hand_built_scene(
     cpu = move_agents_sequential(
         positions=positions, velocities=velocities, motion=env.motion, priority=priority, **kwargs
     )
-    cuda_env = RoomEnv(num_replicas=1, num_agents=4, width=8.0, length=10.0, door_width=1.5, device="cuda")
+    cuda_env = paper_room(width=8.0, length=10.0, door_width=1.5).room(num_replicas=1, num_agents=4, device="cuda")
     cuda = move_agents_sequential(
         positions=positions.cuda(),
         velocities=velocities.cuda(),
@@ -82,15 +82,13 @@ def test_sequential_collision_rule_on_cuda_equals_the_cpu_on_a_hand_built_scene(
 
 
 def test_a_training_trial_runs_on_cuda_and_learns_like_the_cpu():
-    import functools
 
     from pedrl.algos import VQQL
-    from pedrl.sim import RoomEnv
 
     rates = {}
     for device in ("cpu", "cuda"):
         trainer = VQQL(
-            env=functools.partial(RoomEnv, width=8.0, length=10.0, door_width=1.5),
+            env=paper_room(width=8.0, length=10.0, door_width=1.5).room,
             vq={"num_prototypes": 32, "max_iterations": 3},
             num_agents=4,
             trials=1,

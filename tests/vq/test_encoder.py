@@ -3,14 +3,16 @@
 import pytest
 import torch
 
-from pedrl.sim import RoomEnv
+from pedrl.scenarios import paper_room
 from pedrl.sim.sensing import distance_indices, feature_indices
 from pedrl.vq import ProcessQuantizers, Quantizer, UnionQuantizer
 from pedrl.vq.encoder import EncoderSettings, StateEncoder, quantizer_from_state_dict
 
 
 def room_and_obs(agents=6, replicas=2, seed=0):
-    env = RoomEnv(num_replicas=replicas, num_agents=agents, width=8.0, length=8.0, door_width=2.0, max_decisions=5)
+    env = paper_room(width=8.0, length=8.0, door_width=2.0).room(
+        num_replicas=replicas, num_agents=agents, max_decisions=5
+    )
     obs, info = env.reset(seed=seed)
     return env, obs, info
 
