@@ -211,6 +211,11 @@ def describe_hydra_error(err: Exception, *, config_dir: str | Path, config_name:
             text = f"{text.rstrip('.')}: {(str(err.__cause__).strip().splitlines() or [''])[0]}"
         return text or type(err).__name__
     key = str(full_key)
+    from pedrl.configs.motion import command_line_advice  # a flat key of the motion model: its new spelling
+
+    moved = command_line_advice(key, argv)
+    if moved is not None:
+        return moved
     new_key = ""  # no `+key=` advice: an added key is refused too (check_added_keys), as nothing reads it
     config = _composed_config(config_dir, config_name, argv)
     if config is None:

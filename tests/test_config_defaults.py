@@ -25,6 +25,7 @@ from pedrl.cli import CONFIG_DIR
 from pedrl.configs import AREA_SETTINGS
 from pedrl.scenarios import paper_room
 from pedrl.sim import RoomEnv
+from pedrl.sim.motion import MOTION_MODELS, motion_from_config
 
 CONF = Path(CONFIG_DIR)
 ALGOS = ("vqql", "it_vqql", "in_vqql")
@@ -75,10 +76,10 @@ def python_defaults(name: str) -> dict[str, Any]:
     if name.startswith("algo/"):
         defaults = keyword_defaults(algo_class(Path(name).stem))
         return {k: v for k, v in defaults.items() if k not in TRAINER_RUN_ARGUMENTS}
-    if name == "env/room.yaml":  # the room's settings, and the paper's room's sizes (the scenario's)
+    if name == "env/room.yaml":  # the room's settings but its motion model (conf/motion/), the paper room's sizes
         defaults = keyword_defaults(RoomEnv)
         area = inspect.signature(paper_room).parameters
-        return {k: v for k, v in defaults.items() if k not in ENV_RUN_ARGUMENTS} | {
+        return {k: v for k, v in defaults.items() if k not in (*ENV_RUN_ARGUMENTS, "motion")} | {
             name: area[name].default for name in AREA_SETTINGS
         }
     if name == "vq/default.yaml":
@@ -142,3 +143,14 @@ def test_reward_sets_hold_only_reward_settings_of_the_room(name):
     rewards = {k for k in python_defaults("env/room.yaml") if k.startswith("reward_")}
     keys = set(load(f"rewards/{name}.yaml"))
     assert keys in (set(), rewards), keys ^ rewards
+
+
+@pytest.mark.parametrize("name", list(MOTION_MODELS))
+def test_every_motion_model_has_its_config_file_with_its_defaults(name):
+    """conf/motion/<name>.yaml is the model's config node with the dataclass's defaults (what motion=<name> gives),
+    and reads back as that model; the group holds no other file."""
+    node = OmegaConf.to_container(OmegaConf.load(CONF / "motion" / f"{name}.yaml"))
+    assert node == MOTION_MODELS[name]().to_config()
+    assert motion_from_config(node) == MOTION_MODELS[name]()
+    assert sorted(path.stem for path in (CONF / "motion").glob("*.yaml")) == sorted(MOTION_MODELS)
+    assert OmegaConf.load(CONF / "train.yaml").defaults[2] == {"motion": "stop"}

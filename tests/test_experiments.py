@@ -150,7 +150,7 @@ def test_paper_experiments_are_the_paper_literally(name, compose, tmp_path):
     assert rewards == (100.0, -15.0, -4.0, 0.0)
     assert cfg.env.reward_progress == 0.0
     # a body that would enter another stops; movers in a random order
-    assert (cfg.env.contact, cfg.env.collision_rule, cfg.env.collision_order) == ("stop", "sequential", "random")
+    assert dict(cfg.env.motion) == {"name": "stop", "order": "random"}
     # plain standardisation of the raw features (section 5.1), K = 4096 per learning process
     assert (cfg.vq.distance_transform, cfg.vq.weight_own, cfg.vq.weight_neighbours, cfg.vq.weight_walls) == (
         "none",
@@ -228,7 +228,7 @@ def test_tuned_experiments_keep_the_papers_room_and_table_3(name, compose):
     assert (cfg.vq.num_prototypes, cfg.vq.per_process) == (4096, True)
     # the project's choices, as the main job's before the goal action frame
     main = compose("train", ["experiment=main_heading"]).env
-    for key in ("contact", "collision_order", "reward_progress", "reward_default", "reward_crash_agent"):
+    for key in ("motion", "reward_progress", "reward_default", "reward_crash_agent"):
         assert cfg.env[key] == main[key], key
 
 

@@ -13,10 +13,12 @@ import pedrl
 import pedrl.evaluate
 import pedrl.export
 from pedrl.cli import CONFIG_DIR
+from pedrl.configs import env_factory
+from pedrl.configs.motion import FLAT_DEFAULTS
 from pedrl.evaluation import evaluate, load_controller
 from pedrl.io import CheckpointError
 from pedrl.policy_files import room_factory, room_settings
-from pedrl.sim import RoomEnv
+from pedrl.sim.motion import Continuous, Simultaneous, Slide, Steering, Stop, Yield
 from tests.refusals import EVAL_BASE, assert_refused, run_hydra_main, train_checkpoint
 
 TINY_IT = (
@@ -268,29 +270,64 @@ def test_a_checkpoint_older_than_its_keys_gets_the_values_of_its_time(trained, t
     assert (settings.void_draws, settings.distance_transform) == ("decision", "none")
 
 
+def _flat(env: dict, **flat) -> None:
+    """``env`` as a config written before ``env.motion`` named a model: the flat keys ``flat`` instead."""
+    env.pop("motion")
+    env.update(flat)
+
+
 @pytest.mark.parametrize("which", ["checkpoint", "policy"])
 def test_an_older_room_is_built_as_trained_whatever_the_rooms_defaults_now(trained, tmp_path, monkeypatch, which):
-    """A file whose stored env config lacks contact and time_gap (written before those keys) rebuilds the room of its
-    time (pedrl.configs.HISTORICAL_VALUES: stop, 1 s) in load_policy, room_factory, room_settings (pedrl-validate) and
-    pedrl-eval's load_controller, not the room RoomEnv's current defaults would give."""
+    """A file whose stored env config describes the motion model by the flat keys of its time and lacks contact,
+    time_gap and motion (written before those keys) rebuilds the room of its time (pedrl.configs.HISTORICAL_VALUES:
+    stop, 1 s, the step model) in load_policy, room_factory, room_settings (pedrl-validate) and pedrl-eval's
+    load_controller, not the room that the flat keys' defaults would give now."""
 
     def older(tensors, metadata):
-        for key in ("contact", "time_gap"):
-            metadata["config"]["env"].pop(key)
+        _flat(metadata["config"]["env"], collision_rule="sequential", collision_order="random")
 
     path = _rewritten(dict(zip(("checkpoint", "policy"), trained, strict=True))[which], tmp_path, older)
-    defaults = RoomEnv.__init__.__kwdefaults__ | {"contact": "slide", "time_gap": 2.0}  # defaults changed since
-    monkeypatch.setattr(RoomEnv.__init__, "__kwdefaults__", defaults)
+    monkeypatch.setitem(FLAT_DEFAULTS, "contact", "slide")  # defaults changed since
+    monkeypatch.setitem(FLAT_DEFAULTS, "time_gap", 2.0)
     policy = pedrl.load_policy(path)
     assert "contact" not in policy.metadata["config"]["env"]  # the stored config is kept as it was written
-    assert {key: room_settings(policy)[key] for key in ("contact", "time_gap")} == {"contact": "stop", "time_gap": 1.0}
+    assert room_settings(policy)["motion"] == {"name": "stop", "order": "random"}
     loaded = load_controller(
         path, controller="greedy", epsilon=0.0, device=torch.device("cpu"), max_decisions=5, kind=which
     )
     factories = (room_factory(policy), room_factory(policy, max_decisions=5), loaded.env_factory)
     for factory in factories:
         room = factory(num_replicas=1, num_agents=3)
-        assert (room.contact, room.time_gap) == ("stop", 1.0)
+        assert room.motion == Stop()
+
+
+@pytest.mark.parametrize(
+    ("flat", "model"),
+    [
+        ({"contact": "yield", "collision_order": "door_first", "time_gap": 0.4}, Yield(0.4, "door_first")),
+        ({"contact": "stop", "collision_rule": "simultaneous", "collision_order": "door_first"}, Simultaneous()),
+        ({"contact": "slide", "time_gap": 3.0}, Slide()),
+        (
+            {"contact": "headway", "motion": "continuous", "time_step": 0.02, "neighbour_repulsion": [6.0, 0.2]},
+            Continuous(time_step=0.02, steering=Steering(neighbour_strength=6.0, neighbour_range=0.2)),
+        ),
+    ],
+)
+def test_an_older_files_flat_keys_give_the_model_and_the_room_they_gave(trained, tmp_path, flat, model):
+    """The flat keys of a file written before env.motion (env.contact, env.collision_rule, env.collision_order,
+    env.time_gap, env.motion: step|continuous, env.time_step, env.neighbour_repulsion, env.wall_repulsion) become the
+    motion model they gave, keys that model never read dropped; the room is the one today's config of that model
+    builds, every setting equal."""
+    path = _rewritten(trained[0], tmp_path, lambda tensors, metadata: _flat(metadata["config"]["env"], **flat))
+    policy = pedrl.load_policy(path)
+    room = room_factory(policy)(num_replicas=1, num_agents=3)
+    assert room.motion == model
+    config = dict(policy.metadata["config"], env={**policy.metadata["config"]["env"]})
+    config["env"] = {key: value for key, value in config["env"].items() if key not in flat} | {
+        "motion": model.to_config()
+    }
+    today = env_factory(config["env"], config.get("scenario"), files=False)(num_replicas=1, num_agents=3)
+    assert today.params == room.params
 
 
 def test_act_without_a_generator_draws_on_from_the_policys_own(trained):

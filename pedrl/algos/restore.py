@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 import torch
 
-from pedrl.configs import HISTORICAL_VALUES, check_stored_config
+from pedrl.configs import HISTORICAL_VALUES, check_stored_config, current_form
 from pedrl.io import Checkpoint, CheckpointError, load_checkpoint
 from pedrl.policy_files import RNG_KEYS, check_rng_state, check_run_metadata, check_tensor_names
 from pedrl.rl import in_huge_pages
@@ -207,7 +207,7 @@ def load_resume(trainer: TrainerView, path: str | Path) -> RestoredState:
         raise CheckpointError(
             f"checkpoint {str(path)!r} was written by algo={meta.get('algo')!r}, not {trainer.name!r}"
         )
-    mismatch = config_mismatch(check_stored_config(checkpoint), trainer.config)
+    mismatch = config_mismatch(current_form(check_stored_config(checkpoint)), trainer.config)
     if mismatch:
         raise CheckpointError(f"checkpoint {str(path)!r} comes from an incompatible configuration: {mismatch}")
     started, (now, why) = meta.get("trial_path"), trainer.trial_path()

@@ -17,12 +17,12 @@ from pedrl.evaluation.engine import record_batch
 from pedrl.scenarios import paper_room
 from pedrl.sim.actions import GOAL_SPEED_RATIOS, GOAL_TURN_RATIOS
 from pedrl.sim.controllers import GreedyDoorController
+from pedrl.sim.motion import Yield
 
 SIZES: Final = ((80, 100), (80, 20))
 """(rooms R, agents N) per batch: pedrl-eval's batch of the main job (8 processes x 10 trials) at 100 and 20 agents."""
 MAIN_ROOM: Final = {
-    "contact": "yield",
-    "collision_order": "door_first",
+    "motion": Yield(order="door_first"),
     "action_frame": "goal",
     "speed_ratios": GOAL_SPEED_RATIOS,
     "turn_ratios": GOAL_TURN_RATIOS,

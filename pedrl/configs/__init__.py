@@ -4,7 +4,8 @@ A config (typed by a user, or stored in a checkpoint that someone shared) never 
 ``algo._target_`` select one of the known classes, and every other ``_target_``, and every other Hydra
 instantiation key (``_partial_``, ``_args_``, ``_recursive_``, ...), anywhere in the config, is refused. Rooms are
 then built by calling :class:`pedrl.sim.RoomEnv` with the config's plain values, which its constructor validates
-like any typed value; nothing is ever instantiated from a config node. The trainers a config may name are listed
+like any typed value; nothing is ever instantiated from a config node but a motion model, chosen by its name among
+the known ones (``env.motion.name``, :data:`pedrl.sim.motion.MOTION_MODELS`). The trainers a config may name are listed
 here by name (:data:`ALGO_TARGETS`); :mod:`pedrl.algos.registry` maps them to their classes.
 
 A config stored in a checkpoint is also bounded before anything walks it (:func:`check_stored_config`).
@@ -13,7 +14,9 @@ A config stored in a checkpoint is also bounded before anything walks it (:func:
 - :mod:`pedrl.configs.rooms`: the rooms a config describes (:func:`env_factory`, :func:`mix_rooms`);
 - :mod:`pedrl.configs.stored`: a config stored in a file: its bounds, and the values of its time for keys added
   since (:data:`HISTORICAL_VALUES`, :func:`stored_env`, :func:`stored_value`);
-- :mod:`pedrl.configs.embed`: a checkpoint that names its room's WKT file re-exported with the room in it.
+- :mod:`pedrl.configs.embed`: a checkpoint that names its room's WKT file re-exported with the room in it;
+- :mod:`pedrl.configs.motion`: the motion model of a config (``env.motion``, chosen by name), and the flat keys that
+  described it before (old checkpoints map onto the model they gave; a config typed today is told the new spelling).
 """
 
 from pedrl.configs.embed import embed_geometry
@@ -37,6 +40,7 @@ from pedrl.configs.stored import (
     MAX_CONFIG_VALUES,
     check_stored_config,
     checked_config,
+    current_form,
     stored_env,
     stored_value,
 )
@@ -58,6 +62,7 @@ __all__ = [
     "check_names_no_code",
     "check_stored_config",
     "checked_config",
+    "current_form",
     "config_settings",
     "embed_geometry",
     "env_factory",

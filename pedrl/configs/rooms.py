@@ -10,10 +10,12 @@ import inspect
 from collections.abc import Callable, Mapping
 from typing import Any, Final, NamedTuple
 
+from pedrl.configs.motion import check_no_flat_keys
 from pedrl.configs.names import ENV_CLASSES
 from pedrl.scenarios import build_scenario, inline_geometry
 from pedrl.sim import RoomEnv
 from pedrl.sim.checks import shown
+from pedrl.sim.motion import motion_from_config
 
 ENV_RUN_ARGUMENTS: Final = ("num_replicas", "num_agents", "device")
 """Room arguments supplied at run time (not config values); the walkable area comes from the ``scenario`` config."""
@@ -51,6 +53,8 @@ def env_factory(
         ValueError: one line, for a key the room does not take or a bad scenario (values are validated when the room
             is built).
     """
+    if isinstance(env, Mapping):
+        check_no_flat_keys(env)
     settings = config_settings("env", env, ENV_CLASSES, supplied=ENV_RUN_ARGUMENTS, area=AREA_SETTINGS)
     built = build_scenario(scenario, room=settings, files=files)
     room = room_keywords(settings)
@@ -64,8 +68,18 @@ def env_factory(
 
 def room_keywords(env: Mapping[str, Any]) -> dict[str, Any]:
     """The keyword settings of a room (:meth:`pedrl.scenarios.Scenario.room`) of an ``env`` config or mapping: its
-    keys but ``_target_`` and the walkable area's (:data:`AREA_SETTINGS`, the scenario's)."""
-    return {key: value for key, value in env.items() if key != "_target_" and key not in AREA_SETTINGS}
+    keys but ``_target_`` and the walkable area's (:data:`AREA_SETTINGS`, the scenario's), its ``motion`` node the
+    motion model it names (:func:`pedrl.sim.motion.motion_from_config`).
+
+    Raises:
+        ValueError: one line, for a flat key of the motion model (:func:`pedrl.configs.motion.old_keys_advice`) or
+            a bad ``motion`` node.
+    """
+    check_no_flat_keys(env)
+    settings = {key: value for key, value in env.items() if key != "_target_" and key not in AREA_SETTINGS}
+    if isinstance(settings.get("motion"), Mapping):
+        settings["motion"] = motion_from_config(settings["motion"])
+    return settings
 
 
 def config_settings(

@@ -12,6 +12,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Final
 
+from pedrl.configs.motion import FLAT_KEYS, check_no_flat_keys, flat_motion, is_flat
 from pedrl.configs.names import ENV_CLASSES, check_names_no_code
 from pedrl.configs.rooms import MAX_MIX, setting_names
 from pedrl.io import Checkpoint, CheckpointError
@@ -20,7 +21,7 @@ from pedrl.sim.checks import shown
 
 HISTORICAL_VALUES: Final = {
     "env.compile_sensing": False,
-    "env.contact": "stop",
+    "env.contact": "stop",  # the flat keys of the motion model (pedrl.configs.motion), before env.motion named one
     "env.time_gap": 1.0,
     "env.motion": "step",
     "algo.value_transfer": False,
@@ -137,10 +138,25 @@ def stored_value(config: Mapping[str, Any], key: str) -> Any:
 
 
 def stored_env(config: Mapping[str, Any]) -> dict[str, Any]:
-    """The ``env`` settings of a stored ``config`` as the run had them: a key it lacks that the room takes and that
-    was added since (:data:`HISTORICAL_VALUES`: ``contact``, ``time_gap``, ...) gets the value of its time, not the
-    room's current default. Every room or encoder rebuilt from a stored config starts from these settings."""
+    """The ``env`` settings of a stored ``config`` as the run had them, in today's form: a key it lacks that the room
+    takes and that was added since (:data:`HISTORICAL_VALUES`: ``compile_sensing``, ...) gets the value of its time,
+    not the room's current default; the flat keys that described the motion model before ``env.motion`` named one
+    (``contact``, ``collision_rule``, ``time_gap``, ``motion: step``, ...) become the model they gave, as a
+    ``motion`` node (:func:`pedrl.configs.motion.flat_motion`; a flat key it lacks: the value of its time). Every room
+    or encoder rebuilt from a stored config starts from these settings.
+
+    Raises:
+        ValueError: one line, for flat keys that make no model (a crafted file).
+    """
     env = dict(config["env"])
+    if is_flat(env):
+        if isinstance(env.get("motion"), Mapping):  # both forms at once: written by hand
+            check_no_flat_keys(env)
+        flat = {key: env.pop(key) for key in FLAT_KEYS if key in env}
+        for key in FLAT_KEYS:
+            if key not in flat and f"env.{key}" in HISTORICAL_VALUES:
+                flat[key] = HISTORICAL_VALUES[f"env.{key}"]
+        env["motion"] = flat_motion(flat).to_config()
     target = env.get("_target_")
     cls = ENV_CLASSES.get(target) if isinstance(target, str) else None  # a bad target is refused building the room
     taken = setting_names(cls) if cls is not None else []
@@ -149,3 +165,9 @@ def stored_env(config: Mapping[str, Any]) -> dict[str, Any]:
         if section == "env" and name not in env and name in taken:
             env[name] = copy.deepcopy(value)
     return env
+
+
+def current_form(config: Mapping[str, Any]) -> dict[str, Any]:
+    """A stored ``config`` with its ``env`` in today's form (:func:`stored_env`), the rest as it was written: what a
+    resumed run compares with its own config."""
+    return {**config, "env": stored_env(config)}

@@ -35,9 +35,10 @@ from pedrl.sim.checks import (
 from pedrl.sim.geometry import Geometry, X, Y, extent, spawn_counts
 from pedrl.sim.motion import (
     Motion,
+    MotionModel,
     Movement,
     SlidingMotion,
-    Steering,
+    Stop,
     move_agents,
     move_agents_sequential,
     move_agents_sliding,
@@ -51,7 +52,6 @@ from pedrl.sim.room_checks import (
     check_goal_depth,
     check_motion,
     check_rewards,
-    check_rules,
     check_substep_length,
     check_substeps,
     check_time_steps,
@@ -66,6 +66,8 @@ from pedrl.sim.spawning import PlacementError as PlacementError  # re-exported: 
 from pedrl.sim.spawning import Spawns, check_density
 from pedrl.sim.state import RoomState
 
+PAPER_MOTION: Final = Stop()
+"""The default motion model: the paper's reading of its collision rule (``motion=stop``)."""
 MAX_PLACEMENT_ROUNDS: Final = 1000
 """Rounds of rejection sampling before placement gives up (:meth:`Spawns.place <pedrl.sim.spawning.Spawns.place>`)."""
 MAX_RESET_SEED: Final = 2**64 - 1
@@ -92,8 +94,8 @@ class RoomEnv:
         state: The rooms' state (:class:`~pedrl.sim.state.RoomState`); :meth:`load_state` sets it.
         geometry: The walkable area: walls, exits, spawn areas and routes (:class:`~pedrl.sim.geometry.Geometry`),
             on ``device``, its goal points at ``goal_depth``.
-        motion: The constants of a decision's movement by the contact model (:class:`~pedrl.sim.motion.Motion`).
-        motion_model: The ``motion`` setting, ``"step"`` or ``"continuous"``.
+        motion: The motion model (:class:`~pedrl.sim.motion.MotionModel`: ``Stop``, ``Slide``, ``Yield`` ...).
+        motion_constants: The constants of a decision's movement under it (:class:`~pedrl.sim.motion.Motion`).
         exit_index: The exit each agent heads for ``(R, N)`` int64: its group's, or the nearest at placement.
         stage: The waypoint each agent aims at ``(R, N)`` int64; past its group's waypoints, its exit.
         spawns: Who starts where and heads where (:class:`~pedrl.sim.spawning.Spawns`).
@@ -127,18 +129,11 @@ class RoomEnv:
         reward_crash_agent: float = -4.0,
         reward_default: float = -1.0,
         substep_length: float | None = None,
-        collision_rule: str = "sequential",
-        collision_order: str = "random",
         goal_depth: float = 0.0,
         reward_progress: float = 1.0,
         compile_sensing: bool = False,
-        contact: str = "stop",
-        time_gap: float = 1.0,
         action_frame: str = "heading",
-        motion: str = "step",
-        time_step: float = 0.05,
-        neighbour_repulsion: Sequence[float] = (8.0, 0.1),
-        wall_repulsion: Sequence[float] = (5.0, 0.02),
+        motion: MotionModel = PAPER_MOTION,
         queue_weight: float = 0.0,
     ) -> None:
         """Validate the configuration and allocate the state (call :meth:`reset` before :meth:`step`).
@@ -166,15 +161,6 @@ class RoomEnv:
             reward_default: Reward otherwise: -1 is a time cost per decision (the paper's Table 2 has 0).
             substep_length: Longest move per sub-step (m), in ``(0, agent_radius]``; ``None`` means
                 ``agent_radius``.
-            collision_rule: ``"sequential"`` (the paper's reading: only the agent whose own move would enter
-                another body stops; movers act in a random order per decision, see
-                :func:`~pedrl.sim.motion.move_agents_sequential`) or ``"simultaneous"`` (every mover checked
-                against every other's proposal at once, both parties of a conflict stop:
-                :func:`~pedrl.sim.motion.move_agents`).
-            collision_order: The order in which the sequential rule lets agents act in each decision:
-                ``"random"`` (a random permutation per decision, random sequential update) or ``"door_first"``
-                (nearest to the goal point first, ties at random: a queue moves up together instead of each
-                follower stalling for a decision whenever it happens to act before its leader).
             goal_depth: How far behind each exit its goal point lies (m, ``>= 0``): the reference line of the state
                 (paper Table 1) runs to it. 0 is the exit's centre.
             reward_progress: Reward per metre by which a decision brings the agent closer to the goal point
@@ -183,39 +169,23 @@ class RoomEnv:
             compile_sensing: Run the sensing through ``torch.compile`` (inductor; needs a C++ compiler on CPU). Off by
                 default: about a third of the sensing saved for 10 to 30 s of compilation per process, and features
                 that differ from the eager ones in the last bits (docs/configuration.md).
-            contact: What a move that would enter another body or a wall does (``CONTACT_MODELS``).
-                ``"stop"`` (default, the paper's reading): the mover stops for the rest of the decision, by
-                ``collision_rule``. ``"slide"``: it keeps the part of its move tangent to the contact for the rest of
-                the decision and stops only if even that would enter something
-                (:func:`~pedrl.sim.motion.move_agents_sliding`). ``"headway"``: the collision-free speed rule
-                (Tordeux, Chraibi & Seyfried 2016, as JuPedSim's ``CollisionFreeSpeedModel``): the action sets the
-                heading and the wanted speed ``v``, and the speed walked is ``min(v, max(0, (s - 2 r) / time_gap))``
-                with ``s`` the distance to the nearest body ahead within the corridor of half-width ``2 r``
-                (:func:`~pedrl.sim.motion.headway_factors`, recomputed every sub-step); walls are slid along and
-                ``slide`` stays the safety net against bodies. ``"yield"``: ``headway`` with a right of way: only
-                bodies that act before the mover in ``collision_order`` (with ``door_first``, those nearer the goal)
-                slow it, and it slides past the others, so two bodies converging on a door never hold each other
-                up. With ``slide``, ``headway`` and ``yield`` the movers act in ``collision_order`` and the speed
-                after the step is the distance actually walked per second.
-                A contact (``info["crashed_agent"]``, ``crashed_wall``, the crash rewards) is a decision in which
-                another body (a wall) cut the agent's move: with ``stop`` the agent was stopped by it; with
-                ``slide`` its move was deflected or stopped by it; with ``headway`` and ``yield`` the same, for the
-                headway-limited move (slowing down for a body ahead is no contact). A wall contact takes precedence:
-                an agent is never flagged for both.
-            time_gap: ``T`` of the ``headway`` and ``yield`` rules (s, ``> 0``; 1 s as JuPedSim's default); unused
-                otherwise.
             action_frame: What an action changes (``pedrl.sim.actions.ACTION_FRAMES``): ``"heading"`` (the
                 paper: speed and heading change from their current values) or ``"goal"`` (the action sets the speed
                 and the heading relative to the bearing of the agent's goal point, its door or waypoint).
-            motion: ``"step"`` (default, the paper's model: the decision's velocity, sub-stepped under ``contact``)
-                or ``"continuous"``: the decision sets the desired direction and speed, and the collision-free speed
-                model with its direction rule (:class:`~pedrl.sim.motion.Steering`; Tordeux, Chraibi & Seyfried 2016)
-                walks every body at steps of at most ``time_step``, the slide the safety net (needs ``contact``
-                ``headway`` or ``yield``; docs/configuration.md).
-            time_step: The longest time step of ``motion=continuous`` (s, in ``(0, 0.05]``).
-            neighbour_repulsion: ``[a, D]`` (strength, range m) of the direction rule for bodies: JuPedSim's
-                ``[8, 0.1]``.
-            wall_repulsion: ``[b, B]`` for walls; JuPedSim's ``[5, 0.02]``.
+            motion: How bodies move through a decision: a motion model of :mod:`pedrl.sim.motion` with its
+                parameters. :class:`~pedrl.sim.motion.Stop` (default, the paper's reading: a mover whose move would
+                enter a body or a wall stops for the rest of the decision, movers in turn),
+                :class:`~pedrl.sim.motion.Simultaneous` (every mover checked at once), :class:`~pedrl.sim.motion.Slide`
+                (it keeps the tangent part of its move), :class:`~pedrl.sim.motion.Headway` and
+                :class:`~pedrl.sim.motion.Yield` (the collision-free speed rule, Tordeux, Chraibi & Seyfried 2016,
+                with the slide the safety net; ``Yield`` with a right of way by the order of action), or
+                :class:`~pedrl.sim.motion.Continuous` (the walking layer: the decision sets the desired direction and
+                speed, and the collision-free speed model with its direction rule walks every body at steps of at
+                most ``time_step``). Under every model but ``Stop`` and ``Simultaneous`` the speed after the step is
+                the distance actually walked per second. A contact (``info["crashed_agent"]``, ``crashed_wall``, the
+                crash rewards) is a decision in which another body (a wall) cut the agent's move: stopped it, or
+                deflected it; slowing down for a body ahead is no contact. A wall contact takes precedence: an agent
+                is never flagged for both.
             queue_weight: How much an agent without an assigned exit weighs the queue at each exit when it chooses
                 one at placement (``>= 0``; 0: the exit of the shortest route; :mod:`pedrl.sim.routing`).
 
@@ -238,11 +208,7 @@ class RoomEnv:
         self.speed_ratios, self.turn_ratios = check_action_set(speed_ratios, turn_ratios, goal_frame=goal_frame)
         self.rewards = check_rewards(reward_goal, reward_crash_wall, reward_crash_agent, reward_default)
         self.substep_length = check_substep_length(substep_length, agent_radius)
-        self.collision_rule, self.collision_order, self.contact = check_rules(collision_rule, collision_order, contact)
-        self.time_gap = check_real("time_gap", time_gap, unit="s", positive=True)
-        self.motion_model, self.time_step, self.neighbour_repulsion, self.wall_repulsion = check_motion(
-            motion, self.contact, time_step, neighbour_repulsion, wall_repulsion
-        )
+        self.motion = check_motion(motion)
         self.goal_depth = check_goal_depth(goal_depth)
         self.reward_progress = check_number("reward_progress", reward_progress, low=0.0, high=MAX_REWARD)
         self.compile_sensing = check_bool("compile_sensing", compile_sensing)
@@ -281,16 +247,11 @@ class RoomEnv:
             device=self.device,
         )
         constants = (self.geometry, self.agent_radius, self.decision_length, self.num_substeps)
-        continuous = self.motion_model == "continuous"
-        self.motion = (
+        model = self.motion
+        self.motion_constants = (
             Motion(*constants)
-            if self.contact == "stop"
-            else SlidingMotion(
-                *constants,
-                self.time_gap if self.contact != "slide" else None,
-                self.contact == "yield",
-                Steering(*self.neighbour_repulsion, *self.wall_repulsion) if continuous else None,
-            )
+            if model.contact == "stop"
+            else SlidingMotion(*constants, model.time_gap, model.contact == "yield", model.steering)
         )
         self.speed_changes = torch.tensor(self.speed_ratios, device=self.device) * self.max_speed
         self.turn_changes = torch.tensor(self.turn_ratios, device=self.device) * math.pi
@@ -323,12 +284,13 @@ class RoomEnv:
     def fast_path_reason(self) -> str | None:
         """Why the fast path (the fused numba trial) cannot step this room (one phrase), or None when it can: on
         another device than the CPU, a setting :class:`~pedrl.sim.params.RoomParams` does not declare it supports,
-        or contact ``stop`` in a room whose walls are not all axis-aligned (its kernel clamps to wall boxes)."""
+        or the motion model ``Stop`` in a room whose walls are not all axis-aligned (its kernel clamps to wall
+        boxes)."""
         if self.device.type != "cpu":
             return f"on {self.device.type}: it runs on the CPU"
         reason = self.params.fast_path_reason()
-        if reason is None and self.contact == "stop" and not self.geometry.axis_aligned:
-            return "with contact=stop in a room whose walls are not all axis-aligned"
+        if reason is None and self.motion.contact == "stop" and not self.geometry.axis_aligned:
+            return "with motion=stop in a room whose walls are not all axis-aligned"
         return reason
 
     @property
@@ -366,7 +328,7 @@ class RoomEnv:
 
     def step_memory(self) -> int:
         """Estimated peak bytes of one :meth:`step` (:func:`~pedrl.sim.room_checks.step_memory`)."""
-        return step_memory(self.num_replicas, self.num_agents, self.num_substeps, self.collision_rule)
+        return step_memory(self.num_replicas, self.num_agents, self.num_substeps, self.motion.rule)
 
     # ------------------------------------------------------------------ public API
 
@@ -521,28 +483,29 @@ class RoomEnv:
     def _move(
         self, acting: torch.Tensor, speeds: torch.Tensor, headings: torch.Tensor, targets: torch.Tensor
     ) -> tuple[Movement, torch.Tensor, torch.Tensor]:
-        """Move the ``acting`` agents at the new ``speeds`` and ``headings``, sub-stepped, by the contact model and
-        collision rule: the movement, and the speeds and velocities after it."""
+        """Move the ``acting`` agents at the new ``speeds`` and ``headings``, sub-stepped, by the motion model: the
+        movement, and the speeds and velocities after it."""
         velocities = velocities_from(speeds=speeds, headings=headings)
         bodies = dict(positions=self.positions, velocities=velocities, active=acting)
-        if self.collision_rule == "sequential":
+        model, constants = self.motion, self.motion_constants
+        if model.rule == "sequential":
             priority = torch.rand(self.active.shape, generator=self.generator, device=self.device)
-            if self.collision_order == "door_first":  # metres dominate, the uniform draw breaks ties
+            if model.order == "door_first":  # metres dominate, the uniform draw breaks ties
                 priority = self._goal_distance(self.positions, targets) + priority * 1e-3
-        if self.contact != "stop":
-            movement = move_agents_sliding(**bodies, motion=self.motion, priority=priority)
+        if model.contact != "stop":
+            movement = move_agents_sliding(**bodies, motion=constants, priority=priority)
             # the speed is the distance actually walked; the heading stays the commanded one
             walked = torch.linalg.vector_norm(movement.positions - self.positions, dim=-1) / self.decision_length
             speeds = torch.where(acting, walked.clamp_max(self.max_speed), speeds)
             velocities = velocities_from(speeds=speeds, headings=headings)
         else:
-            if self.collision_rule == "sequential":
+            if model.rule == "sequential":
                 # off the CPU: fixed rounds with masks, so that a decision never waits for the host (same result)
                 movement = move_agents_sequential(
-                    **bodies, motion=self.motion, priority=priority, sync_free=self.device.type != "cpu"
+                    **bodies, motion=constants, priority=priority, sync_free=self.device.type != "cpu"
                 )
             else:
-                movement = move_agents(**bodies, motion=self.motion)
+                movement = move_agents(**bodies, motion=constants)
             speeds = torch.where(movement.blocked, 0.0, speeds)
             velocities = torch.where(movement.blocked.unsqueeze(-1), 0.0, velocities)
         return movement, speeds, velocities

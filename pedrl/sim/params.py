@@ -12,6 +12,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields
 from typing import Any, Final
 
+from pedrl.sim.motion import Continuous, Headway, MotionModel, Slide, Stop, Yield
+
 __all__ = ["ANY", "FastSupport", "RoomParams", "only", "setting", "undeclared"]
 
 FAST: Final = "fast"
@@ -20,7 +22,8 @@ FAST: Final = "fast"
 
 @dataclass(frozen=True)
 class FastSupport:
-    """The values of a setting that the fast path runs: all (``values`` None) or those listed."""
+    """The values of a setting that the fast path runs: all (``values`` None) or those listed (a class listed stands
+    for its instances: a motion model's class, whatever its parameters)."""
 
     values: tuple[Any, ...] | None = None
 
@@ -28,7 +31,10 @@ class FastSupport:
         """Why the fast path cannot run with ``name=value`` (one phrase), or None when it can."""
         if self.values is None or value in self.values:
             return None
-        allowed = " or ".join(_shown(v) for v in self.values)
+        if any(isinstance(allowed, type) and type(value) is allowed for allowed in self.values):
+            return None
+        shown = [_shown(v) for v in self.values]
+        allowed = shown[0] if len(shown) == 1 else f"{', '.join(shown[:-1])} or {shown[-1]}"
         return f"with {name}={_shown(value)} (it runs {name}={allowed})"
 
 
@@ -47,7 +53,10 @@ def setting(support: FastSupport) -> Any:
 
 
 def _shown(value: Any) -> str:
-    return str(value).lower() if isinstance(value, bool) else str(value)
+    """A value as the config writes it: ``true``, a motion model (or its class) by its name."""
+    if isinstance(value, bool):
+        return str(value).lower()
+    return value.name if isinstance(value, MotionModel | type) else str(value)
 
 
 @dataclass(frozen=True)
@@ -67,31 +76,24 @@ class RoomParams:
     reward_crash_agent: float = setting(ANY)
     reward_default: float = setting(ANY)
     substep_length: float = setting(ANY)
-    collision_rule: str = setting(only("sequential"))
-    collision_order: str = setting(ANY)
     goal_depth: float = setting(ANY)
     reward_progress: float = setting(ANY)
     compile_sensing: bool = setting(only(False))  # the fast path senses in its own kernel
-    contact: str = setting(ANY)  # stop with walls that are not all axis-aligned: RoomEnv.fast_path_reason
-    time_gap: float = setting(ANY)
     action_frame: str = setting(ANY)
-    motion: str = setting(ANY)
-    time_step: float = setting(ANY)
-    neighbour_repulsion: tuple[float, float] = setting(ANY)
-    wall_repulsion: tuple[float, float] = setting(ANY)
+    # every model but Simultaneous; Stop with walls that are not all axis-aligned: RoomEnv.fast_path_reason
+    motion: MotionModel = setting(only(Stop, Slide, Headway, Yield, Continuous))
     queue_weight: float = setting(ANY)  # used at placement, in torch
 
     @classmethod
     def of(cls, room: Any) -> RoomParams:
         """The settings of a built room (a ``RoomEnv``): each field its attribute of the same name, the rewards from
-        its reward table and ``motion`` from its ``motion_model``."""
+        its reward table."""
         rewards = room.rewards
         special = {
             "reward_goal": rewards.goal,
             "reward_crash_wall": rewards.crash_wall,
             "reward_crash_agent": rewards.crash_agent,
             "reward_default": rewards.default,
-            "motion": room.motion_model,
         }
         values = {f.name: special[f.name] if f.name in special else getattr(room, f.name) for f in fields(cls)}
         return cls(**{name: tuple(v) if isinstance(v, list) else v for name, v in values.items()})

@@ -10,13 +10,11 @@ from typing import Any, Final
 import torch
 
 from pedrl.sim.actions import NOOP_INDEX, NUM_SPEED_CHANGES, count_substeps
-from pedrl.sim.checks import check_choice, check_number, check_real
+from pedrl.sim.checks import check_number, check_real, shown
 from pedrl.sim.geometry import Geometry, extent
-from pedrl.sim.motion import COLLISION_RULES, CONTACT_MODELS
+from pedrl.sim.motion import MOTION_MODELS, MotionModel
 from pedrl.sim.rewards import MAX_REWARD, RewardTable
 
-COLLISION_ORDERS: Final = ("random", "door_first")
-"""Orders of action of the sequential collision rule (see ``RoomEnv``)."""
 OPTION_KEYS: Final = ("positions", "headings", "speeds", "replicas")
 """The keys of ``RoomEnv.reset``'s ``options``."""
 MAX_SUBSTEPS: Final = 1000
@@ -137,66 +135,32 @@ def check_substep_length(substep_length: Any, agent_radius: Any) -> float:
     return checked
 
 
-def check_rules(collision_rule: Any, collision_order: Any, contact: Any) -> tuple[str, str, str]:
-    """``(collision_rule, collision_order, contact)`` checked, and compatible: every contact model but ``stop``
-    resolves movers in turn, so it needs the sequential rule."""
-    rule = check_choice("collision_rule", collision_rule, COLLISION_RULES)
-    order = check_choice("collision_order", collision_order, COLLISION_ORDERS)
-    model = check_choice("contact", contact, CONTACT_MODELS)
-    if model != "stop" and rule != "sequential":
+def check_motion(motion: Any) -> MotionModel:
+    """``motion`` if it is a motion model (:mod:`pedrl.sim.motion`; it checked its own parameters when it was made),
+    else a one-line ``ValueError`` listing them."""
+    if not isinstance(motion, MotionModel):
+        names = ", ".join(model.__name__ for model in MOTION_MODELS.values())
         raise ValueError(
-            f"collision_rule={collision_rule!r} is invalid with contact={contact!r}: the slide, headway and yield"
-            " rules resolve movers in turn (collision_rule: sequential; it applies to contact=stop only)"
+            f"motion={shown(motion)} is invalid: must be a motion model of pedrl.sim.motion ({names}), e.g."
+            " Yield(time_gap=1.0, order='door_first')"
         )
-    return rule, order, model
-
-
-MOTIONS: Final = ("step", "continuous")
-"""How bodies walk between decisions (``RoomEnv(motion=...)``): ``step``, the paper's model (the decision's velocity,
-sub-stepped by ``substep_length``, under the contact rule); ``continuous``, the decision sets a desired direction and
-speed and the collision-free speed model with its direction rule walks every body at a time step of ``time_step``."""
-MAX_TIME_STEP: Final = 0.05
-"""Longest time step (s) of ``motion=continuous``."""
-CONTINUOUS_CONTACTS: Final = ("headway", "yield")
-
-
-def check_motion(motion: Any, contact: str, time_step: Any, neighbour_repulsion: Any, wall_repulsion: Any):
-    """``(motion, time_step, neighbour_repulsion, wall_repulsion)`` checked: ``continuous`` walks by the
-    collision-free speed rule, so it needs contact ``headway`` or ``yield``; each repulsion is ``(strength >= 0,
-    range > 0 m)``."""
-    model = check_choice("motion", motion, MOTIONS)
-    if model == "continuous" and contact not in CONTINUOUS_CONTACTS:
-        raise ValueError(
-            f"contact={contact!r} is invalid with motion='continuous': it walks by the collision-free speed rule"
-            " (contact: headway or yield)"
-        )
-    step = check_number("time_step", time_step, low=0.0, high=MAX_TIME_STEP, low_open=True)
-    repulsions = []
-    for name, value in (("neighbour_repulsion", neighbour_repulsion), ("wall_repulsion", wall_repulsion)):
-        try:
-            pair = tuple(value)
-        except TypeError:
-            pair = ()
-        if isinstance(value, str | bytes) or len(pair) != 2:
-            raise ValueError(f"{name}={value!r} is invalid: must be [strength, range] (strength >= 0, range > 0 m)")
-        strength = check_number(f"{name}[0]", pair[0], low=0.0, high=MAX_REWARD)
-        reach = check_number(f"{name}[1]", pair[1], low=0.0, high=10.0, low_open=True)
-        repulsions.append((strength, reach))
-    return model, step, repulsions[0], repulsions[1]
+    return motion
 
 
 def check_time_steps(num_substeps: int, room: Any) -> int:
-    """The sub-steps of a decision of ``room`` (a ``RoomEnv`` being built): the step model's ``num_substeps``; under
-    ``motion=continuous`` at least ``ceil(decision_length / time_step)``, at most :data:`MAX_SUBSTEPS`, else a
-    one-line ``ValueError``."""
-    if room.motion_model != "continuous":
+    """The sub-steps of a decision of ``room`` (a ``RoomEnv`` being built): the step model's ``num_substeps``; on the
+    continuous walking layer (a model with a ``time_step``) at least ``ceil(decision_length / time_step)``, at most
+    :data:`MAX_SUBSTEPS`, else a one-line ``ValueError``."""
+    time_step = room.motion.time_step
+    if time_step is None:
         return num_substeps
-    decision_length, time_step = room.decision_length, room.time_step
+    decision_length = room.decision_length
     steps = math.ceil(decision_length / time_step * (1.0 - 1e-9))  # the slack keeps e.g. 1 / 0.05 at 20
     if steps > MAX_SUBSTEPS:
         raise ValueError(
-            f"time_step={time_step!r} s is invalid with decisions_per_second={1.0 / decision_length:.6g}: a decision"
-            f" would take {steps} time steps; at most {MAX_SUBSTEPS} (raise time_step or decisions_per_second)"
+            f"env.motion.time_step={time_step!r} s is invalid with decisions_per_second={1.0 / decision_length:.6g}:"
+            f" a decision would take {steps} time steps; at most {MAX_SUBSTEPS} (raise time_step or"
+            " decisions_per_second)"
         )
     return max(num_substeps, steps)
 

@@ -2,8 +2,8 @@
 ``python -m pedrl.validation.calibrate --experiment pedestrian_walk --time-gaps 0.35 0.4 0.45 0.5``.
 
 For each time gap ``T`` the greedy walker (ε = 0) runs RiMEA 4 (speed against density, Weidmann 1993) and the
-bottleneck flows (Liddle et al. 2011) in the experiment's room settings with ``env.time_gap=T``. The fit is the ``T``
-whose worse score is smallest, each score the measured error over its pass band: RiMEA 4's RMS distance over its
+bottleneck flows (Liddle et al. 2011) in the experiment's room settings with ``env.motion.time_gap=T``. The fit is the
+``T`` whose worse score is smallest, each score the measured error over its pass band: RiMEA 4's RMS distance over its
 allowed distance, the largest bottleneck error over 0.25. It prints one row per ``T`` and the chosen one.
 """
 
@@ -57,7 +57,8 @@ def fit(env: Mapping[str, Any], time_gaps: Sequence[float], *, seed: int = 0) ->
     rows = []
     for gap in time_gaps:
         started = time.perf_counter()
-        rows.append({"time_gap": gap, **score({**env, "time_gap": gap}, seed=seed)})
+        motion = {**env.get("motion", {}), "time_gap": gap}  # the motion model's T
+        rows.append({"time_gap": gap, **score({**env, "motion": motion}, seed=seed)})
         rows[-1]["seconds"] = round(time.perf_counter() - started, 1)
     best = min(rows, key=lambda row: row["score"])
     return best["time_gap"], rows

@@ -126,10 +126,10 @@ def test_resume_from_foreign_config_is_refused(train_config, tmp_path):
 
 
 def test_a_resume_on_another_walking_layer_is_refused(train_config, tmp_path):
-    run = ("algo=vqql", "algo.iterations=1", "algo.trials=2", "logger=none", "env.contact=yield")
-    train(train_config(*run), run_dir=tmp_path)
-    with pytest.raises(CheckpointError, match='env.motion was "step" there and is "continuous" here'):
-        train(train_config(*run, "env.motion=continuous", "resume=true"), run_dir=tmp_path)
+    run = ("algo=vqql", "algo.iterations=1", "algo.trials=2", "logger=none")
+    train(train_config(*run, "motion=yield"), run_dir=tmp_path)
+    with pytest.raises(CheckpointError, match='env.motion.contact was "<absent>" there and is "yield" here'):
+        train(train_config(*run, "motion=continuous", "env.motion.contact=yield", "resume=true"), run_dir=tmp_path)
 
 
 @pytest.mark.parametrize(
@@ -147,7 +147,7 @@ def test_a_resume_on_another_walking_layer_is_refused(train_config, tmp_path):
         ("vq.per_process=maybe", "per_process='maybe' is invalid"),
         ("algo.tables=room", "tables='room' is invalid"),
         ("algo.void_draws=never", "void_draws='never' is invalid"),
-        ("env.collision_rule=both", "collision_rule='both' is invalid"),
+        ("env.motion.order=last", "env.motion.order='last' is invalid"),
         ("env.reward_progress=-1", "reward_progress=-1 is invalid"),
         ("env.goal_depth=-1", "goal_depth=-1 is invalid"),
     ],

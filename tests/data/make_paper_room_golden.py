@@ -12,17 +12,18 @@ import torch
 
 from pedrl.scenarios import paper_room
 from pedrl.sim import COARSE_TURN_RATIOS
+from pedrl.sim.motion import Simultaneous, Stop
 
 CASES = {
     # name: (room kwargs, decisions)
     "paper_sequential": (dict(num_replicas=2, num_agents=20), 25),
     "small_sequential": (dict(num_replicas=2, num_agents=12, width=6.0, length=8.0, door_width=1.5), 60),
     "small_door_first": (
-        dict(num_replicas=2, num_agents=12, width=6.0, length=8.0, door_width=1.5, collision_order="door_first"),
+        dict(num_replicas=2, num_agents=12, width=6.0, length=8.0, door_width=1.5, motion=Stop(order="door_first")),
         60,
     ),
     "small_simultaneous": (
-        dict(num_replicas=2, num_agents=12, width=6.0, length=8.0, door_width=1.5, collision_rule="simultaneous"),
+        dict(num_replicas=2, num_agents=12, width=6.0, length=8.0, door_width=1.5, motion=Simultaneous()),
         60,
     ),
 }

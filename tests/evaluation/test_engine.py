@@ -22,6 +22,7 @@ from pedrl.cli import CONFIG_DIR
 from pedrl.evaluation import SCALING_COLUMNS, evaluate, print_table
 from pedrl.io import CheckpointError, read_csv
 from pedrl.scenarios import paper_room
+from pedrl.sim.motion import MOTION_MODELS, Simultaneous
 from pedrl.train import train
 
 REQUIRED_COLUMNS = ("agents", "fails_pct", "fails_std", "mean_speed", "speed_std")
@@ -375,7 +376,7 @@ def test_contacts_count_bodies_and_walls_apart():
 def sparse_room(rule: str = "stop"):
     """Few walkers in a wide room, acting nearest the door first: both paths must walk the same trajectories."""
     return paper_room(width=30.0, length=20.0, door_width=6.0).room(
-        num_replicas=3, num_agents=4, max_decisions=40, contact=rule, collision_order="door_first"
+        num_replicas=3, num_agents=4, max_decisions=40, motion=MOTION_MODELS[rule](order="door_first")
     )
 
 
@@ -425,6 +426,8 @@ def test_fused_true_is_refused_in_one_line_where_the_kernels_cannot_run(tmp_path
     from pedrl.evaluation.engine import check_fused_controller
     from pedrl.sim.controllers import GreedyDoorController
 
-    env = paper_room(width=10.0, length=10.0).room(num_replicas=2, num_agents=4, collision_rule="simultaneous")
-    with pytest.raises(ValueError, match=r"^fused=true is invalid: the fused trial cannot run with collision_rule="):
+    env = paper_room(width=10.0, length=10.0).room(num_replicas=2, num_agents=4, motion=Simultaneous())
+    with pytest.raises(
+        ValueError, match=r"^fused=true is invalid: the fused trial cannot run with motion=simultaneous"
+    ):
         check_fused_controller(GreedyDoorController(), [env])

@@ -11,11 +11,11 @@ from pedrl.scenarios import build_scenario
 from pedrl.scenarios.model import walls_without_exits
 from pedrl.sim import RoomEnv
 from pedrl.sim.controllers import GreedyDoorController
+from pedrl.sim.motion import MOTION_MODELS, Continuous
 from tests.sim.test_contact import kernels_on
 
 GOAL = {
     "action_frame": "goal",
-    "collision_order": "door_first",
     "speed_ratios": [0.0, 0.2, 0.4, 0.6, 0.7, 0.8, 0.9, 0.95, 1.0],
     "turn_ratios": [-0.5, -0.25, -0.1, -0.05, 0.0, 0.05, 0.1, 0.25, 0.5],
 }
@@ -35,8 +35,13 @@ def greedy_out(angle: float, contact: str, motion: str = "step", decisions: int 
     decisions it took."""
     wkt, exit_ = turned_room(angle)
     geometry = build_scenario({"name": "custom", "geometry": wkt, "exits": [exit_]}).geometry()
+    walking = (
+        Continuous(contact=contact, order="door_first")
+        if motion == "continuous"
+        else MOTION_MODELS[contact](order="door_first")
+    )
     env = RoomEnv(
-        geometry, num_agents=10, num_replicas=2, agent_radius=0.2, max_speed=1.34, contact=contact, motion=motion,
+        geometry, num_agents=10, num_replicas=2, agent_radius=0.2, max_speed=1.34, motion=walking,
         max_decisions=decisions, **GOAL,
     )  # fmt: skip
     obs, info = env.reset(seed=0)

@@ -11,6 +11,7 @@ from omegaconf import OmegaConf
 from pedrl.cli import CONFIG_DIR
 from pedrl.scenarios import build_scenario
 from pedrl.sim.controllers import GreedyDoorController
+from pedrl.sim.motion import Yield
 
 CONF = Path(CONFIG_DIR) / "scenario"
 DATA = Path(__file__).resolve().parents[1] / "data" / "heldout"
@@ -36,7 +37,7 @@ def test_a_small_crowd_of_greedy_walkers_leaves_by_every_exit(name, least):
     must handle (docs/results.md)."""
     scenario = build_scenario(scenario_config(name))
     env = scenario.room(
-        num_replicas=4, num_agents=10, device="cpu", max_decisions=150, contact="yield", collision_order="door_first"
+        num_replicas=4, num_agents=10, device="cpu", max_decisions=150, motion=Yield(order="door_first")
     )
     controller = GreedyDoorController(epsilon=0.1, generator=torch.Generator().manual_seed(0))
     obs, info = env.reset(seed=1)

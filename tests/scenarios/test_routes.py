@@ -15,10 +15,10 @@ from pedrl.scenarios import SCENARIOS, Scenario, build_scenario, custom
 from pedrl.scenarios.builders import BUILDERS
 from pedrl.scenarios.routes import CLEARANCE, CLEARANCES, WAYPOINT_RADIUS, with_routes
 from pedrl.sim.controllers import GreedyDoorController
+from pedrl.sim.motion import Continuous, Yield
 
 GOAL = {
     "action_frame": "goal",
-    "collision_order": "door_first",
     "speed_ratios": [0.0, 0.2, 0.4, 0.6, 0.7, 0.8, 0.9, 0.95, 1.0],
     "turn_ratios": [-0.5, -0.25, -0.1, -0.05, 0.0, 0.05, 0.1, 0.25, 0.5],
 }
@@ -45,9 +45,14 @@ def routes_of(scenario, agents: int = 40, seed: int = 1) -> list[list[tuple[floa
 
 def greedy_out(scenario, motion: str = "continuous") -> tuple[float, float]:
     """Share of 40 greedy walkers (in 2 rooms, epsilon 0) out within 150 s, and wall contacts per agent."""
+    walking = (
+        Continuous(contact="yield", time_gap=0.4, order="door_first")
+        if motion == "continuous"
+        else Yield(time_gap=0.4, order="door_first")
+    )
     env = scenario.room(
-        num_replicas=2, num_agents=40, device="cpu", max_decisions=150, contact="yield", agent_radius=0.2,
-        max_speed=1.34, motion=motion, time_gap=0.4, **GOAL,
+        num_replicas=2, num_agents=40, device="cpu", max_decisions=150, agent_radius=0.2, max_speed=1.34,
+        motion=walking, **GOAL,
     )  # fmt: skip
     controller = GreedyDoorController(epsilon=0.0, generator=torch.Generator().manual_seed(0))
     obs, info = env.reset(seed=1)

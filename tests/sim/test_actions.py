@@ -8,6 +8,7 @@ import torch
 from pedrl.scenarios import paper_room
 from pedrl.sim import COARSE_TURN_RATIOS, DEFAULT_TURN_RATIOS
 from pedrl.sim.controllers import GreedyDoorController
+from pedrl.sim.motion import Slide
 
 STEP = 2.5  # m, a full-speed decision at the default max_speed
 CLEARANCE = 0.1  # m, either side of a 0.4 m body in a 1 m opening
@@ -34,7 +35,7 @@ def test_any_heading_lines_up_within_four_decisions():
 def lone_walkers_out(turns: tuple[float, ...]) -> float:
     """Share of lone greedy walkers (bodies of 0.45 m) that pass a 1 m door of the paper's room in 200 decisions."""
     env = paper_room(door_width=1.0).room(
-        num_replicas=200, num_agents=1, agent_radius=0.45, turn_ratios=turns, contact="slide"
+        num_replicas=200, num_agents=1, agent_radius=0.45, turn_ratios=turns, motion=Slide()
     )
     obs, info = env.reset(seed=1)
     controller = GreedyDoorController()

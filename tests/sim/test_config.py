@@ -11,7 +11,7 @@ from pedrl.scenarios import paper_room
 from pedrl.sim import RoomEnv
 
 CONFIG = Path(__file__).resolve().parents[2] / "conf" / "env" / "room.yaml"
-RUN_TIME = {"num_replicas", "num_agents", "device", "area"}  # area: compiled from the scenario group
+RUN_TIME = {"num_replicas", "num_agents", "device", "area", "motion"}  # area, motion: the scenario and motion groups
 
 
 def test_room_config_builds_a_room_with_run_time_arguments():

@@ -1,4 +1,4 @@
-"""The contact models of the room (``env.contact``): slide, headway and yield, their CPU kernel against the torch
+"""The sliding motion models of the room (``env.motion``): slide, headway and yield, their CPU kernel against the torch
 reference, their invariants on random scenes and in every scenario, and the behaviour each adds over ``stop``."""
 
 import contextlib
@@ -17,7 +17,18 @@ from pedrl.sim import RoomEnv
 from pedrl.sim.actions import NUM_ACTIONS, NUM_TURNS, velocities_from
 from pedrl.sim.controllers import GreedyDoorController
 from pedrl.sim.geometry import distances_to_segments
-from pedrl.sim.motion import SlidingMotion, Steering, move_agents_sliding, move_agents_sliding_torch
+from pedrl.sim.motion import (
+    MOTION_MODELS,
+    Headway,
+    Slide,
+    SlidingMotion,
+    Steering,
+    Stop,
+    Yield,
+    motion_from_config,
+    move_agents_sliding,
+    move_agents_sliding_torch,
+)
 from pedrl.sim.motion import sequential as sequential_motion
 from pedrl.sim.motion import sliding as sliding_motion
 
@@ -55,31 +66,33 @@ def check_bodies(env: RoomEnv, start: torch.Tensor, acting: torch.Tensor) -> Non
 
 def test_stop_is_the_default_contact_model():
     env = paper_room().room(num_agents=2)
-    assert env.contact == "stop" and env.time_gap == 1.0
+    assert env.motion == Stop() and env.motion.order == "random" and env.motion.time_gap is None
 
 
 @pytest.mark.parametrize(
-    ("kwargs", "fragments"),
+    ("build", "fragments"),
     [
-        ({"contact": "bounce"}, ("contact='bounce'", "stop, slide, headway, yield")),
-        ({"contact": None}, ("contact=None", "stop, slide, headway, yield")),
-        ({"time_gap": 0.0}, ("time_gap=0.0", "> 0")),
-        ({"time_gap": -1.0}, ("time_gap=-1.0", "> 0")),
-        ({"time_gap": math.nan}, ("time_gap=nan",)),
-        ({"time_gap": "1"}, ("time_gap='1'",)),
-        ({"contact": "slide", "collision_rule": "simultaneous"}, ("collision_rule='simultaneous'", "contact='slide'")),
+        (lambda: motion_from_config({"name": "bounce"}), ("env.motion.name='bounce'", "stop, simultaneous, slide")),
+        (lambda: motion_from_config({"name": None}), ("env.motion.name=None", "headway, yield, continuous")),
+        (lambda: Headway(time_gap=0.0), ("env.motion.time_gap=0.0", "> 0")),
+        (lambda: Yield(time_gap=-1.0), ("env.motion.time_gap=-1.0", "> 0")),
+        (lambda: Headway(time_gap=math.nan), ("env.motion.time_gap=nan",)),
+        (lambda: Yield(time_gap="1"), ("env.motion.time_gap='1'",)),
+        (lambda: Slide(order="last"), ("env.motion.order='last'", "random, door_first")),
+        (
+            lambda: motion_from_config({"name": "slide", "time_gap": 1.0}),
+            ("env.motion.time_gap is not a setting of motion 'slide'", "its settings are order"),
+        ),
+        (lambda: paper_room().room(num_agents=2, motion="slide"), ("motion='slide' is invalid", "Stop, Simultaneous")),
     ],
 )
-def test_bad_contact_settings_give_one_line_errors(kwargs, fragments):
+def test_bad_contact_settings_give_one_line_errors(build, fragments):
     with pytest.raises(ValueError) as error:
-        paper_room().room(num_agents=2, **kwargs)
+        build()
     message = str(error.value)
     assert "\n" not in message
     for fragment in fragments:
         assert fragment in message
-
-
-# ---------------------------------------------------------------- kernel against the torch reference
 
 
 def random_scene(seed: int, num_agents: int, room: tuple[float, float, float], speed_scale: float):
@@ -147,7 +160,7 @@ def test_invariants_hold_after_every_step(seed, num_agents, room, rule, compiled
     capacity = int(0.3 * (width - 0.8) * (length - 0.8) / (math.pi * 0.16))
     num_agents = min(num_agents, capacity, 60 if compiled else 20)
     env = paper_room(width=width, length=length, door_width=door_width).room(
-        num_replicas=2, num_agents=num_agents, max_decisions=30, contact=rule, reward_progress=0.0
+        num_replicas=2, num_agents=num_agents, max_decisions=30, motion=MOTION_MODELS[rule](), reward_progress=0.0
     )
     shape = (2, num_agents)
     generator = torch.Generator().manual_seed(seed)
@@ -180,9 +193,8 @@ def kernels_on(compiled: bool):
 
 def walk_scenario(name: str, rule: str, *, compiled: bool, decisions: int) -> torch.Tensor:
     """Greedy walkers with noise in a scenario, checking the invariants after every step: the final positions."""
-    env = env_factory({"_target_": "pedrl.sim.RoomEnv", "max_decisions": 60, "contact": rule}, {"name": name})(
-        num_replicas=2, num_agents=AGENTS[name]
-    )
+    settings = {"_target_": "pedrl.sim.RoomEnv", "max_decisions": 60, "motion": {"name": rule}}
+    env = env_factory(settings, {"name": name})(num_replicas=2, num_agents=AGENTS[name])
     controller = GreedyDoorController(epsilon=0.2, generator=torch.Generator().manual_seed(1))
     obs, info = env.reset(seed=3)
     with kernels_on(compiled):
@@ -212,7 +224,9 @@ def door_post_run(contact: str) -> tuple[bool, int]:
     Returns:
         Whether it got out, and its wall contacts.
     """
-    env = paper_room(width=6.0, length=8.0, door_width=1.2).room(num_agents=1, max_decisions=15, contact=contact)
+    env = paper_room(width=6.0, length=8.0, door_width=1.2).room(
+        num_agents=1, max_decisions=15, motion=MOTION_MODELS[contact]()
+    )
     heading = math.radians(90.0 - 30.0)
     env.reset(seed=0, options={"positions": [[[1.6, 6.4]]], "headings": [[heading]], "speeds": [[1.0]]})
     contacts = 0
@@ -240,7 +254,7 @@ def test_every_sliding_rule_gets_a_body_past_a_door_post(rule):
 def follow_run(contact: str, order: str = "random") -> tuple[list[float], int]:
     """A leader walking at 1 m/s and a follower 3 m behind it that always wants full speed: (gaps, body contacts)."""
     env = paper_room(width=6.0, length=60.0, door_width=2.0).room(
-        num_agents=2, max_decisions=40, contact=contact, collision_order=order
+        num_agents=2, max_decisions=40, motion=MOTION_MODELS[contact](order=order)
     )
     up = math.pi / 2
     env.reset(seed=0, options={"positions": [[[3.0, 5.0], [3.0, 2.0]]], "headings": [[up, up]], "speeds": [[1.0, 2.5]]})
@@ -275,7 +289,7 @@ def test_yield_follows_the_order_of_action():
 def greedy_crowd_run(rule: str) -> tuple[float, float]:
     """100 greedy walkers (10 % random actions) in the paper's room: (share out in 200 decisions, contacts per
     agent)."""
-    env = paper_room().room(num_replicas=4, num_agents=100, contact=rule, collision_order="door_first")
+    env = paper_room().room(num_replicas=4, num_agents=100, motion=MOTION_MODELS[rule](order="door_first"))
     controller = GreedyDoorController(epsilon=0.1, generator=torch.Generator().manual_seed(0))
     obs, info = env.reset(seed=3)
     out = torch.zeros(env.num_replicas, env.num_agents, dtype=torch.bool)

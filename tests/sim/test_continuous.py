@@ -13,7 +13,7 @@ from pedrl._numba import numba_available
 from pedrl.scenarios import paper_room
 from pedrl.sim import RoomEnv
 from pedrl.sim.actions import NUM_ACTIONS
-from pedrl.sim.motion import Steering
+from pedrl.sim.motion import Continuous, Steering, Yield, motion_from_config
 from pedrl.sim.motion.sliding import steer
 from tests.sim.test_contact import check_bodies, kernels_on
 
@@ -21,9 +21,9 @@ GOAL = {
     "action_frame": "goal",
     "speed_ratios": [0.0, 0.2, 0.4, 0.6, 0.7, 0.8, 0.9, 0.95, 1.0],
     "turn_ratios": [-0.5, -0.25, -0.1, -0.05, 0.0, 0.05, 0.1, 0.25, 0.5],
-    "contact": "yield",
-    "collision_order": "door_first",
 }
+WALKING = Continuous(contact="yield", order="door_first")
+"""The walking layer by the yield rule, nearest the door first."""
 WALK = 8 * 9 + 4  # full speed, straight at the goal
 STAND = 4  # speed 0
 
@@ -33,29 +33,33 @@ needs_numba = pytest.mark.skipif(not numba_available(), reason="numba is off (PE
 def continuous(**kwargs) -> RoomEnv:
     """A room of the paper's shape (``width``, ``length`` and ``door_width`` among ``kwargs``) on the walking layer."""
     sizes = {key: kwargs.pop(key) for key in ("width", "length", "door_width") if key in kwargs}
-    settings = {"motion": "continuous", "agent_radius": 0.2, "max_speed": 1.34} | GOAL | kwargs
+    settings = {"motion": WALKING, "agent_radius": 0.2, "max_speed": 1.34} | GOAL | kwargs
     return paper_room(**sizes).room(**settings)
 
 
 @pytest.mark.parametrize(
-    ("kwargs", "fragments"),
+    ("build", "fragments"),
     [
-        ({"motion": "smooth"}, ("motion='smooth'", "step, continuous")),
-        ({"motion": "continuous", "contact": "stop"}, ("contact='stop'", "headway or yield")),
-        ({"motion": "continuous", "contact": "slide"}, ("contact='slide'", "headway or yield")),
-        ({"time_step": 0.1}, ("time_step=0.1", "0.05")),
-        ({"time_step": 0.0}, ("time_step=0.0",)),
-        ({"neighbour_repulsion": [8.0]}, ("neighbour_repulsion=[8.0]", "[strength, range]")),
-        ({"neighbour_repulsion": [-1.0, 0.1]}, ("neighbour_repulsion[0]=-1.0",)),
-        ({"wall_repulsion": [5.0, 0.0]}, ("wall_repulsion[1]=0.0",)),
-        ({"wall_repulsion": "5,0.02"}, ("wall_repulsion='5,0.02'",)),
-        ({"motion": "continuous", "time_step": 1e-6, "decisions_per_second": 0.5}, ("time_step=1e-06", "at most")),
+        (
+            lambda: motion_from_config({"name": "smooth"}),
+            ("env.motion.name='smooth'", "stop, simultaneous", "continuous"),
+        ),
+        (lambda: Continuous(contact="stop"), ("env.motion.contact='stop'", "headway, yield")),
+        (lambda: Continuous(contact="slide"), ("env.motion.contact='slide'", "headway, yield")),
+        (lambda: Continuous(time_step=0.1), ("env.motion.time_step=0.1", "0.05")),
+        (lambda: Continuous(time_step=0.0), ("env.motion.time_step=0.0",)),
+        (lambda: Steering(neighbour_strength=-1.0), ("env.motion.steering.neighbour_strength=-1.0",)),
+        (lambda: Steering(wall_range=0.0), ("env.motion.steering.wall_range=0.0",)),
+        (lambda: Continuous(steering="5,0.02"), ("env.motion.steering='5,0.02'",)),
+        (
+            lambda: continuous(num_agents=2, motion=Continuous(time_step=1e-6), decisions_per_second=0.5),
+            ("env.motion.time_step=1e-06", "at most"),
+        ),
     ],
 )
-def test_bad_motion_settings_give_one_line_errors(kwargs, fragments):
-    base = {"contact": "yield"} if kwargs.get("motion") == "continuous" and "contact" not in kwargs else {}
+def test_bad_motion_settings_give_one_line_errors(build, fragments):
     with pytest.raises(ValueError) as error:
-        paper_room().room(num_agents=2, **base | kwargs)
+        build()
     message = str(error.value)
     assert "\n" not in message
     for fragment in fragments:
@@ -67,7 +71,7 @@ def test_the_time_step_is_at_most_0_05_s(decisions_per_second):
     env = continuous(num_agents=2, decisions_per_second=decisions_per_second)
     assert env.decision_length / env.num_substeps <= 0.05 + 1e-12
     assert env.motion.steering == Steering()  # JuPedSim's defaults
-    assert paper_room().room(num_agents=2, contact="yield").motion.steering is None  # the step model keeps its own
+    assert paper_room().room(num_agents=2, motion=Yield()).motion.steering is None  # the step model keeps its own
 
 
 def test_the_direction_rule_turns_away_from_a_body_ahead_and_a_wall():
@@ -132,7 +136,7 @@ def test_invariants_hold_after_every_decision(seed, num_agents, decisions_per_se
 def walk_past_a_standing_body(motion: str) -> tuple[bool, int]:
     """A walker 4 m from the door of a 6 m x 8 m room, and a body standing on its line to the door 1.5 m ahead (5 cm
     to the side): whether the walker gets out within 20 s, and its contacts."""
-    settings = {"motion": motion} if motion == "continuous" else {"motion": "step", "max_speed": 1.34}
+    settings = {} if motion == "continuous" else {"motion": Yield(order="door_first"), "max_speed": 1.34}
     env = continuous(num_agents=2, width=6.0, length=8.0, door_width=1.2, max_decisions=40, **settings)
     env.reset(seed=0, options={"positions": [[[3.0, 4.0], [3.05, 5.5]]]})
     contacts = 0

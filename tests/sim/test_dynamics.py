@@ -24,7 +24,7 @@ from pedrl.sim.actions import (
     velocities_from,
 )
 from pedrl.sim.geometry import distances_to_segments
-from pedrl.sim.motion import Motion, move_agents, move_agents_sequential
+from pedrl.sim.motion import Motion, Yield, move_agents, move_agents_sequential
 from pedrl.sim.reference import move_agents_literal, move_agents_sequential_literal
 
 
@@ -105,8 +105,7 @@ def test_goal_frame_walkers_go_straight_out_and_bad_ratios_are_refused():
         action_frame="goal",
         speed_ratios=GOAL_SPEED_RATIOS,
         turn_ratios=GOAL_TURN_RATIOS,
-        contact="yield",
-        collision_order="door_first",
+        motion=Yield(order="door_first"),
     )
     env.reset(seed=3)
     straight = torch.full((2, 8), 8 * 9 + 4)

@@ -10,6 +10,7 @@ import pedrl.sim.env as env_module
 from pedrl.scenarios import paper_room
 from pedrl.sim import NOOP_ACTION, PlacementError, RoomEnv
 from pedrl.sim.actions import NUM_ACTIONS
+from pedrl.sim.motion import Simultaneous, Stop
 
 UP, DOWN, RIGHT, LEFT = math.pi / 2, -math.pi / 2, 0.0, math.pi
 TABLE_2 = {"reward_progress": 0.0, "reward_default": 0.0}
@@ -52,7 +53,7 @@ def test_agent_heading_at_the_door_reaches_it_in_the_expected_decisions(distance
 
 def test_head_on_agents_both_stop_and_both_get_the_agent_penalty():
     """Under the simultaneous rule both stop at the same sub-step (the sequential rule: test_dynamics)."""
-    env = paper_room().room(**TABLE_2, num_agents=2, collision_rule="simultaneous")
+    env = paper_room().room(**TABLE_2, num_agents=2, motion=Simultaneous())
     gap = 5.0
     _place(env, [(20.0, 50.0), (20.0 + gap, 50.0)], [RIGHT, LEFT], [env.max_speed] * 2)
     _, reward, terminated, _, info = env.step(_noop(env))
@@ -412,7 +413,7 @@ def test_step_checks_its_input():
 def test_a_queue_to_the_door_moves_up_together_when_the_front_acts_first(order):
     """Leader and follower 0.85 m apart walk to the door at the same speed: the follower only stalls (and is
     penalised) when it acts before its leader, which door_first never lets happen."""
-    env = paper_room().room(num_replicas=8, num_agents=2, collision_order=order)
+    env = paper_room().room(num_replicas=8, num_agents=2, motion=Stop(order=order))
     positions = [[(30.0, 60.0), (30.0, 59.15)]] * 8
     env.reset(seed=0, options={"positions": positions, "headings": [[UP, UP]] * 8, "speeds": [[2.0, 2.0]] * 8})
     crashes = 0

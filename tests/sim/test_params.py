@@ -8,6 +8,7 @@ import pytest
 
 from pedrl.scenarios import paper_room
 from pedrl.sim import RoomEnv
+from pedrl.sim.motion import Continuous, Headway, Simultaneous, Yield
 from pedrl.sim.params import ANY, RoomParams, only, setting, undeclared
 
 BATCH_ARGUMENTS = {"self", "num_replicas", "num_agents", "device", "area"}
@@ -36,9 +37,9 @@ def test_a_field_without_a_declaration_is_found():
 
 def test_the_params_are_the_validated_arguments():
     env = paper_room(width=10.0, length=12.0).room(
-        num_agents=3, contact="yield", speed_ratios=[0, 0, 0, 0, 0, 0.1, 0.2, 0.5, 1]
+        num_agents=3, motion=Yield(), speed_ratios=[0, 0, 0, 0, 0, 0.1, 0.2, 0.5, 1]
     )
-    assert env.params.contact == "yield"
+    assert env.params.motion == Yield()
     assert env.params.speed_ratios == (0, 0, 0, 0, 0, 0.1, 0.2, 0.5, 1)
     assert env.params.substep_length == env.agent_radius  # None means the body radius
     with pytest.raises(dataclasses.FrozenInstanceError):
@@ -49,8 +50,12 @@ def test_the_params_are_the_validated_arguments():
     ("settings", "reason"),
     [
         ({}, None),
-        ({"contact": "headway", "collision_order": "door_first", "time_gap": 0.5}, None),
-        ({"collision_rule": "simultaneous"}, "with collision_rule=simultaneous (it runs collision_rule=sequential)"),
+        ({"motion": Headway(time_gap=0.5, order="door_first")}, None),
+        ({"motion": Continuous(contact="yield")}, None),
+        (
+            {"motion": Simultaneous()},
+            "with motion=simultaneous (it runs motion=stop, slide, headway, yield or continuous)",
+        ),
         ({"compile_sensing": True}, "with compile_sensing=true (it runs compile_sensing=false)"),
     ],
 )
@@ -62,3 +67,6 @@ def test_the_fast_path_runs_what_the_declarations_allow(settings, reason):
 def test_only_lists_the_allowed_values():
     assert only("a", "b").reason("x", "c") == "with x=c (it runs x=a or b)"
     assert only("a").reason("x", "a") is None and ANY.reason("x", object()) is None
+    # a class stands for its instances, whatever their parameters, and for no subclass's
+    assert only(Headway).reason("motion", Headway(time_gap=0.3)) is None
+    assert only(Headway).reason("motion", Yield()) == "with motion=yield (it runs motion=headway)"

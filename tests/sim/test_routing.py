@@ -8,6 +8,7 @@ import torch
 
 from pedrl.scenarios import custom
 from pedrl.sim.controllers import GreedyDoorController
+from pedrl.sim.motion import Yield
 from pedrl.sim.routing import SPECIFIC_FLOW, choose_exits, sight
 
 # A 20 m x 12 m room split by a partition from the bottom wall up to 11 m at x = 10. Exit 0 (right of the
@@ -24,7 +25,7 @@ TWO_ENDS = {
     "exits": [[0.0, 3.5, 0.0, 4.5], [20.0, 3.5, 20.0, 4.5]],
     "spawn": [[0.5, 0.5, 5.0, 7.5]],
 }
-PEDESTRIAN = {"agent_radius": 0.2, "max_speed": 1.34, "contact": "yield", "collision_order": "door_first"}
+PEDESTRIAN = {"agent_radius": 0.2, "max_speed": 1.34, "motion": Yield(order="door_first")}
 GOAL = {
     "action_frame": "goal",
     "speed_ratios": [0.0, 0.2, 0.4, 0.6, 0.7, 0.8, 0.9, 0.95, 1.0],

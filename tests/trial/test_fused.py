@@ -26,6 +26,7 @@ from pedrl.rl.policy import TabularPolicy
 from pedrl.scenarios import paper_room
 from pedrl.sim import RoomEnv
 from pedrl.sim.actions import GOAL_SPEED_RATIOS, GOAL_TURN_RATIOS
+from pedrl.sim.motion import Simultaneous, Yield
 from pedrl.sim.sensing import MIN_VOID_DISTANCE, observe
 from pedrl.train import train as train_run
 from pedrl.trial import fused
@@ -47,7 +48,7 @@ GOAL_FRAME = {"action_frame": "goal", "speed_ratios": GOAL_SPEED_RATIOS, "turn_r
 
 def scene(name: str, agents: int, contact: str, seed: int, replicas: int = 4, frame: str = "heading") -> RoomEnv:
     """A room of the scenario after a reset and 3 random decisions, with random speeds and headings."""
-    settings = {"_target_": "pedrl.sim.RoomEnv", "contact": contact} | (GOAL_FRAME if frame == "goal" else {})
+    settings = {"_target_": "pedrl.sim.RoomEnv", "motion": {"name": contact}} | (GOAL_FRAME if frame == "goal" else {})
     env = env_factory(settings, {"name": name})(num_replicas=replicas, num_agents=agents)
     env.reset(seed=seed)
     generator = torch.Generator().manual_seed(seed)
@@ -214,7 +215,7 @@ def train(
 ) -> tuple[list[float], torch.Tensor]:
     """Success rates of ``trials`` learning trials in 8 small rooms (``rooms_per_process`` E of them learning into
     each process's tables), and the tables after them."""
-    env = paper_room(width=12, length=12, door_width=3).room(num_replicas=8, num_agents=10, contact="yield")
+    env = paper_room(width=12, length=12, door_width=3).room(num_replicas=8, num_agents=10, motion=Yield())
     shared = policies(env, 8 // rooms_per_process)["shared"]
     policy = TabularPolicy(shared.encoder, shared.q_values.zero_(), rooms_per_process=rooms_per_process)
     generator = torch.Generator().manual_seed(seed)
@@ -269,8 +270,10 @@ def test_fused_must_be_a_boolean_or_null(compose, tmp_path):
 
     with pytest.raises(ValueError, match=r"^fused='yes' is invalid: must be true, false or null$"):
         build_trainer(compose("train", ["debug=default", "fused=yes"]), tmp_path)
-    with pytest.raises(ValueError, match=r"^fused=true is invalid: the fused trial cannot run with collision_rule="):
-        build_trainer(compose("train", ["debug=default", "fused=true", "env.collision_rule=simultaneous"]), tmp_path)
+    with pytest.raises(
+        ValueError, match=r"^fused=true is invalid: the fused trial cannot run with motion=simultaneous"
+    ):
+        build_trainer(compose("train", ["debug=default", "fused=true", "motion=simultaneous"]), tmp_path)
 
 
 def test_kernel_threads_follow_torch_s_and_sleep_when_idle():
@@ -285,9 +288,9 @@ def test_kernel_threads_follow_torch_s_and_sleep_when_idle():
 
 
 def test_fused_true_is_refused_in_one_line_where_it_cannot_run():
-    env = paper_room(width=10, length=10).room(num_replicas=2, num_agents=4, collision_rule="simultaneous")
+    env = paper_room(width=10, length=10).room(num_replicas=2, num_agents=4, motion=Simultaneous())
     policy = policies(paper_room(width=10, length=10).room(num_replicas=2, num_agents=4), 2)["shared"]
-    with pytest.raises(ValueError, match=r"^fused=true is invalid: .*collision_rule=simultaneous"):
+    with pytest.raises(ValueError, match=r"^fused=true is invalid: .*motion=simultaneous"):
         run_trial(env, policy, epsilon=0.1, generator=torch.Generator(), learn=False, fused=True)
     stats = run_trial(env, policy, epsilon=0.1, generator=torch.Generator(), learn=False)  # null: the torch loop
     assert stats.agent_decisions > 0

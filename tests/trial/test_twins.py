@@ -28,8 +28,9 @@ BUILT_IN = [name for name in SCENARIOS if name != "custom"]  # custom is a WKT f
 
 
 def room(name: str, contact: str, frame: str = "heading", motion: str = "step"):
-    settings = {"_target_": "pedrl.sim.RoomEnv", "max_decisions": 30, "contact": contact, "action_frame": frame}
-    settings |= {"motion": motion, "decisions_per_second": 2.0} if motion == "continuous" else {}
+    walking = {"name": "continuous", "contact": contact} if motion == "continuous" else {"name": contact}
+    settings = {"_target_": "pedrl.sim.RoomEnv", "max_decisions": 30, "motion": walking, "action_frame": frame}
+    settings |= {"decisions_per_second": 2.0} if motion == "continuous" else {}
     if frame == "goal":
         settings |= {"speed_ratios": [0, 0.2, 0.4, 0.6, 0.7, 0.8, 0.9, 0.95, 1],
                      "turn_ratios": [-0.5, -0.25, -0.1, -0.05, 0, 0.05, 0.1, 0.25, 0.5]}  # fmt: skip
@@ -81,8 +82,8 @@ def test_a_room_with_an_automatic_route_matches_through_whole_trials():
     from pedrl.cli import CONFIG_DIR
 
     scenario = OmegaConf.to_container(OmegaConf.load(f"{CONFIG_DIR}/scenario/partition_room.yaml"))
-    settings = {"_target_": "pedrl.sim.RoomEnv", "max_decisions": 40, "contact": "yield", "agent_radius": 0.2,
-                "max_speed": 1.34, "motion": "continuous", "action_frame": "goal",
+    settings = {"_target_": "pedrl.sim.RoomEnv", "max_decisions": 40, "agent_radius": 0.2, "max_speed": 1.34,
+                "motion": {"name": "continuous", "contact": "yield"}, "action_frame": "goal",
                 "speed_ratios": [0, 0.2, 0.4, 0.6, 0.7, 0.8, 0.9, 0.95, 1],
                 "turn_ratios": [-0.5, -0.25, -0.1, -0.05, 0, 0.05, 0.1, 0.25, 0.5]}  # fmt: skip
     env = env_factory(settings, scenario)(num_replicas=2, num_agents=20)

@@ -64,13 +64,13 @@ def test_sequential_collision_rule_on_cuda_equals_the_cpu_on_a_hand_built_scene(
     velocities = velocities_from(speeds=speeds, headings=headings)
     priority = torch.tensor([[0.3, 0.1, 0.2, 0.4]])
     cpu = move_agents_sequential(
-        positions=positions, velocities=velocities, motion=env.motion, priority=priority, **kwargs
+        positions=positions, velocities=velocities, motion=env.motion_constants, priority=priority, **kwargs
     )
     cuda_env = paper_room(width=8.0, length=10.0, door_width=1.5).room(num_replicas=1, num_agents=4, device="cuda")
     cuda = move_agents_sequential(
         positions=positions.cuda(),
         velocities=velocities.cuda(),
-        motion=cuda_env.motion,
+        motion=cuda_env.motion_constants,
         priority=priority.cuda(),
         sync_free=True,
         **{**kwargs, "active": kwargs["active"].cuda()},

@@ -1,15 +1,18 @@
-"""What every motion model shares: the :class:`Movement` a decision returns, the names of the collision rules and
-contact models (one enumeration, which the kernels number by position), and the pair pre-filters."""
+"""What every motion model shares: the :class:`MotionModel` base of the model dataclasses (each in the module of its
+kernels), the :class:`Movement` a decision returns, the names of the collision rules and contact models (one
+enumeration, which the kernels number by position), the checks of the parameters the models share, and the pair
+pre-filters."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import asdict, dataclass, fields, is_dataclass
 from functools import lru_cache
-from typing import Any, Final
+from typing import Any, ClassVar, Final
 
 import numpy as np
 import torch
 
+from pedrl.sim.checks import check_choice, check_number, check_real
 from pedrl.sim.geometry import Geometry, X, Y
 
 PAIR_MARGIN: Final = 1e-3
@@ -37,21 +40,72 @@ class Movement:
 
 
 COLLISION_RULES: Final = ("sequential", "simultaneous")
-"""``sequential`` (default): the paper's reading, movers resolved one after another in a random order drawn per
-decision; ``simultaneous``: every proposal checked against every other proposal at once (:func:`move_agents`)."""
+"""``sequential``: the paper's reading, movers resolved one after another in an order drawn per decision
+(:class:`~pedrl.sim.motion.Stop` and every sliding model); ``simultaneous``: every proposal checked against every
+other proposal at once (:class:`~pedrl.sim.motion.Simultaneous`, :func:`move_agents`)."""
+COLLISION_ORDERS: Final = ("random", "door_first")
+"""The orders in which the sequential rule lets the movers act in each decision (a model's ``order``): ``random``, a
+random permutation per decision (random sequential update); ``door_first``, nearest to the goal point first, ties at
+random (a queue moves up together instead of each follower stalling for a decision whenever it acts before its
+leader)."""
 
 
 CONTACT_MODELS: Final = ("stop", "slide", "headway", "yield")
-"""What a body does when its move would enter another body or a wall (``RoomEnv(contact=...)``).
+"""What a body does when its move would enter another body or a wall (a motion model's ``contact``).
 
 ``stop``: it stops for the rest of the decision (:func:`move_agents_sequential` or :func:`move_agents`, the paper's
 reading). ``slide``: it keeps the part of its move tangent to the contact (:func:`move_agents_sliding`).
 ``headway``: the collision-free speed rule (Tordeux, Chraibi & Seyfried 2016) sets the speed walked from the nearest
 body ahead, and ``slide`` is the safety net (:func:`move_agents_sliding` with a ``time_gap``). ``yield``: ``headway``
-with a right of way: only the bodies that act before the mover in the order of the sequential rule (with
-``collision_order=door_first``, those nearer the goal) slow it; it slides past the others (``yield_to_earlier``).
-Two bodies converging on a door then never hold each other up: the one nearer goes, the other keeps its gap.
+with a right of way: only the bodies that act before the mover in its ``order`` (with ``door_first``, those nearer
+the goal) slow it; it slides past the others (``yield_to_earlier``). Two bodies converging on a door then never hold
+each other up: the one nearer goes, the other keeps its gap.
 """
+MOTION_KEY: Final = "env.motion"
+"""The config key of a room's motion model: its messages name its fields under it (``env.motion.time_gap``)."""
+
+
+def check_order(value: Any) -> str:
+    """A model's ``order`` (:data:`COLLISION_ORDERS`), else a one-line ``ValueError`` naming the config key."""
+    return check_choice(f"{MOTION_KEY}.order", value, COLLISION_ORDERS)
+
+
+def check_time_gap(value: Any) -> float:
+    """A model's ``time_gap`` ``T`` (s, ``> 0``), else a one-line ``ValueError`` naming the config key."""
+    return check_real(f"{MOTION_KEY}.time_gap", value, unit="s", positive=True)
+
+
+class MotionModel:
+    """How bodies move through a decision: the base of the frozen dataclasses that each describe one model with its
+    parameters (:class:`~pedrl.sim.motion.Stop`, :class:`~pedrl.sim.motion.Simultaneous`,
+    :class:`~pedrl.sim.motion.Slide`, :class:`~pedrl.sim.motion.Headway`, :class:`~pedrl.sim.motion.Yield`,
+    :class:`~pedrl.sim.motion.Continuous`), each in the module of its kernels and validating its parameters when it is
+    made. What the room and the kernels read of any model is below; a model that has no such parameter answers the
+    class default.
+
+    Attributes:
+        name: The model's name in a config (``env.motion.name``; ``motion=<name>`` on the command line).
+        contact: The contact rule its kernels run (:data:`CONTACT_MODELS`).
+        rule: The collision rule (:data:`COLLISION_RULES`).
+        order: The order of action of the sequential rule (:data:`COLLISION_ORDERS`).
+        time_gap: ``T`` of the collision-free speed rule (s), or None.
+        time_step: The longest time step of the continuous walking layer (s), or None (the step model).
+        steering: The direction rule of the walking layer (:class:`Steering`), or None.
+    """
+
+    name: ClassVar[str]
+    contact: ClassVar[str]
+    rule: ClassVar[str] = "sequential"
+    order: str = "random"
+    time_gap: float | None = None
+    time_step: float | None = None
+    steering: Steering | None = None
+
+    def to_config(self) -> dict[str, Any]:
+        """The model as a config node: ``{"name": ..., <field>: <value>, ...}`` (a nested dataclass as a mapping),
+        which :func:`~pedrl.sim.motion.motion_from_config` reads back."""
+        values = {item.name: getattr(self, item.name) for item in fields(self)}  # type: ignore[arg-type]
+        return {"name": self.name} | {key: asdict(v) if is_dataclass(v) else v for key, v in values.items()}
 
 
 @dataclass(frozen=True)
@@ -126,6 +180,12 @@ STEERING_CUTOFF: Final = -20.0
 ``2e-9`` of its strength (the rule is otherwise unchanged; it bounds the work to the bodies and walls nearby)."""
 
 
+MAX_STRENGTH: Final = 1e6
+"""Largest strength ``a`` or ``b`` of the direction rule."""
+MAX_RANGE: Final = 10.0
+"""Largest range ``D`` or ``B`` (m) of the direction rule."""
+
+
 @dataclass(frozen=True)
 class Steering:
     """The direction rule of the collision-free speed model (Tordeux, Chraibi & Seyfried 2016, "Collision-free speed
@@ -133,7 +193,8 @@ class Steering:
     vector of ``e0 + sum_j a exp((2 r - d_ij) / D) n_ji + sum_w b exp((r - d_iw) / B) n_wi``, with ``e0`` the
     commanded direction, ``n_ji`` the unit vector from body ``j`` to the mover, ``n_wi`` from the closest point of
     wall ``w`` to it. The defaults are JuPedSim's (``strength_neighbor_repulsion`` 8, ``range_neighbor_repulsion``
-    0.1 m, ``strength_geometry_repulsion`` 5, ``range_geometry_repulsion`` 0.02 m).
+    0.1 m, ``strength_geometry_repulsion`` 5, ``range_geometry_repulsion`` 0.02 m). Each value is checked when it is
+    made (strengths in ``[0, MAX_STRENGTH]``, ranges in ``(0, MAX_RANGE]`` m).
 
     Attributes:
         neighbour_strength: ``a`` (dimensionless).
@@ -146,6 +207,15 @@ class Steering:
     neighbour_range: float = 0.1
     wall_strength: float = 5.0
     wall_range: float = 0.02
+
+    def __post_init__(self) -> None:
+        for item in fields(self):
+            key, value = f"{MOTION_KEY}.steering.{item.name}", getattr(self, item.name)
+            if item.name.endswith("strength"):
+                checked = check_number(key, value, low=0.0, high=MAX_STRENGTH)
+            else:
+                checked = check_number(key, value, low=0.0, high=MAX_RANGE, low_open=True)
+            object.__setattr__(self, item.name, checked)
 
 
 def steering_array(steering: Steering | None) -> np.ndarray:

@@ -1,10 +1,13 @@
-"""The ``sequential`` collision rule under contact ``stop`` (the paper's reading): movers act one after another in
-a random order drawn per decision, and only the one whose own move would enter a wall or a body stops.
+"""The motion model :class:`Stop` (the paper's reading): movers act one after another in an order drawn per decision
+(the ``sequential`` collision rule), and only the one whose own move would enter a wall or a body stops.
 
 :func:`move_agents_sequential` dispatches to the numba kernel (:mod:`pedrl.sim.motion.sequential_kernel`) on the
 CPU and to :func:`move_agents_sequential_torch` elsewhere; the two give the same numbers to the bit."""
 
 from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
 
 import torch
 
@@ -13,11 +16,32 @@ from pedrl.sim.geometry import Geometry, X, Y
 from pedrl.sim.motion.common import (
     PAIR_MARGIN,
     Motion,
+    MotionModel,
     Movement,
     _discs_overlap,
     _eye,
     _swept_discs,
+    check_order,
 )
+
+
+@dataclass(frozen=True)
+class Stop(MotionModel):
+    """Contact ``stop`` under the sequential collision rule (the paper's reading, section 5: "In a collision, the agent
+    stops and the other object or agent cannot go into the bounding circumference of the agent"): movers act one
+    after another in ``order``; one whose own move would enter a wall or a body stops for the rest of the decision
+    (:func:`move_agents_sequential`). Config: ``motion=stop`` (``env.motion.order``).
+
+    Attributes:
+        order: ``random`` (a permutation drawn per decision) or ``door_first`` (nearest to its goal point first).
+    """
+
+    name: ClassVar[str] = "stop"
+    contact: ClassVar[str] = "stop"
+    order: str = "random"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "order", check_order(self.order))
 
 
 def _sequential_steps(

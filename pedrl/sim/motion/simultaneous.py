@@ -1,8 +1,11 @@
-"""The ``simultaneous`` collision rule (``collision_rule=simultaneous``, contact ``stop``): every mover's proposal
-checked against every other's at once, all sub-steps of a decision resolved together (:func:`move_agents`); its
-specification, sub-step after sub-step, is :func:`pedrl.sim.reference.move_agents_literal`."""
+"""The motion model :class:`Simultaneous` (contact ``stop`` under the ``simultaneous`` collision rule): every mover's
+proposal checked against every other's at once, all sub-steps of a decision resolved together (:func:`move_agents`);
+its specification, sub-step after sub-step, is :func:`pedrl.sim.reference.move_agents_literal`."""
 
 from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
 
 import torch
 
@@ -10,12 +13,24 @@ from pedrl.sim.geometry import Geometry
 from pedrl.sim.motion.common import (
     PAIR_MARGIN,
     Motion,
+    MotionModel,
     Movement,
     _discs_overlap,
     _swept_discs,
     _take,
     _upper_triangle,
 )
+
+
+@dataclass(frozen=True)
+class Simultaneous(MotionModel):
+    """Contact ``stop`` under the simultaneous collision rule: every mover's proposal is checked against every other's
+    at once, and both parties of a conflict stop for the rest of the decision (:func:`move_agents`). No parameter: no
+    order of action. Config: ``motion=simultaneous``. The fast path (the fused trial) does not run it."""
+
+    name: ClassVar[str] = "simultaneous"
+    contact: ClassVar[str] = "stop"
+    rule: ClassVar[str] = "simultaneous"
 
 
 def _wall_and_exit_times(

@@ -1,25 +1,125 @@
-"""The ``slide``, ``headway`` and ``yield`` contact models: a mover keeps the tangent part of a move that would enter
-something, and under ``headway``/``yield`` walks at the collision-free speed (Tordeux, Chraibi & Seyfried 2016).
+"""The motion models :class:`Slide`, :class:`Headway`, :class:`Yield` and :class:`Continuous`: a mover keeps the
+tangent part of a move that would enter something, under ``headway``/``yield`` walks at the collision-free speed
+(Tordeux, Chraibi & Seyfried 2016), and on the continuous walking layer steers by its direction rule too.
 
 :func:`move_agents_sliding` dispatches to the numba kernel (:mod:`pedrl.sim.motion.sliding_kernel`) on the CPU and to
 :func:`move_agents_sliding_torch` elsewhere; the two give the same numbers to the bit."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import ClassVar, Final
 
 import torch
 
 from pedrl._numba import use_kernels
+from pedrl.sim.checks import check_choice, check_number
 from pedrl.sim.geometry import Geometry, X, Y
 from pedrl.sim.motion.common import (
+    MOTION_KEY,
     PAIR_MARGIN,
     STEERING_CUTOFF,
     Motion,
+    MotionModel,
     Movement,
     Steering,
     _eye,
+    check_order,
+    check_time_gap,
 )
+
+MAX_TIME_STEP: Final = 0.05
+"""Longest time step (s) of the continuous walking layer (:class:`Continuous`)."""
+CONTINUOUS_CONTACTS: Final = ("headway", "yield")
+"""The contact rules of the continuous walking layer: it walks by the collision-free speed rule."""
+
+
+@dataclass(frozen=True)
+class Slide(MotionModel):
+    """Contact ``slide``: a mover whose move would enter a body or a wall keeps the part of its move tangent to the
+    contact for the rest of the decision, and stops only if even that would enter something; the movers act in
+    ``order`` (:func:`move_agents_sliding`). Config: ``motion=slide`` (``env.motion.order``).
+
+    Attributes:
+        order: ``random`` or ``door_first`` (:data:`~pedrl.sim.motion.COLLISION_ORDERS`).
+    """
+
+    name: ClassVar[str] = "slide"
+    contact: ClassVar[str] = "slide"
+    order: str = "random"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "order", check_order(self.order))
+
+
+@dataclass(frozen=True)
+class Headway(MotionModel):
+    """Contact ``headway``, the collision-free speed rule (Tordeux, Chraibi & Seyfried 2016, as JuPedSim's
+    ``CollisionFreeSpeedModel``): the action sets the heading and the wanted speed ``v``, and the speed walked is
+    ``min(v, max(0, (s - 2 r) / time_gap))`` with ``s`` the distance to the nearest body ahead within the corridor of
+    half-width ``2 r`` (:func:`headway_factors`, every sub-step); walls are slid along and ``slide`` is the safety net
+    against bodies. Config: ``motion=headway`` (``env.motion.time_gap``, ``env.motion.order``).
+
+    Attributes:
+        time_gap: ``T`` (s, ``> 0``; 1 s as JuPedSim's default).
+        order: The order in which the movers act (:data:`~pedrl.sim.motion.COLLISION_ORDERS`).
+    """
+
+    name: ClassVar[str] = "headway"
+    contact: ClassVar[str] = "headway"
+    time_gap: float = 1.0
+    order: str = "random"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "time_gap", check_time_gap(self.time_gap))
+        object.__setattr__(self, "order", check_order(self.order))
+
+
+@dataclass(frozen=True)
+class Yield(Headway):
+    """Contact ``yield``: :class:`Headway` with a right of way: only the bodies that act before the mover in ``order``
+    (with ``door_first``, those nearer the goal) slow it, and it slides past the others, so two bodies converging on
+    a door never hold each other up. Config: ``motion=yield`` (``env.motion.time_gap``, ``env.motion.order``)."""
+
+    name: ClassVar[str] = "yield"
+    contact: ClassVar[str] = "yield"
+
+
+@dataclass(frozen=True)
+class Continuous(MotionModel):
+    """The continuous walking layer: a decision sets the desired direction and speed, and the collision-free speed
+    model with its direction rule (:class:`~pedrl.sim.motion.Steering`; Tordeux, Chraibi & Seyfried 2016, as
+    JuPedSim's ``CollisionFreeSpeedModel``) walks every body at steps of at most ``time_step``, the slide the safety
+    net. Config: ``motion=continuous`` (``env.motion.contact``, ``.time_gap``, ``.order``, ``.time_step``,
+    ``.steering.neighbour_strength`` ...).
+
+    Attributes:
+        contact: The collision-free speed rule it walks by: ``headway`` or ``yield`` (:class:`Headway`,
+            :class:`Yield`).
+        time_gap: ``T`` of that rule (s, ``> 0``).
+        order: The order in which the movers act (:data:`~pedrl.sim.motion.COLLISION_ORDERS`).
+        time_step: The longest time step (s, in ``(0, MAX_TIME_STEP]``).
+        steering: The direction rule's strengths and ranges (JuPedSim's defaults).
+    """
+
+    name: ClassVar[str] = "continuous"
+    contact: str = "headway"
+    time_gap: float = 1.0
+    order: str = "random"
+    time_step: float = 0.05
+    steering: Steering = field(default_factory=Steering)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "contact", check_choice(f"{MOTION_KEY}.contact", self.contact, CONTINUOUS_CONTACTS))
+        object.__setattr__(self, "time_gap", check_time_gap(self.time_gap))
+        object.__setattr__(self, "order", check_order(self.order))
+        step = check_number(f"{MOTION_KEY}.time_step", self.time_step, low=0.0, high=MAX_TIME_STEP, low_open=True)
+        object.__setattr__(self, "time_step", step)
+        if not isinstance(self.steering, Steering):
+            raise ValueError(
+                f"{MOTION_KEY}.steering={self.steering!r} is invalid: must be a Steering (its keys: neighbour_strength,"
+                " neighbour_range, wall_strength, wall_range)"
+            )
 
 
 def _sqrt(values: torch.Tensor) -> torch.Tensor:
