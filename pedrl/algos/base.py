@@ -40,7 +40,7 @@ from pedrl.rl import LinearSchedule, zeros_q_values
 from pedrl.rl.policy import TabularPolicy
 from pedrl.sim import RoomEnv
 from pedrl.sim.checks import check_bool, check_choice, check_device, check_integer, check_memory, check_number
-from pedrl.trial.fused import check_fused, room_reason
+from pedrl.trial.crowd import choose_path
 from pedrl.trial.rollout import Gathered, TrialStats, check_finite, gather, run_trial
 from pedrl.vq import Quantizer
 from pedrl.vq.encoder import VOID_DRAWS, VOID_FEATURES, EncoderSettings, StateEncoder
@@ -153,7 +153,8 @@ class Trainer:
         self.home, self.mix = home, list(mix)
         replicas = self.processes * self.rooms_per_process  # the same env settings: the same observations and actions
         self._mix_envs = [e.factory(num_replicas=replicas, num_agents=e.num_agents, device=self.device) for e in mix]
-        self.fused = check_fused(fused, [*self._envs.values(), *self._mix_envs])
+        choose_path([*self._envs.values(), *self._mix_envs], None, fused)  # fused=true refused before any compute
+        self.fused = fused
         self.encoder_settings = EncoderSettings.for_room(
             room,
             void_features=void_features,
@@ -422,13 +423,8 @@ class Trainer:
     def trial_path(self) -> tuple[str, str | None]:
         """Where this trainer's trials run, ``"fused"`` or ``"torch"`` (a seed gives other numbers on each), and why
         not on the fused one (None when they do): what a resume must keep (:func:`pedrl.algos.restore.load_resume`)."""
-        if self.fused is False:
-            return "torch", "fused=false"
-        for room in [*self._envs.values(), *self._mix_envs]:
-            reason = room_reason(room)
-            if reason is not None:
-                return "torch", f"the fused trial cannot run {reason}"
-        return "fused", None
+        name, why_not = choose_path([*self._envs.values(), *self._mix_envs], None, self.fused)
+        return name, why_not
 
     def env_for(self, num_agents: int) -> RoomEnv:
         """The trainer's ``P E`` rooms with ``num_agents`` agents (built once)."""

@@ -44,7 +44,7 @@ from pedrl.sim.checks import (
     first_line,
 )
 from pedrl.sim.routing import check_queue_weight
-from pedrl.trial.fused import check_fused
+from pedrl.trial.crowd import choose_path
 
 CONTROLLERS: Final = ("learned", "greedy", "jupedsim")
 DENSITY_MAP_BYTES_PER_TILE: Final = 40
@@ -124,8 +124,7 @@ def _prepare(cfg: DictConfig, controller: str, device: torch.device) -> tuple[An
     if isinstance(policy.controller, Recorder):
         for env in envs.values():
             policy.controller.check(env)
-    if cfg.get("fused"):
-        check_fused_controller(policy.controller, envs.values())
+    check_fused_controller(policy.controller, envs.values(), cfg.get("fused"))
     return policy, envs, geometry
 
 
@@ -237,7 +236,7 @@ def _validate_values(cfg: DictConfig) -> None:
     if cfg.animation.max_frames is not None:
         check_integer("animation.max_frames", cfg.animation.max_frames, minimum=1)
     check_bool("tensorboard", cfg.get("tensorboard"))
-    check_fused(cfg.get("fused"), [])  # the value; the rooms are checked once built
+    choose_path([], None, cfg.get("fused"))  # the value; the rooms are checked once built
 
 
 def check_against_room(cfg: DictConfig, geometry: Geometry, envs: dict[int, RoomEnv]) -> None:

@@ -1,30 +1,27 @@
 """The fused trial: a whole trial of every room as one compiled pass per learning process, on every core.
 
-:func:`run_trial_fused` is :func:`pedrl.trial.rollout.run_trial` on the CPU without a torch operation per decision:
-one call of :func:`pedrl.trial.fused_kernels.fused_trial` runs every decision of the trial (the loop over the stage
-kernels: act, sense, encode, learn, choose), the learning processes in parallel over numba's threads.
-:func:`record_trial_fused` runs a trial of a learned policy or of the greedy walker without learning and records
-every frame, for ``pedrl-eval`` and ``pedrl-validate``. The torch loop stays the reference (and the path on a GPU,
-or with ``fused=false``); this one matches it within the tolerances of :mod:`pedrl.trial.twins` and equals itself
-for a seed at any thread count. Where it runs is an allow-list: :meth:`pedrl.sim.RoomEnv.fast_path_reason` (each
-room setting's declaration) and :func:`fused_reason` (the tables and quantizer: every kind, shared, per process
-and IN-VQQL's union).
+:func:`run_trial_fused` is the torch loop (:func:`pedrl.trial.loop.crowd_loop`) of a learning trial on the CPU without
+a torch operation per decision: one call of :func:`pedrl.trial.fused_kernels.fused_trial` runs every decision of the
+trial (the loop over the stage kernels: act, sense, encode, learn, choose), the learning processes in parallel over
+numba's threads. :func:`record_trial_fused` runs a trial of a learned policy or of the greedy walker without learning
+and records every frame, for ``pedrl-eval`` and ``pedrl-validate``. The torch loop stays the reference (and the path on
+a GPU, or with ``fused=false``); this one matches it within the tolerances of :mod:`pedrl.trial.twins` and equals
+itself for a seed at any thread count. Both are run by :func:`pedrl.trial.crowd.run_crowd` only, after
+:func:`pedrl.trial.crowd.choose_path` found that they can run the room and the controller (an allow-list).
 """
 
 from __future__ import annotations
 
 import functools
-from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import torch
 
-from pedrl._numba import numba, numba_available
+from pedrl._numba import numba
 from pedrl.rl.policy import PolicyController, TabularPolicy
 from pedrl.sim import RoomEnv
-from pedrl.sim.controllers import GreedyDoorController
 from pedrl.sim.motion import CONTACT_MODELS
 from pedrl.sim.motion.common import steering_array
 from pedrl.sim.sensing import MIN_VOID_DISTANCE
@@ -33,55 +30,7 @@ from pedrl.trial.stats import TOTALS, TrialStats
 from pedrl.vq.encoder import EncoderSettings, StateEncoder
 from pedrl.vq.quantizer import Quantizer
 
-__all__ = [
-    "FusedRecord",
-    "check_fused",
-    "controller_reason",
-    "fused_reason",
-    "record_trial_fused",
-    "room_reason",
-    "run_trial_fused",
-    "set_kernel_threads",
-]
-
-
-def fused_reason(env: RoomEnv, policy: TabularPolicy) -> str | None:
-    """Why the fused trial cannot run ``policy`` in ``env`` (one phrase), or None when it can."""
-    if policy.device.type != "cpu":
-        return f"on {policy.device.type}: it runs on the CPU"
-    settings = policy.encoder.settings
-    if (env.num_neighbours, env.num_walls) != (settings.num_neighbours, settings.num_walls):
-        return "in a room that senses other neighbour or wall slots than the encoder reads"
-    quantizer = policy.encoder.quantizer
-    if quantizer is None:
-        return "with an encoder that has no quantizer"
-    parts = getattr(quantizer, "num_processes", policy.num_processes)
-    if parts != policy.num_processes or quantizer.num_prototypes != policy.q_values.shape[2]:
-        return "with tables that do not match the quantizer (processes or prototypes)"
-    if policy.q_values.dtype != torch.float32 or not policy.q_values.is_contiguous():
-        return "with tables that are not contiguous float32"
-    return room_reason(env)
-
-
-def room_reason(env: RoomEnv) -> str | None:
-    """Why the fused trial cannot run in ``env`` (one phrase), or None when it can: the room's own
-    :meth:`~pedrl.sim.RoomEnv.fast_path_reason` (an allow-list of its settings), and numba."""
-    if not numba_available():
-        return "without numba (PEDRL_NO_NUMBA is set, or numba is missing)"
-    return env.fast_path_reason()
-
-
-def check_fused(fused: Any, rooms: Sequence[RoomEnv]) -> bool | None:
-    """``fused`` (None, True or False), refused in one line unless a boolean or null, or when True for a room the
-    fused trial cannot run (:func:`pedrl.trial.fused.room_reason`)."""
-    if fused is not None and not isinstance(fused, bool):
-        raise ValueError(f"fused={fused!r} is invalid: must be true, false or null")
-    if fused:
-        for room in rooms:
-            reason = room_reason(room)
-            if reason is not None:
-                raise ValueError(f"fused=true is invalid: the fused trial cannot run {reason} (false or null)")
-    return fused
+__all__ = ["FusedRecord", "record_trial_fused", "run_trial_fused", "set_kernel_threads"]
 
 
 def set_kernel_threads(threads: int) -> None:
@@ -103,11 +52,9 @@ def run_trial_fused(
     alpha: float = 0.0,
     gamma: float = 0.0,
 ) -> TrialStats:
-    """:func:`pedrl.trial.rollout.run_trial` as one compiled pass (module docstring): the same arguments and
-    statistics. ``generator`` gives the trial's seed (one draw); the room's resets draw from ``env.generator``."""
-    reason = fused_reason(env, policy)
-    if reason is not None:
-        raise ValueError(f"the fused trial cannot run {reason}")
+    """A learning (or acting) trial of ``policy`` as one compiled pass (module docstring): the arguments and
+    statistics of a :class:`pedrl.trial.loop.Learner`'s trial. ``generator`` gives the trial's seed (one draw); the
+    room's resets draw from ``env.generator``."""
     totals, td_sums, steps, _, _ = _launch(env, policy, epsilon, generator, learn, alpha, gamma, record=False)
     return _stats(env, torch.from_numpy(totals).float(), td_sums, steps, policy.num_processes, learn)
 
@@ -134,26 +81,11 @@ class FusedRecord:
         return np.concatenate((self.active[:, 1:], np.zeros_like(self.active[:, :1])), axis=1)
 
 
-def controller_reason(env: RoomEnv, controller: Any) -> str | None:
-    """Why the fused trial cannot run ``controller`` in ``env`` (one phrase), or None when it can: it runs a
-    :class:`~pedrl.rl.policy.PolicyController` (a learned policy) and the greedy walker
-    (:class:`~pedrl.sim.controllers.GreedyDoorController`)."""
-    if isinstance(controller, PolicyController):
-        return fused_reason(env, controller.policy)
-    if type(controller) is GreedyDoorController:
-        return room_reason(env)
-    return f"with a {type(controller).__name__} (it runs learned policies and the greedy walker)"
-
-
 def record_trial_fused(env: RoomEnv, controller: Any, *, reset: bool = True) -> FusedRecord:
     """One trial of every room of ``env``, acted by ``controller`` (a learned policy, epsilon-greedy without
     learning, or the greedy walker, with the controller's own ``epsilon`` and ``generator``), recorded frame by
     frame: from a reset (its generator draws the scene), or with ``reset=False`` from the rooms' current state (a
-    reset the caller made, e.g. with placed agents). ``ValueError`` where the fused trial cannot run
-    (:func:`controller_reason`)."""
-    reason = controller_reason(env, controller)
-    if reason is not None:
-        raise ValueError(f"the fused trial cannot run {reason}")
+    reset the caller made, e.g. with placed agents)."""
     greedy = not isinstance(controller, PolicyController)
     policy = _walker_policy(env) if greedy else controller.policy
     totals, _, steps, trace, room_steps = _launch(

@@ -6,18 +6,17 @@ room ``r`` belonging to process ``r // E`` (:class:`pedrl.rl.TableLayout`).
 
 from __future__ import annotations
 
-from typing import Final, NamedTuple
+from typing import NamedTuple
 
 import torch
 
-from pedrl.rl import epsilon_greedy, td_update
+from pedrl.rl import epsilon_greedy
 from pedrl.rl.policy import TableLayout, TabularPolicy
 from pedrl.sim import RoomEnv
-from pedrl.trial.stats import TOTALS, TrialStats
+from pedrl.trial.crowd import run_crowd
+from pedrl.trial.loop import Learner
+from pedrl.trial.stats import TrialStats
 from pedrl.vq.encoder import StateEncoder
-
-DEVICE_CHECK_EVERY: Final = 8
-"""Decisions between two reads of "is any room still occupied" by the trial loop on a GPU (each read waits)."""
 
 
 class Gathered(NamedTuple):
@@ -90,64 +89,15 @@ def run_trial(
     fused: bool | None = None,
 ) -> TrialStats:
     """Run one trial in every room, acting epsilon-greedily and (if ``learn``) applying equation 1 to
-    ``policy.q_values`` in place with learning rate ``alpha`` and discount ``gamma``.
+    ``policy.q_values`` in place with learning rate ``alpha`` and discount ``gamma``: a
+    :class:`~pedrl.trial.loop.Learner`'s trial.
 
-    ``fused``: run the trial as one compiled pass (:func:`pedrl.trial.fused.run_trial_fused`; a one-line
-    ``ValueError`` where it cannot run), or the torch loop below, the reference (False); None: the fused pass
-    wherever it can run (on the CPU with numba).
-
-    Only the agents still in a room are encoded. On CPU the loop ends as soon as every room is empty; on other
-    devices it reads that flag only every :data:`DEVICE_CHECK_EVERY` decisions, so that no decision waits for the
-    host (the extra decisions of empty rooms change nothing).
+    ``fused``: run the trial as one compiled pass (:mod:`pedrl.trial.fused`; a one-line ``ValueError`` where it
+    cannot run), or the torch loop (:func:`pedrl.trial.loop.crowd_loop`), the reference (False); None: the fused
+    pass wherever it can run (on the CPU with numba). :func:`pedrl.trial.crowd.run_crowd` chooses.
     """
-    if fused is not False:
-        from pedrl.trial.fused import fused_reason, run_trial_fused
-
-        reason = fused_reason(env, policy)
-        if reason is None:
-            return run_trial_fused(
-                env, policy, epsilon=epsilon, generator=generator, learn=learn, alpha=alpha, gamma=gamma
-            )
-        if fused:
-            raise ValueError(f"fused=true is invalid: the fused trial cannot run {reason} (false or null)")
-    rooms, num_agents = env.num_replicas, env.num_agents
-    processes, q_values = policy.num_processes, policy.q_values
-    on_cpu = env.device.type == "cpu"
-    obs, info = env.reset()
-    rows = policy.rows(obs, info, generator, rows_mask=env.active.reshape(-1) if on_cpu else None)
-    totals = torch.zeros(len(TOTALS), rooms * num_agents, device=env.device)  # per agent, in TOTALS' order
-    td_total = torch.zeros(2, device=env.device)  # sum of |TD error|, number of updates
-    decisions = torch.zeros((), dtype=torch.int64, device=env.device)
-    step = 0
-    while True:
-        valid = env.active.reshape(-1)
-        actions = epsilon_greedy(q_values, rows, epsilon, generator)
-        obs, reward, terminated, truncated, info = env.step(actions.view(rooms, num_agents))
-        reward, terminated = reward.reshape(-1), terminated.reshape(-1)
-        in_room = valid & ~terminated  # their next state is needed: in the room, or cut by the clock
-        next_rows = policy.rows(obs, info, generator, rows_mask=in_room if on_cpu else None)
-        if learn:
-            td = td_update(q_values, rows, actions, reward, next_rows, terminated, valid, alpha=alpha, gamma=gamma)
-            td_total += torch.stack((td.abs().sum(), valid.sum()))
-        validf = valid.float()
-        events = (info["crashed_agent"], info["crashed_wall"], info["reached"])
-        totals += torch.stack(
-            (reward, *(event.reshape(-1) for event in events), info["speed"].reshape(-1) * validf, validf)
-        )
-        decisions += valid.any()
-        rows = next_rows
-        step += 1
-        if (on_cpu or step % DEVICE_CHECK_EVERY == 0) and not bool(env.active.any()):
-            break
-    td_error = (td_total[0] / td_total[1].clamp_min(1)).expand(processes) if learn else torch.zeros(processes)
-    return TrialStats.from_totals(
-        totals,
-        processes=processes,
-        num_agents=num_agents,
-        decision_length=env.decision_length,
-        td_error=td_error,
-        decisions=int(decisions),
-    )
+    learner = Learner(policy, epsilon=epsilon, generator=generator, learn=learn, alpha=alpha, gamma=gamma)
+    return run_crowd(env, learner, fused=fused).stats
 
 
 def check_finite(phase_index: int, trial: int, stats: TrialStats, q_values: torch.Tensor, *, last: bool) -> None:
