@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, Final, NamedTuple
+from typing import Any, Final, NamedTuple, Protocol, runtime_checkable
 
 import numpy as np
 import torch
@@ -27,6 +27,40 @@ DEVICE_CHECK_EVERY: Final = 8
 """Decisions between two reads of "is any room still occupied" by an unrecorded trial on a GPU (each read waits)."""
 
 
+@runtime_checkable
+class Driver(Protocol):
+    """What :func:`crowd_loop` drives a trial with (a :class:`Learner`, the trainers' gathering; any other
+    controller is wrapped as :class:`Acting`).
+
+    Attributes:
+        processes: P, the learning processes whose statistics the trial reports (rooms process-major).
+        sync_free: off the CPU, the trial may run a few decisions in rooms already empty (they change nothing), so
+            that no decision waits for the host.
+    """
+
+    processes: int
+    sync_free: bool
+
+    def begin(self, env: RoomEnv, obs: torch.Tensor, info: Mapping[str, Any]) -> None:
+        """The first observations of a trial, after the reset."""
+
+    def act(self, env: RoomEnv, obs: torch.Tensor, info: Mapping[str, Any]) -> torch.Tensor:
+        """Actions ``(R, N)`` int64 for the latest observations."""
+
+    def observe(
+        self,
+        obs: torch.Tensor,
+        info: Mapping[str, Any],
+        reward: torch.Tensor,
+        terminated: torch.Tensor,
+        valid: torch.Tensor,
+    ) -> None:
+        """The observations after a decision: ``reward``, ``terminated`` and ``valid`` (who acted) flat ``(R * N,)``."""
+
+    def td_error(self) -> torch.Tensor:
+        """``(P,)`` the trial's mean absolute TD error (0 without learning)."""
+
+
 class Learner:
     """A learned policy in the trial loop: it acts epsilon-greedily on ``policy``'s tables and, if ``learn``, applies
     equation 1 to ``policy.q_values`` in place with learning rate ``alpha`` and discount ``gamma``.
@@ -34,6 +68,8 @@ class Learner:
     ``generator`` draws the exploration, the ties and the random void fillings (the trainer's). On the CPU only the
     agents still in a room are encoded.
     """
+
+    sync_free = True
 
     def __init__(
         self,
@@ -93,6 +129,7 @@ class Acting:
     statistics are those of all rooms together (one process)."""
 
     processes = 1
+    sync_free = False
 
     def __init__(self, controller: Any) -> None:
         self.controller = controller
@@ -103,7 +140,14 @@ class Acting:
     def act(self, env: RoomEnv, obs: torch.Tensor, info: Mapping[str, Any]) -> torch.Tensor:
         return self.controller.act(env, obs, info)
 
-    def observe(self, *args: Any) -> None:
+    def observe(
+        self,
+        obs: torch.Tensor,
+        info: Mapping[str, Any],
+        reward: torch.Tensor,
+        terminated: torch.Tensor,
+        valid: torch.Tensor,
+    ) -> None:
         pass
 
     def td_error(self) -> torch.Tensor:
@@ -200,22 +244,22 @@ def crowd_loop(
     record: bool = False,
     start: tuple[torch.Tensor, Mapping[str, Any]] | None = None,
 ) -> CrowdRun:
-    """One trial in every room of ``env``, acted by ``controller`` (a :class:`Learner`, or any controller with
-    ``act(env, obs, info) -> (R, N)``), from a reset (``env``'s generator draws the scene) or from ``start``, the
-    ``(obs, info)`` of a reset the caller made (placed agents). ``record``: keep every frame.
+    """One trial in every room of ``env``, acted by ``controller`` (a :class:`Driver` such as a :class:`Learner`, or
+    any controller with ``act(env, obs, info) -> (R, N)``), from a reset (``env``'s generator draws the scene) or
+    from ``start``, the ``(obs, info)`` of a reset the caller made (placed agents). ``record``: keep every frame.
 
-    The trial ends when every room is empty. On the CPU, and whenever it records, the loop reads that flag after
-    every decision; otherwise only every :data:`DEVICE_CHECK_EVERY` decisions, so that no decision waits for the
-    host (the extra decisions of empty rooms change nothing).
+    The trial ends when every room is empty. The loop reads that flag after every decision, but off the CPU for an
+    unrecorded trial of a ``sync_free`` driver only every :data:`DEVICE_CHECK_EVERY` decisions, so that no decision
+    waits for the host (the extra decisions of empty rooms change nothing).
     """
-    driver = controller if isinstance(controller, Learner) else Acting(controller)
+    driver = controller if isinstance(controller, Driver) else Acting(controller)
     rooms, num_agents = env.num_replicas, env.num_agents
     obs, info = env.reset() if start is None else start
     driver.begin(env, obs, info)
     frames = Frames(env) if record else None
     totals = torch.zeros(len(TOTALS), rooms * num_agents, device=env.device)  # per agent, in TOTALS' order
     decisions = torch.zeros((), dtype=torch.int64, device=env.device)
-    check_every = 1 if env.device.type == "cpu" or record else DEVICE_CHECK_EVERY
+    check_every = DEVICE_CHECK_EVERY if driver.sync_free and not record and env.device.type != "cpu" else 1
     step = 0
     while step % check_every or bool(env.active.any()):
         valid = env.active.reshape(-1)

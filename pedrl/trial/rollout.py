@@ -1,12 +1,15 @@
 """The two rollouts of a phase: gathering the quantizer's states, and one learning (or acting) trial in every room.
 
 Both run the ``R = P E`` rooms of a trainer in lock-step (``P`` learning processes, ``E`` rooms each), agents of
-room ``r`` belonging to process ``r // E`` (:class:`pedrl.rl.TableLayout`).
+room ``r`` belonging to process ``r // E`` (:class:`pedrl.rl.TableLayout`), through the one trial loop
+(:func:`pedrl.trial.loop.crowd_loop`; a learning trial through :func:`pedrl.trial.crowd.run_crowd`, which may choose
+the fused trial instead).
 """
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from collections.abc import Mapping
+from typing import Any, NamedTuple
 
 import torch
 
@@ -14,7 +17,7 @@ from pedrl.rl import epsilon_greedy
 from pedrl.rl.policy import TableLayout, TabularPolicy
 from pedrl.sim import RoomEnv
 from pedrl.trial.crowd import run_crowd
-from pedrl.trial.loop import Learner
+from pedrl.trial.loop import Learner, crowd_loop
 from pedrl.trial.stats import TrialStats
 from pedrl.vq.encoder import StateEncoder
 
@@ -47,34 +50,74 @@ def gather(
 ) -> Gathered:
     """Record the states visited in ``trials`` trials, following ``policy`` epsilon-greedily (None: a random walk).
 
-    ``encoder`` prepares the observations (its quantizer is not used: ``policy`` encodes with its own).
+    ``encoder`` prepares the observations (its quantizer is not used: ``policy`` encodes with its own). The trials
+    run in the torch loop (:func:`pedrl.trial.loop.crowd_loop`), whatever ``fused`` says: a few per phase.
     """
-    rooms, num_agents = env.num_replicas, env.num_agents
-    process_of_row, _ = TableLayout(processes, 1, 1, rooms // processes).of(rooms, num_agents, env.device)
-    if policy is not None:
-        _, base_rows = policy.layout.of(rooms, num_agents, env.device)
-    chunks, counts, owners, successes = [], [], [], []
+    gatherer = Gatherer(env, encoder, policy, epsilon=epsilon, processes=processes, generator=generator)
+    successes = []
     for _ in range(trials):
-        obs, info = env.reset()
-        reached = torch.zeros(rooms, num_agents, dtype=torch.bool, device=env.device)
-        while True:
-            active = env.active.reshape(-1)
-            num_sensed = info["num_sensed"].reshape(-1)
-            flat_obs = encoder.prepare(obs.reshape(-1, env.num_features), num_sensed, info["decision"], generator)
-            chunks.append(flat_obs[active])
-            counts.append(num_sensed[active])
-            owners.append(process_of_row[active])
-            if policy is None:
-                actions = torch.randint(env.num_actions, (rooms * num_agents,), generator=generator, device=env.device)
-            else:
-                rows = base_rows + policy.encoder.encode_prepared(flat_obs, num_sensed)
-                actions = epsilon_greedy(policy.q_values, rows, epsilon, generator)
-            obs, _, terminated, truncated, info = env.step(actions.view(rooms, num_agents))
-            reached |= info["reached"]
-            if not bool(env.active.any()):
-                break
-        successes.append(reached.float().mean())
-    return Gathered(torch.cat(chunks), torch.cat(counts), torch.cat(owners), float(torch.stack(successes).mean()))
+        crowd_loop(env, gatherer)
+        successes.append(gatherer.reached.float().mean())
+    states, counts, owners = (torch.cat(parts) for parts in (gatherer.states, gatherer.counts, gatherer.owners))
+    return Gathered(states, counts, owners, float(torch.stack(successes).mean()))
+
+
+class Gatherer:
+    """The controller of :func:`gather` in the trial loop: before each decision it keeps the states of the agents in
+    the rooms as the quantizer sees them, then acts on them (randomly, or epsilon-greedily on ``policy``)."""
+
+    processes = 1
+    sync_free = False  # every decision's states are kept: no decision of an empty room
+
+    def __init__(
+        self,
+        env: RoomEnv,
+        encoder: StateEncoder,
+        policy: TabularPolicy | None,
+        *,
+        epsilon: float,
+        processes: int,
+        generator: torch.Generator,
+    ) -> None:
+        rooms, num_agents = env.num_replicas, env.num_agents
+        self.encoder, self.policy, self.epsilon, self.generator = encoder, policy, epsilon, generator
+        self.process_of_row, _ = TableLayout(processes, 1, 1, rooms // processes).of(rooms, num_agents, env.device)
+        if policy is not None:
+            _, self.base_rows = policy.layout.of(rooms, num_agents, env.device)
+        self.states: list[torch.Tensor] = []
+        self.counts: list[torch.Tensor] = []
+        self.owners: list[torch.Tensor] = []
+
+    def begin(self, env: RoomEnv, obs: torch.Tensor, info: Mapping[str, Any]) -> None:
+        self.reached = torch.zeros(env.num_replicas, env.num_agents, dtype=torch.bool, device=env.device)
+
+    def act(self, env: RoomEnv, obs: torch.Tensor, info: Mapping[str, Any]) -> torch.Tensor:
+        rooms, num_agents = env.num_replicas, env.num_agents
+        active = env.active.reshape(-1)
+        num_sensed = info["num_sensed"].reshape(-1)
+        flat_obs = self.encoder.prepare(obs.reshape(-1, env.num_features), num_sensed, info["decision"], self.generator)
+        self.states.append(flat_obs[active])
+        self.counts.append(num_sensed[active])
+        self.owners.append(self.process_of_row[active])
+        if self.policy is None:
+            actions = torch.randint(env.num_actions, (rooms * num_agents,), generator=self.generator, device=env.device)
+        else:
+            rows = self.base_rows + self.policy.encoder.encode_prepared(flat_obs, num_sensed)
+            actions = epsilon_greedy(self.policy.q_values, rows, self.epsilon, self.generator)
+        return actions.view(rooms, num_agents)
+
+    def observe(
+        self,
+        obs: torch.Tensor,
+        info: Mapping[str, Any],
+        reward: torch.Tensor,
+        terminated: torch.Tensor,
+        valid: torch.Tensor,
+    ) -> None:
+        self.reached |= info["reached"]
+
+    def td_error(self) -> torch.Tensor:
+        return torch.zeros(1)
 
 
 def run_trial(

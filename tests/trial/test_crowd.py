@@ -1,10 +1,11 @@
 """One crowd loop and one choice of its path (`pedrl.trial.loop`, `pedrl.trial.crowd`).
 
-Training (`run_trial`), `pedrl-eval` (`record_batch`) and `pedrl-validate` (`PedrlCrowd.simulate`) run their torch
-trials through the one loop, `crowd_loop`: a seeded run through each equals the loop's own output, and the loop is
-the one that ran. Whether a trial runs through the fused trial or that loop is chosen in one place,
-`pedrl.trial.crowd.choose_path`: read from the source with ``ast``, nothing else in the package calls the fused
-trial's entry points, asks the room whether the fast path can run it, or branches on the ``fused`` setting.
+Training (`gather`, `run_trial`), `pedrl-eval` (`record_batch`) and `pedrl-validate` (`PedrlCrowd.simulate`) run
+their torch trials through the one loop, `crowd_loop`, the only place of those packages that steps a room: a seeded
+run through each equals the loop's own output, and the loop is the one that ran. Whether a trial runs through the
+fused trial or that loop is chosen in one place, `pedrl.trial.crowd.choose_path`: read from the source with ``ast``,
+nothing else in the package calls the fused trial's entry points, asks the room whether the fast path can run it,
+or branches on the ``fused`` setting.
 """
 
 import ast
@@ -104,6 +105,34 @@ def test_only_the_chooser_runs_the_fused_trial_or_chooses_the_path():
         if choices:
             found[str(relative)] = choices
     assert not found, f"only pedrl/trial/crowd.py chooses the path of a trial: {found}"
+
+
+CROWD_RUNNERS = ("trial", "algos", "evaluation", "validation")
+"""The packages that run crowds of pedrl rooms: training, pedrl-eval, pedrl-validate."""
+STEPPERS = (PACKAGE / "trial" / "loop.py", PACKAGE / "trial" / "twins.py")
+"""Where a room is stepped: the one loop, and the twin harness (the torch path beside the kernels, decision by
+decision)."""
+
+
+def steps_a_room(source: str) -> list[int]:
+    """The lines of ``source`` that call a ``step`` method (``env.step(actions)``)."""
+    return [
+        node.lineno
+        for node in ast.walk(ast.parse(source))
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr == "step"
+    ]
+
+
+def test_one_loop_steps_the_rooms_of_training_evaluation_and_validation():
+    """Gathering, training, recording and validating a crowd all step their rooms through `crowd_loop`."""
+    assert steps_a_room("obs, *_ = self.env.step(actions)") == [1]
+    found = {}
+    for package in CROWD_RUNNERS:
+        for path in sorted((PACKAGE / package).rglob("*.py")):
+            lines = steps_a_room(path.read_text())
+            if lines and path not in STEPPERS:
+                found[str(path.relative_to(PACKAGE.parent))] = lines
+    assert not found, f"a crowd loop outside pedrl/trial/loop.py: {found}"
 
 
 def test_fused_is_a_boolean_or_null_and_true_is_refused_in_one_line():
