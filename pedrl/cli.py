@@ -18,8 +18,8 @@ from typing import Any, ClassVar, NoReturn, TypeVar
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
+from pedrl.common.checks import first_line
 from pedrl.io import CheckpointError
-from pedrl.sim.checks import first_line
 
 T = TypeVar("T")
 CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")

@@ -17,6 +17,16 @@ from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from pedrl.analysis.trajectories import Geometry
 from pedrl.cli import hydra_output_dir
+from pedrl.common.checks import (
+    MAX_SEED,
+    check_bool,
+    check_choice,
+    check_device,
+    check_integer,
+    check_memory,
+    check_number,
+    first_line,
+)
 from pedrl.evaluation.engine import (
     EvalSettings,
     Recorder,
@@ -33,16 +43,6 @@ from pedrl.integrations.jupedsim import INSTALL_HINT, JuPedSimModel, installed, 
 from pedrl.io.files import check_outputs
 from pedrl.runtime import set_threads
 from pedrl.sim import RoomEnv
-from pedrl.sim.checks import (
-    MAX_SEED,
-    check_bool,
-    check_choice,
-    check_device,
-    check_integer,
-    check_memory,
-    check_number,
-    first_line,
-)
 from pedrl.sim.routing import check_queue_weight
 from pedrl.trial.fused import check_fused
 

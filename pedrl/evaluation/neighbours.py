@@ -34,10 +34,10 @@ from typing import Final
 
 import torch
 
+from pedrl.common.checks import check_integer, check_number
 from pedrl.evaluation.resolution import distinct_counts
 from pedrl.policy_files import load_policy, room_factory
 from pedrl.rl.policy import TabularPolicy
-from pedrl.sim.checks import check_integer, check_number
 from pedrl.sim.geometry import X, Y
 from pedrl.sim.sensing import observe
 from pedrl.vq.encoder import StateEncoder

@@ -26,9 +26,9 @@ from dataclasses import dataclass
 
 import torch
 
+from pedrl.common.checks import MAX_SEED, check_integer, check_number
 from pedrl.policy_files import load_policy, room_factory
 from pedrl.rl.policy import TabularPolicy
-from pedrl.sim.checks import MAX_SEED, check_integer, check_number
 from pedrl.sim.sensing import observe
 from pedrl.vq.encoder import StateEncoder
 

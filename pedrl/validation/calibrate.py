@@ -65,7 +65,7 @@ def fit(env: Mapping[str, Any], time_gaps: Sequence[float], *, seed: int = 0) ->
 
 def main(argv: Sequence[str] | None = None) -> None:
     from pedrl.cli import CONFIG_DIR, OneLineParser, integer_arg, number_arg
-    from pedrl.sim.checks import MAX_SEED
+    from pedrl.common.checks import MAX_SEED
 
     presets = sorted(path.stem for path in (Path(CONFIG_DIR) / "experiment").glob("*.yaml"))
     parser = OneLineParser(prog="python -m pedrl.validation.calibrate", description=__doc__.split("\n")[0])

@@ -24,7 +24,7 @@ from typing import Any, Final
 
 import torch
 
-from pedrl.sim.checks import check_choice, check_integer, check_number
+from pedrl.common.checks import check_choice, check_integer, check_number
 from pedrl.sim.sensing import distance_indices, feature_indices, fill_void_neighbours, num_features, void_draws
 from pedrl.vq.quantizer import ProcessQuantizers, Quantizer, UnionQuantizer
 
