@@ -333,7 +333,7 @@ PROGRAM: Final = "python -m pedrl.evaluation.neighbours"
 
 
 def _parser() -> argparse.ArgumentParser:
-    from pedrl.cli import OneLineParser, integer_arg, number_arg
+    from pedrl.common.commands import OneLineParser, integer_arg, number_arg
 
     parser = OneLineParser(
         prog=PROGRAM, description="Prototypes a learned quantizer gives an agent as its neighbours move round it."
@@ -352,7 +352,7 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from pedrl.cli import fail
+    from pedrl.common.commands import fail
 
     args = _parser().parse_args(argv)
     settings = {

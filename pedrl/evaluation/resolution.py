@@ -174,7 +174,7 @@ PROGRAM = "python -m pedrl.evaluation.resolution"
 
 
 def _parser() -> argparse.ArgumentParser:
-    from pedrl.cli import OneLineParser, integer_arg, number_arg
+    from pedrl.common.commands import OneLineParser, integer_arg, number_arg
 
     parser = OneLineParser(
         prog=PROGRAM,
@@ -194,7 +194,7 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from pedrl.cli import fail
+    from pedrl.common.commands import fail
 
     args = _parser().parse_args(argv)
     try:  # every argument and every room checked before the first turn
