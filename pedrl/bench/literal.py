@@ -166,7 +166,7 @@ def _matmul(quantizer: Quantizer, raw: torch.Tensor, repeats: int) -> tuple[dict
 
 def main() -> None:
     """Command line: prints the result of `run` as JSON."""
-    from pedrl.cli import OneLineParser, integer_arg
+    from pedrl.common.commands import OneLineParser, integer_arg
 
     parser = OneLineParser(prog="python -m pedrl.bench.literal", description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="small problem")

@@ -25,7 +25,7 @@ from typing import Any, Final, NamedTuple
 import numpy as np
 import torch
 
-from pedrl.sim.checks import check_choice, check_integer, check_number
+from pedrl.common.checks import check_choice, check_integer, check_number
 from pedrl.sim.sensing import (
     MIN_VOID_DISTANCE,
     distance_indices,
