@@ -37,7 +37,11 @@ FAITHFUL = {
 REWARDS |= dict.fromkeys(FAITHFUL, "paper")
 RESULTS = Path(CONFIG_DIR).parent / "docs" / "results.md"
 HISTORY = Path(CONFIG_DIR).parent / "docs" / "history.md"
+README = Path(CONFIG_DIR).parent / "README.md"
+CONFIGURATION = Path(CONFIG_DIR).parent / "docs" / "configuration.md"
 FORMER_COMMENTS = "### Measured figures formerly in the config comments"
+SUPERSEDED_IN_CONF = re.compile(r"^# Superseded by experiment=(\w+): ", re.MULTILINE)
+SUPERSEDED_IN_TABLE = re.compile(r"^superseded by `(\w+)`")
 
 
 def quiet(cfg):
@@ -132,6 +136,65 @@ def test_measured_figures_are_in_the_docs_not_the_config(name):
     if "history.md#measured-figures-formerly-in-the-config-comments" in text:
         section = history.split(FORMER_COMMENTS, 1)[1].split("\n## ", 1)[0]
         assert f"`{name}" in section or f"{name}`" in section, name
+
+
+def experiment_tables():
+    """The experiment tables of the README and of docs/configuration.md: for each page, ``{preset: what}`` from the
+    rows whose first cell lists presets in backticks."""
+    tables = {}
+    for page in (README, CONFIGURATION):
+        rows = {}
+        table = page.read_text().split("| experiment | what |", 1)[1].split("\n\n", 1)[0]
+        for line in table.splitlines()[2:]:
+            first, what = line.split("|")[1:3]
+            rows |= dict.fromkeys(re.findall(r"`(\w+)`", first), what.strip())
+        tables[page.name] = rows
+    return tables
+
+
+def superseded_in_conf():
+    """``{preset: successor}`` of every experiment whose header labels it superseded."""
+    labels = {}
+    for name in EXPERIMENTS:
+        found = SUPERSEDED_IN_CONF.findall((Path(CONFIG_DIR) / "experiment" / f"{name}.yaml").read_text())
+        assert len(found) <= 1, f"experiment/{name}.yaml: one label at most"
+        if found:
+            labels[name] = found[0]
+    return labels
+
+
+def label_mismatches(tables, in_conf):
+    """What differs between the labels in conf/experiment/ and in each page's experiment table, as lines."""
+    problems = []
+    for page, rows in tables.items():
+        if set(rows) != set(EXPERIMENTS):
+            problems.append(f"{page}: rows {sorted(set(rows) ^ set(EXPERIMENTS))} differ from conf/experiment/")
+        in_table = {name: m.group(1) for name, what in rows.items() if (m := SUPERSEDED_IN_TABLE.match(what))}
+        if in_table != in_conf:
+            problems.append(f"{page} labels {in_table} superseded, conf/experiment/ labels {in_conf}")
+    return problems
+
+
+def test_presets_a_user_should_not_pick_are_labelled_alike_in_conf_and_the_docs():
+    """A preset labelled superseded in its header (``# Superseded by experiment=X: why``) is labelled so, with the same
+    successor, in the README's experiment table and in docs/configuration.md's ("superseded by `X`: why"), and no
+    other preset is; every preset has its row in both tables, and a successor is a preset that is not superseded."""
+    in_conf = superseded_in_conf()
+    assert {"main_heading", "pedestrian", "pedestrian_mix"} <= set(in_conf)
+    assert not label_mismatches(experiment_tables(), in_conf)
+    assert all(successor in EXPERIMENTS and successor not in in_conf for successor in in_conf.values())
+
+
+def test_a_superseded_label_missing_from_one_side_is_found():
+    """The controls: a label dropped from the README's table, and one added there that conf lacks."""
+    in_conf = superseded_in_conf()
+    dropped = experiment_tables()
+    dropped["README.md"]["pedestrian"] = "the main job with pedestrian bodies"
+    assert [line.split(" labels")[0] for line in label_mismatches(dropped, in_conf)] == ["README.md"]
+    added = experiment_tables()
+    added["configuration.md"]["tuned_it"] = "superseded by `main`: a label conf does not have"
+    assert [line.split(" labels")[0] for line in label_mismatches(added, in_conf)] == ["configuration.md"]
+    assert not label_mismatches(experiment_tables(), in_conf)
 
 
 # ---------------------------------------------------------------------- the paper, literally
