@@ -35,6 +35,9 @@ FAITHFUL = {
     "paper_faithful_in": "paper_in_full",
 }
 REWARDS |= dict.fromkeys(FAITHFUL, "paper")
+WEIGHTED = {f"paper_weighted_{method}": f"paper_faithful_{method}" for method in ("vqql", "it", "in")}
+"""The paper with one change: each paper_faithful preset with the feature weights."""
+REWARDS |= dict.fromkeys(WEIGHTED, "paper")
 RESULTS = Path(CONFIG_DIR).parent / "docs" / "results.md"
 HISTORY = Path(CONFIG_DIR).parent / "docs" / "history.md"
 README = Path(CONFIG_DIR).parent / "README.md"
@@ -286,6 +289,17 @@ def test_paper_faithful_presets_keep_every_stated_choice(name, compose, tmp_path
     phases = build_trainer(compose("train", [f"experiment={name}"]), tmp_path).phases()
     papers = {"paper_faithful_vqql": 109_686, "paper_faithful_it": 109_686, "paper_faithful_in": 990_000}
     assert sum(p.trials for p in phases) == papers[name]
+
+
+@pytest.mark.parametrize("name", sorted(WEIGHTED))
+def test_paper_weighted_presets_differ_from_the_faithful_ones_only_in_the_feature_weights(name, compose):
+    def flat(experiment):
+        return dict(leaves(OmegaConf.to_container(compose("train", [f"experiment={experiment}"]), resolve=True)))
+
+    weighted, faithful = flat(name), flat(WEIGHTED[name])
+    differ = {key for key in weighted.keys() | faithful.keys() if weighted.get(key) != faithful.get(key)}
+    assert differ == {"vq.weight_own", "vq.weight_neighbours", "vq.weight_walls"}
+    assert (weighted["vq.weight_own"], weighted["vq.weight_neighbours"], weighted["vq.weight_walls"]) == (4.0, 0.2, 0.5)
 
 
 @pytest.mark.parametrize("name", ["tuned_it", "tuned_in"])
