@@ -15,9 +15,9 @@ import torch
 from omegaconf import DictConfig, ListConfig
 
 from pedrl.cli import CONFIG_DIR, checked_groups, hydra_output_dir, run_reporting_errors
+from pedrl.common.checks import MAX_SEED, check_bool, check_choice, check_device, check_integer, check_number
 from pedrl.io.files import check_outputs
 from pedrl.runtime import set_threads
-from pedrl.sim.checks import MAX_SEED, check_bool, check_choice, check_device, check_integer, check_number
 from pedrl.sim.routing import check_queue_weight
 from pedrl.trial.crowd import choose_path
 from pedrl.validation.report import pass_count

@@ -34,12 +34,12 @@ from pedrl.algos.mix import merge_gathered, room_of_trial
 from pedrl.algos.phase import Phase, TrainResult
 from pedrl.algos.records import RunRecord, final_figures, interactive, report_phase
 from pedrl.algos.restore import load_resume
+from pedrl.common.checks import check_bool, check_choice, check_device, check_integer, check_memory, check_number
 from pedrl.configs import TrainingRoom
 from pedrl.io.files import remove_temporaries_in
 from pedrl.rl import LinearSchedule, zeros_q_values
 from pedrl.rl.policy import TabularPolicy
 from pedrl.sim import RoomEnv
-from pedrl.sim.checks import check_bool, check_choice, check_device, check_integer, check_memory, check_number
 from pedrl.trial.crowd import choose_path
 from pedrl.trial.rollout import Gathered, TrialStats, check_finite, gather, run_trial
 from pedrl.vq import Quantizer

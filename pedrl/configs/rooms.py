@@ -10,10 +10,10 @@ import inspect
 from collections.abc import Callable, Mapping
 from typing import Any, Final, NamedTuple
 
+from pedrl.common.checks import shown
 from pedrl.configs.names import ENV_CLASSES
 from pedrl.scenarios import build_scenario, inline_geometry
 from pedrl.sim import RoomEnv
-from pedrl.sim.checks import shown
 
 ENV_RUN_ARGUMENTS: Final = ("num_replicas", "num_agents", "device", "geometry")
 """Room arguments supplied at run time (not config values): the geometry comes from the ``scenario`` config."""

@@ -28,6 +28,7 @@ from pedrl.analysis import (
     write_pedpy_trajectory,
 )
 from pedrl.analysis.trajectories import Geometry
+from pedrl.common.checks import first_line
 from pedrl.evaluation.batch import BatchRecord, Recorder
 from pedrl.evaluation.jupedsim_reference import JuPedSimReference
 from pedrl.evaluation.report import write_density_map, write_fundamental_diagram, write_scaling_json
@@ -37,7 +38,6 @@ from pedrl.policy_files import load_policy, overridden, room_factory, room_setti
 from pedrl.rl.policy import PolicyController
 from pedrl.scenarios import Scenario, paper_room
 from pedrl.sim import RoomEnv
-from pedrl.sim.checks import first_line
 from pedrl.sim.controllers import Controller, GreedyDoorController
 from pedrl.trial.crowd import choose_path, run_crowd
 

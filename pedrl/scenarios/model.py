@@ -14,8 +14,8 @@ import shapely
 import torch
 from shapely.geometry import LineString, Point, Polygon, box
 
+from pedrl.common.checks import check_number
 from pedrl.scenarios.polygons import TOLERANCE, bounds_text, check_extent, check_polygon, coords_text
-from pedrl.sim.checks import check_number
 from pedrl.sim.env import MAX_DENSITY, RoomEnv
 from pedrl.sim.geometry import Geometry, SpawnArea, spawn_counts
 

@@ -1,21 +1,47 @@
 """The constants of a batch of rooms, :class:`RoomParams`: every setting of :class:`pedrl.sim.RoomEnv` but the batch
-shape, the device and the geometry, validated, with what the fast path (the fused numba trial) supports of each.
+shape, the device and the geometry, validated, with what the fast path (the fused numba trial) supports of each and
+how the fast path's kernels receive it.
 
-Each field declares its fast-path support with :func:`setting`: every value (:data:`ANY`), or only some
-(:func:`only`). :meth:`RoomParams.fast_path_reason` is an allow-list computed from those declarations, so a new
-setting cannot be silently ignored by the fast path: ``tests/sim/test_params.py`` fails for a constructor argument of
-``RoomEnv`` that has no field here, or a field without a declaration.
+Each field declares, with :func:`setting`, its fast-path support (every value, :data:`ANY`, or only some,
+:func:`only`) and how it reaches the kernels: :func:`kernel` (an entry of :data:`KernelRoom` computed from the value,
+named as the field or as told), :func:`derived` (an entry computed from the built room, for values that several
+settings make), :func:`through` (the setting takes part in another field's entry) or :func:`host` (the kernels never
+read it, with the reason). :meth:`RoomParams.fast_path_reason` is an allow-list computed from the support, and
+:data:`KernelRoom` and :meth:`RoomParams.kernel_room` are built from the packing declarations, so that a setting the
+fast path supports cannot be left out of what the kernels receive: a field without both declarations is a
+``TypeError`` when this module is imported.
 """
 
 from __future__ import annotations
 
+from collections import namedtuple
+from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 from typing import Any, Final
 
-__all__ = ["ANY", "FastSupport", "RoomParams", "only", "setting", "undeclared"]
+import numpy as np
+import torch
+
+from pedrl.sim.motion.common import CONTACT_MODELS, steering_array
+
+__all__ = [
+    "ANY",
+    "FastSupport",
+    "KernelRoom",
+    "RoomParams",
+    "derived",
+    "host",
+    "kernel",
+    "only",
+    "setting",
+    "through",
+    "undeclared",
+]
 
 FAST: Final = "fast"
 """The metadata key of a field's :class:`FastSupport`."""
+PACKING: Final = "packing"
+"""The metadata key of a field's :class:`Packing`."""
 
 
 @dataclass(frozen=True)
@@ -41,48 +67,92 @@ def only(*values: Any) -> FastSupport:
     return FastSupport(tuple(values))
 
 
-def setting(support: FastSupport) -> Any:
-    """A :class:`RoomParams` field with its fast-path ``support`` declared."""
-    return field(metadata={FAST: support})
+@dataclass(frozen=True)
+class Packing:
+    """How a setting reaches the kernels: as the entry ``entry`` of :data:`KernelRoom`, ``value(setting, room)``;
+    through another field's entry (``through``); or not at all (``host``, with the reason)."""
+
+    entry: str | None = None
+    value: Callable[[Any, Any], Any] | None = None
+    through: str | None = None
+    host: str | None = None
+
+
+def kernel(convert: Callable[[Any], Any], entry: str | None = None) -> Packing:
+    """The kernels read ``convert(value)`` as the entry ``entry`` (None: the field's name)."""
+    return Packing(entry, lambda value, room: convert(value))
+
+
+def derived(entry: str, value: Callable[[Any], Any]) -> Packing:
+    """The kernels read ``value(room)`` (the built ``RoomEnv``) as the entry ``entry``: a constant that this setting
+    and others make (e.g. the sub-steps of a decision)."""
+    return Packing(entry, lambda _, room: value(room))
+
+
+def through(entry: str) -> Packing:
+    """The setting reaches the kernels in another field's entry ``entry``."""
+    return Packing(through=entry)
+
+
+def host(reason: str) -> Packing:
+    """The kernels never read the setting (``reason``: where it acts instead)."""
+    return Packing(host=reason)
+
+
+def setting(support: FastSupport, packing: Packing) -> Any:
+    """A :class:`RoomParams` field with its fast-path ``support`` and its ``packing`` for the kernels declared."""
+    if not isinstance(support, FastSupport) or not isinstance(packing, Packing):
+        raise TypeError("setting(support, packing): a FastSupport (ANY, only(...)) and a Packing (kernel(...), ...)")
+    return field(metadata={FAST: support, PACKING: packing})
 
 
 def _shown(value: Any) -> str:
     return str(value).lower() if isinstance(value, bool) else str(value)
 
 
+_AREA: Final = "the walkable area, which the kernels read as walls and exits (Geometry.kernel_walls, kernel_exits)"
+
+
+def _float32(values: torch.Tensor) -> np.ndarray:
+    return values.to(torch.float32).numpy()
+
+
 @dataclass(frozen=True)
 class RoomParams:
     """The validated settings of a room (``RoomEnv(...)``'s arguments of the same names; units and meanings there)."""
 
-    width: float = setting(ANY)
-    length: float = setting(ANY)
-    door_width: float = setting(ANY)
-    agent_radius: float = setting(ANY)
-    max_speed: float = setting(ANY)
-    decisions_per_second: float = setting(ANY)
-    max_decisions: int = setting(ANY)
-    num_neighbours: int = setting(ANY)
-    num_walls: int = setting(ANY)
-    speed_ratios: tuple[float, ...] = setting(ANY)
-    turn_ratios: tuple[float, ...] = setting(ANY)
-    reward_goal: float = setting(ANY)
-    reward_crash_wall: float = setting(ANY)
-    reward_crash_agent: float = setting(ANY)
-    reward_default: float = setting(ANY)
-    substep_length: float = setting(ANY)
-    collision_rule: str = setting(only("sequential"))
-    collision_order: str = setting(ANY)
-    goal_depth: float = setting(ANY)
-    reward_progress: float = setting(ANY)
-    compile_sensing: bool = setting(only(False))  # the fast path senses in its own kernel
-    contact: str = setting(ANY)  # stop with walls that are not all axis-aligned: RoomEnv.fast_path_reason
-    time_gap: float = setting(ANY)
-    action_frame: str = setting(ANY)
-    motion: str = setting(ANY)
-    time_step: float = setting(ANY)
-    neighbour_repulsion: tuple[float, float] = setting(ANY)
-    wall_repulsion: tuple[float, float] = setting(ANY)
-    queue_weight: float = setting(ANY)  # used at placement, in torch
+    width: float = setting(ANY, host(_AREA))
+    length: float = setting(ANY, host(_AREA))
+    door_width: float = setting(ANY, host(_AREA))
+    agent_radius: float = setting(ANY, kernel(float))
+    max_speed: float = setting(ANY, kernel(np.float32))
+    decisions_per_second: float = setting(ANY, derived("decision_length", lambda room: float(room.decision_length)))
+    max_decisions: int = setting(ANY, kernel(int))
+    num_neighbours: int = setting(ANY, kernel(int))
+    num_walls: int = setting(ANY, kernel(int))
+    speed_ratios: tuple[float, ...] = setting(ANY, derived("speed_changes", lambda room: _float32(room.speed_changes)))
+    turn_ratios: tuple[float, ...] = setting(ANY, derived("turn_changes", lambda room: _float32(room.turn_changes)))
+    reward_goal: float = setting(ANY, kernel(np.float32))
+    reward_crash_wall: float = setting(ANY, kernel(np.float32))
+    reward_crash_agent: float = setting(ANY, kernel(np.float32))
+    reward_default: float = setting(ANY, kernel(np.float32))
+    substep_length: float = setting(ANY, derived("num_substeps", lambda room: int(room.num_substeps)))
+    collision_rule: str = setting(only("sequential"), host("the kernels run the sequential rule"))
+    collision_order: str = setting(ANY, kernel(lambda order: order == "door_first", "door_first"))
+    goal_depth: float = setting(ANY, host(_AREA))
+    reward_progress: float = setting(ANY, kernel(np.float32))
+    compile_sensing: bool = setting(only(False), host("the fast path senses in its own kernel"))
+    # contact=stop with walls that are not all axis-aligned: RoomEnv.fast_path_reason
+    contact: str = setting(ANY, kernel(CONTACT_MODELS.index))
+    time_gap: float = setting(ANY, kernel(float))
+    action_frame: str = setting(ANY, kernel(lambda frame: frame == "goal", "goal_frame"))
+    motion: str = setting(ANY, kernel(lambda motion: motion == "continuous", "continuous"))
+    time_step: float = setting(ANY, through("num_substeps"))
+    neighbour_repulsion: tuple[float, float] = setting(
+        ANY, derived("steering", lambda room: steering_array(getattr(room.motion, "steering", None)))
+    )
+    wall_repulsion: tuple[float, float] = setting(ANY, through("steering"))
+    queue_weight: float = setting(ANY, host("used at placement, in torch"))
 
     @classmethod
     def of(cls, room: Any) -> RoomParams:
@@ -99,6 +169,17 @@ class RoomParams:
         values = {f.name: special[f.name] if f.name in special else getattr(room, f.name) for f in fields(cls)}
         return cls(**{name: tuple(v) if isinstance(v, list) else v for name, v in values.items()})
 
+    def kernel_room(self, room: Any) -> KernelRoom:
+        """The constants the kernels read (:data:`KernelRoom`), each from its field's packing declaration; ``room``
+        is the built ``RoomEnv`` of these settings (for the :func:`derived` entries)."""
+        return KernelRoom(
+            **{
+                packing.entry or item.name: packing.value(getattr(self, item.name), room)
+                for item in fields(self)
+                if (packing := item.metadata[PACKING]).value is not None
+            }
+        )
+
     def fast_path_reason(self) -> str | None:
         """Why the fast path cannot run these settings (one phrase, the first setting it does not support), or None."""
         for item in fields(self):
@@ -109,5 +190,27 @@ class RoomParams:
 
 
 def undeclared(cls: type) -> list[str]:
-    """The fields of the dataclass ``cls`` that declare no fast-path support."""
-    return [item.name for item in fields(cls) if not isinstance(item.metadata.get(FAST), FastSupport)]
+    """The fields of the dataclass ``cls`` that declare no fast-path support or no packing."""
+    return [
+        item.name
+        for item in fields(cls)
+        if not isinstance(item.metadata.get(FAST), FastSupport) or not isinstance(item.metadata.get(PACKING), Packing)
+    ]
+
+
+def _kernel_entries(cls: type) -> list[str]:
+    """The entries of the kernels' room constants declared by ``cls``'s fields, in field order; ``TypeError`` for a
+    :func:`through` that names no entry, or two fields packed into one entry."""
+    packings = [(item.name, item.metadata[PACKING]) for item in fields(cls)]
+    entries = [packing.entry or name for name, packing in packings if packing.value is not None]
+    if len(set(entries)) != len(entries):
+        raise TypeError(f"two settings of {cls.__name__} are packed into one kernel entry: {entries}")
+    for name, packing in packings:
+        if packing.through is not None and packing.through not in entries:
+            raise TypeError(f"{cls.__name__}.{name} reaches the kernels through {packing.through!r}, no entry")
+    return entries
+
+
+KernelRoom = namedtuple("KernelRoom", _kernel_entries(RoomParams), module=__name__)
+"""The room constants the numba kernels read, by name: one entry per :func:`kernel` or :func:`derived` declaration of
+:class:`RoomParams` (built from the declarations, in field order)."""

@@ -25,7 +25,7 @@ from typing import Any, Final
 
 import torch
 
-from pedrl.sim.checks import check_number
+from pedrl.common.checks import check_number
 from pedrl.sim.geometry import RouteTable, X, Y
 
 __all__ = [

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch
@@ -22,15 +22,15 @@ import torch
 from pedrl._numba import numba
 from pedrl.rl.policy import PolicyController, TabularPolicy
 from pedrl.sim import RoomEnv
-from pedrl.sim.motion import CONTACT_MODELS
-from pedrl.sim.motion.common import steering_array
-from pedrl.sim.sensing import MIN_VOID_DISTANCE
-from pedrl.sim.state import RoomState
+from pedrl.sim.geometry import Exits, Walls
+from pedrl.sim.params import KernelRoom
+from pedrl.sim.spawning import Routes
+from pedrl.sim.state import KernelState, RoomState
 from pedrl.trial.stats import TOTALS, TrialStats
 from pedrl.vq.encoder import EncoderSettings, StateEncoder
 from pedrl.vq.quantizer import Quantizer
 
-__all__ = ["FusedRecord", "record_trial_fused", "run_trial_fused", "set_kernel_threads"]
+__all__ = ["FusedRecord", "RoomInputs", "record_trial_fused", "room_inputs", "run_trial_fused", "set_kernel_threads"]
 
 
 def set_kernel_threads(threads: int) -> None:
@@ -92,7 +92,7 @@ def record_trial_fused(env: RoomEnv, controller: Any, *, reset: bool = True) -> 
         env, policy, controller.epsilon, controller.generator, False, 0.0, 0.0, record=True, greedy=greedy, reset=reset
     )
     frames = int(steps.max()) + 1
-    positions, velocities, active = (a[:, :frames] for a in trace)
+    positions, velocities, active = trace.positions[:, :frames], trace.velocities[:, :frames], trace.present[:, :frames]
     for r, last in enumerate(room_steps.tolist()):  # a room that emptied early keeps its last frame, as in torch
         positions[r, last + 1 :] = positions[r, last]
         velocities[r, last + 1 :] = velocities[r, last]
@@ -113,12 +113,32 @@ def _walker_policy_for(settings: EncoderSettings, num_actions: int) -> TabularPo
     return TabularPolicy(StateEncoder(settings, quantizer), torch.zeros(1, 1, 1, num_actions))
 
 
+class RoomInputs(NamedTuple):
+    """What :func:`pedrl.sim.step_kernel.act_room` reads of a room besides its state (:func:`room_inputs`)."""
+
+    room: KernelRoom
+    walls: Walls
+    exits: Exits
+    routes: Routes
+
+
+def room_inputs(env: RoomEnv) -> RoomInputs:
+    """The room's constants, walls, exits and routes as the kernels read them, each built beside its type."""
+    return RoomInputs(
+        env.params.kernel_room(env),
+        env.geometry.kernel_walls(),
+        env.geometry.kernel_exits(),
+        env.spawns.kernel_routes(),
+    )
+
+
 def _launch(env, policy, epsilon, generator, learn, alpha, gamma, *, record, greedy=False, reset=True):
     """Reset ``env`` (unless ``reset`` is False), run :func:`pedrl.trial.fused_kernels.fused_trial` and write the
-    rooms' state back: the per-agent totals, the TD sums, each thread's decisions, the trace (empty unless ``record``)
-    and each room's decisions."""
+    rooms' state back: the per-agent totals, the TD sums, each thread's decisions, the trace (one frame unless
+    ``record``) and each room's decisions."""
+    from pedrl.sim.step_kernel import Events, Work
     from pedrl.sim.streams import seed_streams
-    from pedrl.trial.fused_kernels import fused_trial
+    from pedrl.trial.fused_kernels import Learning, Observed, Trace, fused_trial
     from pedrl.vq.encode_kernel import pack_encoder
 
     set_kernel_threads(torch.get_num_threads())
@@ -129,7 +149,7 @@ def _launch(env, policy, epsilon, generator, learn, alpha, gamma, *, record, gre
     process, base_rows = layout.of(rooms, agents, env.device)
     # rooms that learn into shared tables run in one thread; rooms that only read them, each in its own
     group = (layout.rooms_per_process if layout.blocks(rooms) else rooms) if learn else 1
-    state = _arrays(env.state)
+    state = env.state.arrays()
     streams = np.empty(rooms, np.uint64)
     seed_streams(np.uint64(int(torch.randint(0, 2**62, (1,), generator=generator))), streams)
     totals = np.zeros((len(TOTALS), rooms, agents))
@@ -137,131 +157,47 @@ def _launch(env, policy, epsilon, generator, learn, alpha, gamma, *, record, gre
     steps = np.zeros(rooms // group, np.int64)
     settings = policy.encoder.settings
     random_void = settings.void_features == "random"
-    frames = env.max_decisions + 1 if record else 1
-    trace = (np.zeros((rooms, frames, agents if record else 1, 2), np.float32),
-             np.zeros((rooms, frames, agents if record else 1, 2), np.float32),
-             np.zeros((rooms, frames, agents if record else 1), np.bool_))  # fmt: skip
-    learning = (np.float32(epsilon), learn, np.float32(alpha), np.float32(gamma), settings.void_draws == "decision",
-                greedy)  # fmt: skip
+    trace = Trace.allocate(rooms, env.max_decisions + 1 if record else 1, agents if record else 1)
+    learning = Learning(np.float32(epsilon), learn, np.float32(alpha), np.float32(gamma),
+                        settings.void_draws == "decision", greedy)  # fmt: skip
+    packed = pack_encoder(policy.encoder, policy.num_processes)
+    inputs = room_inputs(env)
     fused_trial(
         group,
         state,
-        _room(env),
-        _walls(env),
-        _exits(env),
-        *pack_encoder(policy.encoder, policy.num_processes),
-        _encoding(settings),
+        inputs.room,
+        inputs.walls,
+        inputs.exits,
+        inputs.routes,
+        packed.arrays,
+        packed.tree,
+        packed.pruned,
+        settings.kernel(),
         learning,
         policy.q_values.view(-1, policy.num_actions).numpy(),
         base_rows.view(rooms, agents).numpy(),
         process.view(rooms, agents)[:, 0].contiguous().numpy(),
         streams,
-        _work(env),
-        _events(rooms, agents),
-        _observed(rooms, agents, env.num_features),
+        Work.allocate(rooms, agents, env.num_substeps),
+        Events.allocate(rooms, agents),
+        Observed.allocate(rooms, agents, env.num_features),
         np.zeros((rooms, agents, 3 * settings.num_neighbours + 1 if random_void else 1), np.float32),
         totals,
         td_sums,
         steps,
         trace,
     )
-    room_steps = state[7].copy()  # each room's own decisions, before every clock is set to the trial's
+    room_steps = state.decisions.copy()  # each room's own decisions, before every clock is set to the trial's
     _write_back(env, state, int(steps.max()))
     return totals, td_sums, steps, trace, room_steps
 
 
-def _arrays(state: RoomState) -> tuple[np.ndarray, ...]:
-    """The kernels' ``state`` tuple: a contiguous array of each field, in :class:`RoomState`'s order."""
-    return tuple(t.contiguous().numpy() for t in state.tensors())
-
-
-def _write_back(env: RoomEnv, state: tuple[np.ndarray, ...], steps: int) -> None:
+def _write_back(env: RoomEnv, state: KernelState, steps: int) -> None:
     """The rooms' state after the trial, into ``env``: every room's clock at the trial's decisions (as the torch loop,
     which steps every room until all are empty), the trial clock advanced by them."""
-    after = RoomState(*(torch.from_numpy(a) for a in state))
+    after = RoomState.from_arrays(state)
     after.decisions.fill_(steps)
     env.load_state(after, decisions_taken=steps)
-
-
-def _room(env: RoomEnv) -> tuple[Any, ...]:
-    rewards = env.rewards
-    return (
-        env.speed_changes.to(torch.float32).numpy(),
-        env.turn_changes.to(torch.float32).numpy(),
-        np.float32(env.max_speed),
-        float(env.decision_length),
-        int(env.num_substeps),
-        float(env.agent_radius),
-        CONTACT_MODELS.index(env.contact),
-        env.collision_order == "door_first",
-        float(env.time_gap),
-        env.action_frame == "goal",
-        int(env.max_decisions),
-        np.array([rewards.goal, rewards.crash_wall, rewards.crash_agent, rewards.default], np.float32),
-        np.float32(env.reward_progress),
-        env.spawns.assigned_exit.expand(env.num_replicas, env.num_agents).contiguous().numpy(),
-        env.geometry.exit_goals.contiguous().numpy(),
-        env.motion_model == "continuous",
-        steering_array(getattr(env.motion, "steering", None)),
-        env.spawns.waypoints.to(torch.float32).contiguous().numpy(),
-        env.spawns.route_length.contiguous().numpy(),
-        np.float32(env.geometry.waypoint_radius),
-    )
-
-
-def _encoding(settings: EncoderSettings) -> tuple[Any, ...]:
-    """The ``settings`` tuple of :func:`pedrl.vq.encode_kernel.encode_agent`."""
-    return (
-        settings.num_neighbours,
-        np.float32(settings.max_distance),
-        np.float32(settings.max_speed),
-        np.float32(MIN_VOID_DISTANCE),
-        settings.void_features == "random",
-        settings.distance_transform == "log",
-    )
-
-
-def _walls(env: RoomEnv) -> tuple[np.ndarray, ...]:
-    from pedrl.sim.motion.sliding import _wall_segments
-
-    geometry = env.geometry
-    starts, directions, inverse = _wall_segments(geometry)
-    parts = (starts, directions, inverse, geometry.aligned_walls, geometry.box_low, geometry.box_high)
-    return tuple(t.contiguous().numpy() for t in parts)
-
-
-def _exits(env: RoomEnv) -> tuple[np.ndarray, ...]:
-    geometry = env.geometry
-    parts = (geometry.exits[:, 0], geometry.exit_normals, geometry.exit_tangents, geometry.exit_spans)
-    return tuple(t.contiguous().numpy() for t in parts)
-
-
-def _work(env: RoomEnv) -> tuple[np.ndarray, ...]:
-    """Scratch of :func:`pedrl.sim.step_kernel.act_room`, one row per room."""
-    shape = (env.num_replicas, env.num_agents)
-    flags = [np.zeros(shape, np.bool_) for _ in range(6)]
-    floats = (np.zeros((*shape, 2), np.float32), np.zeros((*shape, 2), np.float32))
-    return (
-        *floats,
-        flags[0],
-        flags[1],
-        np.zeros(shape, np.int64),
-        np.zeros(shape, np.float32),
-        *flags[2:],
-        np.zeros((env.num_substeps, 1, 1), np.bool_),
-        np.zeros(shape, np.float32),
-    )
-
-
-def _events(rooms: int, agents: int) -> tuple[np.ndarray, ...]:
-    """``(reward, left, goal, crashed_wall, crashed_agent, acting, in_room)`` of the latest decision."""
-    return (np.zeros((rooms, agents), np.float32), *(np.zeros((rooms, agents), np.bool_) for _ in range(6)))
-
-
-def _observed(rooms: int, agents: int, features: int) -> tuple[np.ndarray, ...]:
-    """``(features, num_sensed, rows, next_rows, actions)``."""
-    shape = (rooms, agents)
-    return (np.zeros((*shape, features), np.float32), *(np.zeros(shape, np.int64) for _ in range(4)))
 
 
 def _stats(env: RoomEnv, totals: torch.Tensor, td_sums: np.ndarray, steps: np.ndarray, processes: int,
