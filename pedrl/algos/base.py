@@ -40,8 +40,9 @@ from pedrl.io.files import remove_temporaries_in
 from pedrl.rl import LinearSchedule, zeros_q_values
 from pedrl.rl.policy import TabularPolicy
 from pedrl.sim import RoomEnv
-from pedrl.trial.crowd import choose_path
-from pedrl.trial.rollout import Gathered, TrialStats, check_finite, gather, run_trial
+from pedrl.trial.crowd import choose_path, run_crowd
+from pedrl.trial.loop import Learner
+from pedrl.trial.rollout import Gathered, TrialStats, check_finite, gather
 from pedrl.vq import Quantizer
 from pedrl.vq.encoder import VOID_DRAWS, VOID_FEATURES, EncoderSettings, StateEncoder
 from pedrl.vq.settings import VQSettings
@@ -403,22 +404,16 @@ class Trainer:
     def run_trial(
         self, env: RoomEnv, quantizer: Any, q_values: torch.Tensor, *, epsilon: float, learn: bool
     ) -> TrialStats:
-        """One trial in every room with the tables ``q_values`` over ``quantizer`` (see
-        :func:`pedrl.trial.rollout.run_trial`)."""
+        """One trial in every room with the tables ``q_values`` over ``quantizer`` (:meth:`_trial`)."""
         return self._trial(env, self.policy(quantizer, q_values), epsilon=epsilon, learn=learn)
 
     def _trial(self, env: RoomEnv, policy: TabularPolicy, *, epsilon: float, learn: bool) -> TrialStats:
-        """:func:`pedrl.trial.rollout.run_trial` with this trainer's generator, equation 1's constants and ``fused``."""
-        return run_trial(
-            env,
-            policy,
-            epsilon=epsilon,
-            generator=self.generator,
-            learn=learn,
-            alpha=self.alpha,
-            gamma=self.gamma,
-            fused=self.fused,
+        """A :class:`~pedrl.trial.loop.Learner`'s trial with this trainer's generator and equation 1's constants, on
+        the path ``fused`` chooses (:func:`pedrl.trial.crowd.run_crowd`)."""
+        learner = Learner(
+            policy, epsilon=epsilon, generator=self.generator, learn=learn, alpha=self.alpha, gamma=self.gamma
         )
+        return run_crowd(env, learner, fused=self.fused).stats
 
     def trial_path(self) -> tuple[str, str | None]:
         """Where this trainer's trials run, ``"fused"`` or ``"torch"`` (a seed gives other numbers on each), and why

@@ -1,6 +1,6 @@
 """One trial of a crowd, through the path chosen here: the fused trial or the torch loop.
 
-:func:`run_crowd` is what training (:func:`pedrl.trial.rollout.run_trial`), ``pedrl-eval``
+:func:`run_crowd` is what training (:func:`pedrl.trial.loop.crowd_loop`), ``pedrl-eval``
 (:func:`pedrl.evaluation.engine.record_batch`) and ``pedrl-validate`` (:class:`pedrl.validation.crowds.PedrlCrowd`)
 run a trial with; :func:`choose_path` is the one place that chooses its path, and the one that refuses
 ``fused=true`` in one line where the fused trial cannot run. ``fused`` is the setting of every entry point:
@@ -87,16 +87,7 @@ def run_crowd(
     if choose_path([env], controller, fused, record=record, placed=start is not None).name == "torch":
         return crowd_loop(env, controller, record=record, start=start)
     if isinstance(controller, Learner):
-        stats = run_trial_fused(
-            env,
-            controller.policy,
-            epsilon=controller.epsilon,
-            generator=controller.generator,
-            learn=controller.learn,
-            alpha=controller.alpha,
-            gamma=controller.gamma,
-        )
-        return CrowdRun(stats, None)
+        return CrowdRun(run_trial_fused(env, controller), None)
     trace = record_trial_fused(env, controller, reset=start is None)
     return CrowdRun(_fused_stats(env, trace), _fused_record(trace) if record else None)
 

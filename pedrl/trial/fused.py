@@ -26,6 +26,7 @@ from pedrl.sim.geometry import Exits, Walls
 from pedrl.sim.params import KernelRoom
 from pedrl.sim.spawning import Routes
 from pedrl.sim.state import KernelState, RoomState
+from pedrl.trial.loop import Learner
 from pedrl.trial.stats import TOTALS, TrialStats
 from pedrl.vq.encoder import EncoderSettings, StateEncoder
 from pedrl.vq.quantizer import Quantizer
@@ -42,21 +43,15 @@ def set_kernel_threads(threads: int) -> None:
     module.set_num_threads(max(1, min(threads, module.config.NUMBA_NUM_THREADS)))
 
 
-def run_trial_fused(
-    env: RoomEnv,
-    policy: TabularPolicy,
-    *,
-    epsilon: float,
-    generator: torch.Generator,
-    learn: bool,
-    alpha: float = 0.0,
-    gamma: float = 0.0,
-) -> TrialStats:
-    """A learning (or acting) trial of ``policy`` as one compiled pass (module docstring): the arguments and
-    statistics of a :class:`pedrl.trial.loop.Learner`'s trial. ``generator`` gives the trial's seed (one draw); the
+def run_trial_fused(env: RoomEnv, learner: Learner) -> TrialStats:
+    """``learner``'s trial (a learning or acting trial of its policy) as one compiled pass (module docstring): the
+    statistics of :func:`pedrl.trial.loop.crowd_loop`'s. Its ``generator`` gives the trial's seed (one draw); the
     room's resets draw from ``env.generator``."""
-    totals, td_sums, steps, _, _ = _launch(env, policy, epsilon, generator, learn, alpha, gamma, record=False)
-    return _stats(env, torch.from_numpy(totals).float(), td_sums, steps, policy.num_processes, learn)
+    policy = learner.policy
+    totals, td_sums, steps, _, _ = _launch(
+        env, policy, learner.epsilon, learner.generator, learner.learn, learner.alpha, learner.gamma, record=False
+    )
+    return _stats(env, torch.from_numpy(totals).float(), td_sums, steps, policy.num_processes, learner.learn)
 
 
 @dataclass(frozen=True)

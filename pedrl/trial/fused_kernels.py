@@ -1,4 +1,4 @@
-"""The fused trial: the torch trial loop (:func:`pedrl.trial.rollout.run_trial`) as one compiled loop per learning
+"""The fused trial: the torch trial loop (:func:`pedrl.trial.loop.crowd_loop`) as one compiled loop per learning
 process, composed of the stage kernels that sit beside their torch twins:
 
 - act: :func:`pedrl.sim.step_kernel.act_room` (:meth:`pedrl.sim.RoomEnv.step` without the observation);

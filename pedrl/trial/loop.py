@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, Final, NamedTuple, Protocol, runtime_checkable
+from typing import Any, Final, NamedTuple
 
 import numpy as np
 import torch
@@ -27,10 +27,9 @@ DEVICE_CHECK_EVERY: Final = 8
 """Decisions between two reads of "is any room still occupied" by an unrecorded trial on a GPU (each read waits)."""
 
 
-@runtime_checkable
-class Driver(Protocol):
-    """What :func:`crowd_loop` drives a trial with (a :class:`Learner`, the trainers' gathering; any other
-    controller is wrapped as :class:`Acting`).
+class Driver:
+    """What :func:`crowd_loop` drives a trial with: a :class:`Learner`, the trainers' gathering, or any other
+    controller wrapped as :class:`Acting`. The defaults act on nothing and learn nothing.
 
     Attributes:
         processes: P, the learning processes whose statistics the trial reports (rooms process-major).
@@ -38,14 +37,15 @@ class Driver(Protocol):
             that no decision waits for the host.
     """
 
-    processes: int
-    sync_free: bool
+    processes = 1
+    sync_free = False
 
     def begin(self, env: RoomEnv, obs: torch.Tensor, info: Mapping[str, Any]) -> None:
         """The first observations of a trial, after the reset."""
 
     def act(self, env: RoomEnv, obs: torch.Tensor, info: Mapping[str, Any]) -> torch.Tensor:
         """Actions ``(R, N)`` int64 for the latest observations."""
+        raise NotImplementedError
 
     def observe(
         self,
@@ -59,9 +59,10 @@ class Driver(Protocol):
 
     def td_error(self) -> torch.Tensor:
         """``(P,)`` the trial's mean absolute TD error (0 without learning)."""
+        return torch.zeros(self.processes)
 
 
-class Learner:
+class Learner(Driver):
     """A learned policy in the trial loop: it acts epsilon-greedily on ``policy``'s tables and, if ``learn``, applies
     equation 1 to ``policy.q_values`` in place with learning rate ``alpha`` and discount ``gamma``.
 
@@ -97,16 +98,8 @@ class Learner:
         self._actions = epsilon_greedy(self.policy.q_values, self._rows, self.epsilon, self.generator)
         return self._actions.view(env.num_replicas, env.num_agents)
 
-    def observe(
-        self,
-        obs: torch.Tensor,
-        info: Mapping[str, Any],
-        reward: torch.Tensor,
-        terminated: torch.Tensor,
-        valid: torch.Tensor,
-    ) -> None:
-        """Encode the observations after a decision and learn from it: ``reward``, ``terminated`` and ``valid`` (who
-        acted) flat ``(R * N,)``."""
+    def observe(self, obs, info, reward, terminated, valid) -> None:
+        """Encode the observations after a decision and learn from it (:meth:`Driver.observe`)."""
         in_room = valid & ~terminated  # their next state is needed: in the room, or cut by the clock
         next_rows = self.policy.rows(obs, info, self.generator, rows_mask=in_room if self._on_cpu else None)
         if self.learn:
@@ -118,40 +111,20 @@ class Learner:
         self._rows = next_rows
 
     def td_error(self) -> torch.Tensor:
-        """``(P,)`` the trial's mean absolute TD error (0 without learning)."""
         if not self.learn:
-            return torch.zeros(self.processes)
+            return super().td_error()
         return (self._td_total[0] / self._td_total[1].clamp_min(1)).expand(self.processes)
 
 
-class Acting:
+class Acting(Driver):
     """A controller with ``act(env, obs, info) -> (R, N)`` in the trial loop: it acts and learns nothing; its
     statistics are those of all rooms together (one process)."""
-
-    processes = 1
-    sync_free = False
 
     def __init__(self, controller: Any) -> None:
         self.controller = controller
 
-    def begin(self, env: RoomEnv, obs: torch.Tensor, info: Mapping[str, Any]) -> None:
-        pass
-
     def act(self, env: RoomEnv, obs: torch.Tensor, info: Mapping[str, Any]) -> torch.Tensor:
         return self.controller.act(env, obs, info)
-
-    def observe(
-        self,
-        obs: torch.Tensor,
-        info: Mapping[str, Any],
-        reward: torch.Tensor,
-        terminated: torch.Tensor,
-        valid: torch.Tensor,
-    ) -> None:
-        pass
-
-    def td_error(self) -> torch.Tensor:
-        return torch.zeros(1)
 
 
 @dataclass(frozen=True)

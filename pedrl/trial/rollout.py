@@ -16,8 +16,7 @@ import torch
 from pedrl.rl import epsilon_greedy
 from pedrl.rl.policy import TableLayout, TabularPolicy
 from pedrl.sim import RoomEnv
-from pedrl.trial.crowd import run_crowd
-from pedrl.trial.loop import Learner, crowd_loop
+from pedrl.trial.loop import Driver, crowd_loop
 from pedrl.trial.stats import TrialStats
 from pedrl.vq.encoder import StateEncoder
 
@@ -62,12 +61,11 @@ def gather(
     return Gathered(states, counts, owners, float(torch.stack(successes).mean()))
 
 
-class Gatherer:
+class Gatherer(Driver):
     """The controller of :func:`gather` in the trial loop: before each decision it keeps the states of the agents in
     the rooms as the quantizer sees them, then acts on them (randomly, or epsilon-greedily on ``policy``)."""
 
-    processes = 1
-    sync_free = False  # every decision's states are kept: no decision of an empty room
+    # sync_free stays False: every decision's states are kept, no decision of an empty room
 
     def __init__(
         self,
@@ -106,41 +104,8 @@ class Gatherer:
             actions = epsilon_greedy(self.policy.q_values, rows, self.epsilon, self.generator)
         return actions.view(rooms, num_agents)
 
-    def observe(
-        self,
-        obs: torch.Tensor,
-        info: Mapping[str, Any],
-        reward: torch.Tensor,
-        terminated: torch.Tensor,
-        valid: torch.Tensor,
-    ) -> None:
+    def observe(self, obs, info, reward, terminated, valid) -> None:
         self.reached |= info["reached"]
-
-    def td_error(self) -> torch.Tensor:
-        return torch.zeros(1)
-
-
-def run_trial(
-    env: RoomEnv,
-    policy: TabularPolicy,
-    *,
-    epsilon: float,
-    generator: torch.Generator,
-    learn: bool,
-    alpha: float = 0.0,
-    gamma: float = 0.0,
-    fused: bool | None = None,
-) -> TrialStats:
-    """Run one trial in every room, acting epsilon-greedily and (if ``learn``) applying equation 1 to
-    ``policy.q_values`` in place with learning rate ``alpha`` and discount ``gamma``: a
-    :class:`~pedrl.trial.loop.Learner`'s trial.
-
-    ``fused``: run the trial as one compiled pass (:mod:`pedrl.trial.fused`; a one-line ``ValueError`` where it
-    cannot run), or the torch loop (:func:`pedrl.trial.loop.crowd_loop`), the reference (False); None: the fused
-    pass wherever it can run (on the CPU with numba). :func:`pedrl.trial.crowd.run_crowd` chooses.
-    """
-    learner = Learner(policy, epsilon=epsilon, generator=generator, learn=learn, alpha=alpha, gamma=gamma)
-    return run_crowd(env, learner, fused=fused).stats
 
 
 def check_finite(phase_index: int, trial: int, stats: TrialStats, q_values: torch.Tensor, *, last: bool) -> None:

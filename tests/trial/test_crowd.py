@@ -1,6 +1,6 @@
 """One crowd loop and one choice of its path (`pedrl.trial.loop`, `pedrl.trial.crowd`).
 
-Training (`gather`, `run_trial`), `pedrl-eval` (`record_batch`) and `pedrl-validate` (`PedrlCrowd.simulate`) run
+Training (`gather`, `Trainer.run_trial`), `pedrl-eval` (`record_batch`) and `pedrl-validate` (`PedrlCrowd.simulate`) run
 their torch trials through the one loop, `crowd_loop`, the only place of those packages that steps a room: a seeded
 run through each equals the loop's own output, and the loop is the one that ran. Whether a trial runs through the
 fused trial or that loop is chosen in one place, `pedrl.trial.crowd.choose_path`: read from the source with ``ast``,
@@ -22,7 +22,7 @@ from pedrl.sim.controllers import GreedyDoorController
 from pedrl.trial import crowd
 from pedrl.trial.crowd import choose_path, run_crowd
 from pedrl.trial.loop import Learner, crowd_loop
-from pedrl.trial.rollout import gather, run_trial
+from pedrl.trial.rollout import gather
 from pedrl.validation.crowds import PedrlCrowd
 from pedrl.vq.encoder import EncoderSettings, StateEncoder
 from pedrl.vq.quantizer import Quantizer
@@ -192,21 +192,22 @@ def loop_calls(monkeypatch):
 
 
 def test_training_s_torch_trial_is_the_loop_s(loop_calls):
-    """run_trial(fused=False): the statistics and the learned tables of the loop run with a Learner, to the bit."""
+    """A trainer's trial (run_crowd with a Learner, fused=False): the statistics and the learned tables of the loop
+    run with a Learner, to the bit."""
     runs = []
-    for through in ("run_trial", "loop"):
+    for through in ("run_crowd", "loop"):
         env = small_room()
         policy = small_policy(env)
         env.reset(seed=5)
         generator = torch.Generator().manual_seed(7)
         settings = dict(epsilon=0.3, generator=generator, learn=True, alpha=0.2, gamma=0.9)
-        if through == "run_trial":
-            stats = [run_trial(env, policy, **settings, fused=False) for _ in range(2)]
+        if through == "run_crowd":
+            stats = [run_crowd(env, Learner(policy, **settings), fused=False).stats for _ in range(2)]
         else:
             stats = [crowd_loop(env, Learner(policy, **settings)).stats for _ in range(2)]
         runs.append((stats, policy.q_values))
     (mine, tables), (theirs, loop_tables) = runs
-    assert loop_calls == [False, False]  # both trials of run_trial went through the loop
+    assert loop_calls == [False, False]  # both trials of run_crowd went through the loop
     assert torch.equal(tables, loop_tables) and mine[1].agent_decisions > 0
     for a, b in zip(mine, theirs, strict=True):
         assert a.decisions == b.decisions and a.agent_decisions == b.agent_decisions

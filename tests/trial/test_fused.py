@@ -28,7 +28,9 @@ from pedrl.sim.actions import GOAL_SPEED_RATIOS, GOAL_TURN_RATIOS
 from pedrl.sim.sensing import observe
 from pedrl.train import train as train_run
 from pedrl.trial import fused
-from pedrl.trial.rollout import gather, run_trial
+from pedrl.trial.crowd import run_crowd
+from pedrl.trial.loop import Learner
+from pedrl.trial.rollout import gather
 from pedrl.vq.encoder import EncoderSettings, StateEncoder
 from pedrl.vq.quantizer import ProcessQuantizers, Quantizer, UnionQuantizer
 from tests.conftest import compose_config
@@ -222,8 +224,8 @@ def train(
     previous = torch.get_num_threads()
     torch.set_num_threads(threads)
     try:
-        rates = [float(run_trial(env, policy, epsilon=0.2, generator=generator, learn=True, alpha=0.3, gamma=0.9,
-                                 fused=fused_trial).success_rate.mean()) for _ in range(trials)]  # fmt: skip
+        learner = Learner(policy, epsilon=0.2, generator=generator, learn=True, alpha=0.3, gamma=0.9)
+        rates = [float(run_crowd(env, learner, fused=fused_trial).stats.success_rate.mean()) for _ in range(trials)]
     finally:
         torch.set_num_threads(previous)
     return rates, policy.q_values
@@ -288,8 +290,9 @@ def test_fused_true_is_refused_in_one_line_where_it_cannot_run():
     env = RoomEnv(num_replicas=2, num_agents=4, width=10, length=10, collision_rule="simultaneous")
     policy = policies(RoomEnv(num_replicas=2, num_agents=4, width=10, length=10), 2)["shared"]
     with pytest.raises(ValueError, match=r"^fused=true is invalid: .*collision_rule=simultaneous"):
-        run_trial(env, policy, epsilon=0.1, generator=torch.Generator(), learn=False, fused=True)
-    stats = run_trial(env, policy, epsilon=0.1, generator=torch.Generator(), learn=False)  # null: the torch loop
+        run_crowd(env, Learner(policy, epsilon=0.1, generator=torch.Generator(), learn=False), fused=True)
+    learner = Learner(policy, epsilon=0.1, generator=torch.Generator(), learn=False)
+    stats = run_crowd(env, learner, fused=None).stats  # null: the torch loop
     assert stats.agent_decisions > 0
 
 
