@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from pedrl.cli import OneLineParser, describe_os_error, fail
+from pedrl.common.commands import OneLineParser, describe_os_error, fail
 from pedrl.configs import embed_geometry
 from pedrl.io import CheckpointError
 from pedrl.io.files import check_outputs

@@ -14,8 +14,8 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from pedrl.cli import CONFIG_DIR, checked_groups, run_reporting_errors
+from pedrl.common.checks import check_device
 from pedrl.io.files import check_outputs
-from pedrl.sim.checks import check_device
 
 
 def export(cfg: DictConfig) -> Path:

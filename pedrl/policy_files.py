@@ -33,6 +33,7 @@ from typing import Any, Final
 
 import torch
 
+from pedrl.common.checks import check_device, first_line, shown
 from pedrl.configs import (
     ALGO_TARGETS,
     VOID_FEATURES_DEFAULTS,
@@ -46,7 +47,6 @@ from pedrl.configs import (
 from pedrl.io import Checkpoint, CheckpointError, load_checkpoint
 from pedrl.rl.policy import POLICY_KIND, TabularPolicy, check_policy_file, from_tensors
 from pedrl.sim import RoomEnv
-from pedrl.sim.checks import check_device, first_line, shown
 from pedrl.vq.encoder import EncoderSettings
 
 RNG_KEYS: Final = ("rng/trainer", "rng/env")

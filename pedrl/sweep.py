@@ -198,7 +198,8 @@ def main(argv: Sequence[str] | None = None) -> None:
 
     A missing or unfinished sweep directory ends in one line on stderr and exit code 2.
     """
-    from pedrl.cli import OneLineParser, run_reporting_errors
+    from pedrl.cli import run_reporting_errors
+    from pedrl.common.commands import OneLineParser
 
     parser = OneLineParser(
         prog="pedrl-sweep",

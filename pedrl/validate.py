@@ -15,11 +15,11 @@ import torch
 from omegaconf import DictConfig, ListConfig
 
 from pedrl.cli import CONFIG_DIR, checked_groups, hydra_output_dir, run_reporting_errors
+from pedrl.common.checks import MAX_SEED, check_bool, check_choice, check_device, check_integer, check_number
 from pedrl.io.files import check_outputs
 from pedrl.runtime import set_threads
-from pedrl.sim.checks import MAX_SEED, check_bool, check_choice, check_device, check_integer, check_number
 from pedrl.sim.routing import check_queue_weight
-from pedrl.trial.fused import check_fused
+from pedrl.trial.crowd import choose_path
 from pedrl.validation.report import pass_count
 from pedrl.validation.runner import CHOICES, columns, validate
 from pedrl.validation.suite import TEST_NAMES
@@ -35,7 +35,8 @@ def run(cfg: DictConfig, *, run_dir: Path | None = None) -> dict[str, Any]:
     tensorboard = check_bool("tensorboard", cfg.get("tensorboard"))
     if cfg.get("threads") is not None:
         check_integer("threads", cfg.get("threads"), minimum=1)
-    fused = check_fused(cfg.get("fused"), [])  # the value; the rooms are checked once built
+    fused = cfg.get("fused")
+    choose_path([], None, fused)  # the value; the rooms are checked once built
     radius = cfg.get("radius")
     if radius is not None:
         radius = check_number("radius", radius, low=0.05, high=1.0)

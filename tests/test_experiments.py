@@ -4,6 +4,7 @@ The fast tests here take well under a minute together; the full quick_it / quick
 """
 
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -34,8 +35,16 @@ FAITHFUL = {
     "paper_faithful_in": "paper_in_full",
 }
 REWARDS |= dict.fromkeys(FAITHFUL, "paper")
+WEIGHTED = {f"paper_weighted_{method}": f"paper_faithful_{method}" for method in ("vqql", "it", "in")}
+"""The paper with one change: each paper_faithful preset with the feature weights."""
+REWARDS |= dict.fromkeys(WEIGHTED, "paper")
 RESULTS = Path(CONFIG_DIR).parent / "docs" / "results.md"
-FORMER_COMMENTS = "## Measured figures formerly in the config comments"
+HISTORY = Path(CONFIG_DIR).parent / "docs" / "history.md"
+README = Path(CONFIG_DIR).parent / "README.md"
+CONFIGURATION = Path(CONFIG_DIR).parent / "docs" / "configuration.md"
+FORMER_COMMENTS = "### Measured figures formerly in the config comments"
+SUPERSEDED_IN_CONF = re.compile(r"^# Superseded by experiment=(\w+): ", re.MULTILINE)
+SUPERSEDED_IN_TABLE = re.compile(r"^superseded by `(\w+)`")
 
 
 def quiet(cfg):
@@ -119,15 +128,76 @@ def test_a_rewards_choice_on_the_command_line_wins_over_the_experiments(compose)
 
 
 @pytest.mark.parametrize("name", EXPERIMENTS)
-def test_measured_figures_are_in_the_results_not_the_config(name):
-    """An experiment's header points to docs/results.md for its measured figures; the section it names exists."""
+def test_measured_figures_are_in_the_docs_not_the_config(name):
+    """An experiment's header points to the docs for its measured figures; the figures its header once stated, where
+    it points to them, are in docs/history.md under the experiment's name."""
     text = (Path(CONFIG_DIR) / "experiment" / f"{name}.yaml").read_text()
     assert "Measured here" not in text
-    results = RESULTS.read_text()
-    assert FORMER_COMMENTS in results
-    if "Measured figures formerly in the config comments" in text.replace("\n# ", " "):
-        section = results.split(FORMER_COMMENTS, 1)[1]
+    assert "docs/results.md" in text or "docs/history.md" in text, "the header says where its figures are"
+    history = HISTORY.read_text()
+    assert FORMER_COMMENTS in history
+    if "history.md#measured-figures-formerly-in-the-config-comments" in text:
+        section = history.split(FORMER_COMMENTS, 1)[1].split("\n## ", 1)[0]
         assert f"`{name}" in section or f"{name}`" in section, name
+
+
+def experiment_tables():
+    """The experiment tables of the README and of docs/configuration.md: for each page, ``{preset: what}`` from the
+    rows whose first cell lists presets in backticks."""
+    tables = {}
+    for page in (README, CONFIGURATION):
+        rows = {}
+        table = page.read_text().split("| experiment | what |", 1)[1].split("\n\n", 1)[0]
+        for line in table.splitlines()[2:]:
+            first, what = line.split("|")[1:3]
+            rows |= dict.fromkeys(re.findall(r"`(\w+)`", first), what.strip())
+        tables[page.name] = rows
+    return tables
+
+
+def superseded_in_conf():
+    """``{preset: successor}`` of every experiment whose header labels it superseded."""
+    labels = {}
+    for name in EXPERIMENTS:
+        found = SUPERSEDED_IN_CONF.findall((Path(CONFIG_DIR) / "experiment" / f"{name}.yaml").read_text())
+        assert len(found) <= 1, f"experiment/{name}.yaml: one label at most"
+        if found:
+            labels[name] = found[0]
+    return labels
+
+
+def label_mismatches(tables, in_conf):
+    """What differs between the labels in conf/experiment/ and in each page's experiment table, as lines."""
+    problems = []
+    for page, rows in tables.items():
+        if set(rows) != set(EXPERIMENTS):
+            problems.append(f"{page}: rows {sorted(set(rows) ^ set(EXPERIMENTS))} differ from conf/experiment/")
+        in_table = {name: m.group(1) for name, what in rows.items() if (m := SUPERSEDED_IN_TABLE.match(what))}
+        if in_table != in_conf:
+            problems.append(f"{page} labels {in_table} superseded, conf/experiment/ labels {in_conf}")
+    return problems
+
+
+def test_presets_a_user_should_not_pick_are_labelled_alike_in_conf_and_the_docs():
+    """A preset labelled superseded in its header (``# Superseded by experiment=X: why``) is labelled so, with the same
+    successor, in the README's experiment table and in docs/configuration.md's ("superseded by `X`: why"), and no
+    other preset is; every preset has its row in both tables, and a successor is a preset that is not superseded."""
+    in_conf = superseded_in_conf()
+    assert {"main_heading", "pedestrian", "pedestrian_mix"} <= set(in_conf)
+    assert not label_mismatches(experiment_tables(), in_conf)
+    assert all(successor in EXPERIMENTS and successor not in in_conf for successor in in_conf.values())
+
+
+def test_a_superseded_label_missing_from_one_side_is_found():
+    """The controls: a label dropped from the README's table, and one added there that conf lacks."""
+    in_conf = superseded_in_conf()
+    dropped = experiment_tables()
+    dropped["README.md"]["pedestrian"] = "the main job with pedestrian bodies"
+    assert [line.split(" labels")[0] for line in label_mismatches(dropped, in_conf)] == ["README.md"]
+    added = experiment_tables()
+    added["configuration.md"]["tuned_it"] = "superseded by `main`: a label conf does not have"
+    assert [line.split(" labels")[0] for line in label_mismatches(added, in_conf)] == ["configuration.md"]
+    assert not label_mismatches(experiment_tables(), in_conf)
 
 
 # ---------------------------------------------------------------------- the paper, literally
@@ -182,10 +252,11 @@ def test_paper_experiments_state_their_budget(name, trials, compose, tmp_path):
     """Each file states its trial budget and as many trials as it runs; how long the paper's would take,
     extrapolated from a measured partial run, is in docs/results.md."""
     text = (Path(CONFIG_DIR) / "experiment" / f"{name}.yaml").read_text()
-    assert "Budget:" in text and "extrapolated from a measured partial run" in text and "docs/results.md" in text
+    assert "Budget:" in text and "extrapolated from a measured partial run" in text
+    assert "docs/results.md#the-papers-budgets-fused" in text.replace("\n# ", " ")
     assert f"{trials} trials" in text
-    extrapolated = RESULTS.read_text().split("### The paper's budgets, extrapolated", 1)[1].split("\n### ", 1)[0]
-    assert f"- `{name}`: " in extrapolated and "hours" in extrapolated
+    extrapolated = RESULTS.read_text().split("### The paper's budgets, fused", 1)[1].split("\n### ", 1)[0]
+    assert re.search(rf"^- `{name}`: .* hours", extrapolated, re.MULTILINE), name
     phases = build_trainer(compose("train", [f"experiment={name}"]), tmp_path).phases()
     assert sum(p.trials for p in phases) == trials
 
@@ -218,6 +289,17 @@ def test_paper_faithful_presets_keep_every_stated_choice(name, compose, tmp_path
     phases = build_trainer(compose("train", [f"experiment={name}"]), tmp_path).phases()
     papers = {"paper_faithful_vqql": 109_686, "paper_faithful_it": 109_686, "paper_faithful_in": 990_000}
     assert sum(p.trials for p in phases) == papers[name]
+
+
+@pytest.mark.parametrize("name", sorted(WEIGHTED))
+def test_paper_weighted_presets_differ_from_the_faithful_ones_only_in_the_feature_weights(name, compose):
+    def flat(experiment):
+        return dict(leaves(OmegaConf.to_container(compose("train", [f"experiment={experiment}"]), resolve=True)))
+
+    weighted, faithful = flat(name), flat(WEIGHTED[name])
+    differ = {key for key in weighted.keys() | faithful.keys() if weighted.get(key) != faithful.get(key)}
+    assert differ == {"vq.weight_own", "vq.weight_neighbours", "vq.weight_walls"}
+    assert (weighted["vq.weight_own"], weighted["vq.weight_neighbours"], weighted["vq.weight_walls"]) == (4.0, 0.2, 0.5)
 
 
 @pytest.mark.parametrize("name", ["tuned_it", "tuned_in"])

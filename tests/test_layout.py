@@ -14,6 +14,11 @@ PACKAGE = Path(__file__).resolve().parent.parent / "pedrl"
 ENTRY_POINTS = ("pedrl.train", "pedrl.evaluate", "pedrl.validate", "pedrl.plot", "pedrl.sweep", "pedrl.export")
 SIM_FORBIDDEN = ("hydra", "omegaconf", "pedrl.io", "shapely", "pedrl.scenarios")
 """What pedrl/sim/ never imports: no config framework, and none of pedrl.io's file I/O (checkpoints, CSV, logs)."""
+CLI = "pedrl.cli"
+"""The Hydra pieces the entry points share; what a ``python -m`` tool needs too is on the floor."""
+FLOOR = "pedrl.common"
+"""The bottom of the layering (argument checks, one-line errors, the tools' argparse helpers): every layer may import
+it, and it imports nothing else of pedrl, nor Hydra."""
 
 
 def module_name(path: Path, root: Path = PACKAGE.parent) -> str:
@@ -79,3 +84,36 @@ def test_sim_imports_neither_hydra_nor_omegaconf_nor_io_nor_shapely(path):
     """The simulation is pure tensor code: polygons are built into tensors by pedrl.scenarios, which uses shapely."""
     forbidden = [name for name in sorted(imported_modules(path)) if within(name, SIM_FORBIDDEN)]
     assert not forbidden, f"{module_name(path)} imports {forbidden}"
+
+
+def pedrl_modules() -> dict[str, Path]:
+    """Every module of the package, by its dotted name."""
+    return {module_name(path): path for path in sorted(PACKAGE.rglob("*.py"))}
+
+
+def test_only_the_entry_points_import_pedrl_cli():
+    """Hydra's pieces stay with the entry points: a library module or a ``python -m`` tool that imported
+    pedrl.cli would pull the entry points' layer below them (pedrl.evaluation.config once did, for the run folder)."""
+    users = sorted(name for name, path in pedrl_modules().items() if CLI in imported_modules(path))
+    assert users, "the reader found no user of pedrl.cli"
+    below = [name for name in users if name not in ENTRY_POINTS and name != CLI]
+    assert not below, f"{below} import {CLI}: only the entry points {ENTRY_POINTS} may"
+
+
+def test_the_floor_imports_nothing_of_pedrl_above_it():
+    floor = {name: path for name, path in pedrl_modules().items() if within(name, (FLOOR,))}
+    assert {f"{FLOOR}.checks", f"{FLOOR}.commands"} <= set(floor), f"{FLOOR} misses its modules"
+    for name, path in floor.items():
+        imports = imported_modules(path)
+        above = sorted(n for n in imports if within(n, ("pedrl",)) and not within(n, (FLOOR,)))
+        assert not above, f"{name} imports {above}: the floor imports nothing else of pedrl"
+        hydra = sorted(n for n in imports if within(n, ("hydra", "omegaconf")))
+        assert not hydra, f"{name} imports {hydra}: Hydra's pieces are in {CLI}"
+
+
+def test_the_argument_checks_are_imported_from_the_floor():
+    """The one-line checks of user values (``check_integer``, ``check_memory``, ...) are on the floor, not in
+    pedrl.sim: a trainer, a file reader or a tool that checks a value does not depend on the simulation for it."""
+    from_sim = sorted(name for name, path in pedrl_modules().items() if "pedrl.sim.checks" in imported_modules(path))
+    assert not from_sim, f"{from_sim} import pedrl.sim.checks: the checks are in {FLOOR}.checks"
+    assert not (PACKAGE / "sim" / "checks.py").exists()

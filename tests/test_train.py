@@ -91,7 +91,7 @@ TRAIN_CASES: list[tuple[str, tuple[str, ...]]] = [
     ("scenario=bottleneck scenario.opening=20", ("scenario.opening=20", "at most room_width")),
     ("scenario=four_exits scenario.closed_exits=[0,1,2,3]", ("closed_exits", "at least one exit must stay open")),
     ("scenario=corridor scenario.exits=[[0,0,1,1]]", ("scenario.exits is set without scenario.geometry",)),
-    ("+scenario.doors=2", ("scenario.doors is not a setting of scenario 'paper_room'", "allowed: width")),
+    ("+scenario.doors=2", ("scenario.doors is not a setting of pedrl-train", "nothing reads an added key")),
     ("scenario=custom scenario.geometry={tmp}/none.wkt scenario.exits=[[0,0,1,0]]", ("none.wkt", "cannot read it")),
     ("scenario=custom scenario.geometry={tmp}/bowtie.wkt scenario.exits=[[10,0,10,10]]", ("Self-intersection",)),
     ("scenario=custom scenario.geometry={tmp}/square.wkt scenario.exits=[[5,5,6,5]]", ("on the boundary",)),

@@ -34,14 +34,15 @@ from pedrl.algos.mix import merge_gathered, room_of_trial
 from pedrl.algos.phase import Phase, TrainResult
 from pedrl.algos.records import RunRecord, final_figures, interactive, report_phase
 from pedrl.algos.restore import load_resume
+from pedrl.common.checks import check_bool, check_choice, check_device, check_integer, check_memory, check_number
 from pedrl.configs import TrainingRoom
 from pedrl.io.files import remove_temporaries_in
 from pedrl.rl import LinearSchedule, zeros_q_values
 from pedrl.rl.policy import TabularPolicy
 from pedrl.sim import RoomEnv
-from pedrl.sim.checks import check_bool, check_choice, check_device, check_integer, check_memory, check_number
-from pedrl.trial.fused import check_fused, room_reason
-from pedrl.trial.rollout import Gathered, TrialStats, check_finite, gather, run_trial
+from pedrl.trial.crowd import choose_path, run_crowd
+from pedrl.trial.loop import Learner
+from pedrl.trial.rollout import Gathered, TrialStats, check_finite, gather
 from pedrl.vq import Quantizer
 from pedrl.vq.encoder import VOID_DRAWS, VOID_FEATURES, EncoderSettings, StateEncoder
 from pedrl.vq.settings import VQSettings
@@ -153,7 +154,8 @@ class Trainer:
         self.home, self.mix = home, list(mix)
         replicas = self.processes * self.rooms_per_process  # the same env settings: the same observations and actions
         self._mix_envs = [e.factory(num_replicas=replicas, num_agents=e.num_agents, device=self.device) for e in mix]
-        self.fused = check_fused(fused, [*self._envs.values(), *self._mix_envs])
+        choose_path([*self._envs.values(), *self._mix_envs], None, fused)  # fused=true refused before any compute
+        self.fused = fused
         self.encoder_settings = EncoderSettings.for_room(
             room,
             void_features=void_features,
@@ -402,33 +404,22 @@ class Trainer:
     def run_trial(
         self, env: RoomEnv, quantizer: Any, q_values: torch.Tensor, *, epsilon: float, learn: bool
     ) -> TrialStats:
-        """One trial in every room with the tables ``q_values`` over ``quantizer`` (see
-        :func:`pedrl.trial.rollout.run_trial`)."""
+        """One trial in every room with the tables ``q_values`` over ``quantizer`` (:meth:`_trial`)."""
         return self._trial(env, self.policy(quantizer, q_values), epsilon=epsilon, learn=learn)
 
     def _trial(self, env: RoomEnv, policy: TabularPolicy, *, epsilon: float, learn: bool) -> TrialStats:
-        """:func:`pedrl.trial.rollout.run_trial` with this trainer's generator, equation 1's constants and ``fused``."""
-        return run_trial(
-            env,
-            policy,
-            epsilon=epsilon,
-            generator=self.generator,
-            learn=learn,
-            alpha=self.alpha,
-            gamma=self.gamma,
-            fused=self.fused,
+        """A :class:`~pedrl.trial.loop.Learner`'s trial with this trainer's generator and equation 1's constants, on
+        the path ``fused`` chooses (:func:`pedrl.trial.crowd.run_crowd`)."""
+        learner = Learner(
+            policy, epsilon=epsilon, generator=self.generator, learn=learn, alpha=self.alpha, gamma=self.gamma
         )
+        return run_crowd(env, learner, fused=self.fused).stats
 
     def trial_path(self) -> tuple[str, str | None]:
         """Where this trainer's trials run, ``"fused"`` or ``"torch"`` (a seed gives other numbers on each), and why
         not on the fused one (None when they do): what a resume must keep (:func:`pedrl.algos.restore.load_resume`)."""
-        if self.fused is False:
-            return "torch", "fused=false"
-        for room in [*self._envs.values(), *self._mix_envs]:
-            reason = room_reason(room)
-            if reason is not None:
-                return "torch", f"the fused trial cannot run {reason}"
-        return "fused", None
+        name, why_not = choose_path([*self._envs.values(), *self._mix_envs], None, self.fused)
+        return name, why_not
 
     def env_for(self, num_agents: int) -> RoomEnv:
         """The trainer's ``P E`` rooms with ``num_agents`` agents (built once)."""

@@ -10,7 +10,7 @@ import torch
 
 from pedrl.algos.base import Trainer
 from pedrl.algos.phase import MAX_TRIALS, Phase, staged_phases
-from pedrl.sim.checks import check_bool, check_integer, check_number
+from pedrl.common.checks import check_bool, check_integer, check_number
 from pedrl.vq import ProcessQuantizers
 
 

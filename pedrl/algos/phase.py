@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final, Protocol
 
-from pedrl.sim.checks import check_integer, check_number
+from pedrl.common.checks import check_integer, check_number
 
 if TYPE_CHECKING:
     import torch

@@ -16,6 +16,7 @@ from pedrl.algos.base import Trainer, VQSettings
 from pedrl.algos.in_vqql import INVQQL
 from pedrl.algos.it_vqql import ITVQQL
 from pedrl.algos.vqql import VQQL
+from pedrl.common.checks import MAX_SEED, check_integer
 from pedrl.configs import (
     ALGO_TARGETS,
     ENV_CLASSES,
@@ -26,7 +27,6 @@ from pedrl.configs import (
     mix_rooms,
 )
 from pedrl.scenarios import inline_geometry
-from pedrl.sim.checks import MAX_SEED, check_integer
 
 __all__ = [
     "ENV_CLASSES",

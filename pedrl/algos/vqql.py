@@ -7,8 +7,8 @@ from typing import Any
 
 from pedrl.algos.base import Trainer
 from pedrl.algos.phase import MAX_TRIALS, Phase
+from pedrl.common.checks import check_integer
 from pedrl.rl import LinearSchedule
-from pedrl.sim.checks import check_integer
 
 
 class VQQL(Trainer):

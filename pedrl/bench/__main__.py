@@ -31,7 +31,7 @@ SECTIONS = ("sim", "kmeans", "e2e", "eval", "literal")
 def _arguments(argv: list[str] | None) -> tuple[argparse.Namespace, list[int] | None, list[str]]:
     """The command line checked at the door (one line and exit code 2 for a mistake): the arguments, the e2e room
     counts and the sections to run; sets the thread count."""
-    from pedrl.cli import OneLineParser, integer_arg
+    from pedrl.common.commands import OneLineParser, integer_arg
     from pedrl.io.files import output_problem
 
     parser = OneLineParser(prog="python -m pedrl.bench", description=__doc__.splitlines()[0])

@@ -39,7 +39,7 @@ def run(*, quick: bool = False, device: str = "cpu") -> dict:
     results = {}
     for rooms, agents in ((8, 40),) if quick else SIZES:
         rates = {}
-        for fused in (False, True):
+        for path, fused in (("torch", False), ("fused", True)):
             env = paper_room().room(num_replicas=rooms, num_agents=agents, **MAIN_ROOM)
             env.reset(seed=0)
             record_batch(env, GreedyDoorController(), fused=fused)  # compiles, warms the caches
@@ -47,7 +47,7 @@ def run(*, quick: bool = False, device: str = "cpu") -> dict:
             start = time.perf_counter()
             record = record_batch(env, GreedyDoorController(), fused=fused)
             seconds = time.perf_counter() - start
-            rates["fused" if fused else "torch"] = float(record.speed_count.sum()) / seconds
+            rates[path] = float(record.speed_count.sum()) / seconds
         results[f"R{rooms}_N{agents}"] = {
             "torch_agent_decisions_per_s": rates["torch"],
             "fused_agent_decisions_per_s": rates["fused"],

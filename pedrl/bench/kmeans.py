@@ -196,7 +196,7 @@ def _encode_seconds(states: torch.Tensor, prototypes: torch.Tensor, *, device: s
 
 def main() -> None:
     """Command line: prints the result of `run` as JSON."""
-    from pedrl.cli import OneLineParser, integer_arg
+    from pedrl.common.commands import OneLineParser, integer_arg
 
     parser = OneLineParser(prog="python -m pedrl.bench.kmeans", description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="small problem")

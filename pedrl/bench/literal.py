@@ -84,7 +84,7 @@ def _search_all(points, present, index, scratch, counts, out):
             prepare_batch(batch, n, hints, 0, index, scratch)
             search_batch(batch, n, 0, index, scratch, counts)
             for a in range(n):
-                out[d, r, agents[a]] = scratch[4][a]  # no state here is NaN or huge (left to the scan)
+                out[d, r, agents[a]] = scratch.best_id[a]  # no state here is NaN or huge (left to the scan)
 
 
 def run(*, quick: bool = False, repeats: int = 3) -> dict:
@@ -104,7 +104,7 @@ def run(*, quick: bool = False, repeats: int = 3) -> dict:
     best = {"scan": math.inf, "pruned": math.inf}
     for _ in range(repeats + 1):  # the first round compiles
         tic = time.perf_counter()
-        _scan_all(points, mask, tree.kernel_arrays()[0], tree.kernel_arrays()[1], old)
+        _scan_all(points, mask, tree.kernel_arrays().prototypes, tree.kernel_arrays().ids_of, old)
         best["scan"] = min(best["scan"], time.perf_counter() - tic)
         counts[:] = 0
         new[:] = -1
@@ -166,7 +166,7 @@ def _matmul(quantizer: Quantizer, raw: torch.Tensor, repeats: int) -> tuple[dict
 
 def main() -> None:
     """Command line: prints the result of `run` as JSON."""
-    from pedrl.cli import OneLineParser, integer_arg
+    from pedrl.common.commands import OneLineParser, integer_arg
 
     parser = OneLineParser(prog="python -m pedrl.bench.literal", description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="small problem")

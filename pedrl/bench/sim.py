@@ -109,7 +109,7 @@ def time_routed_reset(*, repeats: int, device: str = "cpu", resets: int = 20) ->
 
     from omegaconf import OmegaConf
 
-    from pedrl.cli import CONFIG_DIR
+    from pedrl.common.commands import CONFIG_DIR
     from pedrl.scenarios import build_scenario
 
     scenario = build_scenario(OmegaConf.to_container(OmegaConf.load(f"{CONFIG_DIR}/scenario/partition_room.yaml")))

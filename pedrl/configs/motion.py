@@ -13,7 +13,7 @@ from collections.abc import Mapping
 from dataclasses import fields
 from typing import Any, Final
 
-from pedrl.sim.checks import check_choice, check_real, shown
+from pedrl.common.checks import check_choice, check_real, shown
 from pedrl.sim.motion import (
     COLLISION_ORDERS,
     COLLISION_RULES,

@@ -10,11 +10,11 @@ import inspect
 from collections.abc import Callable, Mapping
 from typing import Any, Final, NamedTuple
 
+from pedrl.common.checks import shown
 from pedrl.configs.motion import check_no_flat_keys
 from pedrl.configs.names import ENV_CLASSES
 from pedrl.scenarios import build_scenario, inline_geometry
 from pedrl.sim import RoomEnv
-from pedrl.sim.checks import shown
 from pedrl.sim.motion import motion_from_config
 
 ENV_RUN_ARGUMENTS: Final = ("num_replicas", "num_agents", "device")

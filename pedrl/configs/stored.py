@@ -12,12 +12,12 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Final
 
+from pedrl.common.checks import shown
 from pedrl.configs.motion import FLAT_KEYS, check_no_flat_keys, flat_motion, is_flat
 from pedrl.configs.names import ENV_CLASSES, check_names_no_code
 from pedrl.configs.rooms import MAX_MIX, setting_names
 from pedrl.io import Checkpoint, CheckpointError
 from pedrl.scenarios import MAX_WKT_BYTES, check_scenario_sizes, geometry_file
-from pedrl.sim.checks import shown
 
 HISTORICAL_VALUES: Final = {
     "env.compile_sensing": False,

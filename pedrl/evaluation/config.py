@@ -16,7 +16,16 @@ import torch
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from pedrl.analysis.trajectories import Geometry
-from pedrl.cli import hydra_output_dir
+from pedrl.common.checks import (
+    MAX_SEED,
+    check_bool,
+    check_choice,
+    check_device,
+    check_integer,
+    check_memory,
+    check_number,
+    first_line,
+)
 from pedrl.evaluation.engine import (
     EvalSettings,
     Recorder,
@@ -33,18 +42,8 @@ from pedrl.integrations.jupedsim import INSTALL_HINT, JuPedSimModel, installed, 
 from pedrl.io.files import check_outputs
 from pedrl.runtime import set_threads
 from pedrl.sim import RoomEnv
-from pedrl.sim.checks import (
-    MAX_SEED,
-    check_bool,
-    check_choice,
-    check_device,
-    check_integer,
-    check_memory,
-    check_number,
-    first_line,
-)
 from pedrl.sim.routing import check_queue_weight
-from pedrl.trial.fused import check_fused
+from pedrl.trial.crowd import choose_path
 
 CONTROLLERS: Final = ("learned", "greedy", "jupedsim")
 DENSITY_MAP_BYTES_PER_TILE: Final = 40
@@ -55,13 +54,14 @@ device, stacked on the host and again as trajectories, and the activity flags.""
 
 
 # ---------------------------------------------------------------------- the evaluation
-def evaluate(cfg: DictConfig, *, run_dir: str | Path | None = None) -> list[dict[str, Any]]:
+def evaluate(cfg: DictConfig, *, run_dir: str | Path) -> list[dict[str, Any]]:
     """Evaluate ``cfg.checkpoint`` (or the exported ``cfg.policy``) at every agent count of ``cfg.agents`` with
     ``cfg.controller``, then with each controller of ``cfg.references`` on the same scenes and rules; returns the
     ``scaling.csv`` rows of all of them, the controller's first.
 
-    Every output goes under ``run_dir`` (default: Hydra's output dir), a reference's under ``run_dir/<reference>/``,
-    and ``run_dir/scaling.csv`` holds every controller's rows; see the :mod:`pedrl.evaluation` docstring.
+    Every output goes under ``run_dir`` (``pedrl-eval`` gives Hydra's output dir), a reference's under
+    ``run_dir/<reference>/``, and ``run_dir/scaling.csv`` holds every controller's rows; see the
+    :mod:`pedrl.evaluation` docstring.
 
     Raises:
         ValueError: one line, for an invalid config value (before any compute).
@@ -70,7 +70,7 @@ def evaluate(cfg: DictConfig, *, run_dir: str | Path | None = None) -> list[dict
     # ---- validation and setup: every check before any compute, for every controller
     validate_config(cfg)
     set_threads(cfg.get("threads"))
-    run_dir = Path(run_dir) if run_dir is not None else hydra_output_dir()
+    run_dir = Path(run_dir)
     device = torch.device(cfg.device)
     runs = [(name, *_prepare(cfg, name, device)) for name in controllers(cfg)]
     settings = settings_from_config(cfg)
@@ -124,8 +124,7 @@ def _prepare(cfg: DictConfig, controller: str, device: torch.device) -> tuple[An
     if isinstance(policy.controller, Recorder):
         for env in envs.values():
             policy.controller.check(env)
-    if cfg.get("fused"):
-        check_fused_controller(policy.controller, envs.values())
+    check_fused_controller(policy.controller, envs.values(), cfg.get("fused"))
     return policy, envs, geometry
 
 
@@ -237,7 +236,7 @@ def _validate_values(cfg: DictConfig) -> None:
     if cfg.animation.max_frames is not None:
         check_integer("animation.max_frames", cfg.animation.max_frames, minimum=1)
     check_bool("tensorboard", cfg.get("tensorboard"))
-    check_fused(cfg.get("fused"), [])  # the value; the rooms are checked once built
+    choose_path([], None, cfg.get("fused"))  # the value; the rooms are checked once built
 
 
 def check_against_room(cfg: DictConfig, geometry: Geometry, envs: dict[int, RoomEnv]) -> None:

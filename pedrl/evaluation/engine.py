@@ -28,6 +28,7 @@ from pedrl.analysis import (
     write_pedpy_trajectory,
 )
 from pedrl.analysis.trajectories import Geometry
+from pedrl.common.checks import first_line
 from pedrl.evaluation.batch import BatchRecord, Recorder
 from pedrl.evaluation.jupedsim_reference import JuPedSimReference
 from pedrl.evaluation.report import write_density_map, write_fundamental_diagram, write_scaling_json
@@ -37,8 +38,8 @@ from pedrl.policy_files import load_policy, overridden, room_factory, room_setti
 from pedrl.rl.policy import PolicyController
 from pedrl.scenarios import Scenario, paper_room
 from pedrl.sim import RoomEnv
-from pedrl.sim.checks import first_line
 from pedrl.sim.controllers import Controller, GreedyDoorController
+from pedrl.trial.crowd import choose_path, run_crowd
 
 SCALING_COLUMNS: Final = (
     "controller",
@@ -134,96 +135,33 @@ def load_controller(
 def record_batch(env: RoomEnv, controller: Controller, *, fused: bool | None = False) -> BatchRecord:
     """Reset ``env`` (its generator draws the scene) and run one trial in every replica to its end.
 
-    ``fused``: the learned tables or the greedy walker through the fused trial's kernels
-    (:func:`pedrl.trial.fused.record_trial_fused`: on the CPU, one compiled pass per batch), or the torch loop, the
-    reference (False); None: the fused pass wherever it can run. The two agree within the fused trial's tolerances,
-    not to the bit (their random streams differ).
+    ``fused``: the learned tables or the greedy walker through the fused trial's kernels (on the CPU, one compiled
+    pass per batch), or the torch loop, the reference (False); None: the fused pass wherever it can run
+    (:func:`pedrl.trial.crowd.run_crowd` chooses). The two agree within the fused trial's tolerances, not to the bit
+    (their random streams differ).
     """
-    if fused is not False:
-        record = _record_fused(env, controller)
-        if record is not None:
-            return record
-        if fused:
-            raise ValueError("fused=true is invalid: this controller or room cannot run through the fused trial")
-    obs, info = env.reset()
-    shape = env.active.shape
-    device = env.positions.device
-    positions, velocities, in_room = [env.positions.cpu()], [env.velocities.cpu()], [env.active.cpu()]
-    exit_time = torch.full(shape, float("nan"), device=device)
-    crashes = torch.zeros(shape, dtype=torch.int64, device=device)
-    wall_crashes = torch.zeros(shape, dtype=torch.int64, device=device)
-    speed_sum = torch.zeros(shape, dtype=torch.float64, device=device)
-    speed_sq_sum = torch.zeros(shape, dtype=torch.float64, device=device)
-    speed_count = torch.zeros(shape, dtype=torch.int64, device=device)
-    decision = 0
-    while bool(env.active.any()):
-        acting = env.active
-        actions = controller.act(env, obs, info)
-        obs, _, _, _, info = env.step(actions)
-        decision += 1
-        exit_time = torch.where(info["reached"], decision * env.decision_length, exit_time)
-        crashes += info["crashed_agent"].to(torch.int64)
-        wall_crashes += info["crashed_wall"].to(torch.int64)
-        speed = torch.where(acting, info["speed"].double(), 0.0)
-        speed_sum += speed
-        speed_sq_sum += speed * speed
-        speed_count += acting.to(torch.int64)
-        positions.append(env.positions.cpu())
-        velocities.append(env.velocities.cpu())
-        in_room.append(env.active.cpu())
+    record = run_crowd(env, controller, fused=fused, record=True).record
     return BatchRecord(
-        positions=torch.stack(positions, 1).numpy(),
-        velocities=torch.stack(velocities, 1).numpy(),
-        in_room=torch.stack(in_room, 1).numpy(),
-        exit_time=exit_time.cpu().numpy(),
+        positions=record.positions,
+        velocities=record.velocities,
+        in_room=record.in_room,
+        exit_time=np.where(record.left_at >= 0, record.left_at * env.decision_length, np.nan).astype(np.float32),
         frame_rate=env.decisions_per_second,
         radius=env.agent_radius,
         max_speed=env.max_speed,
-        crashes=crashes.cpu().numpy(),
-        wall_crashes=wall_crashes.cpu().numpy(),
-        speed_sum=speed_sum.sum(1).cpu().numpy(),
-        speed_sq_sum=speed_sq_sum.sum(1).cpu().numpy(),
-        speed_count=speed_count.sum(1).cpu().numpy(),
+        crashes=record.crashes,
+        wall_crashes=record.wall_crashes,
+        speed_sum=record.speed_sum,
+        speed_sq_sum=record.speed_sq_sum,
+        speed_count=record.speed_count,
     )
 
 
-def check_fused_controller(controller: Controller, envs: Iterable[RoomEnv]) -> None:
+def check_fused_controller(controller: Controller, envs: Iterable[RoomEnv], fused: bool | None = True) -> None:
     """One-line ``ValueError`` when ``fused=true`` cannot hold: the learned or greedy ``controller`` cannot run
     through the fused trial in one of ``envs`` (JuPedSim runs its own model, whatever ``fused`` says)."""
-    from pedrl.trial.fused import controller_reason
-
-    if isinstance(controller, Recorder):
-        return
-    for env in envs:
-        reason = controller_reason(env, controller)
-        if reason is not None:
-            raise ValueError(f"fused=true is invalid: the fused trial cannot run {reason} (false or null)")
-
-
-def _record_fused(env: RoomEnv, controller: Controller) -> BatchRecord | None:
-    """:func:`record_batch` through the fused trial, or None where it cannot run ``controller`` in ``env``."""
-    from pedrl.trial.fused import controller_reason, record_trial_fused
-
-    if controller_reason(env, controller) is not None:
-        return None
-    trace = record_trial_fused(env, controller)
-    _, crashes, wall_crashes, goal, _, decisions = trace.totals
-    taken = trace.active[:, 1:]
-    speed_sq = np.where(taken, (trace.velocities[:, 1:].astype(np.float64) ** 2).sum(-1), 0.0)
-    return BatchRecord(
-        positions=trace.positions,
-        velocities=trace.velocities,
-        in_room=trace.in_room(),
-        exit_time=np.where(goal > 0, decisions * env.decision_length, np.nan).astype(np.float32),
-        frame_rate=env.decisions_per_second,
-        radius=env.agent_radius,
-        max_speed=env.max_speed,
-        crashes=crashes.astype(np.int64),
-        wall_crashes=wall_crashes.astype(np.int64),
-        speed_sum=np.sqrt(speed_sq).sum((1, 2)),
-        speed_sq_sum=speed_sq.sum((1, 2)),
-        speed_count=taken.sum((1, 2)).astype(np.int64),
-    )
+    if not isinstance(controller, Recorder):
+        choose_path(envs, controller, fused, record=True)
 
 
 # ---------------------------------------------------------------------- statistics

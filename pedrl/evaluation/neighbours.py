@@ -34,10 +34,10 @@ from typing import Final
 
 import torch
 
-from pedrl.evaluation.resolution import distinct_counts
-from pedrl.policy_files import load_policy, room_factory
+from pedrl.common.checks import check_integer, check_number
+from pedrl.evaluation.resolution import distinct_counts, policy_room, process_ids
+from pedrl.policy_files import load_policy
 from pedrl.rl.policy import TabularPolicy
-from pedrl.sim.checks import check_integer, check_number
 from pedrl.sim.geometry import X, Y
 from pedrl.sim.sensing import observe
 from pedrl.vq.encoder import StateEncoder
@@ -179,36 +179,19 @@ def sight_ids(
     prepared = torch.stack(
         [encoder.prepare(features[:, c], sensed_counts[:, c], c, generator) for c in range(configurations)], dim=1
     ).view(batch, -1)
-    num_sensed = sensed_counts.reshape(batch)
-    ids = [
-        encoder.encode_prepared(prepared, num_sensed, torch.full_like(num_sensed, process)).view(
-            num_scenes, configurations
-        )
-        for process in range(processes)
-    ]
-    return torch.stack(ids)
+    return process_ids(encoder, prepared, sensed_counts.reshape(batch), processes).view(
+        processes, num_scenes, configurations
+    )
 
 
-def neighbour_sight(
-    policy: TabularPolicy,
-    *,
-    places: int = 25,
-    speed_ratios: Sequence[float] = (0.5, 1.0),
-    samples: int = 72,
-    circle_radius: float = 1.0,
-    approach_from: float = 5.0,
-    approach_to: float = 0.45,
-    crowds: int = 400,
-    crowd_size: int = 7,
-    crowd_radius: float = 3.0,
-    seed: int = 0,
-) -> NeighbourSight:
-    """The prototypes ``policy``'s quantizer gives an agent as its neighbours move round it (module docstring).
+@dataclass(frozen=True)
+class SightSettings:
+    """The scenes and samples of the measures (module docstring), checked when built: a bad value ends in a one-line
+    ``ValueError`` before any compute.
 
-    Args:
-        policy: a loaded policy (:func:`pedrl.load_policy`); its training config rebuilds the room.
+    Attributes:
         places: random placements of the agent, from ``seed``.
-        speed_ratios: the agent's speeds, fractions of the room's top speed.
+        speed_ratios: the agent's speeds, fractions of the room's top speed, in (0, 1].
         samples: bearings of the circle, distances of the approach and headings of the control's turn.
         circle_radius: the circling neighbour's distance (m).
         approach_from: the head-on and receding neighbour's farthest distance (m).
@@ -217,57 +200,68 @@ def neighbour_sight(
         crowd_size: neighbours in a crowd.
         crowd_radius: the crowds' farthest distance (m).
         seed: placements, crowds and random void fillings.
+    """
+
+    places: int = 25
+    speed_ratios: tuple[float, ...] = (0.5, 1.0)
+    samples: int = 72
+    circle_radius: float = 1.0
+    approach_from: float = 5.0
+    approach_to: float = 0.45
+    crowds: int = 400
+    crowd_size: int = 7
+    crowd_radius: float = 3.0
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        check_integer("places", self.places, minimum=1, maximum=10_000)
+        if len(self.speed_ratios) == 0:
+            raise ValueError("speed_ratios=[] is invalid: must name at least one fraction of the top speed in (0, 1]")
+        for ratio in self.speed_ratios:
+            check_number("speed_ratio", ratio, low=0.0, high=1.0)
+            if ratio == 0:
+                raise ValueError(
+                    "speed_ratio=0.0 is invalid: must be in (0, 1] (an agent standing still has no heading)"
+                )
+        object.__setattr__(self, "speed_ratios", tuple(self.speed_ratios))
+        check_integer("samples", self.samples, minimum=2, maximum=100_000)
+        check_integer("crowds", self.crowds, minimum=1, maximum=100_000)
+        check_integer("crowd_size", self.crowd_size, minimum=1, maximum=100)
+        check_integer("seed", self.seed, minimum=0, maximum=2**31 - 1)
+        sampled = max(self.samples, self.crowds)
+        if self.places * len(self.speed_ratios) * sampled * (self.crowd_size + 1) > 50_000_000:
+            raise ValueError(
+                f"places={self.places} x {len(self.speed_ratios)} speeds x {sampled} samples or crowds x "
+                f"{self.crowd_size + 1} bodies is too large: must be at most 50,000,000 bodies sensed at once"
+            )
+        check_number("circle_radius", self.circle_radius, low=0.0, high=100.0)
+        check_number("approach_to", self.approach_to, low=0.0, high=100.0)
+        check_number("approach_from", self.approach_from, low=self.approach_to, high=100.0)
+        check_number("crowd_radius", self.crowd_radius, low=self.approach_to, high=100.0)
+
+
+def neighbour_sight(policy: TabularPolicy, settings: SightSettings | None = None) -> NeighbourSight:
+    """The prototypes ``policy``'s quantizer gives an agent as its neighbours move round it (module docstring), with
+    ``settings`` (None: the defaults of :class:`SightSettings`); ``policy`` is a loaded policy
+    (:func:`pedrl.load_policy`), whose training config rebuilds the room.
 
     Raises:
         TypeError: one line, for a ``policy`` that is not a TabularPolicy.
-        ValueError: one line, for a bad argument (before any compute).
     """
-    if not isinstance(policy, TabularPolicy):
-        raise TypeError(f"policy is a {type(policy).__name__}: must be a TabularPolicy, as pedrl.load_policy returns")
-    check_sight_arguments(
-        places=places, speed_ratios=speed_ratios, samples=samples, crowds=crowds, crowd_size=crowd_size, seed=seed
-    )
-    check_number("circle_radius", circle_radius, low=0.0, high=100.0)
-    check_number("approach_to", approach_to, low=0.0, high=100.0)
-    check_number("approach_from", approach_from, low=approach_to, high=100.0)
-    check_number("crowd_radius", crowd_radius, low=approach_to, high=100.0)
-    room = room_factory(policy)(num_replicas=places, num_agents=1, device=policy.device)
-    scenes = scenes_of(room, speed_ratios=tuple(speed_ratios), seed=seed)
-    return sight_of(
-        policy.encoder,
-        room,
-        scenes,
-        speed_ratios=tuple(speed_ratios),
-        processes=policy.num_processes,
-        samples=samples,
-        circle_radius=circle_radius,
-        approach=(approach_from, approach_to),
-        crowds=crowds,
-        crowd_size=crowd_size,
-        crowd_radius=crowd_radius,
-        seed=seed,
-    )
+    settings = settings if settings is not None else SightSettings()
+    room = policy_room(policy, num_replicas=settings.places, num_agents=1)
+    scenes = scenes_of(room, speed_ratios=settings.speed_ratios, seed=settings.seed)
+    return sight_of(policy.encoder, room, scenes, settings, processes=policy.num_processes)
 
 
 def sight_of(
-    encoder: StateEncoder,
-    room,
-    scenes: Scenes,
-    *,
-    speed_ratios: tuple[float, ...],
-    processes: int = 1,
-    samples: int = 72,
-    circle_radius: float = 1.0,
-    approach: tuple[float, float] = (5.0, 0.45),
-    crowds: int = 400,
-    crowd_size: int = 7,
-    crowd_radius: float = 3.0,
-    seed: int = 0,
+    encoder: StateEncoder, room, scenes: Scenes, settings: SightSettings, *, processes: int = 1
 ) -> NeighbourSight:
-    """Every measure of :func:`neighbour_sight` for an ``encoder`` and given ``scenes`` (no argument checks)."""
+    """Every measure of :func:`neighbour_sight` for an ``encoder`` and given ``scenes`` (``settings.places`` unused)."""
     device = scenes.positions.device
     num_scenes = scenes.positions.shape[0]
-    generator = torch.Generator(device=device).manual_seed(seed)
+    samples = settings.samples
+    generator = torch.Generator(device=device).manual_seed(settings.seed)
 
     def ids(offsets, velocities, **kwargs) -> torch.Tensor:
         return sight_ids(encoder, room, scenes, offsets, velocities, generator=generator, processes=processes, **kwargs)
@@ -277,22 +271,23 @@ def sight_of(
     # the control: the agent alone, its heading turned
     turn = scenes.headings[:, None] + torch.arange(samples, device=device) * (2.0 * math.pi / samples)
     bearings = torch.arange(samples, device=device) * (2.0 * math.pi / samples)
-    circle = torch.stack((torch.cos(bearings), torch.sin(bearings)), dim=-1) * circle_radius
-    distances = torch.linspace(approach[0], approach[1], samples, device=device)
+    circle = torch.stack((torch.cos(bearings), torch.sin(bearings)), dim=-1) * settings.circle_radius
+    distances = torch.linspace(settings.approach_from, settings.approach_to, samples, device=device)
     ahead = torch.zeros(num_scenes, samples, 1, 2, device=device)
     ahead[..., X] = distances[None, :, None]
     walking = torch.zeros(num_scenes, samples, 1, 2, device=device)
     walking[..., X] = speeds[..., None]
+    radii = (settings.approach_to, settings.crowd_radius)
     counts = {
         "turning": ids(zeros, zeros, own_headings=turn, alone=True),
         "circling": ids(circle[None, :, None].expand(num_scenes, samples, 1, 2), zeros),
         "head_on": ids(ahead, -walking),
         "receding": ids(ahead, walking),
-        "crowds": crowd_ids(ids, num_scenes, crowds, crowd_size, (approach[1], crowd_radius), generator, device),
+        "crowds": crowd_ids(ids, num_scenes, settings.crowds, settings.crowd_size, radii, generator, device),
     }
     return NeighbourSight(
         counts={name: distinct_counts(value.transpose(1, 2)) for name, value in counts.items()},
-        speed_ratios=speed_ratios,
+        speed_ratios=settings.speed_ratios,
         num_prototypes=encoder.num_states,
     )
 
@@ -307,33 +302,11 @@ def crowd_ids(ids, num_scenes, crowds, crowd_size, radii, generator, device) -> 
     return ids(offsets, torch.zeros_like(offsets))
 
 
-def check_sight_arguments(
-    *, places: int, speed_ratios: Sequence[float], samples: int, crowds: int, crowd_size: int, seed: int
-) -> None:
-    """One-line ``ValueError`` for a bad argument of :func:`neighbour_sight`, before any compute."""
-    check_integer("places", places, minimum=1, maximum=10_000)
-    if len(speed_ratios) == 0:
-        raise ValueError("speed_ratios=[] is invalid: must name at least one fraction of the top speed in (0, 1]")
-    for ratio in speed_ratios:
-        check_number("speed_ratio", ratio, low=0.0, high=1.0)
-        if ratio == 0:
-            raise ValueError("speed_ratio=0.0 is invalid: must be in (0, 1] (an agent standing still has no heading)")
-    check_integer("samples", samples, minimum=2, maximum=100_000)
-    check_integer("crowds", crowds, minimum=1, maximum=100_000)
-    check_integer("crowd_size", crowd_size, minimum=1, maximum=100)
-    check_integer("seed", seed, minimum=0, maximum=2**31 - 1)
-    if places * len(speed_ratios) * max(samples, crowds) * (crowd_size + 1) > 50_000_000:
-        raise ValueError(
-            f"places={places} x {len(speed_ratios)} speeds x {max(samples, crowds)} samples or crowds x "
-            f"{crowd_size + 1} bodies is too large: must be at most 50,000,000 bodies sensed at once"
-        )
-
-
 PROGRAM: Final = "python -m pedrl.evaluation.neighbours"
 
 
 def _parser() -> argparse.ArgumentParser:
-    from pedrl.cli import OneLineParser, integer_arg, number_arg
+    from pedrl.common.commands import OneLineParser, integer_arg, number_arg
 
     parser = OneLineParser(
         prog=PROGRAM, description="Prototypes a learned quantizer gives an agent as its neighbours move round it."
@@ -352,26 +325,25 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from pedrl.cli import fail
+    from pedrl.common.commands import fail
 
     args = _parser().parse_args(argv)
-    settings = {
-        "places": args.places,
-        "speed_ratios": args.speeds,
-        "samples": args.samples,
-        "crowds": args.crowds,
-        "crowd_size": args.crowd_size,
-        "seed": args.seed,
-    }
     try:  # every argument and every file checked before the first measure
-        check_sight_arguments(**settings)
+        settings = SightSettings(
+            places=args.places,
+            speed_ratios=tuple(args.speeds),
+            samples=args.samples,
+            crowds=args.crowds,
+            crowd_size=args.crowd_size,
+            seed=args.seed,
+        )
         policies = [load_policy(path) for path in args.checkpoints]
     except (ValueError, TypeError) as err:
         fail(PROGRAM, str(err))
     print("| checkpoint | speed | K | " + " | ".join(MEASURES) + " | sees neighbours |")
     print("|---|---|---|" + "---|" * len(MEASURES) + "---|")
     for path, policy in zip(args.checkpoints, policies, strict=True):
-        sight = neighbour_sight(policy, **settings)
+        sight = neighbour_sight(policy, settings)
         for ratio in sight.speed_ratios:
             cells = " | ".join(f"{sight.mean(m, ratio):.1f} ± {sight.std(m, ratio):.1f}" for m in MEASURES)
             verdict = "yes" if sight.sees_neighbours(ratio) else "no"

@@ -26,9 +26,9 @@ from dataclasses import dataclass
 
 import torch
 
+from pedrl.common.checks import MAX_SEED, check_integer, check_number
 from pedrl.policy_files import load_policy, room_factory
 from pedrl.rl.policy import TabularPolicy
-from pedrl.sim.checks import MAX_SEED, check_integer, check_number
 from pedrl.sim.sensing import observe
 from pedrl.vq.encoder import StateEncoder
 
@@ -111,12 +111,28 @@ def turn_ids(
         prepared.append(encoder.prepare(obs.features[:, 0], num_sensed, index, generator))
         sensed_counts.append(num_sensed)
     rows = torch.cat(prepared)  # (H * R, F), heading-major
-    counts = torch.cat(sensed_counts)
+    return process_ids(encoder, rows, torch.cat(sensed_counts), processes).view(processes, headings, replicas)
+
+
+def process_ids(
+    encoder: StateEncoder, prepared: torch.Tensor, num_sensed: torch.Tensor, processes: int
+) -> torch.Tensor:
+    """State ids ``(P, B)`` of prepared rows ``(B, F)`` with ``num_sensed (B,)`` neighbours, as each of ``encoder``'s
+    first ``processes`` learning processes encodes them."""
     ids = [
-        encoder.encode_prepared(rows, counts, torch.full_like(counts, process)).view(headings, replicas)
+        encoder.encode_prepared(prepared, num_sensed, torch.full_like(num_sensed, process))
         for process in range(processes)
     ]
     return torch.stack(ids)
+
+
+def policy_room(policy: TabularPolicy, *, num_replicas: int, num_agents: int):
+    """A room of ``policy``'s training config (:func:`pedrl.room_factory`) on its device; a one-line ``TypeError`` for
+    a ``policy`` that is not a :class:`~pedrl.rl.TabularPolicy` (a trainer, a path), a ``ValueError`` for a crowd the
+    room refuses (its density, its memory)."""
+    if not isinstance(policy, TabularPolicy):
+        raise TypeError(f"policy is a {type(policy).__name__}: must be a TabularPolicy, as pedrl.load_policy returns")
+    return room_factory(policy)(num_replicas=num_replicas, num_agents=num_agents, device=policy.device)
 
 
 def heading_resolution(
@@ -139,16 +155,15 @@ def heading_resolution(
         seed: placements and random void fillings.
 
     Raises:
+        TypeError: one line, for a ``policy`` that is not a TabularPolicy.
         ValueError: one line, for a bad argument (before any compute).
     """
-    if not isinstance(policy, TabularPolicy):
-        raise TypeError(f"policy is a {type(policy).__name__}: must be a TabularPolicy, as pedrl.load_policy returns")
     check_integer("agents", agents, minimum=1, maximum=MAX_AGENTS)
     check_integer("positions", positions, minimum=1, maximum=10_000)
     check_integer("headings", headings, minimum=2, maximum=100_000)
     check_number("speed_ratio", speed_ratio, low=0.0, high=1.0)
     check_integer("seed", seed, minimum=0, maximum=MAX_SEED)
-    room = room_factory(policy)(num_replicas=positions, num_agents=agents, device=policy.device)
+    room = policy_room(policy, num_replicas=positions, num_agents=agents)
     ids = turn_ids(
         policy.encoder,
         room,
@@ -174,7 +189,7 @@ PROGRAM = "python -m pedrl.evaluation.resolution"
 
 
 def _parser() -> argparse.ArgumentParser:
-    from pedrl.cli import OneLineParser, integer_arg, number_arg
+    from pedrl.common.commands import OneLineParser, integer_arg, number_arg
 
     parser = OneLineParser(
         prog=PROGRAM,
@@ -194,14 +209,14 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from pedrl.cli import fail
+    from pedrl.common.commands import fail
 
     args = _parser().parse_args(argv)
     try:  # every argument and every room checked before the first turn
         policies = [load_policy(path) for path in args.checkpoints]
         for policy in policies:
             for agents in args.agents:  # the room's own checks: the bodies fit, the memory suffices
-                room_factory(policy)(num_replicas=args.positions, num_agents=agents, device=policy.device)
+                policy_room(policy, num_replicas=args.positions, num_agents=agents)
     except ValueError as err:
         fail(PROGRAM, str(err))
     print("| checkpoint | agents | K | prototypes per turn | degrees per prototype | changes per turn |")

@@ -48,6 +48,7 @@ import shapely
 from numpy.typing import ArrayLike
 from shapely.geometry import Polygon
 
+from pedrl.common.checks import check_real, first_line
 from pedrl.integrations.jupedsim_data import (
     MODELS,
     JuPedSimModel,
@@ -59,7 +60,6 @@ from pedrl.integrations.jupedsim_data import (
 )
 from pedrl.scenarios import Scenario
 from pedrl.sim import RoomEnv
-from pedrl.sim.checks import check_real, first_line
 
 __all__ = [
     "EXIT_APRON_DEPTH",

@@ -13,8 +13,8 @@ from typing import Any, Final
 import numpy as np
 from numpy.typing import NDArray
 
+from pedrl.common.checks import check_choice, check_number, check_real
 from pedrl.sim import RoomEnv
-from pedrl.sim.checks import check_choice, check_number, check_real
 
 MODELS: Final = (
     "collision_free_speed",

@@ -36,9 +36,9 @@ except ImportError as error:  # one line naming the fix, the cause chained
         f"pedrl.integrations.pettingzoo needs pettingzoo and gymnasium ({error}): pip install pedrl[pettingzoo]"
     ) from error
 
+from pedrl.common.checks import check_integer, check_number
 from pedrl.rl.policy import TabularPolicy
 from pedrl.sim import NOOP_ACTION, RoomEnv
-from pedrl.sim.checks import check_integer, check_number
 
 __all__ = ["PedestrianParallelEnv", "parallel_env"]
 

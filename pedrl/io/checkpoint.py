@@ -19,8 +19,8 @@ import torch
 from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
+from pedrl.common.checks import first_line
 from pedrl.io.files import replace_atomically
-from pedrl.sim.checks import first_line
 from pedrl.version import __version__
 
 FORMAT_NAME: Final = "pedrl-checkpoint"

@@ -20,9 +20,9 @@ from typing import Any, Final
 
 import torch
 
+from pedrl.common.checks import check_integer, check_number, first_line
 from pedrl.io import CheckpointError, load_checkpoint, save_checkpoint
 from pedrl.rl.qtable import NUM_ACTIONS, epsilon_greedy, table_rows
-from pedrl.sim.checks import check_integer, check_number, first_line
 from pedrl.vq.encoder import EncoderSettings, StateEncoder, quantizer_from_state_dict
 
 POLICY_KIND: Final = "pedrl-policy"

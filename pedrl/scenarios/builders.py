@@ -13,11 +13,11 @@ import shapely
 import torch
 from shapely.geometry import LineString, Polygon, box
 
+from pedrl.common.checks import shown
 from pedrl.scenarios.model import MAX_EXITS, MAX_SPAWNS, PaperRoom, Scenario, Spawn, overlapping_exits
 from pedrl.scenarios.polygons import MAX_COORDINATE, MISSING, TOLERANCE, bounds_text, check_reach, short_reason
 from pedrl.scenarios.routes import with_routes
 from pedrl.scenarios.wkt import MAX_WKT_BYTES, read_geometry
-from pedrl.sim.checks import shown
 
 SCENARIOS: Final = ("paper_room", "bottleneck", "corridor", "corner", "four_exits", "custom")
 """Names accepted by ``scenario.name``."""

@@ -9,7 +9,7 @@ import numpy as np
 import shapely
 from shapely.geometry import LineString, Polygon
 
-from pedrl.sim.checks import first_line
+from pedrl.common.checks import first_line
 
 TOLERANCE: Final = 1e-6
 """Distance (m) within which an exit counts as lying on the boundary, and a spawn area inside the walkable area."""

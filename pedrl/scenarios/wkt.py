@@ -20,9 +20,9 @@ import numpy as np
 import shapely
 from shapely.geometry import Polygon
 
+from pedrl.common.checks import shown
 from pedrl.notices import warn
 from pedrl.scenarios.polygons import MISSING, check_extent, check_polygon, short_reason
-from pedrl.sim.checks import shown
 
 MAX_WKT_BYTES: Final = 10_000_000
 """Largest WKT file (bytes), or WKT text (characters), of a custom polygon: 10 MB."""

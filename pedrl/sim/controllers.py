@@ -14,7 +14,7 @@ from typing import Any, Protocol
 
 import torch
 
-from pedrl.sim.checks import check_number
+from pedrl.common.checks import check_number
 from pedrl.sim.env import RoomEnv
 
 

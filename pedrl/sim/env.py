@@ -15,15 +15,7 @@ from typing import Any, Final
 
 import torch
 
-from pedrl.sim.actions import (
-    ACTION_FRAMES,
-    DEFAULT_SPEED_RATIOS,
-    DEFAULT_TURN_RATIOS,
-    NUM_ACTIONS,
-    apply_actions,
-    velocities_from,
-)
-from pedrl.sim.checks import (
+from pedrl.common.checks import (
     check_bool,
     check_choice,
     check_device,
@@ -31,6 +23,14 @@ from pedrl.sim.checks import (
     check_memory,
     check_number,
     check_real,
+)
+from pedrl.sim.actions import (
+    ACTION_FRAMES,
+    DEFAULT_SPEED_RATIOS,
+    DEFAULT_TURN_RATIOS,
+    NUM_ACTIONS,
+    apply_actions,
+    velocities_from,
 )
 from pedrl.sim.geometry import Geometry, X, Y, extent, spawn_counts
 from pedrl.sim.motion import (

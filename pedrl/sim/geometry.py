@@ -17,8 +17,9 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any, Final
+from typing import Any, Final, NamedTuple
 
+import numpy as np
 import torch
 
 X: Final = 0
@@ -174,6 +175,38 @@ class RouteTable:
     def to(self, device: str | torch.device) -> RouteTable:
         """The same table on ``device``."""
         return RouteTable(*(t.to(device) for t in self.tensors()))
+
+
+class Walls(NamedTuple):
+    """The walls as the numba kernels read them (:meth:`Geometry.kernel_walls`), float32 but ``aligned``."""
+
+    starts: np.ndarray
+    """``(S, 2)`` each wall's first end (m)."""
+    directions: np.ndarray
+    """``(S, 2)`` from its first end to its second (m)."""
+    inverse: np.ndarray
+    """``(S,)`` one over its squared length (0 for a point)."""
+    aligned: np.ndarray
+    """``(S,)`` bool: axis-aligned (its closest point is a point clamped to its box)."""
+    low: np.ndarray
+    """``(S, 2)`` the lower corner of its bounding box (m)."""
+    high: np.ndarray
+    """``(S, 2)`` the upper corner of its bounding box (m)."""
+
+
+class Exits(NamedTuple):
+    """The exits as the numba kernels read them (:meth:`Geometry.kernel_exits`), float32."""
+
+    start: np.ndarray
+    """``(E, 2)`` each exit's first end (m)."""
+    normal: np.ndarray
+    """``(E, 2)`` its unit normal out of the area."""
+    tangent: np.ndarray
+    """``(E, 2)`` from its first end to its second (m)."""
+    span: np.ndarray
+    """``(E,)`` its squared length (m^2)."""
+    goals: np.ndarray
+    """``(E, 2)`` its goal point (m)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -391,6 +424,25 @@ class Geometry:
     def inside(self, points: torch.Tensor) -> torch.Tensor:
         """Whether each point ``(..., 2)`` lies inside the walkable area (even-odd against :attr:`boundary`)."""
         return inside_polygon(points, self.boundary)
+
+    def wall_segments(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Wall starts ``(S, 2)``, directions ``(S, 2)`` and inverse squared lengths ``(S,)`` (0 for a point)."""
+        starts = self.walls[:, 0]
+        directions = self.walls[:, 1] - starts
+        length_sq = directions[:, X] * directions[:, X] + directions[:, Y] * directions[:, Y]
+        inverse = torch.where(length_sq > 0, 1.0 / length_sq.clamp_min(1e-30), 0.0)
+        return starts.contiguous(), directions.contiguous(), inverse.contiguous()
+
+    def kernel_walls(self) -> Walls:
+        """The walls as the numba kernels read them (:class:`Walls`, on the CPU)."""
+        starts, directions, inverse = self.wall_segments()
+        parts = (starts, directions, inverse, self.aligned_walls, self.box_low, self.box_high)
+        return Walls(*(t.contiguous().numpy() for t in parts))
+
+    def kernel_exits(self) -> Exits:
+        """The exits as the numba kernels read them (:class:`Exits`, on the CPU)."""
+        parts = (self.exits[:, 0], self.exit_normals, self.exit_tangents, self.exit_spans, self.exit_goals)
+        return Exits(*(t.contiguous().numpy() for t in parts))
 
     def to(self, device: str | torch.device) -> Geometry:
         """The same geometry with every tensor on ``device``."""

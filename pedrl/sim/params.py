@@ -1,29 +1,58 @@
 """The constants of a batch of rooms, :class:`RoomParams`: every setting of :class:`pedrl.sim.RoomEnv` but the batch
-shape, the device and the walkable area, validated, with what the fast path (the fused numba trial) supports of each.
+shape, the device and the walkable area, validated, with what the fast path (the fused numba trial) supports of each
+and how the fast path's kernels receive it.
 
-Each field declares its fast-path support with :func:`setting`: every value (:data:`ANY`), or only some
-(:func:`only`). :meth:`RoomParams.fast_path_reason` is an allow-list computed from those declarations, so a new
-setting cannot be silently ignored by the fast path: ``tests/sim/test_params.py`` fails for a constructor argument of
-``RoomEnv`` that has no field here, or a field without a declaration.
+Each field declares, with :func:`setting`, its fast-path support (every value, :data:`ANY`, or only some,
+:func:`only`; a class listed stands for its instances: the motion models) and how it reaches the kernels:
+:func:`kernel` (an entry of :data:`KernelRoom` computed from the value, named as the field or as told), :func:`model`
+(several entries computed from a motion model, with the model's fields they read), :func:`derived` (an entry computed
+from the built room, for values that several settings make), :func:`through` (the setting takes part in another
+field's entry) or :func:`host` (the kernels never read it, with the reason). :meth:`RoomParams.fast_path_reason` is an
+allow-list computed from the support, and :data:`KernelRoom` and :meth:`RoomParams.kernel_room` are built from the
+packing declarations, so that a setting the fast path supports cannot be left out of what the kernels receive: a
+field without both declarations, or a field of a motion model the fast path runs that its packing does not read, is a
+``TypeError`` when this module is imported.
 """
 
 from __future__ import annotations
 
+from collections import namedtuple
+from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 from typing import Any, Final
 
-from pedrl.sim.motion import Continuous, Headway, MotionModel, Slide, Stop, Yield
+import numpy as np
+import torch
 
-__all__ = ["ANY", "FastSupport", "RoomParams", "only", "setting", "undeclared"]
+from pedrl.sim.motion import CONTACT_MODELS, Continuous, Headway, MotionModel, Slide, Stop, Yield
+from pedrl.sim.motion.common import steering_array
+
+__all__ = [
+    "ANY",
+    "FastSupport",
+    "KernelRoom",
+    "RoomParams",
+    "derived",
+    "host",
+    "kernel",
+    "model",
+    "only",
+    "setting",
+    "through",
+    "undeclared",
+    "unread",
+]
 
 FAST: Final = "fast"
 """The metadata key of a field's :class:`FastSupport`."""
+PACKING: Final = "packing"
+"""The metadata key of a field's :class:`Packing`."""
 
 
 @dataclass(frozen=True)
 class FastSupport:
     """The values of a setting that the fast path runs: all (``values`` None) or those listed (a class listed stands
-    for its instances: a motion model's class, whatever its parameters)."""
+    for its instances, whatever their parameters, but not for a subclass's: a motion model's class)."""
 
     values: tuple[Any, ...] | None = None
 
@@ -31,11 +60,15 @@ class FastSupport:
         """Why the fast path cannot run with ``name=value`` (one phrase), or None when it can."""
         if self.values is None or value in self.values:
             return None
-        if any(isinstance(allowed, type) and type(value) is allowed for allowed in self.values):
+        if type(value) in self.classes():
             return None
         shown = [_shown(v) for v in self.values]
         allowed = shown[0] if len(shown) == 1 else f"{', '.join(shown[:-1])} or {shown[-1]}"
         return f"with {name}={_shown(value)} (it runs {name}={allowed})"
+
+    def classes(self) -> tuple[type, ...]:
+        """The classes listed (their instances run)."""
+        return tuple(value for value in self.values or () if isinstance(value, type))
 
 
 ANY: Final = FastSupport()
@@ -47,9 +80,52 @@ def only(*values: Any) -> FastSupport:
     return FastSupport(tuple(values))
 
 
-def setting(support: FastSupport) -> Any:
-    """A :class:`RoomParams` field with its fast-path ``support`` declared."""
-    return field(metadata={FAST: support})
+@dataclass(frozen=True)
+class Packing:
+    """How a setting reaches the kernels: as entries of :data:`KernelRoom`, each ``(name, value(setting, room))`` (a
+    name None: the field's); through another field's entry (``through``); or not at all (``host``, with the reason).
+    ``reads``: for a motion model, the fields of the model that its entries (or the room's derived ones) read."""
+
+    entries: tuple[tuple[str | None, Callable[[Any, Any], Any]], ...] = ()
+    through: str | None = None
+    host: str | None = None
+    reads: tuple[str, ...] = ()
+
+
+def kernel(convert: Callable[[Any], Any], entry: str | None = None) -> Packing:
+    """The kernels read ``convert(value)`` as the entry ``entry`` (None: the field's name)."""
+    return Packing(((entry, lambda value, room: convert(value)),))
+
+
+def model(*, reads: tuple[str, ...], **entries: Callable[[Any], Any]) -> Packing:
+    """A motion model reaches the kernels as several entries, each ``convert(model)``, which read the model's fields
+    ``reads`` between them: every field of every model class the fast path runs must be among them
+    (:func:`unread`)."""
+    packed = tuple((entry, lambda value, room, convert=convert: convert(value)) for entry, convert in entries.items())
+    return Packing(packed, reads=reads)
+
+
+def derived(entry: str, value: Callable[[Any], Any]) -> Packing:
+    """The kernels read ``value(room)`` (the built ``RoomEnv``) as the entry ``entry``: a constant that this setting
+    and others make (e.g. the sub-steps of a decision)."""
+    return Packing(((entry, lambda _, room: value(room)),))
+
+
+def through(entry: str) -> Packing:
+    """The setting reaches the kernels in another field's entry ``entry``."""
+    return Packing(through=entry)
+
+
+def host(reason: str) -> Packing:
+    """The kernels never read the setting (``reason``: where it acts instead)."""
+    return Packing(host=reason)
+
+
+def setting(support: FastSupport, packing: Packing) -> Any:
+    """A :class:`RoomParams` field with its fast-path ``support`` and its ``packing`` for the kernels declared."""
+    if not isinstance(support, FastSupport) or not isinstance(packing, Packing):
+        raise TypeError("setting(support, packing): a FastSupport (ANY, only(...)) and a Packing (kernel(...), ...)")
+    return field(metadata={FAST: support, PACKING: packing})
 
 
 def _shown(value: Any) -> str:
@@ -59,30 +135,48 @@ def _shown(value: Any) -> str:
     return value.name if isinstance(value, MotionModel | type) else str(value)
 
 
+_AREA: Final = "the walkable area, which the kernels read as walls and exits (Geometry.kernel_walls, kernel_exits)"
+
+
+def _float32(values: torch.Tensor) -> np.ndarray:
+    return values.to(torch.float32).numpy()
+
+
 @dataclass(frozen=True)
 class RoomParams:
     """The validated settings of a room (``RoomEnv(...)``'s arguments of the same names; units and meanings there)."""
 
-    agent_radius: float = setting(ANY)
-    max_speed: float = setting(ANY)
-    decisions_per_second: float = setting(ANY)
-    max_decisions: int = setting(ANY)
-    num_neighbours: int = setting(ANY)
-    num_walls: int = setting(ANY)
-    speed_ratios: tuple[float, ...] = setting(ANY)
-    turn_ratios: tuple[float, ...] = setting(ANY)
-    reward_goal: float = setting(ANY)
-    reward_crash_wall: float = setting(ANY)
-    reward_crash_agent: float = setting(ANY)
-    reward_default: float = setting(ANY)
-    substep_length: float = setting(ANY)
-    goal_depth: float = setting(ANY)
-    reward_progress: float = setting(ANY)
-    compile_sensing: bool = setting(only(False))  # the fast path senses in its own kernel
-    action_frame: str = setting(ANY)
-    # every model but Simultaneous; Stop with walls that are not all axis-aligned: RoomEnv.fast_path_reason
-    motion: MotionModel = setting(only(Stop, Slide, Headway, Yield, Continuous))
-    queue_weight: float = setting(ANY)  # used at placement, in torch
+    agent_radius: float = setting(ANY, kernel(float))
+    max_speed: float = setting(ANY, kernel(np.float32))
+    decisions_per_second: float = setting(ANY, derived("decision_length", lambda room: float(room.decision_length)))
+    max_decisions: int = setting(ANY, kernel(int))
+    num_neighbours: int = setting(ANY, kernel(int))
+    num_walls: int = setting(ANY, kernel(int))
+    speed_ratios: tuple[float, ...] = setting(ANY, derived("speed_changes", lambda room: _float32(room.speed_changes)))
+    turn_ratios: tuple[float, ...] = setting(ANY, derived("turn_changes", lambda room: _float32(room.turn_changes)))
+    reward_goal: float = setting(ANY, kernel(np.float32))
+    reward_crash_wall: float = setting(ANY, kernel(np.float32))
+    reward_crash_agent: float = setting(ANY, kernel(np.float32))
+    reward_default: float = setting(ANY, kernel(np.float32))
+    substep_length: float = setting(ANY, derived("num_substeps", lambda room: int(room.num_substeps)))
+    goal_depth: float = setting(ANY, host(_AREA))
+    reward_progress: float = setting(ANY, kernel(np.float32))
+    compile_sensing: bool = setting(only(False), host("the fast path senses in its own kernel"))
+    action_frame: str = setting(ANY, kernel(lambda frame: frame == "goal", "goal_frame"))
+    # every model but Simultaneous (Stop only with axis-aligned walls: RoomEnv.fast_path_reason); its time_step
+    # reaches the kernels in num_substeps, the room's sub-steps of a decision
+    motion: MotionModel = setting(
+        only(Stop, Slide, Headway, Yield, Continuous),
+        model(
+            reads=("order", "contact", "time_gap", "time_step", "steering"),
+            contact=lambda motion: CONTACT_MODELS.index(motion.contact),
+            door_first=lambda motion: motion.order == "door_first",
+            time_gap=lambda motion: float(1.0 if motion.time_gap is None else motion.time_gap),  # headway rules only
+            continuous=lambda motion: motion.steering is not None,
+            steering=lambda motion: steering_array(motion.steering),
+        ),
+    )
+    queue_weight: float = setting(ANY, host("used at placement, in torch"))
 
     @classmethod
     def of(cls, room: Any) -> RoomParams:
@@ -98,6 +192,17 @@ class RoomParams:
         values = {f.name: special[f.name] if f.name in special else getattr(room, f.name) for f in fields(cls)}
         return cls(**{name: tuple(v) if isinstance(v, list) else v for name, v in values.items()})
 
+    def kernel_room(self, room: Any) -> KernelRoom:
+        """The constants the kernels read (:data:`KernelRoom`), each from its field's packing declaration; ``room``
+        is the built ``RoomEnv`` of these settings (for the :func:`derived` entries)."""
+        return KernelRoom(
+            **{
+                entry or item.name: value(getattr(self, item.name), room)
+                for item in fields(self)
+                for entry, value in item.metadata[PACKING].entries
+            }
+        )
+
     def fast_path_reason(self) -> str | None:
         """Why the fast path cannot run these settings (one phrase, the first setting it does not support), or None."""
         for item in fields(self):
@@ -108,5 +213,45 @@ class RoomParams:
 
 
 def undeclared(cls: type) -> list[str]:
-    """The fields of the dataclass ``cls`` that declare no fast-path support."""
-    return [item.name for item in fields(cls) if not isinstance(item.metadata.get(FAST), FastSupport)]
+    """The fields of the dataclass ``cls`` that declare no fast-path support or no packing."""
+    return [
+        item.name
+        for item in fields(cls)
+        if not isinstance(item.metadata.get(FAST), FastSupport) or not isinstance(item.metadata.get(PACKING), Packing)
+    ]
+
+
+def _kernel_entries(cls: type) -> list[str]:
+    """The entries of the kernels' room constants declared by ``cls``'s fields, in field order; ``TypeError`` for a
+    :func:`through` that names no entry, two fields packed into one entry, or a field of a model the fast path runs
+    that its packing does not read (:func:`unread`)."""
+    packings = [(item.name, item.metadata[PACKING]) for item in fields(cls)]
+    entries = [entry or name for name, packing in packings for entry, _ in packing.entries]
+    if len(set(entries)) != len(entries):
+        raise TypeError(f"two settings of {cls.__name__} are packed into one kernel entry: {entries}")
+    for name, packing in packings:
+        if packing.through is not None and packing.through not in entries:
+            raise TypeError(f"{cls.__name__}.{name} reaches the kernels through {packing.through!r}, no entry")
+    missing = unread(cls)
+    if missing:
+        raise TypeError(f"the fast path runs model fields that {cls.__name__}'s packing does not read: {missing}")
+    return entries
+
+
+def unread(cls: type) -> list[str]:
+    """``setting.Model.field`` for each field of a model class that a setting of the dataclass ``cls`` lists as run
+    by the fast path, and that the setting's packing does not read (:func:`model`'s ``reads``)."""
+    missing = []
+    for item in fields(cls):
+        packing, support = item.metadata.get(PACKING), item.metadata.get(FAST)
+        if isinstance(packing, Packing) and isinstance(support, FastSupport) and packing.host is None:
+            for klass in support.classes():
+                missing += [
+                    f"{item.name}.{klass.__name__}.{f.name}" for f in fields(klass) if f.name not in packing.reads
+                ]
+    return missing
+
+
+KernelRoom = namedtuple("KernelRoom", _kernel_entries(RoomParams), module=__name__)
+"""The room constants the numba kernels read, by name: one entry per :func:`kernel` or :func:`derived` declaration of
+:class:`RoomParams` (built from the declarations, in field order)."""

@@ -1,5 +1,5 @@
 """The checks of ``RoomEnv``'s arguments, ``reset`` options and actions: each a one-line ``ValueError`` that names the
-bad value (the generic checks of a number, a choice or a device are in :mod:`pedrl.sim.checks`)."""
+bad value (the generic checks of a number, a choice or a device are in :mod:`pedrl.common.checks`)."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ from typing import Any, Final
 
 import torch
 
+from pedrl.common.checks import check_number, check_real, shown
 from pedrl.sim.actions import NOOP_INDEX, NUM_SPEED_CHANGES, count_substeps
-from pedrl.sim.checks import check_number, check_real, shown
 from pedrl.sim.geometry import Geometry, extent
 from pedrl.sim.motion import MOTION_MODELS, MotionModel
 from pedrl.sim.rewards import MAX_REWARD, RewardTable

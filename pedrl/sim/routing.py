@@ -26,7 +26,7 @@ from typing import Any, Final
 
 import torch
 
-from pedrl.sim.checks import check_number
+from pedrl.common.checks import check_number
 from pedrl.sim.geometry import Geometry, X, Y
 
 __all__ = [

@@ -41,8 +41,8 @@ def wrap_difference(angle):
 def _wall_offset(x, y, s, walls):
     """Closest point of wall ``s`` minus ``(x, y)`` (``Geometry.wall_offsets``): clamped to the box of an aligned
     wall, else projected and clamped to the segment."""
-    starts, directions, inverse, aligned, low, high = walls
-    if aligned[s]:
+    starts, directions, inverse, low, high = walls.starts, walls.directions, walls.inverse, walls.low, walls.high
+    if walls.aligned[s]:
         return min(max(x, low[s, 0]), high[s, 0]) - x, min(max(y, low[s, 1]), high[s, 1]) - y
     along = ((x - starts[s, 0]) * directions[s, 0] + (y - starts[s, 1]) * directions[s, 1]) * inverse[s]
     along = min(max(along, np.float32(0.0)), np.float32(1.0))
@@ -76,11 +76,11 @@ def sense_room(r, state, present, walls, k, w, features, num_sensed, distances, 
     """The deictic states of room ``r``'s ``present`` agents (:func:`pedrl.sim.sensing.observe` with observers and
     sensed both ``present``) into ``features[r]`` and ``num_sensed[r]``; the others get 0.
 
-    ``walls`` is ``(starts (S, 2), directions (S, 2), inverse (S,), aligned (S,), low (S, 2), high (S, 2))``
-    float32 but ``aligned`` (bool); ``state`` is :func:`fused_trial`'s. ``distances`` float32 and ``indices`` int64
-    ``(2, max(N, S))`` are scratch.
+    ``walls`` is :class:`pedrl.sim.geometry.Walls`, ``state`` :class:`pedrl.sim.state.KernelState`; ``k`` and ``w``
+    the neighbour and wall slots. ``distances`` float32 and ``indices`` int64 ``(2, max(N, S))`` are scratch.
     """
-    positions, velocities, headings, speeds, _, _, goals, _, _ = state
+    positions, velocities, headings, speeds = state.positions, state.velocities, state.headings, state.speeds
+    goals = state.targets
     num_agents = positions.shape[1]
     slots = min(k, num_agents - 1)
     near_d, wall_d, near_j, wall_s = distances[0], distances[1], indices[0], indices[1]
@@ -112,7 +112,7 @@ def sense_room(r, state, present, walls, k, w, features, num_sensed, distances, 
             features[r, i, 4 + 3 * slot] = near_d[slot]
             features[r, i, 5 + 3 * slot] = wrap_difference(np.arctan2(along_y, along_x) - phi)
         count = 0  # the w nearest walls, nearest first, chosen by squared distance
-        for s in range(walls[0].shape[0]):
+        for s in range(walls.starts.shape[0]):
             off_x, off_y = _wall_offset(x, y, s, walls)
             count = _insert(wall_d, wall_s, count, w, off_x * off_x + off_y * off_y, s)
         for slot in range(count):

@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from typing import Any, Final
+from typing import Any, Final, NamedTuple
 
+import numpy as np
 import torch
 
 from pedrl.sim.geometry import Geometry, X, Y, inside_polygon, wrap_angle
@@ -54,6 +55,19 @@ def check_density(
                 f"num_agents={num_agents!r} is invalid: {count} bodies of radius {agent_radius} m cannot be"
                 f" placed in {where} (they would cover {share} of the free area; at most {MAX_DENSITY:.0%})"
             )
+
+
+class Routes(NamedTuple):
+    """Who heads where, as the numba kernels read it (:meth:`Spawns.kernel_routes`)."""
+
+    assigned: np.ndarray
+    """``(R, N)`` int64: each agent's group's exit, -1 where chosen at placement."""
+    waypoints: np.ndarray
+    """``(R, N, K, 2)`` float32: each agent's route (m)."""
+    route_length: np.ndarray
+    """``(R, N)`` int64: the waypoints of each agent's route."""
+    waypoint_radius: np.float32
+    """Distance (m) at which a waypoint counts as reached."""
 
 
 class Spawns:
@@ -122,6 +136,15 @@ class Spawns:
         return self.waypoints.shape[2] > 0
 
     # ------------------------------------------------------------------ start
+
+    def kernel_routes(self) -> Routes:
+        """The routes as the numba kernels read them (:class:`Routes`, on the CPU)."""
+        return Routes(
+            self.assigned_exit.expand(self.num_replicas, -1).contiguous().numpy(),
+            self.waypoints.to(torch.float32).contiguous().numpy(),
+            self.route_length.contiguous().numpy(),
+            np.float32(self.geometry.waypoint_radius),
+        )
 
     def start(
         self,

@@ -3,11 +3,12 @@ torch step and the numba kernels both read and write (``RoomEnv.state``, ``RoomE
 
 from __future__ import annotations
 
+from collections import namedtuple
 from dataclasses import dataclass, fields
 
 import torch
 
-__all__ = ["RoomState"]
+__all__ = ["KernelState", "RoomState"]
 
 
 @dataclass
@@ -37,8 +38,18 @@ class RoomState:
     stage: torch.Tensor
 
     def tensors(self) -> tuple[torch.Tensor, ...]:
-        """The fields in declaration order (the order of the numba kernels' ``state`` tuple)."""
+        """The fields in declaration order."""
         return tuple(getattr(self, field.name) for field in fields(self))
+
+    def arrays(self) -> KernelState:
+        """The numba kernels' view of the state (:data:`KernelState`): a contiguous array of each field, named as the
+        field; an array shares its tensor's memory where the tensor was contiguous already."""
+        return KernelState(*(t.contiguous().numpy() for t in self.tensors()))
+
+    @classmethod
+    def from_arrays(cls, arrays: KernelState) -> RoomState:
+        """The state held by a kernel's ``arrays`` (their memory, not copies)."""
+        return cls(**{name: torch.from_numpy(getattr(arrays, name)) for name in KernelState._fields})
 
     def clone(self) -> RoomState:
         """A deep copy (contiguous)."""
@@ -55,3 +66,8 @@ class RoomState:
                     f"state.{field.name} is {tuple(mine.shape)} {mine.dtype} on {mine.device}: must be "
                     f"{tuple(theirs.shape)} {theirs.dtype} on {theirs.device}"
                 )
+
+
+KernelState = namedtuple("KernelState", [field.name for field in fields(RoomState)], module=__name__)
+"""What the numba kernels read and write of the state: :class:`RoomState`'s fields as numpy arrays, by the same names
+(built from the dataclass, so that a new field reaches the kernels by its name)."""

@@ -4,6 +4,8 @@ within stated tolerances (``tests/trial/test_twins.py``)."""
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from pedrl._numba import cached_njit
@@ -12,48 +14,114 @@ from pedrl.sim.motion.sequential_kernel import sequential_room
 from pedrl.sim.motion.sliding_kernel import sliding_room
 from pedrl.sim.sensing_kernel import wrap
 
-__all__ = ["act_room", "act_scratch"]
+__all__ = ["ActScratch", "Events", "Work", "act_room", "act_scratch"]
 
 _MARGIN = np.float32(PAIR_MARGIN)
 
 
+class Work(NamedTuple):
+    """The move's arrays of every room, ``(R, N)`` but ``moved_to`` and ``step`` ``(R, N, 2)`` and ``no_walls``
+    (:func:`act_room` writes room ``r``'s rows; :meth:`allocate`)."""
+
+    moved_to: np.ndarray
+    step: np.ndarray
+    going: np.ndarray
+    present: np.ndarray
+    order: np.ndarray
+    depth: np.ndarray
+    blocked: np.ndarray
+    cut_wall: np.ndarray
+    cut_body: np.ndarray
+    reached: np.ndarray
+    no_walls: np.ndarray
+    """``(substeps, 1, 1)`` bool, all false: the walls are clamped by boxes in the stop rule's kernel."""
+    draws: np.ndarray
+    """float32: the uniform draws that order the movers (``RoomEnv``'s ``priority``), written before each call."""
+
+    @classmethod
+    def allocate(cls, rooms: int, agents: int, substeps: int) -> Work:
+        shape = (rooms, agents)
+        flags = [np.zeros(shape, np.bool_) for _ in range(6)]
+        return cls(
+            np.zeros((*shape, 2), np.float32),
+            np.zeros((*shape, 2), np.float32),
+            flags[0],
+            flags[1],
+            np.zeros(shape, np.int64),
+            np.zeros(shape, np.float32),
+            *flags[2:],
+            np.zeros((substeps, 1, 1), np.bool_),
+            np.zeros(shape, np.float32),
+        )
+
+
+class Events(NamedTuple):
+    """What the latest decision did, ``(R, N)`` each (:func:`act_room` writes room ``r``'s rows)."""
+
+    reward: np.ndarray
+    left: np.ndarray
+    """bool: passed an exit."""
+    goal: np.ndarray
+    """bool: passed its own exit."""
+    crashed_wall: np.ndarray
+    crashed_agent: np.ndarray
+    acting: np.ndarray
+    """bool: took the decision."""
+    in_room: np.ndarray
+    """bool: took it and is still in the room."""
+
+    @classmethod
+    def allocate(cls, rooms: int, agents: int) -> Events:
+        return cls(np.zeros((rooms, agents), np.float32), *(np.zeros((rooms, agents), np.bool_) for _ in range(6)))
+
+
+class ActScratch(NamedTuple):
+    """Per-agent scratch of :func:`act_room`, one per thread (:func:`act_scratch`)."""
+
+    priority: np.ndarray
+    old_x: np.ndarray
+    old_y: np.ndarray
+    moved: np.ndarray
+    flags: np.ndarray
+    current: np.ndarray
+    rank_of: np.ndarray
+
+
 @cached_njit(nogil=True)
 def act_scratch(num_agents):
-    """The per-agent scratch of :func:`act_room`, one per thread: ``(priority, old_x, old_y, moved, flags (2, N),
-    current (N, 2), rank_of)``."""
-    return (np.empty(num_agents, np.float32), np.empty(num_agents, np.float32), np.empty(num_agents, np.float32),
-            np.empty(num_agents, np.float32), np.empty((2, num_agents), np.bool_),
-            np.empty((num_agents, 2), np.float32), np.empty(num_agents, np.int64))  # fmt: skip
+    """The per-agent scratch of :func:`act_room` (:class:`ActScratch`), one per thread."""
+    return ActScratch(np.empty(num_agents, np.float32), np.empty(num_agents, np.float32),
+                      np.empty(num_agents, np.float32), np.empty(num_agents, np.float32),
+                      np.empty((2, num_agents), np.bool_), np.empty((num_agents, 2), np.float32),
+                      np.empty(num_agents, np.int64))  # fmt: skip
 
 
 @cached_njit(nogil=True)
-def act_room(r, state, actions, room, walls, exits, work, events, scratch):
+def act_room(r, state, actions, room, walls, exits, routes, work, events, scratch):
     """One decision of room ``r`` (:meth:`pedrl.sim.RoomEnv.step` without the observation): the ``actions``, the
     move by the room's contact rule, the exits, the clock and the rewards; ``state`` is updated in place.
 
-    ``room`` is ``(speed_changes (9,), turn_changes (9,), max_speed, decision_length, num_substeps, radius, contact,
-    door_first, time_gap, goal_frame, max_decisions, rewards (4,): goal, wall, agent, default, reward_progress,
-    assigned (R, N), exit_goals (X, 2), steer, steering (4,), waypoints (R, N, W, 2), route_length (R, N),
-    waypoint_radius)``: ``steer`` is ``motion=continuous`` with the direction rule's ``(a, D, b, B)``; the last three
-    the routes (flat: a parallel kernel takes no tuple in a tuple);
-    ``exits`` ``(start, normal, tangent, span)``; ``work`` ``(R, N)``-shaped arrays of the move, the last the
-    uniform draws that order the movers (``RoomEnv``'s ``priority``); ``events`` ``(reward, left, goal,
-    crashed_wall, crashed_agent, acting, in_room)``, written for room ``r``.
+    ``state`` is :class:`pedrl.sim.state.KernelState`, ``room`` :class:`pedrl.sim.params.KernelRoom`, ``walls``
+    :class:`pedrl.sim.geometry.Walls`, ``exits`` :class:`pedrl.sim.geometry.Exits`, ``routes``
+    :class:`pedrl.sim.spawning.Routes`; ``work`` (:class:`Work`) and ``events`` (:class:`Events`) get room ``r``'s
+    rows, ``scratch`` is :func:`act_scratch`'s.
     """
-    positions, velocities, headings, speeds, active, exit_index, targets, decisions, stage = state
-    speed_changes, turn_changes, max_speed, length, substeps, radius, contact, door_first, time_gap = room[:9]
-    goal_frame, max_decisions, rewards, reward_progress, assigned, exit_goals, steer, steering = room[9:17]
-    routes = room[17:]
-    moved_to, step, going, present, order, depth, blocked, cut_wall, cut_body, reached, no_walls, draws = work
-    reward, left, goal, crashed_wall, crashed_agent, acting, in_room = events
-    priority, old_x, old_y, moved, flags, current, rank_of = scratch
-    starts, directions, inverse, _, low, high = walls
-    exit_start, exit_normal, exit_tangent, exit_span = exits
+    positions, velocities, headings, speeds = state.positions, state.velocities, state.headings, state.speeds
+    active, exit_index, targets, decisions = state.active, state.exit_index, state.targets, state.decisions
+    speed_changes, turn_changes, max_speed = room.speed_changes, room.turn_changes, room.max_speed
+    length, substeps, radius, contact = room.decision_length, room.num_substeps, room.agent_radius, room.contact
+    moved_to, step, going, present, order = work.moved_to, work.step, work.going, work.present, work.order
+    depth, blocked, cut_wall, cut_body, reached = work.depth, work.blocked, work.cut_wall, work.cut_body, work.reached
+    reward, left, goal, acting, in_room = events.reward, events.left, events.goal, events.acting, events.in_room
+    crashed_wall, crashed_agent = events.crashed_wall, events.crashed_agent
+    priority, old_x, old_y = scratch.priority, scratch.old_x, scratch.old_y
+    moved, current = scratch.moved, scratch.current
+    exit_start, exit_normal, exit_tangent, exit_span = exits.start, exits.normal, exits.tangent, exits.span
     zero = np.float32(0.0)
     num_agents = positions.shape[1]
     for i in range(num_agents):
         acting[r, i] = active[r, i]
-        if active[r, i] and goal_frame:  # pedrl.sim.actions.apply_actions with bearings
+        if active[r, i] and room.goal_frame:  # pedrl.sim.actions.apply_actions with bearings
             bearing = np.arctan2(targets[r, i, 1] - positions[r, i, 1], targets[r, i, 0] - positions[r, i, 0])
             speeds[r, i] = min(max(speed_changes[actions[r, i] // 9], zero), max_speed)
             headings[r, i] = wrap(bearing + turn_changes[actions[r, i] % 9])
@@ -63,8 +131,8 @@ def act_room(r, state, actions, room, walls, exits, work, events, scratch):
         velocities[r, i, 0] = speeds[r, i] * np.cos(headings[r, i])
         velocities[r, i, 1] = speeds[r, i] * np.sin(headings[r, i])
         old_x[i], old_y[i] = positions[r, i, 0], positions[r, i, 1]
-        priority[i] = draws[r, i]
-        if door_first:  # metres dominate, the uniform draw breaks ties
+        priority[i] = work.draws[r, i]
+        if room.door_first:  # metres dominate, the uniform draw breaks ties
             distance = np.hypot(old_x[i] - targets[r, i, 0], old_y[i] - targets[r, i, 1])
             priority[i] = distance + priority[i] * np.float32(1e-3)
         present[r, i] = active[r, i]
@@ -78,9 +146,10 @@ def act_room(r, state, actions, room, walls, exits, work, events, scratch):
             going[r, i] = active[r, i] and (step[r, i, 0] != zero or step[r, i, 1] != zero)
             depth[r, i] = np.sqrt(step[r, i, 0] * step[r, i, 0] + step[r, i, 1] * step[r, i, 1]) + _MARGIN
         sequential_room(
-            r, positions, step, going, present, depth, no_walls, low, high, np.float32(radius * radius),
-            exit_start, exit_normal, exit_tangent, exit_span, order, np.float32(4.0 * radius * radius), moved_to,
-            blocked, cut_wall, reached, moved, flags[0], flags[1], current,
+            r, positions, step, going, present, depth, work.no_walls, walls.low, walls.high,
+            np.float32(radius * radius), exit_start, exit_normal, exit_tangent, exit_span, order,
+            np.float32(4.0 * radius * radius), moved_to, blocked, cut_wall, reached, moved, scratch.flags[0],
+            scratch.flags[1], current,
         )  # fmt: skip
         for i in range(num_agents):
             cut_body[r, i] = blocked[r, i] and not cut_wall[r, i]
@@ -88,11 +157,11 @@ def act_room(r, state, actions, room, walls, exits, work, events, scratch):
         for i in range(num_agents):
             going[r, i] = active[r, i] and (velocities[r, i, 0] != zero or velocities[r, i, 1] != zero)
         sliding_room(
-            r, positions, velocities, going, present, order, starts, directions, inverse, exit_start, exit_normal,
-            exit_tangent, exit_span, np.float32(radius * radius), np.float32(4.0 * radius * radius),
-            np.float32(length / substeps), substeps, contact >= HEADWAY, contact == YIELD, np.float32(time_gap),
-            np.float32(2.0 * radius), _MARGIN, steer, steering, moved_to, blocked, cut_wall, cut_body, reached, step[r],
-            current, moved, rank_of,
+            r, positions, velocities, going, present, order, walls.starts, walls.directions, walls.inverse, exit_start,
+            exit_normal, exit_tangent, exit_span, np.float32(radius * radius), np.float32(4.0 * radius * radius),
+            np.float32(length / substeps), substeps, contact >= HEADWAY, contact == YIELD, np.float32(room.time_gap),
+            np.float32(2.0 * radius), _MARGIN, room.continuous, room.steering, moved_to, blocked, cut_wall, cut_body,
+            reached, step[r], current, moved, scratch.rank_of,
         )  # fmt: skip
     decisions[r] += 1
     for i in range(num_agents):
@@ -110,41 +179,40 @@ def act_room(r, state, actions, room, walls, exits, work, events, scratch):
         crashed_agent[r, i] = cut_body[r, i] and not cut_wall[r, i]
         left[r, i] = reached[r, i]
         in_room[r, i] = acting[r, i] and not reached[r, i]
-        active[r, i] = in_room[r, i] and decisions[r] < max_decisions
-        own = assigned[r, i] < 0
+        active[r, i] = in_room[r, i] and decisions[r] < room.max_decisions
+        own = routes.assigned[r, i] < 0
         if reached[r, i] and not own:  # the exit passed: the one whose goal point is nearest
             nearest, best = 0, np.float32(np.inf)
-            for e in range(exit_goals.shape[0]):
-                gap = (new_x - exit_goals[e, 0]) ** 2 + (new_y - exit_goals[e, 1]) ** 2
+            for e in range(exits.goals.shape[0]):
+                gap = (new_x - exits.goals[e, 0]) ** 2 + (new_y - exits.goals[e, 1]) ** 2
                 if gap < best:
                     nearest, best = e, gap
             own = nearest == exit_index[r, i]
         goal[r, i] = reached[r, i] and own
-        value = rewards[3]
+        value = room.reward_default
         if crashed_agent[r, i]:
-            value = rewards[2]
+            value = room.reward_crash_agent
         if crashed_wall[r, i]:
-            value = rewards[1]
+            value = room.reward_crash_wall
         if goal[r, i]:
-            value = rewards[0]
+            value = room.reward_goal
         if acting[r, i]:
             before = np.hypot(old_x[i] - targets[r, i, 0], old_y[i] - targets[r, i, 1])
             after = np.hypot(new_x - targets[r, i, 0], new_y - targets[r, i, 1])
-            reward[r, i] = value + reward_progress * (before - after)
+            reward[r, i] = value + room.reward_progress * (before - after)
         else:
             reward[r, i] = zero
         positions[r, i, 0], positions[r, i, 1] = new_x, new_y
-        if routes[0].shape[2] > 0:
-            _advance(r, i, positions, stage, exit_index, targets, routes, exit_goals)
+        if routes.waypoints.shape[2] > 0:
+            _advance(r, i, positions, state.stage, exit_index, targets, routes, exits.goals)
 
 
 @cached_njit(nogil=True, inline="always")
 def _route_point(r, i, stage, exit_index, routes, exit_goals):
     """``Spawns.route_point`` of agent ``i`` of room ``r``: waypoint ``stage`` of its route, or its exit's goal point
     past it."""
-    waypoints, route_length, _ = routes
-    if stage < route_length[r, i]:
-        return waypoints[r, i, stage, 0], waypoints[r, i, stage, 1]
+    if stage < routes.route_length[r, i]:
+        return routes.waypoints[r, i, stage, 0], routes.waypoints[r, i, stage, 1]
     return exit_goals[exit_index, 0], exit_goals[exit_index, 1]
 
 
@@ -152,7 +220,7 @@ def _route_point(r, i, stage, exit_index, routes, exit_goals):
 def _advance(r, i, positions, stage, exit_index, targets, routes, exit_goals):
     """``Spawns.advance`` of agent ``i`` of room ``r``: past each waypoint it reached (within the radius, or beyond
     the line through it across the way on), it aims at the next point."""
-    route_length, radius = routes[1], routes[2]
+    route_length, radius = routes.route_length, routes.waypoint_radius
     while stage[r, i] < route_length[r, i]:
         x, y = _route_point(r, i, stage[r, i], exit_index[r, i], routes, exit_goals)
         next_x, next_y = _route_point(r, i, stage[r, i] + 1, exit_index[r, i], routes, exit_goals)

@@ -1,87 +1,37 @@
 """The fused trial: a whole trial of every room as one compiled pass per learning process, on every core.
 
-:func:`run_trial_fused` is :func:`pedrl.trial.rollout.run_trial` on the CPU without a torch operation per decision:
-one call of :func:`pedrl.trial.fused_kernels.fused_trial` runs every decision of the trial (the loop over the stage
-kernels: act, sense, encode, learn, choose), the learning processes in parallel over numba's threads.
-:func:`record_trial_fused` runs a trial of a learned policy or of the greedy walker without learning and records
-every frame, for ``pedrl-eval`` and ``pedrl-validate``. The torch loop stays the reference (and the path on a GPU,
-or with ``fused=false``); this one matches it within the tolerances of :mod:`pedrl.trial.twins` and equals itself
-for a seed at any thread count. Where it runs is an allow-list: :meth:`pedrl.sim.RoomEnv.fast_path_reason` (each
-room setting's declaration) and :func:`fused_reason` (the tables and quantizer: every kind, shared, per process
-and IN-VQQL's union).
+:func:`run_trial_fused` is the torch loop (:func:`pedrl.trial.loop.crowd_loop`) of a learning trial on the CPU without
+a torch operation per decision: one call of :func:`pedrl.trial.fused_kernels.fused_trial` runs every decision of the
+trial (the loop over the stage kernels: act, sense, encode, learn, choose), the learning processes in parallel over
+numba's threads. :func:`record_trial_fused` runs a trial of a learned policy or of the greedy walker without learning
+and records every frame, for ``pedrl-eval`` and ``pedrl-validate``. The torch loop stays the reference (and the path on
+a GPU, or with ``fused=false``); this one matches it within the tolerances of :mod:`pedrl.trial.twins` and equals
+itself for a seed at any thread count. Both are run by :func:`pedrl.trial.crowd.run_crowd` only, after
+:func:`pedrl.trial.crowd.choose_path` found that they can run the room and the controller (an allow-list).
 """
 
 from __future__ import annotations
 
 import functools
-from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch
 
-from pedrl._numba import numba, numba_available
+from pedrl._numba import numba
 from pedrl.rl.policy import PolicyController, TabularPolicy
 from pedrl.sim import RoomEnv
-from pedrl.sim.controllers import GreedyDoorController
-from pedrl.sim.motion import CONTACT_MODELS
-from pedrl.sim.motion.common import steering_array
-from pedrl.sim.sensing import MIN_VOID_DISTANCE
-from pedrl.sim.state import RoomState
+from pedrl.sim.geometry import Exits, Walls
+from pedrl.sim.params import KernelRoom
+from pedrl.sim.spawning import Routes
+from pedrl.sim.state import KernelState, RoomState
+from pedrl.trial.loop import Learner
 from pedrl.trial.stats import TOTALS, TrialStats
 from pedrl.vq.encoder import EncoderSettings, StateEncoder
 from pedrl.vq.quantizer import Quantizer
 
-__all__ = [
-    "FusedRecord",
-    "check_fused",
-    "controller_reason",
-    "fused_reason",
-    "record_trial_fused",
-    "room_reason",
-    "run_trial_fused",
-    "set_kernel_threads",
-]
-
-
-def fused_reason(env: RoomEnv, policy: TabularPolicy) -> str | None:
-    """Why the fused trial cannot run ``policy`` in ``env`` (one phrase), or None when it can."""
-    if policy.device.type != "cpu":
-        return f"on {policy.device.type}: it runs on the CPU"
-    settings = policy.encoder.settings
-    if (env.num_neighbours, env.num_walls) != (settings.num_neighbours, settings.num_walls):
-        return "in a room that senses other neighbour or wall slots than the encoder reads"
-    quantizer = policy.encoder.quantizer
-    if quantizer is None:
-        return "with an encoder that has no quantizer"
-    parts = getattr(quantizer, "num_processes", policy.num_processes)
-    if parts != policy.num_processes or quantizer.num_prototypes != policy.q_values.shape[2]:
-        return "with tables that do not match the quantizer (processes or prototypes)"
-    if policy.q_values.dtype != torch.float32 or not policy.q_values.is_contiguous():
-        return "with tables that are not contiguous float32"
-    return room_reason(env)
-
-
-def room_reason(env: RoomEnv) -> str | None:
-    """Why the fused trial cannot run in ``env`` (one phrase), or None when it can: the room's own
-    :meth:`~pedrl.sim.RoomEnv.fast_path_reason` (an allow-list of its settings), and numba."""
-    if not numba_available():
-        return "without numba (PEDRL_NO_NUMBA is set, or numba is missing)"
-    return env.fast_path_reason()
-
-
-def check_fused(fused: Any, rooms: Sequence[RoomEnv]) -> bool | None:
-    """``fused`` (None, True or False), refused in one line unless a boolean or null, or when True for a room the
-    fused trial cannot run (:func:`pedrl.trial.fused.room_reason`)."""
-    if fused is not None and not isinstance(fused, bool):
-        raise ValueError(f"fused={fused!r} is invalid: must be true, false or null")
-    if fused:
-        for room in rooms:
-            reason = room_reason(room)
-            if reason is not None:
-                raise ValueError(f"fused=true is invalid: the fused trial cannot run {reason} (false or null)")
-    return fused
+__all__ = ["FusedRecord", "RoomInputs", "record_trial_fused", "room_inputs", "run_trial_fused", "set_kernel_threads"]
 
 
 def set_kernel_threads(threads: int) -> None:
@@ -93,23 +43,15 @@ def set_kernel_threads(threads: int) -> None:
     module.set_num_threads(max(1, min(threads, module.config.NUMBA_NUM_THREADS)))
 
 
-def run_trial_fused(
-    env: RoomEnv,
-    policy: TabularPolicy,
-    *,
-    epsilon: float,
-    generator: torch.Generator,
-    learn: bool,
-    alpha: float = 0.0,
-    gamma: float = 0.0,
-) -> TrialStats:
-    """:func:`pedrl.trial.rollout.run_trial` as one compiled pass (module docstring): the same arguments and
-    statistics. ``generator`` gives the trial's seed (one draw); the room's resets draw from ``env.generator``."""
-    reason = fused_reason(env, policy)
-    if reason is not None:
-        raise ValueError(f"the fused trial cannot run {reason}")
-    totals, td_sums, steps, _, _ = _launch(env, policy, epsilon, generator, learn, alpha, gamma, record=False)
-    return _stats(env, torch.from_numpy(totals).float(), td_sums, steps, policy.num_processes, learn)
+def run_trial_fused(env: RoomEnv, learner: Learner) -> TrialStats:
+    """``learner``'s trial (a learning or acting trial of its policy) as one compiled pass (module docstring): the
+    statistics of :func:`pedrl.trial.loop.crowd_loop`'s. Its ``generator`` gives the trial's seed (one draw); the
+    room's resets draw from ``env.generator``."""
+    policy = learner.policy
+    totals, td_sums, steps, _, _ = _launch(
+        env, policy, learner.epsilon, learner.generator, learner.learn, learner.alpha, learner.gamma, record=False
+    )
+    return _stats(env, torch.from_numpy(totals).float(), td_sums, steps, policy.num_processes, learner.learn)
 
 
 @dataclass(frozen=True)
@@ -134,33 +76,18 @@ class FusedRecord:
         return np.concatenate((self.active[:, 1:], np.zeros_like(self.active[:, :1])), axis=1)
 
 
-def controller_reason(env: RoomEnv, controller: Any) -> str | None:
-    """Why the fused trial cannot run ``controller`` in ``env`` (one phrase), or None when it can: it runs a
-    :class:`~pedrl.rl.policy.PolicyController` (a learned policy) and the greedy walker
-    (:class:`~pedrl.sim.controllers.GreedyDoorController`)."""
-    if isinstance(controller, PolicyController):
-        return fused_reason(env, controller.policy)
-    if type(controller) is GreedyDoorController:
-        return room_reason(env)
-    return f"with a {type(controller).__name__} (it runs learned policies and the greedy walker)"
-
-
 def record_trial_fused(env: RoomEnv, controller: Any, *, reset: bool = True) -> FusedRecord:
     """One trial of every room of ``env``, acted by ``controller`` (a learned policy, epsilon-greedy without
     learning, or the greedy walker, with the controller's own ``epsilon`` and ``generator``), recorded frame by
     frame: from a reset (its generator draws the scene), or with ``reset=False`` from the rooms' current state (a
-    reset the caller made, e.g. with placed agents). ``ValueError`` where the fused trial cannot run
-    (:func:`controller_reason`)."""
-    reason = controller_reason(env, controller)
-    if reason is not None:
-        raise ValueError(f"the fused trial cannot run {reason}")
+    reset the caller made, e.g. with placed agents)."""
     greedy = not isinstance(controller, PolicyController)
     policy = _walker_policy(env) if greedy else controller.policy
     totals, _, steps, trace, room_steps = _launch(
         env, policy, controller.epsilon, controller.generator, False, 0.0, 0.0, record=True, greedy=greedy, reset=reset
     )
     frames = int(steps.max()) + 1
-    positions, velocities, active = (a[:, :frames] for a in trace)
+    positions, velocities, active = trace.positions[:, :frames], trace.velocities[:, :frames], trace.present[:, :frames]
     for r, last in enumerate(room_steps.tolist()):  # a room that emptied early keeps its last frame, as in torch
         positions[r, last + 1 :] = positions[r, last]
         velocities[r, last + 1 :] = velocities[r, last]
@@ -181,12 +108,32 @@ def _walker_policy_for(settings: EncoderSettings, num_actions: int) -> TabularPo
     return TabularPolicy(StateEncoder(settings, quantizer), torch.zeros(1, 1, 1, num_actions))
 
 
+class RoomInputs(NamedTuple):
+    """What :func:`pedrl.sim.step_kernel.act_room` reads of a room besides its state (:func:`room_inputs`)."""
+
+    room: KernelRoom
+    walls: Walls
+    exits: Exits
+    routes: Routes
+
+
+def room_inputs(env: RoomEnv) -> RoomInputs:
+    """The room's constants, walls, exits and routes as the kernels read them, each built beside its type."""
+    return RoomInputs(
+        env.params.kernel_room(env),
+        env.geometry.kernel_walls(),
+        env.geometry.kernel_exits(),
+        env.spawns.kernel_routes(),
+    )
+
+
 def _launch(env, policy, epsilon, generator, learn, alpha, gamma, *, record, greedy=False, reset=True):
     """Reset ``env`` (unless ``reset`` is False), run :func:`pedrl.trial.fused_kernels.fused_trial` and write the
-    rooms' state back: the per-agent totals, the TD sums, each thread's decisions, the trace (empty unless ``record``)
-    and each room's decisions."""
+    rooms' state back: the per-agent totals, the TD sums, each thread's decisions, the trace (one frame unless
+    ``record``) and each room's decisions."""
+    from pedrl.sim.step_kernel import Events, Work
     from pedrl.sim.streams import seed_streams
-    from pedrl.trial.fused_kernels import fused_trial
+    from pedrl.trial.fused_kernels import Learning, Observed, Trace, fused_trial
     from pedrl.vq.encode_kernel import pack_encoder
 
     set_kernel_threads(torch.get_num_threads())
@@ -197,7 +144,7 @@ def _launch(env, policy, epsilon, generator, learn, alpha, gamma, *, record, gre
     process, base_rows = layout.of(rooms, agents, env.device)
     # rooms that learn into shared tables run in one thread; rooms that only read them, each in its own
     group = (layout.rooms_per_process if layout.blocks(rooms) else rooms) if learn else 1
-    state = _arrays(env.state)
+    state = env.state.arrays()
     streams = np.empty(rooms, np.uint64)
     seed_streams(np.uint64(int(torch.randint(0, 2**62, (1,), generator=generator))), streams)
     totals = np.zeros((len(TOTALS), rooms, agents))
@@ -205,131 +152,47 @@ def _launch(env, policy, epsilon, generator, learn, alpha, gamma, *, record, gre
     steps = np.zeros(rooms // group, np.int64)
     settings = policy.encoder.settings
     random_void = settings.void_features == "random"
-    frames = env.max_decisions + 1 if record else 1
-    trace = (np.zeros((rooms, frames, agents if record else 1, 2), np.float32),
-             np.zeros((rooms, frames, agents if record else 1, 2), np.float32),
-             np.zeros((rooms, frames, agents if record else 1), np.bool_))  # fmt: skip
-    learning = (np.float32(epsilon), learn, np.float32(alpha), np.float32(gamma), settings.void_draws == "decision",
-                greedy)  # fmt: skip
+    trace = Trace.allocate(rooms, env.max_decisions + 1 if record else 1, agents if record else 1)
+    learning = Learning(np.float32(epsilon), learn, np.float32(alpha), np.float32(gamma),
+                        settings.void_draws == "decision", greedy)  # fmt: skip
+    packed = pack_encoder(policy.encoder, policy.num_processes)
+    inputs = room_inputs(env)
     fused_trial(
         group,
         state,
-        _room(env),
-        _walls(env),
-        _exits(env),
-        *pack_encoder(policy.encoder, policy.num_processes),
-        _encoding(settings),
+        inputs.room,
+        inputs.walls,
+        inputs.exits,
+        inputs.routes,
+        packed.arrays,
+        packed.tree,
+        packed.pruned,
+        settings.kernel(),
         learning,
         policy.q_values.view(-1, policy.num_actions).numpy(),
         base_rows.view(rooms, agents).numpy(),
         process.view(rooms, agents)[:, 0].contiguous().numpy(),
         streams,
-        _work(env),
-        _events(rooms, agents),
-        _observed(rooms, agents, env.num_features),
+        Work.allocate(rooms, agents, env.num_substeps),
+        Events.allocate(rooms, agents),
+        Observed.allocate(rooms, agents, env.num_features),
         np.zeros((rooms, agents, 3 * settings.num_neighbours + 1 if random_void else 1), np.float32),
         totals,
         td_sums,
         steps,
         trace,
     )
-    room_steps = state[7].copy()  # each room's own decisions, before every clock is set to the trial's
+    room_steps = state.decisions.copy()  # each room's own decisions, before every clock is set to the trial's
     _write_back(env, state, int(steps.max()))
     return totals, td_sums, steps, trace, room_steps
 
 
-def _arrays(state: RoomState) -> tuple[np.ndarray, ...]:
-    """The kernels' ``state`` tuple: a contiguous array of each field, in :class:`RoomState`'s order."""
-    return tuple(t.contiguous().numpy() for t in state.tensors())
-
-
-def _write_back(env: RoomEnv, state: tuple[np.ndarray, ...], steps: int) -> None:
+def _write_back(env: RoomEnv, state: KernelState, steps: int) -> None:
     """The rooms' state after the trial, into ``env``: every room's clock at the trial's decisions (as the torch loop,
     which steps every room until all are empty), the trial clock advanced by them."""
-    after = RoomState(*(torch.from_numpy(a) for a in state))
+    after = RoomState.from_arrays(state)
     after.decisions.fill_(steps)
     env.load_state(after, decisions_taken=steps)
-
-
-def _room(env: RoomEnv) -> tuple[Any, ...]:
-    rewards = env.rewards
-    return (
-        env.speed_changes.to(torch.float32).numpy(),
-        env.turn_changes.to(torch.float32).numpy(),
-        np.float32(env.max_speed),
-        float(env.decision_length),
-        int(env.num_substeps),
-        float(env.agent_radius),
-        CONTACT_MODELS.index(env.motion.contact),
-        env.motion.order == "door_first",
-        float(1.0 if env.motion.time_gap is None else env.motion.time_gap),  # read by the headway rules only
-        env.action_frame == "goal",
-        int(env.max_decisions),
-        np.array([rewards.goal, rewards.crash_wall, rewards.crash_agent, rewards.default], np.float32),
-        np.float32(env.reward_progress),
-        env.spawns.assigned_exit.expand(env.num_replicas, env.num_agents).contiguous().numpy(),
-        env.geometry.exit_goals.contiguous().numpy(),
-        env.motion.steering is not None,  # the continuous walking layer
-        steering_array(env.motion.steering),
-        env.spawns.waypoints.to(torch.float32).contiguous().numpy(),
-        env.spawns.route_length.contiguous().numpy(),
-        np.float32(env.geometry.waypoint_radius),
-    )
-
-
-def _encoding(settings: EncoderSettings) -> tuple[Any, ...]:
-    """The ``settings`` tuple of :func:`pedrl.vq.encode_kernel.encode_agent`."""
-    return (
-        settings.num_neighbours,
-        np.float32(settings.max_distance),
-        np.float32(settings.max_speed),
-        np.float32(MIN_VOID_DISTANCE),
-        settings.void_features == "random",
-        settings.distance_transform == "log",
-    )
-
-
-def _walls(env: RoomEnv) -> tuple[np.ndarray, ...]:
-    from pedrl.sim.motion.sliding import _wall_segments
-
-    geometry = env.geometry
-    starts, directions, inverse = _wall_segments(geometry)
-    parts = (starts, directions, inverse, geometry.aligned_walls, geometry.box_low, geometry.box_high)
-    return tuple(t.contiguous().numpy() for t in parts)
-
-
-def _exits(env: RoomEnv) -> tuple[np.ndarray, ...]:
-    geometry = env.geometry
-    parts = (geometry.exits[:, 0], geometry.exit_normals, geometry.exit_tangents, geometry.exit_spans)
-    return tuple(t.contiguous().numpy() for t in parts)
-
-
-def _work(env: RoomEnv) -> tuple[np.ndarray, ...]:
-    """Scratch of :func:`pedrl.sim.step_kernel.act_room`, one row per room."""
-    shape = (env.num_replicas, env.num_agents)
-    flags = [np.zeros(shape, np.bool_) for _ in range(6)]
-    floats = (np.zeros((*shape, 2), np.float32), np.zeros((*shape, 2), np.float32))
-    return (
-        *floats,
-        flags[0],
-        flags[1],
-        np.zeros(shape, np.int64),
-        np.zeros(shape, np.float32),
-        *flags[2:],
-        np.zeros((env.num_substeps, 1, 1), np.bool_),
-        np.zeros(shape, np.float32),
-    )
-
-
-def _events(rooms: int, agents: int) -> tuple[np.ndarray, ...]:
-    """``(reward, left, goal, crashed_wall, crashed_agent, acting, in_room)`` of the latest decision."""
-    return (np.zeros((rooms, agents), np.float32), *(np.zeros((rooms, agents), np.bool_) for _ in range(6)))
-
-
-def _observed(rooms: int, agents: int, features: int) -> tuple[np.ndarray, ...]:
-    """``(features, num_sensed, rows, next_rows, actions)``."""
-    shape = (rooms, agents)
-    return (np.zeros((*shape, features), np.float32), *(np.zeros(shape, np.int64) for _ in range(4)))
 
 
 def _stats(env: RoomEnv, totals: torch.Tensor, td_sums: np.ndarray, steps: np.ndarray, processes: int,

@@ -1,4 +1,4 @@
-"""The fused trial: the torch trial loop (:func:`pedrl.trial.rollout.run_trial`) as one compiled loop per learning
+"""The fused trial: the torch trial loop (:func:`pedrl.trial.loop.crowd_loop`) as one compiled loop per learning
 process, composed of the stage kernels that sit beside their torch twins:
 
 - act: :func:`pedrl.sim.step_kernel.act_room` (:meth:`pedrl.sim.RoomEnv.step` without the observation);
@@ -15,6 +15,8 @@ so the two paths agree within the tolerances that ``tests/trial/test_twins.py`` 
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numba import prange
 
@@ -26,40 +28,87 @@ from pedrl.sim.step_kernel import act_room, act_scratch
 from pedrl.sim.streams import next_uniform
 from pedrl.vq.encode_kernel import draw_void, encode_buffers, encode_room
 
-__all__ = ["fused_trial"]
+__all__ = ["Learning", "Observed", "Trace", "fused_trial"]
+
+
+class Learning(NamedTuple):
+    """How the trial acts and learns."""
+
+    epsilon: np.float32
+    learn: bool
+    """Update the tables (else only act)."""
+    alpha: np.float32
+    gamma: np.float32
+    void_each_decision: bool
+    """Random void fillings drawn again at every decision (else once per trial)."""
+    greedy: bool
+    """The greedy walker acts (:func:`pedrl.sim.greedy_kernel.greedy_action`), and nothing is encoded."""
+
+
+class Observed(NamedTuple):
+    """The latest observation of every room and what the agents chose (:meth:`allocate`)."""
+
+    features: np.ndarray
+    """``(R, N, F)`` float32."""
+    num_sensed: np.ndarray
+    rows: np.ndarray
+    """``(R, N)`` int64: each agent's table row."""
+    next_rows: np.ndarray
+    actions: np.ndarray
+
+    @classmethod
+    def allocate(cls, rooms: int, agents: int, features: int) -> Observed:
+        shape = (rooms, agents)
+        return cls(np.zeros((*shape, features), np.float32), *(np.zeros(shape, np.int64) for _ in range(4)))
+
+
+class Trace(NamedTuple):
+    """A recorded trial (``T = 1``: not recorded): frame 0 the reset, frame t after decision t (:meth:`allocate`)."""
+
+    positions: np.ndarray
+    """``(R, T, N, 2)`` float32 (m)."""
+    velocities: np.ndarray
+    """``(R, T, N, 2)`` float32 (m/s)."""
+    present: np.ndarray
+    """``(R, T, N)`` bool: in frame 0 the agents in the room, in frame t those that took decision t."""
+
+    @classmethod
+    def allocate(cls, rooms: int, frames: int, agents: int) -> Trace:
+        return cls(
+            np.zeros((rooms, frames, agents, 2), np.float32),
+            np.zeros((rooms, frames, agents, 2), np.float32),
+            np.zeros((rooms, frames, agents), np.bool_),
+        )
 
 
 @cached_njit(nogil=True)
 def _record(r, frame, state, present, trace):
     """Frame ``frame`` of room ``r`` into ``trace``: positions, velocities, and who is in it (``present``)."""
-    positions, velocities = state[0], state[1]
-    trace[0][r, frame] = positions[r]
-    trace[1][r, frame] = velocities[r]
-    trace[2][r, frame] = present[r]
+    trace.positions[r, frame] = state.positions[r]
+    trace.velocities[r, frame] = state.velocities[r]
+    trace.present[r, frame] = present[r]
 
 
 @cached_njit(nogil=True)
 def _run_process(
-    p, rooms, state, room, walls, exits, encoder, tree, settings, learning, table, base_rows, process_of,
-    streams, work, events, observed, void, totals, td_sums, trace,
+    p, rooms, state, room, walls, exits, routes, encoder, tree, pruned, settings, learning, table, base_rows,
+    process_of, streams, work, events, observed, void, totals, td_sums, trace,
 ):  # fmt: skip
     """Every decision of process ``p``'s rooms ``p E .. p E + E - 1`` until they are empty; returns the decisions
     taken."""
-    positions, _, _, speeds, active, _, _, _, _ = state
-    k, random_void = settings[0], settings[4]
-    epsilon, learn, alpha, gamma, void_each_decision, greedy = learning
-    speed_changes, turn_changes, goal_frame = room[0], room[1], room[9]
-    trace_positions, trace_velocities, trace_active = trace
-    record = trace_active.shape[1] > 1  # frame 0 the reset, frame t after decision t
-    features, num_sensed, rows, next_rows, actions = observed
-    reward, left, goal, crashed_wall, crashed_agent, acting, in_room = events
-    num_agents, num_features = positions.shape[1], features.shape[2]
-    w = (num_features - 3 - 3 * k) // 2  # the wall slots of the state's 3 + 3k + 2w features
+    positions, speeds, active = state.positions, state.speeds, state.active
+    k, w = room.num_neighbours, room.num_walls
+    random_void, epsilon, greedy = settings.random_void, learning.epsilon, learning.greedy
+    speed_changes, turn_changes, goal_frame = room.speed_changes, room.turn_changes, room.goal_frame
+    record = trace.present.shape[1] > 1  # frame 0 the reset, frame t after decision t
+    features, num_sensed, rows, next_rows = observed.features, observed.num_sensed, observed.rows, observed.next_rows
+    actions, reward, acting = observed.actions, events.reward, events.acting
+    num_agents = positions.shape[1]
     first = p * rooms
     batch = slice(first * num_agents, (first + rooms) * num_agents)  # the process's rooms, flat
-    size = max(num_agents, walls[0].shape[0])
+    size = max(num_agents, walls.starts.shape[0])
     distances, indices = np.empty((2, size), np.float32), np.empty((2, size), np.int64)
-    buffers = encode_buffers(num_agents, num_features)
+    buffers = encode_buffers(num_agents, features.shape[2])
     scratch = act_scratch(num_agents)
     errors = np.empty(rooms * num_agents, np.float32)
     slots = 1
@@ -76,7 +125,7 @@ def _run_process(
         sense_room(r, state, active, walls, k, w, features, num_sensed, distances, indices)
         if not greedy:
             encode_room(r, process_of[r], active, base_rows, rows, features, num_sensed, void, settings, encoder,
-                        tree, buffers)  # fmt: skip
+                        tree, pruned, buffers)  # fmt: skip
         for i in range(num_agents):
             if active[r, i]:
                 actions[r, i] = (
@@ -88,22 +137,22 @@ def _run_process(
         # ---- act, sense, encode (each room)
         for r in range(first, first + rooms):
             for i in range(num_agents):
-                work[-1][r, i] = next_uniform(streams, r)  # the order of the movers
-            act_room(r, state, actions, room, walls, exits, work, events, scratch)
+                work.draws[r, i] = next_uniform(streams, r)  # the order of the movers
+            act_room(r, state, actions, room, walls, exits, routes, work, events, scratch)
             if record:
                 _record(r, steps + 1, state, acting, trace)
-            if random_void and void_each_decision:
+            if random_void and learning.void_each_decision:
                 draw_void(r, void, streams)
-            sense_room(r, state, in_room, walls, k, w, features, num_sensed, distances, indices)
+            sense_room(r, state, events.in_room, walls, k, w, features, num_sensed, distances, indices)
             if not greedy:
-                encode_room(r, process_of[r], in_room, base_rows, next_rows, features, num_sensed, void, settings,
-                            encoder, tree, buffers)  # fmt: skip
+                encode_room(r, process_of[r], events.in_room, base_rows, next_rows, features, num_sensed, void,
+                            settings, encoder, tree, pruned, buffers)  # fmt: skip
         # ---- learn (the process's rooms at once, into its tables)
-        if learn:
+        if learning.learn:
             total, count = td_batch(
                 table, rows.reshape(-1)[batch], actions.reshape(-1)[batch], reward.reshape(-1)[batch],
-                next_rows.reshape(-1)[batch], left.reshape(-1)[batch], acting.reshape(-1)[batch], alpha, gamma,
-                errors, keys, tally, slot_of,
+                next_rows.reshape(-1)[batch], events.left.reshape(-1)[batch], acting.reshape(-1)[batch],
+                learning.alpha, learning.gamma, errors, keys, tally, slot_of,
             )  # fmt: skip
             td_sums[p, 0] += total
             td_sums[p, 1] += count
@@ -112,9 +161,9 @@ def _run_process(
             for i in range(num_agents):
                 if acting[r, i]:
                     totals[0, r, i] += reward[r, i]
-                    totals[1, r, i] += crashed_agent[r, i]
-                    totals[2, r, i] += crashed_wall[r, i]
-                    totals[3, r, i] += goal[r, i]
+                    totals[1, r, i] += events.crashed_agent[r, i]
+                    totals[2, r, i] += events.crashed_wall[r, i]
+                    totals[3, r, i] += events.goal[r, i]
                     totals[4, r, i] += speeds[r, i]
                     totals[5, r, i] += 1.0
                 rows[r, i] = next_rows[r, i]
@@ -129,23 +178,21 @@ def _run_process(
 
 @cached_njit(nogil=True, parallel=True)
 def fused_trial(
-    rooms, state, room, walls, exits, encoder, tree, settings, learning, table, base_rows, process_of,
+    rooms, state, room, walls, exits, routes, encoder, tree, pruned, settings, learning, table, base_rows, process_of,
     streams, work, events, observed, void, totals, td_sums, steps, trace,
 ):  # fmt: skip
     """A whole trial of every room from its reset state: the processes ``p`` of ``E = rooms`` rooms each in
     parallel, each by :func:`_run_process`; ``steps[p]`` gets its decisions.
 
-    ``state`` is the rooms' ``(positions (R, N, 2), velocities (R, N, 2), headings (R, N), speeds (R, N), active
-    (R, N), exit_index (R, N), targets (R, N, 2), decisions (R,), stage (R, N))``, updated in place; ``learning``
-    is ``(epsilon, learn, alpha, gamma, void_each_decision, greedy)`` (``greedy``: the greedy walker of
-    :func:`pedrl.sim.greedy_kernel.greedy_action` acts, and nothing is encoded); ``totals`` ``(6, R, N)`` float64 gets
-    each agent's return, body contacts, wall contacts, goal, speed sum and decisions; ``td_sums`` ``(P, 2)`` float64
-    the sum of ``|TD error|`` and the updates; ``trace`` ``(positions (R, T, N, 2), velocities (R, T, N, 2), present
-    (R, T, N))`` gets frame 0 (the reset) and frame t after decision t when ``T > 1`` (``T = max_decisions + 1``).
-    The other tuples are those of :func:`act_room`, :func:`sense_room` and :func:`pedrl.vq.encode_kernel.encode_agent`.
+    ``state`` (:class:`pedrl.sim.state.KernelState`) is updated in place; ``learning`` is :class:`Learning`;
+    ``totals`` ``(6, R, N)`` float64 gets each agent's return, body contacts, wall contacts, goal, speed sum and
+    decisions; ``td_sums`` ``(P, 2)`` float64 the sum of ``|TD error|`` and the updates; ``trace`` (:class:`Trace`)
+    gets every frame when it has more than one (``T = max_decisions + 1``). ``room``, ``walls``, ``exits``,
+    ``routes``, ``work`` and ``events`` are :func:`pedrl.sim.step_kernel.act_room`'s; ``encoder``, ``tree``,
+    ``pruned`` and ``settings`` :func:`pedrl.vq.encode_kernel.encode_room`'s.
     """
     for p in prange(steps.shape[0]):
         steps[p] = _run_process(
-            p, rooms, state, room, walls, exits, encoder, tree, settings, learning, table, base_rows, process_of,
-            streams, work, events, observed, void, totals, td_sums, trace,
+            p, rooms, state, room, walls, exits, routes, encoder, tree, pruned, settings, learning, table, base_rows,
+            process_of, streams, work, events, observed, void, totals, td_sums, trace,
         )  # fmt: skip

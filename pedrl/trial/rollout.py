@@ -1,23 +1,24 @@
 """The two rollouts of a phase: gathering the quantizer's states, and one learning (or acting) trial in every room.
 
 Both run the ``R = P E`` rooms of a trainer in lock-step (``P`` learning processes, ``E`` rooms each), agents of
-room ``r`` belonging to process ``r // E`` (:class:`pedrl.rl.TableLayout`).
+room ``r`` belonging to process ``r // E`` (:class:`pedrl.rl.TableLayout`), through the one trial loop
+(:func:`pedrl.trial.loop.crowd_loop`; a learning trial through :func:`pedrl.trial.crowd.run_crowd`, which may choose
+the fused trial instead).
 """
 
 from __future__ import annotations
 
-from typing import Final, NamedTuple
+from collections.abc import Mapping
+from typing import Any, NamedTuple
 
 import torch
 
-from pedrl.rl import epsilon_greedy, td_update
+from pedrl.rl import epsilon_greedy
 from pedrl.rl.policy import TableLayout, TabularPolicy
 from pedrl.sim import RoomEnv
-from pedrl.trial.stats import TOTALS, TrialStats
+from pedrl.trial.loop import Driver, crowd_loop
+from pedrl.trial.stats import TrialStats
 from pedrl.vq.encoder import StateEncoder
-
-DEVICE_CHECK_EVERY: Final = 8
-"""Decisions between two reads of "is any room still occupied" by the trial loop on a GPU (each read waits)."""
 
 
 class Gathered(NamedTuple):
@@ -48,106 +49,63 @@ def gather(
 ) -> Gathered:
     """Record the states visited in ``trials`` trials, following ``policy`` epsilon-greedily (None: a random walk).
 
-    ``encoder`` prepares the observations (its quantizer is not used: ``policy`` encodes with its own).
+    ``encoder`` prepares the observations (its quantizer is not used: ``policy`` encodes with its own). The trials
+    run in the torch loop (:func:`pedrl.trial.loop.crowd_loop`), whatever ``fused`` says: a few per phase.
     """
-    rooms, num_agents = env.num_replicas, env.num_agents
-    process_of_row, _ = TableLayout(processes, 1, 1, rooms // processes).of(rooms, num_agents, env.device)
-    if policy is not None:
-        _, base_rows = policy.layout.of(rooms, num_agents, env.device)
-    chunks, counts, owners, successes = [], [], [], []
+    gatherer = Gatherer(env, encoder, policy, epsilon=epsilon, processes=processes, generator=generator)
+    successes = []
     for _ in range(trials):
-        obs, info = env.reset()
-        reached = torch.zeros(rooms, num_agents, dtype=torch.bool, device=env.device)
-        while True:
-            active = env.active.reshape(-1)
-            num_sensed = info["num_sensed"].reshape(-1)
-            flat_obs = encoder.prepare(obs.reshape(-1, env.num_features), num_sensed, info["decision"], generator)
-            chunks.append(flat_obs[active])
-            counts.append(num_sensed[active])
-            owners.append(process_of_row[active])
-            if policy is None:
-                actions = torch.randint(env.num_actions, (rooms * num_agents,), generator=generator, device=env.device)
-            else:
-                rows = base_rows + policy.encoder.encode_prepared(flat_obs, num_sensed)
-                actions = epsilon_greedy(policy.q_values, rows, epsilon, generator)
-            obs, _, terminated, truncated, info = env.step(actions.view(rooms, num_agents))
-            reached |= info["reached"]
-            if not bool(env.active.any()):
-                break
-        successes.append(reached.float().mean())
-    return Gathered(torch.cat(chunks), torch.cat(counts), torch.cat(owners), float(torch.stack(successes).mean()))
+        crowd_loop(env, gatherer)
+        successes.append(gatherer.reached.float().mean())
+    states, counts, owners = (torch.cat(parts) for parts in (gatherer.states, gatherer.counts, gatherer.owners))
+    return Gathered(states, counts, owners, float(torch.stack(successes).mean()))
 
 
-def run_trial(
-    env: RoomEnv,
-    policy: TabularPolicy,
-    *,
-    epsilon: float,
-    generator: torch.Generator,
-    learn: bool,
-    alpha: float = 0.0,
-    gamma: float = 0.0,
-    fused: bool | None = None,
-) -> TrialStats:
-    """Run one trial in every room, acting epsilon-greedily and (if ``learn``) applying equation 1 to
-    ``policy.q_values`` in place with learning rate ``alpha`` and discount ``gamma``.
+class Gatherer(Driver):
+    """The controller of :func:`gather` in the trial loop: before each decision it keeps the states of the agents in
+    the rooms as the quantizer sees them, then acts on them (randomly, or epsilon-greedily on ``policy``)."""
 
-    ``fused``: run the trial as one compiled pass (:func:`pedrl.trial.fused.run_trial_fused`; a one-line
-    ``ValueError`` where it cannot run), or the torch loop below, the reference (False); None: the fused pass
-    wherever it can run (on the CPU with numba).
+    # sync_free stays False: every decision's states are kept, no decision of an empty room
 
-    Only the agents still in a room are encoded. On CPU the loop ends as soon as every room is empty; on other
-    devices it reads that flag only every :data:`DEVICE_CHECK_EVERY` decisions, so that no decision waits for the
-    host (the extra decisions of empty rooms change nothing).
-    """
-    if fused is not False:
-        from pedrl.trial.fused import fused_reason, run_trial_fused
+    def __init__(
+        self,
+        env: RoomEnv,
+        encoder: StateEncoder,
+        policy: TabularPolicy | None,
+        *,
+        epsilon: float,
+        processes: int,
+        generator: torch.Generator,
+    ) -> None:
+        rooms, num_agents = env.num_replicas, env.num_agents
+        self.encoder, self.policy, self.epsilon, self.generator = encoder, policy, epsilon, generator
+        self.process_of_row, _ = TableLayout(processes, 1, 1, rooms // processes).of(rooms, num_agents, env.device)
+        if policy is not None:
+            _, self.base_rows = policy.layout.of(rooms, num_agents, env.device)
+        self.states: list[torch.Tensor] = []
+        self.counts: list[torch.Tensor] = []
+        self.owners: list[torch.Tensor] = []
 
-        reason = fused_reason(env, policy)
-        if reason is None:
-            return run_trial_fused(
-                env, policy, epsilon=epsilon, generator=generator, learn=learn, alpha=alpha, gamma=gamma
-            )
-        if fused:
-            raise ValueError(f"fused=true is invalid: the fused trial cannot run {reason} (false or null)")
-    rooms, num_agents = env.num_replicas, env.num_agents
-    processes, q_values = policy.num_processes, policy.q_values
-    on_cpu = env.device.type == "cpu"
-    obs, info = env.reset()
-    rows = policy.rows(obs, info, generator, rows_mask=env.active.reshape(-1) if on_cpu else None)
-    totals = torch.zeros(len(TOTALS), rooms * num_agents, device=env.device)  # per agent, in TOTALS' order
-    td_total = torch.zeros(2, device=env.device)  # sum of |TD error|, number of updates
-    decisions = torch.zeros((), dtype=torch.int64, device=env.device)
-    step = 0
-    while True:
-        valid = env.active.reshape(-1)
-        actions = epsilon_greedy(q_values, rows, epsilon, generator)
-        obs, reward, terminated, truncated, info = env.step(actions.view(rooms, num_agents))
-        reward, terminated = reward.reshape(-1), terminated.reshape(-1)
-        in_room = valid & ~terminated  # their next state is needed: in the room, or cut by the clock
-        next_rows = policy.rows(obs, info, generator, rows_mask=in_room if on_cpu else None)
-        if learn:
-            td = td_update(q_values, rows, actions, reward, next_rows, terminated, valid, alpha=alpha, gamma=gamma)
-            td_total += torch.stack((td.abs().sum(), valid.sum()))
-        validf = valid.float()
-        events = (info["crashed_agent"], info["crashed_wall"], info["reached"])
-        totals += torch.stack(
-            (reward, *(event.reshape(-1) for event in events), info["speed"].reshape(-1) * validf, validf)
-        )
-        decisions += valid.any()
-        rows = next_rows
-        step += 1
-        if (on_cpu or step % DEVICE_CHECK_EVERY == 0) and not bool(env.active.any()):
-            break
-    td_error = (td_total[0] / td_total[1].clamp_min(1)).expand(processes) if learn else torch.zeros(processes)
-    return TrialStats.from_totals(
-        totals,
-        processes=processes,
-        num_agents=num_agents,
-        decision_length=env.decision_length,
-        td_error=td_error,
-        decisions=int(decisions),
-    )
+    def begin(self, env: RoomEnv, obs: torch.Tensor, info: Mapping[str, Any]) -> None:
+        self.reached = torch.zeros(env.num_replicas, env.num_agents, dtype=torch.bool, device=env.device)
+
+    def act(self, env: RoomEnv, obs: torch.Tensor, info: Mapping[str, Any]) -> torch.Tensor:
+        rooms, num_agents = env.num_replicas, env.num_agents
+        active = env.active.reshape(-1)
+        num_sensed = info["num_sensed"].reshape(-1)
+        flat_obs = self.encoder.prepare(obs.reshape(-1, env.num_features), num_sensed, info["decision"], self.generator)
+        self.states.append(flat_obs[active])
+        self.counts.append(num_sensed[active])
+        self.owners.append(self.process_of_row[active])
+        if self.policy is None:
+            actions = torch.randint(env.num_actions, (rooms * num_agents,), generator=self.generator, device=env.device)
+        else:
+            rows = self.base_rows + self.policy.encoder.encode_prepared(flat_obs, num_sensed)
+            actions = epsilon_greedy(self.policy.q_values, rows, self.epsilon, self.generator)
+        return actions.view(rooms, num_agents)
+
+    def observe(self, obs, info, reward, terminated, valid) -> None:
+        self.reached |= info["reached"]
 
 
 def check_finite(phase_index: int, trial: int, stats: TrialStats, q_values: torch.Tensor, *, last: bool) -> None:

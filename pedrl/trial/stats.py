@@ -8,7 +8,8 @@ from typing import Final
 import torch
 
 TOTALS: Final = ("return", "crashes_agent", "crashes_wall", "reached", "speed_sum", "decisions")
-"""Per-agent totals a trial accumulates, in the order of the rows of :func:`run_trial`'s accumulator."""
+"""Per-agent totals a trial accumulates, in the order of the rows of the accumulator of
+:func:`pedrl.trial.loop.crowd_loop`."""
 
 
 @dataclass

@@ -29,6 +29,7 @@ from pedrl.rl.policy import TabularPolicy
 from pedrl.rl.qlearning import td_update_torch
 from pedrl.sim import RoomEnv
 from pedrl.sim.sensing import void_draws
+from pedrl.sim.state import RoomState
 from pedrl.trial import fused
 
 __all__ = ["TOLERANCES", "Tolerances", "TwinReport", "check_twins"]
@@ -112,15 +113,16 @@ def check_twins(
     report's :meth:`~TwinReport.failures` lists what exceeds ``tolerances``."""
     from pedrl.rl.kernels import td_batch, td_scratch
     from pedrl.sim.sensing_kernel import sense_room
-    from pedrl.sim.step_kernel import act_room, act_scratch
+    from pedrl.sim.step_kernel import Events, Work, act_room, act_scratch
     from pedrl.vq.encode_kernel import pack_encoder
 
     report = TwinReport(other=[])
     rooms, agents = env.num_replicas, env.num_agents
     generator = torch.Generator().manual_seed(seed)
     obs, info = env.reset(seed=seed)
-    kernel_room, walls, exits = fused._room(env), fused._walls(env), fused._exits(env)
-    work, scratch, events = list(fused._work(env)), act_scratch(agents), fused._events(rooms, agents)
+    inputs = fused.room_inputs(env)
+    work, scratch = Work.allocate(rooms, agents, env.num_substeps), act_scratch(agents)
+    events = Events.allocate(rooms, agents)
     encoder = pack_encoder(policy.encoder, policy.num_processes)
     process = policy.layout.of(rooms, agents, env.device)[0].view(rooms, agents)[:, 0].tolist()
     angles = _angle_columns(env)
@@ -130,20 +132,21 @@ def check_twins(
         # ---- act: from the torch state, the same actions and order of action
         acting = env.active.clone()
         actions = _epsilon_greedy(table, rows, epsilon, generator).view(rooms, agents)
-        work[-1] = torch.rand(acting.shape, generator=_copy(env.generator)).numpy()  # the step's own draws
-        state = fused._arrays(env.state.clone())
+        work.draws[:] = torch.rand(acting.shape, generator=_copy(env.generator)).numpy()  # the step's own draws
+        state = env.state.clone().arrays()
         for r in range(rooms):
-            act_room(r, state, actions.numpy(), kernel_room, walls, exits, tuple(work), events, scratch)
+            act_room(r, state, actions.numpy(), inputs.room, inputs.walls, inputs.exits, inputs.routes, work, events,
+                     scratch)  # fmt: skip
         obs, reward, terminated, _, info = env.step(actions)
         _compare_step(report, env, state, events, acting, reward, terminated, info)
         # ---- sense: from the torch state after the step
         features = np.zeros((rooms, agents, env.num_features), np.float32)
         num_sensed = np.zeros((rooms, agents), np.int64)
         size = max(agents, env.geometry.num_walls)
-        mine = fused._arrays(env.state)
+        mine = env.state.arrays()
         in_room = (acting & ~terminated).numpy()  # terminated: passed any exit
         for r in range(rooms):
-            sense_room(r, mine, in_room, walls, env.num_neighbours, env.num_walls, features, num_sensed,
+            sense_room(r, mine, in_room, inputs.walls, env.num_neighbours, env.num_walls, features, num_sensed,
                        np.empty((2, size), np.float32), np.empty((2, size), np.int64))  # fmt: skip
         if not np.array_equal(num_sensed, info["num_sensed"].numpy()):
             report.other.append(f"decision {report.decisions}: the numbers of sensed neighbours differ")
@@ -186,19 +189,18 @@ def _epsilon_greedy(table: torch.Tensor, rows: torch.Tensor, epsilon: float, gen
 
 def _compare_step(report, env, state, events, acting, reward, terminated, info) -> None:
     """The kernel's state and events after a decision against the torch step's."""
-    reward_k, left, goal, crashed_wall, crashed_agent, _, _ = (torch.from_numpy(e) for e in events)
     agree = acting.clone()
-    for theirs, mine in ((info["crashed_wall"], crashed_wall), (info["crashed_agent"], crashed_agent),
-                         (terminated, left), (info["reached"], goal)):  # fmt: skip
-        agree &= theirs == mine
+    for theirs, mine in ((info["crashed_wall"], events.crashed_wall), (info["crashed_agent"], events.crashed_agent),
+                         (terminated, events.left), (info["reached"], events.goal)):  # fmt: skip
+        agree &= theirs == torch.from_numpy(mine)
     report.flag_mismatches += int((acting & ~agree).sum())
     report.agent_decisions += int(acting.sum())
-    after = [torch.from_numpy(a) for a in state]
+    after = RoomState.from_arrays(state)
     close = agree.unsqueeze(-1)
-    report.position = max(report.position, float(((after[0] - env.positions) * close).abs().max()))
-    report.speed = max(report.speed, float(((after[3] - env.speeds) * agree).abs().max()))
-    report.reward = max(report.reward, float(((reward_k - reward) * agree).abs().max()))
-    if not torch.equal(after[4] | ~agree, env.active | ~agree) or not torch.equal(after[8], env.stage):
+    report.position = max(report.position, float(((after.positions - env.positions) * close).abs().max()))
+    report.speed = max(report.speed, float(((after.speeds - env.speeds) * agree).abs().max()))
+    report.reward = max(report.reward, float(((torch.from_numpy(events.reward) - reward) * agree).abs().max()))
+    if not torch.equal(after.active | ~agree, env.active | ~agree) or not torch.equal(after.stage, env.stage):
         report.other.append(f"decision {report.decisions}: the active flags or waypoint stages differ")
 
 
@@ -243,8 +245,8 @@ def _encode(report, policy, obs, info, present, generator, process, encoder, voi
     features, num_sensed = obs.contiguous().numpy(), info["num_sensed"].contiguous().numpy()
     buffers = encode_buffers(agents, obs.shape[-1])
     for r in range(rooms):
-        encode_room(r, process[r], present.numpy(), base, mine, features, num_sensed, fills,
-                    fused._encoding(settings), *encoder, buffers)  # fmt: skip
+        encode_room(r, process[r], present.numpy(), base, mine, features, num_sensed, fills, settings.kernel(),
+                    encoder.arrays, encoder.tree, encoder.pruned, buffers)  # fmt: skip
     same = (torch.from_numpy(mine).view(-1) == rows).view(rooms, agents)[present]
     report.id_mismatches += int((~same).sum())
     report.encoded += int(same.numel())

@@ -31,7 +31,7 @@ def experiment_env(experiment: str) -> dict[str, Any]:
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
-    from pedrl.cli import CONFIG_DIR
+    from pedrl.common.commands import CONFIG_DIR
 
     with initialize_config_dir(config_dir=CONFIG_DIR, version_base=None):
         config = compose("train", [f"experiment={experiment}"])
@@ -65,8 +65,8 @@ def fit(env: Mapping[str, Any], time_gaps: Sequence[float], *, seed: int = 0) ->
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    from pedrl.cli import CONFIG_DIR, OneLineParser, integer_arg, number_arg
-    from pedrl.sim.checks import MAX_SEED
+    from pedrl.common.checks import MAX_SEED
+    from pedrl.common.commands import CONFIG_DIR, OneLineParser, integer_arg, number_arg
 
     presets = sorted(path.stem for path in (Path(CONFIG_DIR) / "experiment").glob("*.yaml"))
     parser = OneLineParser(prog="python -m pedrl.validation.calibrate", description=__doc__.split("\n")[0])

@@ -21,7 +21,7 @@ from pedrl.configs import room_keywords
 from pedrl.integrations.jupedsim import pad_frames, simulate_room
 from pedrl.scenarios import Scenario
 from pedrl.sim import RoomEnv
-from pedrl.trial.fused import controller_reason, record_trial_fused
+from pedrl.trial.crowd import run_crowd
 
 
 class Crowd(Protocol):
@@ -67,7 +67,8 @@ class PedrlCrowd:
     env_settings: Mapping[str, Any] = field(default_factory=dict)
     device: torch.device = field(default_factory=lambda: torch.device("cpu"))
     fused: bool | None = None
-    """Run through the fused trial's kernels (:func:`pedrl.trial.fused.record_trial_fused`); None: wherever they can."""
+    """Run through the fused trial's kernels, or the torch loop (False); None: the kernels wherever they can run
+    (:func:`pedrl.trial.crowd.run_crowd` chooses)."""
 
     @property
     def radius(self) -> float:
@@ -151,38 +152,11 @@ class PedrlCrowd:
             positions=positions,
             headings=headings,
         )
-        reason = None if self.fused is False else controller_reason(env, self.controller)
-        if self.fused is not False and reason is None:
-            return self._record_fused(env)
-        if self.fused:
-            raise ValueError(f"fused=true is invalid: the fused trial cannot run {reason} (false or null)")
-        frames, active = [env.positions.clone()], [env.active.clone()]
-        left_at = torch.full(env.active.shape, -1, dtype=torch.int64, device=env.device)
-        decision = 0
-        while bool(env.active.any()):
-            obs, _, _, _, info = env.step(self.controller.act(env, obs, info))
-            decision += 1
-            left_at = torch.where(info["reached"], decision, left_at)  # through its own exit
-            frames.append(env.positions.clone())
-            active.append(env.active.clone())
+        record = run_crowd(env, self.controller, fused=self.fused, record=True, start=(obs, info)).record
         return Recording(
-            positions=torch.stack(frames, 1).cpu().numpy(),
-            in_room=torch.stack(active, 1).cpu().numpy(),
-            exit_time=exit_times(left_at.cpu().numpy(), env.decisions_per_second),
-            frame_rate=env.decisions_per_second,
-            radius=env.agent_radius,
-            max_speed=env.max_speed,
-        )
-
-    def _record_fused(self, env: RoomEnv) -> Recording:
-        """:meth:`simulate`'s recording through the fused trial, from the rooms as placed: frame 0 the start, frame t
-        the positions and who is still in the room after decision t."""
-        trace = record_trial_fused(env, self.controller, reset=False)
-        goal, decisions = trace.totals[3], trace.totals[5]
-        return Recording(
-            positions=trace.positions,
-            in_room=trace.in_room(),
-            exit_time=exit_times(np.where(goal > 0, decisions, -1).astype(np.int64), env.decisions_per_second),
+            positions=record.positions,
+            in_room=record.in_room,
+            exit_time=exit_times(record.left_at, env.decisions_per_second),
             frame_rate=env.decisions_per_second,
             radius=env.agent_radius,
             max_speed=env.max_speed,

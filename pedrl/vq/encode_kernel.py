@@ -9,7 +9,7 @@ kernel reads.
 from __future__ import annotations
 
 import weakref
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch
@@ -18,17 +18,80 @@ from pedrl._numba import cached_njit
 from pedrl.sim.sensing import distance_indices
 from pedrl.sim.streams import next_uniform
 from pedrl.vq.encoder import StateEncoder
-from pedrl.vq.pruned import PrunedIndex, batch_scratch
+from pedrl.vq.pruned import BatchScratch, PrunedArrays, PrunedIndex, batch_scratch
 from pedrl.vq.pruned_kernel import prepare_batch, search_batch
 from pedrl.vq.quantizer import ProcessQuantizers, Quantizer, UnionQuantizer
-from pedrl.vq.tree import _STACK, LEAF_SIZE, TreeIndex, scan_point, search_point
+from pedrl.vq.tree import _STACK, LEAF_SIZE, TreeArrays, TreeIndex, scan_point, search_tree
 
-__all__ = ["draw_void", "encode_agent", "encode_buffers", "encode_room", "pack_encoder"]
+__all__ = [
+    "EncodeBuffers",
+    "EncoderArrays",
+    "PackedEncoder",
+    "draw_void",
+    "encode_agent",
+    "encode_buffers",
+    "encode_room",
+    "pack_encoder",
+]
 
 _PI = np.float32(np.pi)
 _TWO_PI = np.float32(2.0 * np.pi)
-_PACKED: weakref.WeakKeyDictionary[Any, tuple[Any, tuple[Any, Any]]] = weakref.WeakKeyDictionary()
+_PACKED: weakref.WeakKeyDictionary[Any, tuple[Any, PackedEncoder]] = weakref.WeakKeyDictionary()
 """Each quantizer's packed sets and tree, with the encoder settings and process count they were packed for."""
+
+
+class EncoderArrays(NamedTuple):
+    """An encoder's prototype sets as :func:`prepare_agent` reads them: ``T`` full-width sets (a plain quantizer is
+    one, a union one per part), by :func:`pack_encoder`."""
+
+    mean: np.ndarray
+    """``(T, F)`` float32: each set's mean."""
+    std: np.ndarray
+    """``(T, F)`` float32: its scale (feature weights included)."""
+    keep: np.ndarray
+    """``(T, F)`` bool: the features a union's part reads (the others are 0 in its prototypes and points)."""
+    offsets: np.ndarray
+    """``(T,)`` int64: the first state id of each set."""
+    columns: np.ndarray
+    """``(T, F)`` int64: the tree's column order of each set."""
+    distance_index: np.ndarray
+    """``(D,)`` int64: the distance features (log-transformed with ``log_distances``)."""
+    set_of: np.ndarray
+    """``(P, k + 1)`` int64: the set of each process and number of sensed neighbours."""
+    scan: bool
+    """The sets are searched by a scan of their leaves (:attr:`pedrl.vq.tree.TreeIndex.scans`), in
+    :func:`encode_room` by the pruned batch search."""
+
+
+class PackedEncoder(NamedTuple):
+    """What the encoding kernels read of an encoder's quantizer (:func:`pack_encoder`)."""
+
+    arrays: EncoderArrays
+    tree: TreeArrays
+    pruned: PrunedArrays
+    """:meth:`pedrl.vq.pruned.PrunedIndex.kernel_arrays` of the scanned sets (a stub for the others)."""
+
+
+class EncodeBatch(NamedTuple):
+    """Scratch of the batched search of a room's agents (:func:`_encode_batch`)."""
+
+    scratch: BatchScratch
+    points: np.ndarray
+    sets: np.ndarray
+    agents: np.ndarray
+    hints: np.ndarray
+    counts: np.ndarray
+    """``(4,)`` int64: the search's work (:func:`pedrl.vq.pruned_kernel.search_batch`)."""
+
+
+class EncodeBuffers(NamedTuple):
+    """Scratch of :func:`encode_room` (:func:`encode_buffers`)."""
+
+    x: np.ndarray
+    point: np.ndarray
+    nodes: np.ndarray
+    sums: np.ndarray
+    batch: EncodeBatch
 
 
 @cached_njit(nogil=True)
@@ -36,22 +99,16 @@ def encode_agent(r, i, process, features, num_sensed, void, settings, encoder, t
     """The state id of agent ``i`` of room ``r`` of learning ``process``: its features as the quantizer sees them
     (:func:`prepare_agent`) and the nearest prototype of its set plus the set's offset.
 
-    ``encoder`` is ``(mean (T, F), std (T, F), keep (T, F), offsets (T,), columns (T, F), distance_index (D,),
-    set_of (P, k + 1), scan)``; ``tree`` is :meth:`pedrl.vq.tree.TreeIndex.kernel_arrays`, searched by the tree or,
-    with ``scan`` (:attr:`pedrl.vq.tree.TreeIndex.scans`), by a scan of its leaves, followed by
-    :meth:`pedrl.vq.pruned.PrunedIndex.kernel_arrays`, which :func:`encode_room` searches instead of the scan (the
+    ``encoder`` is :class:`EncoderArrays`; ``tree`` (:class:`pedrl.vq.tree.TreeArrays`) is searched by the tree or,
+    with ``encoder.scan``, by a scan of its leaves (which :func:`encode_room` replaces by the pruned batch search: the
     same ids). ``x``, ``point`` ``(F,)``, ``nodes`` and ``sums`` are scratch.
     """
-    offsets, scan = encoder[3], encoder[7]
     t = prepare_agent(r, i, process, features, num_sensed, void, settings, encoder, x, point)
-    (prototypes, ids_of, leaf_of, left, right, split_dim, split_value, low_box, high_box) = tree[:9]
-    if scan:
-        found, _ = scan_point(point, t, prototypes, ids_of, sums)
+    if encoder.scan:
+        found, _ = scan_point(point, t, tree.prototypes, tree.ids_of, sums)
     else:
-        found, _ = search_point(
-            point, t, prototypes, ids_of, leaf_of, left, right, split_dim, split_value, low_box, high_box, nodes, sums
-        )
-    return found + offsets[t]
+        found, _ = search_tree(point, t, tree, nodes, sums)
+    return found + encoder.offsets[t]
 
 
 @cached_njit(nogil=True)
@@ -60,11 +117,13 @@ def prepare_agent(r, i, process, features, num_sensed, void, settings, encoder, 
     from its draws ``void[r, i]``, distances transformed), standardised by the set of its process and neighbours, in
     ``point`` in the set's column order; returns the set ``t``.
 
-    ``settings`` is ``(k, max_distance, max_speed, min_distance, random_void, log_distances)``; a union's part reads
-    only the features it ``keep``s (the others are 0 in its prototypes and in the point).
+    ``settings`` is :class:`pedrl.vq.encoder.KernelEncoding`; a union's part reads only the features it ``keep``s
+    (the others are 0 in its prototypes and in the point).
     """
-    k, max_distance, max_speed, min_distance, random_void, log_distances = settings
-    mean, std, keep, _, columns, distance_index, set_of, _ = encoder
+    k, max_distance, max_speed = settings.num_neighbours, settings.max_distance, settings.max_speed
+    min_distance, random_void, log_distances = settings.min_void_distance, settings.random_void, settings.log_distances
+    mean, std, keep, columns, set_of = encoder.mean, encoder.std, encoder.keep, encoder.columns, encoder.set_of
+    distance_index = encoder.distance_index
     sensed = num_sensed[r, i]
     for f in range(features.shape[2]):
         x[f] = features[r, i, f]
@@ -93,15 +152,16 @@ def prepare_agent(r, i, process, features, num_sensed, void, settings, encoder, 
 
 
 @cached_njit(nogil=True)
-def encode_room(r, process, present, base_rows, rows, features, num_sensed, void, settings, encoder, tree, buffers):
+def encode_room(r, process, present, base_rows, rows, features, num_sensed, void, settings, encoder, tree, pruned,
+                buffers):  # fmt: skip
     """``rows[r]``: every ``present`` agent's flat table row (its table's first row plus its state id); the others
     get their table's first row. Where the sets are scanned (``encoder``'s ``scan``), the room's agents are searched
     together by :mod:`pedrl.vq.pruned_kernel` (the scan's ids), each from the prototype of its row before the call
     (its previous state in the fused trial; any value is only a guess)."""
-    x, point, nodes, sums, batch = buffers
-    if encoder[7]:
-        _encode_batch(r, process, present, base_rows, rows, features, num_sensed, void, settings, encoder, tree, x,
-                      sums, batch)  # fmt: skip
+    x, point, nodes, sums = buffers.x, buffers.point, buffers.nodes, buffers.sums
+    if encoder.scan:
+        _encode_batch(r, process, present, base_rows, rows, features, num_sensed, void, settings, encoder, tree, pruned,
+                      x, sums, buffers.batch)  # fmt: skip
         return
     for i in range(rows.shape[1]):
         rows[r, i] = base_rows[r, i]
@@ -111,14 +171,13 @@ def encode_room(r, process, present, base_rows, rows, features, num_sensed, void
 
 
 @cached_njit(nogil=True)
-def _encode_batch(r, process, present, base_rows, rows, features, num_sensed, void, settings, encoder, tree, x, sums,
-                  batch):  # fmt: skip
+def _encode_batch(r, process, present, base_rows, rows, features, num_sensed, void, settings, encoder, tree, pruned,
+                  x, sums, batch):  # fmt: skip
     """:func:`encode_room` by :func:`pedrl.vq.pruned_kernel.search_batch`: the present agents grouped by prototype
     set (in the order of their first member), each group searched at once; a point the batch leaves to the scan
     (NaN or huge) is scanned."""
-    scratch, points, sets, agents, hints, counts = batch
-    offsets, pruned = encoder[3], tree[9:]
-    prototypes, ids_of = tree[0], tree[1]
+    scratch, points, sets, agents, hints = batch.scratch, batch.points, batch.sets, batch.agents, batch.hints
+    offsets = encoder.offsets
     n = 0
     for i in range(rows.shape[1]):
         if present[r, i]:
@@ -137,11 +196,11 @@ def _encode_batch(r, process, present, base_rows, rows, features, num_sensed, vo
                 stop += 1
         group = points[first:stop]
         prepare_batch(group, stop - first, hints[first:stop], t, pruned, scratch)
-        search_batch(group, stop - first, t, pruned, scratch, counts)
+        search_batch(group, stop - first, t, pruned, scratch, batch.counts)
         for m in range(stop - first):
-            found = scratch[4][m]
+            found = scratch.best_id[m]
             if found < 0:
-                found, _ = scan_point(group[m], t, prototypes, ids_of, sums)
+                found, _ = scan_point(group[m], t, tree.prototypes, tree.ids_of, sums)
             rows[r, agents[first + m]] += found + offsets[t]
         first = stop
 
@@ -159,10 +218,8 @@ def _swap(points, sets, agents, hints, a, b):
 
 @cached_njit(nogil=True)
 def encode_buffers(agents, num_features):
-    """Scratch of :func:`encode_room` for rooms of up to ``agents`` agents: ``(x, point, nodes, sums, batch)``, where
-    ``batch`` is ``(scratch, points, sets, agents, hints, counts)`` of the batched search (``counts`` adds its work:
-    leaf-agent visits of its three passes and exact distances, see :func:`pedrl.vq.pruned_kernel.search_batch`)."""
-    batch = (
+    """Scratch of :func:`encode_room` for rooms of up to ``agents`` agents (:class:`EncodeBuffers`)."""
+    batch = EncodeBatch(
         batch_scratch(agents, num_features),
         np.empty((agents, num_features), np.float32),
         np.empty(agents, np.int64),
@@ -170,8 +227,8 @@ def encode_buffers(agents, num_features):
         np.empty(agents, np.int64),
         np.zeros(4, np.int64),
     )
-    return (np.empty(num_features, np.float32), np.empty(num_features, np.float32), np.empty(_STACK, np.int64),
-            np.empty(LEAF_SIZE, np.float32), batch)  # fmt: skip
+    return EncodeBuffers(np.empty(num_features, np.float32), np.empty(num_features, np.float32),
+                         np.empty(_STACK, np.int64), np.empty(LEAF_SIZE, np.float32), batch)  # fmt: skip
 
 
 @cached_njit(nogil=True)
@@ -181,16 +238,16 @@ def draw_void(r, void, streams):
             void[r, i, j] = next_uniform(streams, r)
 
 
-def pack_encoder(encoder: StateEncoder, processes: int) -> tuple[Any, Any]:
-    """``(encoder, tree)`` tuples of :func:`encode_agent` for ``encoder``'s quantizer,
-    built once per quantizer (and again if it is used with other settings or processes)."""
+def pack_encoder(encoder: StateEncoder, processes: int) -> PackedEncoder:
+    """What the encoding kernels read of ``encoder``'s quantizer, built once per quantizer (and again if it is used
+    with other settings or processes)."""
     quantizer, key = encoder.quantizer, (encoder.settings, processes)
     if quantizer not in _PACKED or _PACKED[quantizer][0] != key:
         _PACKED[quantizer] = (key, _pack(encoder, processes))
     return _PACKED[quantizer][1]
 
 
-def _pack(encoder: StateEncoder, processes: int) -> tuple[Any, Any]:
+def _pack(encoder: StateEncoder, processes: int) -> PackedEncoder:
     """Every prototype set as a full-width set: a plain quantizer is one set, a union one set per part (its
     features kept, the others 0), padded to the largest set with copies of its first prototype (a tie goes to the
     lower id, so a copy never wins)."""
@@ -215,19 +272,20 @@ def _pack(encoder: StateEncoder, processes: int) -> tuple[Any, Any]:
 
     parts = quantizer.parts if isinstance(quantizer := encoder.quantizer, ProcessQuantizers) else None
     set_of = [add(part) for part in parts] if parts is not None else [add(quantizer)] * processes
-    size = max(s[3].shape[0] for s in sets)
-    padded = [torch.cat((s[3], s[3][:1].expand(size - s[3].shape[0], -1))) for s in sets]
+    means, stds, keeps, prototype_sets, offsets = zip(*sets, strict=True)
+    size = max(prototypes.shape[0] for prototypes in prototype_sets)
+    padded = [torch.cat((p, p[:1].expand(size - p.shape[0], -1))) for p in prototype_sets]
     tree = TreeIndex(torch.stack(padded).float())
     # the scanned sets (the literal encoding) are searched by the pruned batch search instead; others carry a stub
     pruned = PrunedIndex(torch.stack(padded).float() if tree.scans else torch.zeros(1, 1, width))
-    packed = (
-        torch.stack([s[0] for s in sets]).float().numpy(),
-        torch.stack([s[1] for s in sets]).float().numpy(),
-        torch.stack([s[2] for s in sets]).numpy(),
-        np.array([s[4] for s in sets], np.int64),
+    arrays = EncoderArrays(
+        torch.stack(means).float().numpy(),
+        torch.stack(stds).float().numpy(),
+        torch.stack(keeps).numpy(),
+        np.array(offsets, np.int64),
         np.ascontiguousarray(tree.columns),
         distance_indices(k, settings.num_walls).numpy(),
         np.array(set_of, np.int64),
         tree.scans,
     )
-    return packed, tree.kernel_arrays() + pruned.kernel_arrays()
+    return PackedEncoder(arrays, tree.kernel_arrays(), pruned.kernel_arrays())

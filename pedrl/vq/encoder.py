@@ -20,12 +20,20 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, replace
-from typing import Any, Final
+from typing import Any, Final, NamedTuple
 
+import numpy as np
 import torch
 
-from pedrl.sim.checks import check_choice, check_integer, check_number
-from pedrl.sim.sensing import distance_indices, feature_indices, fill_void_neighbours, num_features, void_draws
+from pedrl.common.checks import check_choice, check_integer, check_number
+from pedrl.sim.sensing import (
+    MIN_VOID_DISTANCE,
+    distance_indices,
+    feature_indices,
+    fill_void_neighbours,
+    num_features,
+    void_draws,
+)
 from pedrl.vq.quantizer import ProcessQuantizers, Quantizer, UnionQuantizer
 
 VOID_FEATURES: Final = ("zero", "random")
@@ -35,6 +43,21 @@ VOID_DRAWS: Final = ("trial", "decision")
 DISTANCE_TRANSFORMS: Final = ("none", "log")
 """Values of ``distance_transform``: raw distances (the paper) or ``log(1 + d)``."""
 AnyQuantizer = Quantizer | ProcessQuantizers | UnionQuantizer
+
+
+class KernelEncoding(NamedTuple):
+    """:class:`EncoderSettings` as :func:`pedrl.vq.encode_kernel.encode_agent` reads them
+    (:meth:`EncoderSettings.kernel`)."""
+
+    num_neighbours: int
+    max_distance: np.float32
+    """The range of random void fillings (m)."""
+    max_speed: np.float32
+    """The range of random void fillings (m/s)."""
+    min_void_distance: np.float32
+    """The nearest a random void filling lies when no neighbour is sensed (m)."""
+    random_void: bool
+    log_distances: bool
 
 
 @dataclass(frozen=True)
@@ -68,6 +91,17 @@ class EncoderSettings:
         check_choice("void_features", self.void_features, VOID_FEATURES)
         check_choice("void_draws", self.void_draws, VOID_DRAWS)
         check_choice("distance_transform", self.distance_transform, DISTANCE_TRANSFORMS)
+
+    def kernel(self) -> KernelEncoding:
+        """These settings as the encoding kernel reads them (:class:`KernelEncoding`)."""
+        return KernelEncoding(
+            self.num_neighbours,
+            np.float32(self.max_distance),
+            np.float32(self.max_speed),
+            np.float32(MIN_VOID_DISTANCE),
+            self.void_features == "random",
+            self.distance_transform == "log",
+        )
 
     @classmethod
     def for_room(cls, room: Any, **choices: Any) -> EncoderSettings:

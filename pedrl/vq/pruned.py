@@ -33,7 +33,7 @@ column after column), ties to the lowest id. A point whose rotated norm is NaN o
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch
@@ -41,7 +41,7 @@ import torch
 from pedrl._numba import cached_njit
 from pedrl.vq.pruned_kernel import LANES, exact_distance, prepare_batch, search_batch
 
-__all__ = ["GRAPH_SIZE", "LEAD_COLUMNS", "PrunedIndex", "batch_scratch"]
+__all__ = ["GRAPH_SIZE", "LEAD_COLUMNS", "BatchScratch", "PrunedArrays", "PrunedIndex", "batch_scratch"]
 
 GRAPH_SIZE = 16
 """Nearest prototypes stored per prototype for the greedy walk to a first candidate (measured on literal states:
@@ -77,7 +77,7 @@ class PrunedIndex:
         cuts = np.array([min(8, width), min(16, width), width], np.int64)
         parts = [_build_set(part, width, cuts) for part in values]
         graph = min(GRAPH_SIZE, self.num_prototypes - 1)
-        self._arrays = (
+        self._arrays = PrunedArrays(
             cuts,
             np.stack([p["mean"] for p in parts]),
             np.stack([p["axes"] for p in parts]),
@@ -94,9 +94,8 @@ class PrunedIndex:
         """``(T, d)`` int64: the columns of set ``t`` in the order the search reads them (the tree's)."""
         return self._columns
 
-    def kernel_arrays(self) -> tuple[np.ndarray, ...]:
-        """``(cuts, mean, axes, first_q, first_n, next_q, next_n, last_q, last_n, ids, rows, graph, entry,
-        norm_bound)``: the ``index`` of :func:`pedrl.vq.pruned_kernel.prepare_batch` and ``search_batch``."""
+    def kernel_arrays(self) -> PrunedArrays:
+        """The ``index`` of :func:`pedrl.vq.pruned_kernel.prepare_batch` and ``search_batch``."""
         return self._arrays
 
     def search(
@@ -210,12 +209,64 @@ def _nearest_prototypes(values: np.ndarray, size: int) -> np.ndarray:
     return torch.cat(rows).numpy().astype(np.int64)
 
 
+class PrunedArrays(NamedTuple):
+    """What :func:`pedrl.vq.pruned_kernel.prepare_batch` and ``search_batch`` read of a :class:`PrunedIndex`, per
+    set ``t`` (:meth:`PrunedIndex.kernel_arrays`)."""
+
+    cuts: np.ndarray
+    """``(3,)`` int64: the rotated columns that end each of the three passes."""
+    mean: np.ndarray
+    """``(T, d)`` float64: each set's mean, subtracted before the rotation."""
+    axes: np.ndarray
+    """``(T, d, width)`` float64: each set's principal axes."""
+    first_q: np.ndarray
+    """The first pass's quantized leaf columns."""
+    first_n: np.ndarray
+    """The first pass's leaf norms."""
+    next_q: np.ndarray
+    """The second pass's quantized leaf columns."""
+    next_n: np.ndarray
+    """The second pass's leaf norms."""
+    last_q: np.ndarray
+    """The third pass's quantized leaf columns."""
+    last_n: np.ndarray
+    """The third pass's leaf norms."""
+    ids: np.ndarray
+    """``(T, leaves, 16)`` int64: the prototype of each leaf lane."""
+    rows: np.ndarray
+    """``(T, K, padded d)`` float32: the prototypes, for the exact distances."""
+    graph: np.ndarray
+    """``(T, K, GRAPH_SIZE)`` int64: each prototype's nearest others, for the walk from a hint."""
+    entry: np.ndarray
+    """``(T,)`` int64: where a walk without a hint starts."""
+    norm_bound: np.ndarray
+    """``(T,)`` float64: a bound of the rounding of the passes' norms."""
+
+
+class BatchScratch(NamedTuple):
+    """Scratch of a batch of points (:func:`batch_scratch`): the rotated points and their bounds, each point's best
+    prototype so far, and the work lists of the passes."""
+
+    y: np.ndarray
+    norms: np.ndarray
+    bounds: np.ndarray
+    best: np.ndarray
+    """``(B,)`` float32: each point's nearest distance found."""
+    best_id: np.ndarray
+    """``(B,)`` int64: its prototype; -1 for a point left to the scan (NaN or huge)."""
+    acc: np.ndarray
+    lists: np.ndarray
+    rotated: np.ndarray
+    padded: np.ndarray
+    hints: np.ndarray
+    """``(B,)`` int64: each point's first guess."""
+
+
 @cached_njit(nogil=True)
 def batch_scratch(agents, dim):
-    """Scratch of a batch of up to ``agents`` points of ``dim`` features: ``(y, norms, bounds, best, best_id, acc,
-    lists, rotated, padded, hints)`` (see :func:`pedrl.vq.pruned_kernel.prepare_batch`)."""
+    """Scratch of a batch of up to ``agents`` points of ``dim`` features (:class:`BatchScratch`)."""
     width = (dim + 3) // 4 * 4
-    return (
+    return BatchScratch(
         np.empty((agents, width), np.float32),
         np.empty((agents, 3)),
         np.empty((agents, 3), np.float32),
@@ -233,8 +284,8 @@ def batch_scratch(agents, dim):
 def _search_points(points, sets, hints, columns, index, scratch, counts, ids, sq_dist):
     """:meth:`PrunedIndex.search`: runs of points of one set, up to a batch at a time; a point the kernels leave
     to the scan is searched through every prototype by the scan's distance (NaN: id 0)."""
-    batch = np.empty((scratch[0].shape[0], points.shape[1]), np.float32)
-    rows = index[10]
+    batch = np.empty((scratch.y.shape[0], points.shape[1]), np.float32)
+    rows = index.rows
     first = 0
     while first < points.shape[0]:
         t = sets[first]
@@ -242,13 +293,13 @@ def _search_points(points, sets, hints, columns, index, scratch, counts, ids, sq
         while first + n < points.shape[0] and sets[first + n] == t and n < batch.shape[0]:
             for c in range(points.shape[1]):
                 batch[n, c] = points[first + n, columns[t, c]]
-            scratch[9][n] = hints[first + n]
+            scratch.hints[n] = hints[first + n]
             n += 1
-        prepare_batch(batch, n, scratch[9], t, index, scratch)
+        prepare_batch(batch, n, scratch.hints, t, index, scratch)
         search_batch(batch, n, t, index, scratch, counts)
         for a in range(n):
-            if scratch[4][a] >= 0:
-                ids[first + a], sq_dist[first + a] = scratch[4][a], scratch[3][a]
+            if scratch.best_id[a] >= 0:
+                ids[first + a], sq_dist[first + a] = scratch.best_id[a], scratch.best[a]
                 continue
             best, best_id = np.float32(np.inf), rows.shape[1]
             for k in range(rows.shape[1]):

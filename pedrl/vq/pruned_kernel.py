@@ -217,8 +217,10 @@ def prepare_batch(points, n, hints, t, index, scratch):
     """Rotate the first ``n`` ``points`` (in set ``t``'s column order) into ``y``, walk from each one's hint (its
     previous prototype, if within ``[0, K)``) to a local nearest prototype, and set the thresholds ``bounds[a, p] = T -
     |y|^2`` over the columns of passes ``0 .. p``. ``best_id[a]`` is -1 for a point left to the scan (NaN or huge)."""
-    cuts, mean, axes, _, _, _, _, _, _, _, rows, graph, entry, norm_bound = index
-    y, norms, bounds, best, best_id, _, _, rotated, padded, _ = scratch
+    cuts, mean, axes, rows, graph = index.cuts, index.mean, index.axes, index.rows, index.graph
+    entry, norm_bound = index.entry, index.norm_bound
+    y, norms, bounds, best, best_id = scratch.y, scratch.norms, scratch.bounds, scratch.best, scratch.best_id
+    rotated, padded = scratch.rotated, scratch.padded
     dim, width = points.shape[1], axes.shape[2]
     count = rows.shape[1]
     for a in range(n):
@@ -304,8 +306,11 @@ def search_batch(points, n, t, index, scratch, counts):
     """The nearest prototype of each of the first ``n`` ``points`` prepared by :func:`prepare_batch`: ``best_id``
     and ``best`` (the scan's id and distance). ``counts`` adds the leaf-agent visits of the passes and the exact
     distances taken (the search's work, for the benchmark)."""
-    cuts, _, _, first_q, first_n, next_q, next_n, last_q, last_n, ids, rows, _, _, norm_bound = index
-    y, norms, bounds, best, best_id, acc, lists, _, _, _ = scratch
+    cuts, ids, rows, norm_bound = index.cuts, index.ids, index.rows, index.norm_bound
+    first_q, first_n, next_q, next_n = index.first_q, index.first_n, index.next_q, index.next_n
+    last_q, last_n = index.last_q, index.last_n
+    y, norms, bounds, best, best_id = scratch.y, scratch.norms, scratch.bounds, scratch.best, scratch.best_id
+    acc, lists = scratch.acc, scratch.lists
     count = rows.shape[1]
     pairs = first_n.shape[1] // 32
     cols_a, cols_b, cols_c = cuts[0], cuts[1] - cuts[0], cuts[2] - cuts[1]

@@ -6,7 +6,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, fields
 from typing import Any, Final
 
-from pedrl.sim.checks import check_bool, check_choice, check_integer, check_number
+from pedrl.common.checks import check_bool, check_choice, check_integer, check_number
 from pedrl.vq.encoder import DISTANCE_TRANSFORMS
 
 KMEANS_INITS: Final = ("kmeans++", "random")

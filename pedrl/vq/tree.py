@@ -19,12 +19,14 @@ names each point's set.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 import torch
 
 from pedrl._numba import cached_njit
 
-__all__ = ["LEAF_SIZE", "TreeIndex"]
+__all__ = ["LEAF_SIZE", "TreeArrays", "TreeIndex"]
 
 LEAF_SIZE = 16
 """Prototypes per leaf, whose distances the kernel computes in vector lanes, 16 at a time (measured per state:
@@ -124,37 +126,19 @@ def _box_distance(point, low, high, t, node):
 
 
 @cached_njit(nogil=True)
-def _search(
-    points,
-    tree,
-    columns,
-    prototypes,
-    ids_of,
-    leaf_of,
-    left,
-    right,
-    split_dim,
-    split_value,
-    low,
-    high,
-    scan,
-    ids,
-    sq_dist,
-):
+def _search(points, sets, columns, tree, scan, ids, sq_dist):
     dim = points.shape[1]
     nodes = np.empty(_STACK, dtype=np.int64)
     point = np.empty(dim, dtype=np.float32)
     sums = np.empty(LEAF_SIZE, dtype=np.float32)
     for row in range(points.shape[0]):
-        t = tree[row]
+        t = sets[row]
         for c in range(dim):
             point[c] = points[row, columns[t, c]]
         if scan:
-            ids[row], sq_dist[row] = scan_point(point, t, prototypes, ids_of, sums)
+            ids[row], sq_dist[row] = scan_point(point, t, tree.prototypes, tree.ids_of, sums)
         else:
-            ids[row], sq_dist[row] = search_point(
-                point, t, prototypes, ids_of, leaf_of, left, right, split_dim, split_value, low, high, nodes, sums
-            )
+            ids[row], sq_dist[row] = search_tree(point, t, tree, nodes, sums)
 
 
 @cached_njit(nogil=True)
@@ -183,6 +167,13 @@ def search_point(point, t, prototypes, ids_of, leaf_of, left, right, split_dim, 
         nodes[top + 1] = first_child
         top += 2
     return (best_id if best_id < ids_of.shape[1] * LEAF_SIZE else 0), best  # a NaN point: id 0
+
+
+@cached_njit(nogil=True, inline="always")
+def search_tree(point, t, tree, nodes, sums):
+    """:func:`search_point` in set ``t`` of ``tree`` (:class:`TreeArrays`)."""
+    return search_point(point, t, tree.prototypes, tree.ids_of, tree.leaf_of, tree.left, tree.right, tree.split_dim,
+                        tree.split_value, tree.low, tree.high, nodes, sums)  # fmt: skip
 
 
 @cached_njit(nogil=True)
@@ -288,6 +279,29 @@ def _leaf_distances(point, prototypes, t, leaf, sums):
     return min(low0, low1)
 
 
+class TreeArrays(NamedTuple):
+    """The k-d trees of ``T`` sets as the kernels read them (:meth:`TreeIndex.kernel_arrays`)."""
+
+    prototypes: np.ndarray
+    """``(T, L, d, LEAF_SIZE)`` float32: each leaf's prototypes, column by column (padded with far dummies)."""
+    ids_of: np.ndarray
+    """``(T, L, LEAF_SIZE)`` int64: their ids (``K`` for a dummy)."""
+    leaf_of: np.ndarray
+    """``(n,)`` int64: each node's leaf, -1 for an inner node."""
+    left: np.ndarray
+    """``(n,)`` int64: each node's left child (-1 at a leaf)."""
+    right: np.ndarray
+    """``(n,)`` int64: its right child."""
+    split_dim: np.ndarray
+    """``(T, n)`` int64: the column an inner node splits."""
+    split_value: np.ndarray
+    """``(T, n)`` float32: where."""
+    low: np.ndarray
+    """``(T, n, head)`` float32: each node's box, lower corner (the leading columns)."""
+    high: np.ndarray
+    """``(T, n, head)`` float32: upper corner."""
+
+
 class TreeIndex:
     """Exact nearest-prototype search over ``T`` fixed sets of ``K`` prototypes ``(T, K, d)`` (CPU, numba).
 
@@ -322,8 +336,8 @@ class TreeIndex:
         for index, (*_, low, _high) in enumerate(trees):
             self._split_dim[index, inner] = split[index]
             self._split_value[index, inner] = low[self._right[inner], split[index]]
-        self._low = np.ascontiguousarray(np.stack([tree[5] for tree in trees])[:, :, :head], dtype=np.float32)
-        self._high = np.ascontiguousarray(np.stack([tree[6] for tree in trees])[:, :, :head], dtype=np.float32)
+        self._low = np.ascontiguousarray(np.stack([low for *_, low, _ in trees])[:, :, :head], dtype=np.float32)
+        self._high = np.ascontiguousarray(np.stack([high for *_, high in trees])[:, :, :head], dtype=np.float32)
         self.scans = head > SCAN_ABOVE_COLUMNS  # search by a scan of the leaves (same answers)
         # leaves as (d, LEAF_SIZE) blocks, padded with far-away dummies (id K, never the nearest)
         leaves = np.flatnonzero(~inner)
@@ -339,10 +353,10 @@ class TreeIndex:
             block = np.where(real[..., None], values[index][np.minimum(ids, self.num_prototypes - 1)], _FAR)
             self._prototypes[index] = block.transpose(0, 2, 1)
 
-    def kernel_arrays(self) -> tuple[np.ndarray, ...]:
-        """What :func:`search_point` reads after the point and its set: ``(prototypes, ids_of, leaf_of, left, right,
-        split_dim, split_value, low, high)``; ``columns`` ``(T, d)`` (:attr:`columns`) orders a point's values."""
-        return (
+    def kernel_arrays(self) -> TreeArrays:
+        """What :func:`search_tree` reads after the point and its set (:class:`TreeArrays`); ``columns`` ``(T, d)``
+        (:attr:`columns`) orders a point's values."""
+        return TreeArrays(
             self._prototypes,
             self._ids,
             self._leaf_of,
@@ -383,7 +397,7 @@ class TreeIndex:
             np.ascontiguousarray(points.detach().to(torch.float32).numpy()),
             np.ascontiguousarray(sets.numpy(), dtype=np.int64),
             self._columns,
-            *self.kernel_arrays(),
+            self.kernel_arrays(),
             self.scans,
             ids,
             sq_dist,

@@ -327,7 +327,7 @@ def test_checkpoints_written_before_compile_sensing_existed_still_resume():
 def test_a_resume_keeps_the_trial_path_the_run_started_on(tmp_path, monkeypatch):
     """A run started on the fused path (the CPU default) refuses, in one line, to go on in the torch loop (numba
     switched off, as ``PEDRL_NO_NUMBA=1`` does), whose numbers for a seed differ; resumed as it started, it goes on."""
-    import pedrl.trial.fused
+    import pedrl.trial.crowd
 
     _interrupt_after(monkeypatch, 14)
     with pytest.raises(KeyboardInterrupt):
@@ -335,7 +335,7 @@ def test_a_resume_keeps_the_trial_path_the_run_started_on(tmp_path, monkeypatch)
     monkeypatch.undo()
     assert load_checkpoint(tmp_path / "checkpoints" / "last.safetensors").metadata["trial_path"] == "fused"
     curve = (tmp_path / "learning_curve.csv").read_bytes()
-    monkeypatch.setattr(pedrl.trial.fused, "numba_available", lambda: False)
+    monkeypatch.setattr(pedrl.trial.crowd, "numba_available", lambda: False)
     with pytest.raises(CheckpointError) as refused:
         train(tiny_config(*TINY, "resume=true"), run_dir=tmp_path)
     message = str(refused.value)

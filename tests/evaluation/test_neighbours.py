@@ -9,7 +9,7 @@ import sys
 import pytest
 import torch
 
-from pedrl.evaluation.neighbours import MEASURES, neighbour_sight, scenes_of, sight_of
+from pedrl.evaluation.neighbours import MEASURES, SightSettings, neighbour_sight, scenes_of, sight_of
 from pedrl.policy_files import load_policy
 from pedrl.scenarios import paper_room
 from pedrl.sim import RoomEnv
@@ -55,7 +55,7 @@ def over_nearest_neighbour(env: RoomEnv, prototypes: int = 256) -> StateEncoder:
 
 def sight(encoder: StateEncoder, env: RoomEnv):
     scenes = scenes_of(env, speed_ratios=SPEEDS, seed=3)
-    return sight_of(encoder, env, scenes, speed_ratios=SPEEDS, samples=36, crowds=50, seed=3)
+    return sight_of(encoder, env, scenes, SightSettings(speed_ratios=SPEEDS, samples=36, crowds=50, seed=3))
 
 
 def test_a_quantizer_that_ignores_the_neighbours_sees_one_prototype_for_every_neighbour_measure():
@@ -93,7 +93,7 @@ def checkpoint(tmp_path_factory):
 
 def test_a_trained_checkpoint_reports_every_measure(checkpoint):
     policy = load_policy(checkpoint)
-    result = neighbour_sight(policy, places=3, speed_ratios=[1.0], samples=24, crowds=20, seed=0)
+    result = neighbour_sight(policy, SightSettings(places=3, speed_ratios=[1.0], samples=24, crowds=20, seed=0))
     for measure in MEASURES:
         counts = result.counts[measure]
         assert counts.shape == (policy.num_processes, 3)
@@ -119,6 +119,6 @@ def test_random_void_fillings_are_kept_over_a_scene():
     # 97 prototypes 0.375 m apart, their boundaries clear of the fillings' values here (float32 jitters them by 1e-6)
     encoder = encoder_over(NUM_OWN_FEATURES + 3 + DISTANCE, torch.linspace(0.0, 36.0, 97), env, void_features="random")
     scenes = scenes_of(env, speed_ratios=SPEEDS, seed=3)
-    result = sight_of(encoder, env, scenes, speed_ratios=SPEEDS, samples=36, crowds=5, seed=3)
+    result = sight_of(encoder, env, scenes, SightSettings(speed_ratios=SPEEDS, samples=36, crowds=5, seed=3))
     assert result.counts["circling"].tolist() == [[1] * 8]
     assert result.counts["turning"].tolist() == [[1] * 8]

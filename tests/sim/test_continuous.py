@@ -100,9 +100,7 @@ def test_the_direction_rule_turns_away_from_a_body_ahead_and_a_wall():
 
 
 def sliding_walls(env: RoomEnv):
-    from pedrl.sim.motion.sliding import _wall_segments
-
-    return _wall_segments(env.geometry)
+    return env.geometry.wall_segments()
 
 
 @settings(max_examples=6, deadline=None)

@@ -1,15 +1,30 @@
-"""RoomParams: every setting of RoomEnv has a field, every field declares what the fast path supports, and the fast
-path's eligibility is the allow-list computed from those declarations."""
+"""RoomParams: every setting of RoomEnv has a field, every field declares what the fast path supports and how the
+kernels receive it, the fast path's eligibility is the allow-list computed from those declarations, and the kernels'
+room constants are packed from them."""
 
 import dataclasses
 import inspect
 
+import numpy as np
 import pytest
 
 from pedrl.scenarios import paper_room
 from pedrl.sim import RoomEnv
-from pedrl.sim.motion import Continuous, Headway, Simultaneous, Yield
-from pedrl.sim.params import ANY, RoomParams, only, setting, undeclared
+from pedrl.sim.motion import CONTACT_MODELS, Continuous, Headway, Simultaneous, Yield
+from pedrl.sim.params import (
+    ANY,
+    KernelRoom,
+    RoomParams,
+    _kernel_entries,
+    host,
+    kernel,
+    model,
+    only,
+    setting,
+    through,
+    undeclared,
+    unread,
+)
 
 BATCH_ARGUMENTS = {"self", "num_replicas", "num_agents", "device", "area"}
 """RoomEnv's arguments that are not settings of the room: the batch shape, the device and the walkable area."""
@@ -29,10 +44,69 @@ def test_a_field_without_a_declaration_is_found():
 
     @dataclasses.dataclass(frozen=True)
     class Planted:
-        max_speed: float = setting(ANY)
+        max_speed: float = setting(ANY, host("the area"))
         new_option: bool = False
 
     assert undeclared(Planted) == ["new_option"]
+
+
+def test_a_setting_cannot_be_declared_without_saying_how_the_kernels_receive_it():
+    with pytest.raises(TypeError):
+        setting(ANY)  # the missing packing is the point
+
+
+def test_a_new_packed_setting_reaches_the_kernels_by_its_name():
+    """The kernels' constants are built from the declarations: a new field with a packing is a new entry, a field
+    that takes part in another's names it, and a name that no entry has is refused when the class is read."""
+
+    @dataclasses.dataclass(frozen=True)
+    class Planted:
+        width: float = setting(ANY, host("the area"))
+        speed: float = setting(ANY, kernel(np.float32))
+        order: str = setting(ANY, kernel(lambda order: order == "first", "first"))
+        gap: float = setting(ANY, through("first"))
+
+    assert _kernel_entries(Planted) == ["speed", "first"]
+
+    @dataclasses.dataclass(frozen=True)
+    class Dangling:
+        gap: float = setting(ANY, through("nowhere"))
+
+    with pytest.raises(TypeError, match="nowhere"):
+        _kernel_entries(Dangling)
+
+
+def test_the_kernels_read_every_packed_setting_of_the_room():
+    env = paper_room(width=10.0, length=12.0).room(num_agents=3, motion=Yield(time_gap=0.7, order="door_first"))
+    room = env.params.kernel_room(env)
+    assert isinstance(room, KernelRoom) and room._fields == tuple(_kernel_entries(RoomParams))
+    assert room.max_speed == np.float32(env.max_speed) and room.agent_radius == env.agent_radius
+    assert room.door_first and room.time_gap == 0.7 and room.num_substeps == env.num_substeps
+    assert room.contact == CONTACT_MODELS.index("yield") and not room.continuous
+    assert room.reward_goal == np.float32(env.rewards.goal) and room.decision_length == env.decision_length
+    assert np.array_equal(room.speed_changes, env.speed_changes.numpy())
+    hosted = {field.name for field in dataclasses.fields(RoomParams) if field.metadata["packing"].host is not None}
+    area = {"goal_depth"}  # the kernels read the area as walls and exits
+    assert hosted == area | {"compile_sensing", "queue_weight"}
+
+
+def test_a_field_of_a_motion_model_the_kernels_do_not_read_is_found():
+    """A model the fast path runs with a field its packing's ``reads`` does not list: a TypeError when the class is
+    read, so that a new parameter of a model cannot be left out of the kernels' constants; the control: the room's
+    own declarations read every field of every model it runs."""
+
+    @dataclasses.dataclass(frozen=True)
+    class Anticipating(Yield):
+        anticipation: float = 0.5
+
+    @dataclasses.dataclass(frozen=True)
+    class Planted:
+        motion: Yield = setting(only(Yield, Anticipating), model(reads=("time_gap", "order"), gap=lambda m: m.time_gap))
+
+    assert unread(Planted) == ["motion.Anticipating.anticipation"]
+    with pytest.raises(TypeError, match="Anticipating.anticipation"):
+        _kernel_entries(Planted)
+    assert unread(RoomParams) == []
 
 
 def test_the_params_are_the_validated_arguments():

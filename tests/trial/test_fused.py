@@ -27,10 +27,12 @@ from pedrl.scenarios import paper_room
 from pedrl.sim import RoomEnv
 from pedrl.sim.actions import GOAL_SPEED_RATIOS, GOAL_TURN_RATIOS
 from pedrl.sim.motion import Simultaneous, Yield
-from pedrl.sim.sensing import MIN_VOID_DISTANCE, observe
+from pedrl.sim.sensing import observe
 from pedrl.train import train as train_run
 from pedrl.trial import fused
-from pedrl.trial.rollout import gather, run_trial
+from pedrl.trial.crowd import run_crowd
+from pedrl.trial.loop import Learner
+from pedrl.trial.rollout import gather
 from pedrl.vq.encoder import EncoderSettings, StateEncoder
 from pedrl.vq.quantizer import ProcessQuantizers, Quantizer, UnionQuantizer
 from tests.conftest import compose_config
@@ -67,9 +69,9 @@ def fused_features(env: RoomEnv, present: torch.Tensor) -> tuple[np.ndarray, np.
     features = np.zeros((rooms, agents, env.num_features), np.float32)
     num_sensed = np.zeros((rooms, agents), np.int64)
     size = max(agents, env.geometry.num_walls)
-    state = fused._arrays(env.state)
+    state = env.state.arrays()
     for r in range(rooms):
-        sense_room(r, state, present.numpy(), fused._walls(env), env.num_neighbours, env.num_walls, features,
+        sense_room(r, state, present.numpy(), env.geometry.kernel_walls(), env.num_neighbours, env.num_walls, features,
                    num_sensed, np.empty((2, size), np.float32), np.empty((2, size), np.int64))  # fmt: skip
     return features, num_sensed
 
@@ -114,17 +116,17 @@ def test_the_feature_check_fails_on_a_wrong_feature():
 
 def fused_step(env: RoomEnv, actions: torch.Tensor, draws: torch.Tensor) -> tuple[tuple, tuple]:
     """One decision of every room by ``act_room`` from ``env``'s state: the state and the events after it."""
-    from pedrl.sim.step_kernel import act_room, act_scratch
+    from pedrl.sim.step_kernel import Events, Work, act_room, act_scratch
 
     rooms, agents = env.num_replicas, env.num_agents
-    state = fused._arrays(env.state.clone())
-    work = list(fused._work(env))
-    work[-1] = draws.numpy()
-    events = fused._events(rooms, agents)
-    scratch = act_scratch(agents)
+    state = env.state.clone().arrays()
+    work = Work.allocate(rooms, agents, env.num_substeps)
+    work.draws[:] = draws.numpy()
+    events = Events.allocate(rooms, agents)
+    scratch, inputs = act_scratch(agents), fused.room_inputs(env)
     for r in range(rooms):
-        act_room(r, state, actions.numpy(), fused._room(env), fused._walls(env), fused._exits(env), tuple(work),
-                 events, scratch)  # fmt: skip
+        act_room(r, state, actions.numpy(), inputs.room, inputs.walls, inputs.exits, inputs.routes, work, events,
+                 scratch)  # fmt: skip
     return state, events
 
 
@@ -195,17 +197,18 @@ def test_encoding_matches_the_encoder(kind):
     info = {"num_sensed": torch.from_numpy(num_sensed), "decision": 1}
     expected = policy.rows(torch.from_numpy(features), info, torch.Generator()).view(env.num_replicas, -1)
     base = policy.layout.of(env.num_replicas, env.num_agents, env.device)[1].view(env.num_replicas, -1)
-    packed, tree = pack_encoder(encoder, policy.num_processes)
-    settings = encoder.settings
-    void_settings = (7, np.float32(settings.max_distance), np.float32(settings.max_speed),
-                     np.float32(MIN_VOID_DISTANCE), True, True)  # fmt: skip
+    packed = pack_encoder(encoder, policy.num_processes)
+    void_settings = encoder.settings.kernel()
+    assert void_settings.random_void and void_settings.log_distances and void_settings.num_neighbours == 7
     buffers = (np.empty(28, np.float32), np.empty(28, np.float32), np.empty(128, np.int64), np.empty(16, np.float32))
     ids = torch.zeros_like(expected)
     for r in range(env.num_replicas):
         for i in range(env.num_agents):
             if present[r, i]:
-                ids[r, i] = base[r, i] + encode_agent(r, i, r, features, num_sensed, void.view(env.num_replicas, -1, 22)
-                                                      .numpy(), void_settings, packed, tree, *buffers)  # fmt: skip
+                fills = void.view(env.num_replicas, -1, 22).numpy()
+                found = encode_agent(r, i, r, features, num_sensed, fills, void_settings, packed.arrays, packed.tree,
+                                     *buffers)  # fmt: skip
+                ids[r, i] = base[r, i] + found
     same = (ids == expected)[present]
     assert same.float().mean() >= 0.99, f"{int((~same).sum())} of {same.numel()} ids differ"
 
@@ -223,8 +226,8 @@ def train(
     previous = torch.get_num_threads()
     torch.set_num_threads(threads)
     try:
-        rates = [float(run_trial(env, policy, epsilon=0.2, generator=generator, learn=True, alpha=0.3, gamma=0.9,
-                                 fused=fused_trial).success_rate.mean()) for _ in range(trials)]  # fmt: skip
+        learner = Learner(policy, epsilon=0.2, generator=generator, learn=True, alpha=0.3, gamma=0.9)
+        rates = [float(run_crowd(env, learner, fused=fused_trial).stats.success_rate.mean()) for _ in range(trials)]
     finally:
         torch.set_num_threads(previous)
     return rates, policy.q_values
@@ -291,8 +294,9 @@ def test_fused_true_is_refused_in_one_line_where_it_cannot_run():
     env = paper_room(width=10, length=10).room(num_replicas=2, num_agents=4, motion=Simultaneous())
     policy = policies(paper_room(width=10, length=10).room(num_replicas=2, num_agents=4), 2)["shared"]
     with pytest.raises(ValueError, match=r"^fused=true is invalid: .*motion=simultaneous"):
-        run_trial(env, policy, epsilon=0.1, generator=torch.Generator(), learn=False, fused=True)
-    stats = run_trial(env, policy, epsilon=0.1, generator=torch.Generator(), learn=False)  # null: the torch loop
+        run_crowd(env, Learner(policy, epsilon=0.1, generator=torch.Generator(), learn=False), fused=True)
+    learner = Learner(policy, epsilon=0.1, generator=torch.Generator(), learn=False)
+    stats = run_crowd(env, learner, fused=None).stats  # null: the torch loop
     assert stats.agent_decisions > 0
 
 

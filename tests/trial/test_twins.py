@@ -97,15 +97,17 @@ def test_a_room_with_an_automatic_route_matches_through_whole_trials():
 
 def test_a_kernel_that_walks_too_fast_fails_the_harness(monkeypatch):
     """The control: the kernel path given a top speed 1 % higher than the room's is caught."""
-    original = fused._room
+    original = fused.room_inputs
 
     def faster(env):
-        values = list(original(env))
-        values[0] = values[0] * np.float32(1.01)  # the speed changes, in m/s
-        values[2] = values[2] * np.float32(1.01)  # max_speed
-        return tuple(values)
+        inputs = original(env)
+        scale = np.float32(1.01)
+        room = inputs.room._replace(
+            speed_changes=inputs.room.speed_changes * scale, max_speed=inputs.room.max_speed * scale
+        )
+        return inputs._replace(room=room)
 
-    monkeypatch.setattr(fused, "_room", faster)
+    monkeypatch.setattr(fused, "room_inputs", faster)
     report = check_twins(room("paper_room", "stop"), scenario_policies("paper_room")["shared"], seed=7)
     assert any(failure.startswith(("position", "speed")) for failure in report.failures())
 
@@ -128,21 +130,22 @@ def test_the_tolerances_are_the_declared_ones():
 )
 def test_invariants_hold_after_every_kernel_step(seed, name, contact, fast):
     """Bodies apart, clear of walls, inside the room, speeds in range, after every decision of the kernel path."""
-    from pedrl.sim.step_kernel import act_room, act_scratch
+    from pedrl.sim.step_kernel import Events, Work, act_room, act_scratch
 
     env = room(name, contact)
     env.reset(seed=seed)
     generator = torch.Generator().manual_seed(seed)
     shape = env.active.shape
-    state = fused._arrays(env.state.clone())
-    work, events, scratch = list(fused._work(env)), fused._events(*shape), act_scratch(shape[1])
-    kernel_room, walls, exits = fused._room(env), fused._walls(env), fused._exits(env)
+    state = env.state.clone().arrays()
+    work, events = Work.allocate(*shape, env.num_substeps), Events.allocate(*shape)
+    scratch, inputs = act_scratch(shape[1]), fused.room_inputs(env)
     for _ in range(env.max_decisions):
         actions = torch.randint(0, NUM_ACTIONS, shape, generator=generator)
         if fast:  # mostly accelerate, so bodies meet walls, each other and the door
             actions = torch.where(torch.rand(shape, generator=generator) < 0.7, 8 * 9 + actions % 9, actions)
-        work[-1] = torch.rand(shape, generator=generator).numpy()
+        work.draws[:] = torch.rand(shape, generator=generator).numpy()
         for r in range(shape[0]):
-            act_room(r, state, actions.numpy(), kernel_room, walls, exits, tuple(work), events, scratch)
-        env.load_state(RoomState(*(torch.from_numpy(a.copy()) for a in state)))
+            act_room(r, state, actions.numpy(), inputs.room, inputs.walls, inputs.exits, inputs.routes, work, events,
+                     scratch)  # fmt: skip
+        env.load_state(RoomState.from_arrays(state).clone())
         check_state(env)

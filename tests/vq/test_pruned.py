@@ -151,24 +151,41 @@ def test_the_encoder_of_a_literal_config_searches_in_batches():
     states = literal_states(decisions=30)
     quantizer, _ = Quantizer.fit(states[:20].reshape(-1, 28), 600, max_iterations=3)
     encoder = StateEncoder(EncoderSettings(7, 2, 116.6, 2.5), quantizer)
-    packed, tree = pack_encoder(encoder, 4)
-    assert packed[7] and len(tree) == 9 + 14 and tree[9 + 10].shape[:2] == (1, 600)  # scanned; the batch's rows
+    packed = pack_encoder(encoder, 4)
+    assert packed.arrays.scan and packed.pruned.rows.shape[:2] == (1, 600)  # scanned; the batch's rows
     features = states[25].view(4, 20, 28).contiguous().numpy()
     num_sensed = np.full((4, 20), 7, np.int64)
     present = np.ones((4, 20), bool)
     present[1, 3] = present[2, ::2] = False
     base = np.arange(80, dtype=np.int64).reshape(4, 20) * 1000
-    settings = (7, np.float32(116.6), np.float32(2.5), np.float32(MIN_VOID_DISTANCE), False, False)
+    settings = encoder.settings.kernel()
+    assert settings == (7, np.float32(116.6), np.float32(2.5), np.float32(MIN_VOID_DISTANCE), False, False)
     void = np.zeros((4, 20, 1), np.float32)
     buffers = encode_buffers(20, 28)
     rows = np.full((4, 20), -5, np.int64)  # no usable guess
     for r in range(4):
-        encode_room(r, r, present, base, rows, features, num_sensed, void, settings, packed, tree, buffers)
-    assert buffers[4][5][0] == present.sum() * (tree[9 + 4].shape[1] // 32)  # each present agent met each leaf pair
+        encode_room(r, r, present, base, rows, features, num_sensed, void, settings, packed.arrays, packed.tree,
+                    packed.pruned, buffers)  # fmt: skip
+    leaf_pairs = packed.pruned.first_n.shape[1] // 32
+    assert buffers.batch.counts[0] == present.sum() * leaf_pairs  # each present agent met each leaf pair
     for r in range(4):
         for i in range(20):
             expected = base[r, i] + (
-                encode_agent(r, i, r, features, num_sensed, void, settings, packed, tree, *buffers[:4])
+                encode_agent(
+                    r,
+                    i,
+                    r,
+                    features,
+                    num_sensed,
+                    void,
+                    settings,
+                    packed.arrays,
+                    packed.tree,
+                    buffers.x,
+                    buffers.point,
+                    buffers.nodes,
+                    buffers.sums,
+                )  # fmt: skip
                 if present[r, i]
                 else 0
             )

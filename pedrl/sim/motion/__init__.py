@@ -18,7 +18,7 @@ from collections.abc import Mapping
 from dataclasses import fields
 from typing import Any, Final
 
-from pedrl.sim.checks import shown
+from pedrl.common.checks import shown
 from pedrl.sim.motion.common import (
     COLLISION_ORDERS,
     COLLISION_RULES,

@@ -12,7 +12,7 @@ from typing import Any, ClassVar, Final
 import numpy as np
 import torch
 
-from pedrl.sim.checks import check_choice, check_number, check_real
+from pedrl.common.checks import check_choice, check_number, check_real
 from pedrl.sim.geometry import Geometry, X, Y
 
 PAIR_MARGIN: Final = 1e-3

@@ -13,8 +13,8 @@ from typing import ClassVar, Final
 import torch
 
 from pedrl._numba import use_kernels
-from pedrl.sim.checks import check_choice, check_number
-from pedrl.sim.geometry import Geometry, X, Y
+from pedrl.common.checks import check_choice, check_number
+from pedrl.sim.geometry import X, Y
 from pedrl.sim.motion.common import (
     MOTION_KEY,
     PAIR_MARGIN,
@@ -172,7 +172,7 @@ def steer(
         present: Bodies in the room ``(R, N)`` bool; only they repel, and only they get a velocity.
         agent_radius: Body radius ``r`` (m).
         steering: The rule's constants.
-        walls: :func:`_wall_segments` of the room.
+        walls: :meth:`~pedrl.sim.geometry.Geometry.wall_segments` of the room.
 
     Returns:
         Wanted velocities ``(R, N, 2)`` (m/s): ``|commanded| e``, zero where the commanded speed is 0 or not present.
@@ -265,15 +265,6 @@ def headway_factors(
     return torch.where(moving, walked / torch.where(moving, wanted, 1.0), 1.0)
 
 
-def _wall_segments(geometry: Geometry) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Wall starts ``(S, 2)``, directions ``(S, 2)`` and inverse squared lengths ``(S,)`` (0 for a point)."""
-    starts = geometry.walls[:, 0]
-    directions = geometry.walls[:, 1] - starts
-    length_sq = directions[:, X] * directions[:, X] + directions[:, Y] * directions[:, Y]
-    inverse = torch.where(length_sq > 0, 1.0 / length_sq.clamp_min(1e-30), 0.0)
-    return starts.contiguous(), directions.contiguous(), inverse.contiguous()
-
-
 def _nearest_wall(points: torch.Tensor, starts: torch.Tensor, directions: torch.Tensor, inverse: torch.Tensor):
     """Squared distance ``(R,)`` from each point ``(R, 2)`` to its nearest wall, that wall ``(R,)`` and the closest
     point of it ``(R, 2)``: the projection clamped to the segment, as the kernel computes it."""
@@ -349,7 +340,7 @@ def move_agents_sliding(
     if use_kernels(positions.device, compiled):
         from pedrl.sim.motion.sliding_kernel import sliding_substeps  # imports numba: only where it is used
 
-        starts, directions, inverse = _wall_segments(geometry)
+        starts, directions, inverse = geometry.wall_segments()
         return sliding_substeps(
             positions=positions,
             velocities=velocities,
@@ -388,7 +379,7 @@ def move_agents_sliding_torch(
     """
     geometry, agent_radius, decision_length, num_substeps, time_gap, yield_to_earlier, steering = motion.values()
     device = positions.device
-    starts, directions, inverse = _wall_segments(geometry)
+    starts, directions, inverse = geometry.wall_segments()
     commanded = velocities * active.unsqueeze(-1)
     order = priority.argsort(dim=1)
     num_replicas, num_agents = active.shape
