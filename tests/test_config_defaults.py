@@ -5,8 +5,9 @@ conf/vq/default.yaml, the top-level keys of conf/train.yaml and conf/logger/tens
 without that config (a test, a benchmark, a notebook) takes its signature's defaults, and these must be the same
 values. Each case below compares one key of one file with the Python default of the class it configures: the
 trainer classes' keyword defaults, following ``**kwargs`` up to :class:`pedrl.algos.base.Trainer` as
-``pedrl.algos.registry._parameters`` does; :class:`pedrl.sim.RoomEnv`; the fields of
-:class:`pedrl.algos.base.VQSettings`. A Python default of ``None`` meaning "computed" agrees with a YAML ``null``.
+``pedrl.algos.registry._parameters`` does; the fields of :class:`pedrl.sim.RoomParams` (the room's settings), of the
+motion models (``conf/motion/``) and of :class:`pedrl.algos.base.VQSettings`. A Python default of ``None`` meaning
+"computed" agrees with a YAML ``null``.
 """
 
 from __future__ import annotations
@@ -20,11 +21,11 @@ import pytest
 from omegaconf import OmegaConf
 
 from pedrl.algos.base import Trainer, VQSettings
-from pedrl.algos.registry import ENV_RUN_ARGUMENTS, TRAINER_CLASSES, TRAINER_RUN_ARGUMENTS
+from pedrl.algos.registry import TRAINER_CLASSES, TRAINER_RUN_ARGUMENTS
 from pedrl.cli import CONFIG_DIR
 from pedrl.configs import AREA_SETTINGS
 from pedrl.scenarios import paper_room
-from pedrl.sim import RoomEnv
+from pedrl.sim import RoomParams
 from pedrl.sim.motion import MOTION_MODELS, motion_from_config
 
 CONF = Path(CONFIG_DIR)
@@ -77,11 +78,9 @@ def python_defaults(name: str) -> dict[str, Any]:
         defaults = keyword_defaults(algo_class(Path(name).stem))
         return {k: v for k, v in defaults.items() if k not in TRAINER_RUN_ARGUMENTS}
     if name == "env/room.yaml":  # the room's settings but its motion model (conf/motion/), the paper room's sizes
-        defaults = keyword_defaults(RoomEnv)
         area = inspect.signature(paper_room).parameters
-        return {k: v for k, v in defaults.items() if k not in (*ENV_RUN_ARGUMENTS, "motion")} | {
-            name: area[name].default for name in AREA_SETTINGS
-        }
+        defaults = {item.name: item.default for item in dataclasses.fields(RoomParams) if item.name != "motion"}
+        return defaults | {name: area[name].default for name in AREA_SETTINGS}
     if name == "vq/default.yaml":
         return {field.name: field.default for field in dataclasses.fields(VQSettings)}
     raise KeyError(name)

@@ -8,17 +8,20 @@ from __future__ import annotations
 
 import inspect
 from collections.abc import Callable, Mapping
+from dataclasses import fields
 from typing import Any, Final, NamedTuple
 
 from pedrl.common.checks import shown
 from pedrl.configs.motion import check_no_flat_keys
 from pedrl.configs.names import ENV_CLASSES
 from pedrl.scenarios import build_scenario, inline_geometry
-from pedrl.sim import RoomEnv
+from pedrl.sim import RoomEnv, RoomParams
 from pedrl.sim.motion import motion_from_config
 
 ENV_RUN_ARGUMENTS: Final = ("num_replicas", "num_agents", "device")
 """Room arguments supplied at run time (not config values); the walkable area comes from the ``scenario`` config."""
+ROOM_SETTINGS: Final = tuple(item.name for item in fields(RoomParams))
+"""The ``env`` keys of the room's settings: the fields of :class:`pedrl.sim.RoomParams`."""
 AREA_SETTINGS: Final = ("width", "length", "door_width")
 """``env`` keys that describe the walkable area, not the room: the sizes of the paper's room (``scenario=paper_room``,
 :func:`pedrl.scenarios.paper_room`)."""
@@ -55,7 +58,7 @@ def env_factory(
     """
     if isinstance(env, Mapping):
         check_no_flat_keys(env)
-    settings = config_settings("env", env, ENV_CLASSES, supplied=ENV_RUN_ARGUMENTS, area=AREA_SETTINGS)
+    settings = config_settings("env", env, ENV_CLASSES, supplied=ENV_RUN_ARGUMENTS, names=ROOM_SETTINGS + AREA_SETTINGS)
     built = build_scenario(scenario, room=settings, files=files)
     room = room_keywords(settings)
 
@@ -83,11 +86,16 @@ def room_keywords(env: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def config_settings(
-    section: str, node: Any, classes: Mapping[str, type], *, supplied: tuple[str, ...], area: tuple[str, ...] = ()
+    section: str,
+    node: Any,
+    classes: Mapping[str, type],
+    *,
+    supplied: tuple[str, ...],
+    names: tuple[str, ...] | None = None,
 ) -> dict[str, Any]:
     """The settings of the ``section`` node of a config (``env``) for the class its ``_target_`` selects among
-    ``classes``: every other key, each a keyword parameter of that class but the ``supplied`` ones, or one of the
-    ``area`` keys (the walkable area's, which the scenario takes).
+    ``classes``: every other key, each a keyword parameter of that class but the ``supplied`` ones, or one of
+    ``names`` where they are given (the room's settings and its area's, for ``env``).
 
     Raises:
         ValueError: one line, for a node that is not a mapping, an unknown ``_target_`` or a key the class does
@@ -98,7 +106,7 @@ def config_settings(
     target = node.get("_target_")
     if not isinstance(target, str) or target not in classes:
         raise ValueError(f"{section}._target_={target!r} is invalid: must be one of {', '.join(classes)}")
-    allowed = [name for name in setting_names(classes[target]) if name not in supplied] + list(area)
+    allowed = list(names) if names is not None else [n for n in setting_names(classes[target]) if n not in supplied]
     settings = {key: value for key, value in node.items() if key != "_target_"}
     for key in settings:
         if key not in allowed:

@@ -15,7 +15,7 @@ from typing import Any, Final
 from pedrl.common.checks import shown
 from pedrl.configs.motion import FLAT_KEYS, check_no_flat_keys, flat_motion, is_flat
 from pedrl.configs.names import ENV_CLASSES, check_names_no_code
-from pedrl.configs.rooms import MAX_MIX, setting_names
+from pedrl.configs.rooms import MAX_MIX, ROOM_SETTINGS
 from pedrl.io import Checkpoint, CheckpointError
 from pedrl.scenarios import MAX_WKT_BYTES, check_scenario_sizes, geometry_file
 
@@ -158,8 +158,7 @@ def stored_env(config: Mapping[str, Any]) -> dict[str, Any]:
                 flat[key] = HISTORICAL_VALUES[f"env.{key}"]
         env["motion"] = flat_motion(flat).to_config()
     target = env.get("_target_")
-    cls = ENV_CLASSES.get(target) if isinstance(target, str) else None  # a bad target is refused building the room
-    taken = setting_names(cls) if cls is not None else []
+    taken = ROOM_SETTINGS if isinstance(target, str) and target in ENV_CLASSES else ()  # else refused with the room
     for key, value in HISTORICAL_VALUES.items():
         section, _, name = key.partition(".")
         if section == "env" and name not in env and name in taken:

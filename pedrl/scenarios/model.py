@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, Final
 
 import numpy as np
@@ -17,6 +17,7 @@ from shapely.geometry import LineString, Point, Polygon, box
 from pedrl.scenarios.polygons import TOLERANCE, bounds_text, check_extent, check_polygon, coords_text
 from pedrl.sim.env import MAX_DENSITY, RoomEnv
 from pedrl.sim.geometry import Geometry, RouteTable, SpawnArea, spawn_counts
+from pedrl.sim.params import RoomParams
 
 if TYPE_CHECKING:
     from pedrl.analysis.trajectories import AreaGeometry
@@ -119,15 +120,25 @@ class Scenario:
                     f" there ({MAX_DENSITY:.0%} of its free area)"
                 )
 
-    def room(self, **settings: Any) -> RoomEnv:
-        """A room in this scenario: ``RoomEnv(self.geometry(), **settings)`` (``num_replicas``, ``num_agents``,
-        ``device`` and the room's settings); the room validates every value (its own estimate of the spawn areas'
-        room included), then :meth:`check_capacity` checks the agents against the exact free areas.
+    def room(
+        self,
+        params: RoomParams | None = None,
+        *,
+        num_replicas: int = 1,
+        num_agents: int = 20,
+        device: str | torch.device = "cpu",
+        **settings: Any,
+    ) -> RoomEnv:
+        """A room in this scenario: ``RoomEnv(self.geometry(), params, ...)``, its settings ``params`` (None: the
+        defaults) with the keyword ``settings`` over them (``scenario.room(num_agents=40, max_speed=1.34)``). The
+        room checks every value against the area (its own estimate of the spawn areas' room included), then
+        :meth:`check_capacity` checks the agents against the exact free areas.
 
         Raises:
-            ValueError: one line naming the bad value.
+            ValueError: one line naming the bad value, or a keyword that is no setting of the room.
         """
-        room = RoomEnv(self.geometry(), **settings)
+        params = RoomParams.from_settings(settings) if params is None else replace(params, **settings)
+        room = RoomEnv(self.geometry(), params, num_replicas=num_replicas, num_agents=num_agents, device=device)
         self.check_capacity(room.num_agents, room.agent_radius)
         return room
 

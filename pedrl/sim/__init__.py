@@ -18,6 +18,7 @@ from pedrl.sim.actions import (
 from pedrl.sim.env import PlacementError, RoomEnv
 from pedrl.sim.geometry import Geometry, RouteTable, SpawnArea, X, Y, wrap_angle
 from pedrl.sim.motion import Movement, move_agents
+from pedrl.sim.params import RoomParams
 from pedrl.sim.rewards import RewardTable, compute_rewards
 from pedrl.sim.sensing import (
     Observation,
@@ -45,6 +46,7 @@ __all__ = [
     "PlacementError",
     "RewardTable",
     "RoomEnv",
+    "RoomParams",
     "Geometry",
     "RouteTable",
     "SpawnArea",

@@ -3,31 +3,24 @@
 The API follows PettingZoo's ``ParallelEnv`` in batched tensor form, over ``[replicas, agents, ...]``:
 ``reset(seed, options) -> (obs, info)`` and ``step(actions) -> (obs, reward, terminated, truncated, info)``.
 Who starts where and heads where (placement, exits, waypoint routes) is :class:`~pedrl.sim.spawning.Spawns`'s
-(spawning.py); the checks of the arguments, options and actions are in room_checks.py.
+(spawning.py); the checks of the settings, arguments, options and actions are in room_checks.py.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
-from dataclasses import replace
+from collections.abc import Mapping
+from dataclasses import fields, replace
 from typing import Any, Final
 
 import torch
 
 from pedrl.common.checks import (
-    check_bool,
-    check_choice,
     check_device,
     check_integer,
     check_memory,
-    check_number,
-    check_real,
 )
 from pedrl.sim.actions import (
-    ACTION_FRAMES,
-    DEFAULT_SPEED_RATIOS,
-    DEFAULT_TURN_RATIOS,
     NUM_ACTIONS,
     apply_actions,
     velocities_from,
@@ -35,39 +28,27 @@ from pedrl.sim.actions import (
 from pedrl.sim.geometry import Geometry, X, Y, extent, spawn_counts
 from pedrl.sim.motion import (
     Motion,
-    MotionModel,
     Movement,
     SlidingMotion,
-    Stop,
     move_agents,
     move_agents_sequential,
     move_agents_sliding,
 )
 from pedrl.sim.params import RoomParams
-from pedrl.sim.rewards import MAX_REWARD, compute_rewards
+from pedrl.sim.rewards import compute_rewards
 from pedrl.sim.room_checks import (
-    check_action_set,
     check_actions,
     check_area,
-    check_goal_depth,
-    check_motion,
-    check_rewards,
-    check_substep_length,
-    check_substeps,
-    check_time_steps,
     read_option,
     read_options,
     step_memory,
 )
-from pedrl.sim.routing import MAX_QUEUE_WEIGHT
 from pedrl.sim.sensing import Observation, compiled_observe, feature_names, num_features, observe
 from pedrl.sim.spawning import MAX_DENSITY as MAX_DENSITY  # re-exported: pedrl.scenarios checks its spawn areas by it
 from pedrl.sim.spawning import PlacementError as PlacementError  # re-exported: raised by reset
 from pedrl.sim.spawning import Spawns, check_density
 from pedrl.sim.state import RoomState
 
-PAPER_MOTION: Final = Stop()
-"""The default motion model: the paper's reading of its collision rule (``motion=stop``)."""
 MAX_PLACEMENT_ROUNDS: Final = 1000
 """Rounds of rejection sampling before placement gives up (:meth:`Spawns.place <pedrl.sim.spawning.Spawns.place>`)."""
 MAX_RESET_SEED: Final = 2**64 - 1
@@ -90,7 +71,10 @@ class RoomEnv:
         headings: Headings ``(R, N)`` (rad, world frame, in ``(-pi, pi]``).
         speeds: Speeds ``(R, N)`` (m/s, in ``[0, max_speed]``); frozen once an agent is inactive.
         active: Agents still in their trial ``(R, N)`` bool.
-        params: The validated settings (:class:`~pedrl.sim.params.RoomParams`), with what the fast path supports.
+        params: The room's settings (:class:`~pedrl.sim.params.RoomParams`), with what the fast path supports; each
+            is also an attribute of the room (``agent_radius``, ``max_speed``, ``motion``, ...), bar two: ``rewards``
+            is their reward table and ``substep_length`` the longest move per sub-step (m; the body radius where the
+            setting is None).
         state: The rooms' state (:class:`~pedrl.sim.state.RoomState`); :meth:`load_state` sets it.
         geometry: The walkable area: walls, exits, spawn areas and routes (:class:`~pedrl.sim.geometry.Geometry`),
             on ``device``, its goal points at ``goal_depth``.
@@ -112,108 +96,45 @@ class RoomEnv:
     def __init__(
         self,
         area: Geometry,
+        params: RoomParams | None = None,
         *,
         num_replicas: int = 1,
         num_agents: int = 20,
         device: str | torch.device = "cpu",
-        agent_radius: float = 0.4,
-        max_speed: float = 2.5,
-        decisions_per_second: float = 1.0,
-        max_decisions: int = 200,
-        num_neighbours: int = 7,
-        num_walls: int = 2,
-        speed_ratios: Sequence[float] = DEFAULT_SPEED_RATIOS,
-        turn_ratios: Sequence[float] = DEFAULT_TURN_RATIOS,
-        reward_goal: float = 100.0,
-        reward_crash_wall: float = -15.0,
-        reward_crash_agent: float = -4.0,
-        reward_default: float = -1.0,
-        substep_length: float | None = None,
-        goal_depth: float = 0.0,
-        reward_progress: float = 1.0,
-        compile_sensing: bool = False,
-        action_frame: str = "heading",
-        motion: MotionModel = PAPER_MOTION,
-        queue_weight: float = 0.0,
     ) -> None:
-        """Validate the configuration and allocate the state (call :meth:`reset` before :meth:`step`).
+        """Check the room against its area and allocate the state (call :meth:`reset` before :meth:`step`).
 
         Args:
             area: The walkable area, compiled (:class:`~pedrl.sim.geometry.Geometry`): a scenario's
-                (``pedrl.scenarios``; ``Scenario.room`` builds a room in it, the paper's room with
-                ``pedrl.scenarios.paper_room``); its goal points are moved to ``goal_depth``.
+                (``pedrl.scenarios``; ``Scenario.room(...)`` compiles it and builds a room in one call, the paper's
+                room with ``pedrl.scenarios.paper_room``); its goal points are moved to ``params.goal_depth``.
+            params: The room's settings (:class:`~pedrl.sim.params.RoomParams`, checked when they were made; None:
+                the defaults). Each is also an attribute of the room of the same name (``room.max_speed``).
             num_replicas: Number R of independent rooms stepped together.
             num_agents: Number N of agents per room.
             device: Torch device of every tensor.
-            agent_radius: Body radius (m).
-            max_speed: Maximum speed (m/s).
-            decisions_per_second: Decisions per simulated second (1/s).
-            max_decisions: Decisions per trial before the remaining agents are truncated.
-            num_neighbours: Number k of sensed neighbours.
-            num_walls: Number w of sensed walls, at most 5.
-            speed_ratios: Speed change of each of the 9 speed indices, as a fraction of ``max_speed`` (index 4, the
-                no-op, 0); in the ``goal`` frame the speed itself, each in ``[0, 1]``.
-            turn_ratios: Heading change of each of the 9 turn indices, as a fraction of pi (rad) (index 4, the no-op,
-                0); in the ``goal`` frame the heading relative to the bearing of the goal point.
-            reward_goal: Reward for reaching the door.
-            reward_crash_wall: Reward for a decision in which the agent hit a wall.
-            reward_crash_agent: Reward for a decision in which the agent hit another (and no wall).
-            reward_default: Reward otherwise: -1 is a time cost per decision (the paper's Table 2 has 0).
-            substep_length: Longest move per sub-step (m), in ``(0, agent_radius]``; ``None`` means
-                ``agent_radius``.
-            goal_depth: How far behind each exit its goal point lies (m, ``>= 0``): the reference line of the state
-                (paper Table 1) runs to it. 0 is the exit's centre.
-            reward_progress: Reward per metre by which a decision brings the agent closer to the goal point
-                (``>= 0``; 0 is the paper's Table 2, 1 the default). A dense signal for the sparse door
-                reward: walking to the door at 2 m/s earns ``2 * reward_progress`` per decision, standing still 0.
-            compile_sensing: Run the sensing through ``torch.compile`` (inductor; needs a C++ compiler on CPU). Off by
-                default: about a third of the sensing saved for 10 to 30 s of compilation per process, and features
-                that differ from the eager ones in the last bits (docs/configuration.md).
-            action_frame: What an action changes (``pedrl.sim.actions.ACTION_FRAMES``): ``"heading"`` (the
-                paper: speed and heading change from their current values) or ``"goal"`` (the action sets the speed
-                and the heading relative to the bearing of the agent's goal point, its door or waypoint).
-            motion: How bodies move through a decision: a motion model of :mod:`pedrl.sim.motion` with its
-                parameters. :class:`~pedrl.sim.motion.Stop` (default, the paper's reading: a mover whose move would
-                enter a body or a wall stops for the rest of the decision, movers in turn),
-                :class:`~pedrl.sim.motion.Simultaneous` (every mover checked at once), :class:`~pedrl.sim.motion.Slide`
-                (it keeps the tangent part of its move), :class:`~pedrl.sim.motion.Headway` and
-                :class:`~pedrl.sim.motion.Yield` (the collision-free speed rule, Tordeux, Chraibi & Seyfried 2016,
-                with the slide the safety net; ``Yield`` with a right of way by the order of action), or
-                :class:`~pedrl.sim.motion.Continuous` (the walking layer: the decision sets the desired direction and
-                speed, and the collision-free speed model with its direction rule walks every body at steps of at
-                most ``time_step``). Under every model but ``Stop`` and ``Simultaneous`` the speed after the step is
-                the distance actually walked per second. A contact (``info["crashed_agent"]``, ``crashed_wall``, the
-                crash rewards) is a decision in which another body (a wall) cut the agent's move: stopped it, or
-                deflected it; slowing down for a body ahead is no contact. A wall contact takes precedence: an agent
-                is never flagged for both.
-            queue_weight: How much an agent without an assigned exit weighs the queue at each exit when it chooses
-                one at placement (``>= 0``; 0: the exit of the shortest route; :mod:`pedrl.sim.routing`).
 
         Raises:
-            ValueError: With a one-line message naming the bad value, for any invalid argument, including more
-                agents than fit in the room.
+            ValueError: With a one-line message naming the bad value, for any invalid argument, including settings
+                the area cannot hold (a body wider than an exit, more sensed walls than it has) and more agents than
+                fit in it.
         """
         # ---- validation: every check before any compute
+        params = RoomParams() if params is None else params
+        if not isinstance(params, RoomParams):
+            raise ValueError(
+                f"params of type {type(params).__name__} is invalid: must be a pedrl.sim.RoomParams (e.g."
+                " RoomParams(max_speed=1.34)); Scenario.room(...) takes the settings as keywords"
+            )
         self.num_replicas = check_integer("num_replicas", num_replicas, minimum=1)
         self.num_agents = check_integer("num_agents", num_agents, minimum=1)
         self.device = check_device(device)
-        self.agent_radius = check_area(area, agent_radius)
-        self.max_speed = check_real("max_speed", max_speed, unit="m/s", positive=True)
-        self.decisions_per_second = check_real("decisions_per_second", decisions_per_second, unit="1/s", positive=True)
-        self.max_decisions = check_integer("max_decisions", max_decisions, minimum=1)
-        self.num_neighbours = check_integer("num_neighbours", num_neighbours, minimum=0)
-        self.num_walls = check_integer("num_walls", num_walls, minimum=0, maximum=area.num_walls)
-        self.action_frame = check_choice("action_frame", action_frame, ACTION_FRAMES)
-        goal_frame = self.action_frame == "goal"
-        self.speed_ratios, self.turn_ratios = check_action_set(speed_ratios, turn_ratios, goal_frame=goal_frame)
-        self.rewards = check_rewards(reward_goal, reward_crash_wall, reward_crash_agent, reward_default)
-        self.substep_length = check_substep_length(substep_length, agent_radius)
-        self.motion = check_motion(motion)
-        self.goal_depth = check_goal_depth(goal_depth)
-        self.reward_progress = check_number("reward_progress", reward_progress, low=0.0, high=MAX_REWARD)
-        self.compile_sensing = check_bool("compile_sensing", compile_sensing)
-        self.queue_weight = check_number("queue_weight", queue_weight, low=0.0, high=MAX_QUEUE_WEIGHT)
-        self.params = RoomParams.of(self)
+        check_area(area, params.agent_radius)
+        check_integer("num_walls", params.num_walls, minimum=0, maximum=area.num_walls)
+        self.params = params
+        for item in fields(params):  # each setting, also an attribute of the room
+            setattr(self, item.name, getattr(params, item.name))
+        self.rewards, self.substep_length = params.rewards, params.substep
         self._build(self._checked_room(area))
 
     def _checked_room(self, area: Geometry) -> Geometry:
@@ -223,10 +144,7 @@ class RoomEnv:
             area = replace(area, goal_depth=self.goal_depth)
         self.spawn_counts = spawn_counts(self.num_agents, [spawn.weight for spawn in area.spawns])
         check_density(area, self.spawn_counts, self.num_agents, agent_radius=self.agent_radius, room=extent(area))
-        self.decision_length = 1.0 / self.decisions_per_second
-        self.num_substeps = check_time_steps(
-            check_substeps(self.max_speed, self.decisions_per_second, self.substep_length), self
-        )
+        self.decision_length, self.num_substeps = self.params.decision_length, self.params.num_substeps
         check_memory(
             {"room state and collision pairs": self.step_memory()},
             device=self.device,

@@ -17,15 +17,18 @@ field without both declarations, or a field of a motion model the fast path runs
 from __future__ import annotations
 
 from collections import namedtuple
-from collections.abc import Callable
-from dataclasses import dataclass, field, fields
+from collections.abc import Callable, Mapping
+from dataclasses import MISSING, dataclass, field, fields
 from typing import Any, Final
 
 import numpy as np
 import torch
 
+from pedrl.sim.actions import DEFAULT_SPEED_RATIOS, DEFAULT_TURN_RATIOS
 from pedrl.sim.motion import CONTACT_MODELS, Continuous, Headway, MotionModel, Slide, Stop, Yield
 from pedrl.sim.motion.common import steering_array
+from pedrl.sim.rewards import RewardTable
+from pedrl.sim.room_checks import check_substeps, check_time_steps, checked_settings
 
 __all__ = [
     "ANY",
@@ -121,11 +124,12 @@ def host(reason: str) -> Packing:
     return Packing(host=reason)
 
 
-def setting(support: FastSupport, packing: Packing) -> Any:
-    """A :class:`RoomParams` field with its fast-path ``support`` and its ``packing`` for the kernels declared."""
+def setting(support: FastSupport, packing: Packing, default: Any = MISSING) -> Any:
+    """A :class:`RoomParams` field with its fast-path ``support`` and its ``packing`` for the kernels declared, and its
+    ``default`` (the config's: ``conf/env/room.yaml``, ``conf/motion/stop.yaml``)."""
     if not isinstance(support, FastSupport) or not isinstance(packing, Packing):
         raise TypeError("setting(support, packing): a FastSupport (ANY, only(...)) and a Packing (kernel(...), ...)")
-    return field(metadata={FAST: support, PACKING: packing})
+    return field(default=default, metadata={FAST: support, PACKING: packing})
 
 
 def _shown(value: Any) -> str:
@@ -144,25 +148,72 @@ def _float32(values: torch.Tensor) -> np.ndarray:
 
 @dataclass(frozen=True)
 class RoomParams:
-    """The validated settings of a room (``RoomEnv(...)``'s arguments of the same names; units and meanings there)."""
+    """The settings of a room, checked when they are made (a one-line ``ValueError`` naming the bad value): what
+    ``RoomEnv(area, params, ...)`` takes besides the walkable area and the batch. ``RoomParams(max_speed=1.34,
+    motion=Yield(order="door_first"))`` is the keyword way to write them; ``dataclasses.replace`` changes some.
 
-    agent_radius: float = setting(ANY, kernel(float))
-    max_speed: float = setting(ANY, kernel(np.float32))
-    decisions_per_second: float = setting(ANY, derived("decision_length", lambda room: float(room.decision_length)))
-    max_decisions: int = setting(ANY, kernel(int))
-    num_neighbours: int = setting(ANY, kernel(int))
-    num_walls: int = setting(ANY, kernel(int))
-    speed_ratios: tuple[float, ...] = setting(ANY, derived("speed_changes", lambda room: _float32(room.speed_changes)))
-    turn_ratios: tuple[float, ...] = setting(ANY, derived("turn_changes", lambda room: _float32(room.turn_changes)))
-    reward_goal: float = setting(ANY, kernel(np.float32))
-    reward_crash_wall: float = setting(ANY, kernel(np.float32))
-    reward_crash_agent: float = setting(ANY, kernel(np.float32))
-    reward_default: float = setting(ANY, kernel(np.float32))
-    substep_length: float = setting(ANY, derived("num_substeps", lambda room: int(room.num_substeps)))
-    goal_depth: float = setting(ANY, host(_AREA))
-    reward_progress: float = setting(ANY, kernel(np.float32))
-    compile_sensing: bool = setting(only(False), host("the fast path senses in its own kernel"))
-    action_frame: str = setting(ANY, kernel(lambda frame: frame == "goal", "goal_frame"))
+    Attributes:
+        agent_radius: Body radius (m, ``> 0``); a body must fit through every exit of the area.
+        max_speed: Maximum speed (m/s, ``> 0``).
+        decisions_per_second: Decisions per simulated second (1/s, ``> 0``).
+        max_decisions: Decisions per trial before the remaining agents are truncated (``>= 1``).
+        num_neighbours: Number k of sensed neighbours (``>= 0``).
+        num_walls: Number w of sensed walls (``>= 0``, at most the area's walls).
+        speed_ratios: Speed change of each of the 9 speed indices, as a fraction of ``max_speed`` (index 4, the
+            no-op, 0); in the ``goal`` frame the speed itself, each in ``[0, 1]``.
+        turn_ratios: Heading change of each of the 9 turn indices, as a fraction of pi (rad) (index 4, the no-op, 0);
+            in the ``goal`` frame the heading relative to the bearing of the goal point.
+        reward_goal: Reward for reaching the door.
+        reward_crash_wall: Reward for a decision in which the agent hit a wall.
+        reward_crash_agent: Reward for a decision in which the agent hit another (and no wall).
+        reward_default: Reward otherwise: -1 is a time cost per decision (the paper's Table 2 has 0).
+        substep_length: Longest move per sub-step (m), in ``(0, agent_radius]``; ``None`` means ``agent_radius``
+            (:attr:`substep`). Every motion model sub-steps a decision by it.
+        goal_depth: How far behind each exit its goal point lies (m, ``>= 0``): the reference line of the state
+            (paper Table 1) runs to it. 0 is the exit's centre.
+        reward_progress: Reward per metre by which a decision brings the agent closer to the goal point (``>= 0``;
+            0 is the paper's Table 2, 1 the default): walking to the door at 2 m/s earns ``2 * reward_progress`` per
+            decision, standing still 0.
+        compile_sensing: Run the sensing through ``torch.compile`` (inductor; needs a C++ compiler on CPU). Off by
+            default: about a third of the sensing saved for 10 to 30 s of compilation per process, and features that
+            differ from the eager ones in the last bits (docs/configuration.md).
+        action_frame: What an action changes (``pedrl.sim.actions.ACTION_FRAMES``): ``"heading"`` (the paper: speed
+            and heading change from their current values) or ``"goal"`` (the action sets the speed and the heading
+            relative to the bearing of the agent's goal point, its door or waypoint).
+        motion: How bodies move through a decision: a motion model of :mod:`pedrl.sim.motion` with its parameters
+            (``Stop``, the paper's reading, by default; ``Simultaneous``, ``Slide``, ``Headway``, ``Yield``,
+            ``Continuous``: docs/configuration.md, "Motion models"). Under every model but ``Stop`` and
+            ``Simultaneous`` the speed after the step is the distance actually walked per second. A contact
+            (``info["crashed_agent"]``, ``crashed_wall``, the crash rewards) is a decision in which another body (a
+            wall) cut the agent's move: stopped it, or deflected it; slowing down for a body ahead is no contact, and
+            a wall contact takes precedence.
+        queue_weight: How much an agent without an assigned exit weighs the queue at each exit when it chooses one
+            at placement (in ``[0, MAX_QUEUE_WEIGHT]``; 0: the exit of the shortest route; :mod:`pedrl.sim.routing`).
+    """
+
+    agent_radius: float = setting(ANY, kernel(float), 0.4)
+    max_speed: float = setting(ANY, kernel(np.float32), 2.5)
+    decisions_per_second: float = setting(
+        ANY, derived("decision_length", lambda room: float(room.decision_length)), 1.0
+    )
+    max_decisions: int = setting(ANY, kernel(int), 200)
+    num_neighbours: int = setting(ANY, kernel(int), 7)
+    num_walls: int = setting(ANY, kernel(int), 2)
+    speed_ratios: tuple[float, ...] = setting(
+        ANY, derived("speed_changes", lambda room: _float32(room.speed_changes)), DEFAULT_SPEED_RATIOS
+    )
+    turn_ratios: tuple[float, ...] = setting(
+        ANY, derived("turn_changes", lambda room: _float32(room.turn_changes)), DEFAULT_TURN_RATIOS
+    )
+    reward_goal: float = setting(ANY, kernel(np.float32), 100.0)
+    reward_crash_wall: float = setting(ANY, kernel(np.float32), -15.0)
+    reward_crash_agent: float = setting(ANY, kernel(np.float32), -4.0)
+    reward_default: float = setting(ANY, kernel(np.float32), -1.0)
+    substep_length: float | None = setting(ANY, derived("num_substeps", lambda room: int(room.num_substeps)), None)
+    goal_depth: float = setting(ANY, host(_AREA), 0.0)
+    reward_progress: float = setting(ANY, kernel(np.float32), 1.0)
+    compile_sensing: bool = setting(only(False), host("the fast path senses in its own kernel"), False)
+    action_frame: str = setting(ANY, kernel(lambda frame: frame == "goal", "goal_frame"), "heading")
     # every model but Simultaneous (Stop only with axis-aligned walls: RoomEnv.fast_path_reason); its time_step
     # reaches the kernels in num_substeps, the room's sub-steps of a decision
     motion: MotionModel = setting(
@@ -175,22 +226,46 @@ class RoomParams:
             continuous=lambda motion: motion.steering is not None,
             steering=lambda motion: steering_array(motion.steering),
         ),
+        Stop(),
     )
-    queue_weight: float = setting(ANY, host("used at placement, in torch"))
+    queue_weight: float = setting(ANY, host("used at placement, in torch"), 0.0)
 
     @classmethod
-    def of(cls, room: Any) -> RoomParams:
-        """The settings of a built room (a ``RoomEnv``): each field its attribute of the same name, the rewards from
-        its reward table."""
-        rewards = room.rewards
-        special = {
-            "reward_goal": rewards.goal,
-            "reward_crash_wall": rewards.crash_wall,
-            "reward_crash_agent": rewards.crash_agent,
-            "reward_default": rewards.default,
-        }
-        values = {f.name: special[f.name] if f.name in special else getattr(room, f.name) for f in fields(cls)}
-        return cls(**{name: tuple(v) if isinstance(v, list) else v for name, v in values.items()})
+    def from_settings(cls, settings: Mapping[str, Any] | None = None, /, **more: Any) -> RoomParams:
+        """The settings given by name (a mapping and keywords alike), the rest the defaults; a name that is no
+        setting is a one-line ``ValueError`` listing the settings (where ``RoomParams(...)`` raises a ``TypeError``)."""
+        given = {**(settings or {}), **more}
+        names = [item.name for item in fields(cls)]
+        for name in given:
+            if name not in names:
+                raise ValueError(f"{name} is not a setting of the room: its settings are {', '.join(names)}")
+        return cls(**given)
+
+    def __post_init__(self) -> None:
+        for name, value in checked_settings(self).items():  # the checked, normalised values (floats, tuples)
+            object.__setattr__(self, name, value)
+
+    @property
+    def decision_length(self) -> float:
+        """Duration of a decision (s): ``1 / decisions_per_second``."""
+        return 1.0 / self.decisions_per_second
+
+    @property
+    def substep(self) -> float:
+        """The longest move per sub-step (m): ``substep_length``, or the body radius where it is None."""
+        return self.agent_radius if self.substep_length is None else self.substep_length
+
+    @property
+    def num_substeps(self) -> int:
+        """Sub-steps per decision: the step model's, and on the walking layer at least one per ``time_step``."""
+        steps = check_substeps(self.max_speed, self.decisions_per_second, self.substep)
+        return check_time_steps(steps, self.motion, self.decision_length)
+
+    @property
+    def rewards(self) -> RewardTable:
+        """The rewards of Table 2 (``reward_goal``, ``reward_crash_wall``, ``reward_crash_agent``,
+        ``reward_default``)."""
+        return RewardTable(self.reward_goal, self.reward_crash_wall, self.reward_crash_agent, self.reward_default)
 
     def kernel_room(self, room: Any) -> KernelRoom:
         """The constants the kernels read (:data:`KernelRoom`), each from its field's packing declaration; ``room``

@@ -1,5 +1,6 @@
-"""The checks of ``RoomEnv``'s arguments, ``reset`` options and actions: each a one-line ``ValueError`` that names the
-bad value (the generic checks of a number, a choice or a device are in :mod:`pedrl.common.checks`)."""
+"""The checks of a room's settings (``RoomParams``), ``RoomEnv``'s arguments, ``reset`` options and actions: each a
+one-line ``ValueError`` that names the bad value (the generic checks of a number, a choice or a device are in
+:mod:`pedrl.common.checks`)."""
 
 from __future__ import annotations
 
@@ -9,11 +10,12 @@ from typing import Any, Final
 
 import torch
 
-from pedrl.common.checks import check_number, check_real, shown
-from pedrl.sim.actions import NOOP_INDEX, NUM_SPEED_CHANGES, count_substeps
+from pedrl.common.checks import check_bool, check_choice, check_integer, check_number, check_real, shown
+from pedrl.sim.actions import ACTION_FRAMES, NOOP_INDEX, NUM_SPEED_CHANGES, count_substeps
 from pedrl.sim.geometry import Geometry, extent
 from pedrl.sim.motion import MOTION_MODELS, MotionModel
 from pedrl.sim.rewards import MAX_REWARD, RewardTable
+from pedrl.sim.routing import MAX_QUEUE_WEIGHT
 
 OPTION_KEYS: Final = ("positions", "headings", "speeds", "replicas")
 """The keys of ``RoomEnv.reset``'s ``options``."""
@@ -147,14 +149,13 @@ def check_motion(motion: Any) -> MotionModel:
     return motion
 
 
-def check_time_steps(num_substeps: int, room: Any) -> int:
-    """The sub-steps of a decision of ``room`` (a ``RoomEnv`` being built): the step model's ``num_substeps``; on the
-    continuous walking layer (a model with a ``time_step``) at least ``ceil(decision_length / time_step)``, at most
+def check_time_steps(num_substeps: int, motion: MotionModel, decision_length: float) -> int:
+    """The sub-steps of a decision under ``motion``: the step model's ``num_substeps``; on the continuous walking
+    layer (a model with a ``time_step``) at least ``ceil(decision_length / time_step)``, at most
     :data:`MAX_SUBSTEPS`, else a one-line ``ValueError``."""
-    time_step = room.motion.time_step
+    time_step = motion.time_step
     if time_step is None:
         return num_substeps
-    decision_length = room.decision_length
     steps = math.ceil(decision_length / time_step * (1.0 - 1e-9))  # the slack keeps e.g. 1 / 0.05 at 20
     if steps > MAX_SUBSTEPS:
         raise ValueError(
@@ -185,6 +186,51 @@ def step_memory(num_replicas: int, num_agents: int, num_substeps: int, collision
     ordered_pairs = num_replicas * num_agents * (num_agents - 1)
     per_pair = PAIR_BYTES_PER_SUBSTEP * num_substeps if collision_rule == "simultaneous" else PAIR_BYTES
     return num_replicas * num_agents * (STATE_BYTES + PAIRWISE_BYTES * num_agents) + ordered_pairs * per_pair
+
+
+def checked_settings(params: Any) -> dict[str, Any]:
+    """Every setting of ``params`` (a :class:`~pedrl.sim.params.RoomParams` being made) checked, each a one-line
+    ``ValueError`` naming the bad value, and normalised (floats, tuples): the values to keep. The checks that need the
+    walkable area (a body fits its exits, ``num_walls`` at most its walls) are the room's (:func:`check_area`)."""
+    radius = check_real("agent_radius", params.agent_radius, unit="m", positive=True)
+    checked = {
+        "agent_radius": radius,
+        "max_speed": check_real("max_speed", params.max_speed, unit="m/s", positive=True),
+        "decisions_per_second": check_real(
+            "decisions_per_second", params.decisions_per_second, unit="1/s", positive=True
+        ),
+        "max_decisions": check_integer("max_decisions", params.max_decisions, minimum=1),
+        "num_neighbours": check_integer("num_neighbours", params.num_neighbours, minimum=0),
+        "num_walls": check_integer("num_walls", params.num_walls, minimum=0),
+        "action_frame": check_choice("action_frame", params.action_frame, ACTION_FRAMES),
+    }
+    goal_frame = checked["action_frame"] == "goal"
+    checked["speed_ratios"], checked["turn_ratios"] = check_action_set(
+        params.speed_ratios, params.turn_ratios, goal_frame=goal_frame
+    )
+    rewards = check_rewards(
+        params.reward_goal, params.reward_crash_wall, params.reward_crash_agent, params.reward_default
+    )
+    checked |= {
+        "reward_goal": rewards.goal,
+        "reward_crash_wall": rewards.crash_wall,
+        "reward_crash_agent": rewards.crash_agent,
+        "reward_default": rewards.default,
+    }
+    substep = check_substep_length(params.substep_length, radius)
+    checked["substep_length"] = None if params.substep_length is None else substep
+    checked["motion"] = check_motion(params.motion)
+    checked["goal_depth"] = check_goal_depth(params.goal_depth)
+    checked["reward_progress"] = check_number("reward_progress", params.reward_progress, low=0.0, high=MAX_REWARD)
+    checked["compile_sensing"] = check_bool("compile_sensing", params.compile_sensing)
+    checked["queue_weight"] = check_number("queue_weight", params.queue_weight, low=0.0, high=MAX_QUEUE_WEIGHT)
+    decision_length = 1.0 / checked["decisions_per_second"]
+    check_time_steps(
+        check_substeps(checked["max_speed"], checked["decisions_per_second"], substep),
+        checked["motion"],
+        decision_length,
+    )
+    return checked
 
 
 def check_goal_depth(goal_depth: Any) -> float:

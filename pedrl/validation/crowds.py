@@ -20,7 +20,7 @@ from pedrl.analysis import Recording
 from pedrl.configs import room_keywords
 from pedrl.integrations.jupedsim import pad_frames, simulate_room
 from pedrl.scenarios import Scenario
-from pedrl.sim import RoomEnv
+from pedrl.sim import RoomEnv, RoomParams
 from pedrl.trial.crowd import run_crowd
 
 
@@ -91,16 +91,11 @@ class PedrlCrowd:
         if max_speed is not None:
             settings["max_speed"] = max_speed
         rate = float(settings.get("decisions_per_second", 1.0))
-        room = dict(
-            settings,
-            num_agents=num_agents,
-            num_replicas=replicas,
-            max_decisions=max(1, math.ceil(max_time * rate)),
-            device=self.device,
-        )
+        params = RoomParams.from_settings(settings, max_decisions=max(1, math.ceil(max_time * rate)))
+        batch = {"num_agents": num_agents, "num_replicas": replicas, "device": self.device}
         if placed:
-            return RoomEnv(scenario.geometry(), **room)
-        return scenario.room(**room)
+            return RoomEnv(scenario.geometry(), params, **batch)
+        return scenario.room(params, **batch)
 
     def start(
         self,

@@ -9,7 +9,7 @@ from shapely.geometry import LineString, Point, Polygon
 
 from pedrl.scenarios import build_scenario
 from pedrl.scenarios.model import walls_without_exits
-from pedrl.sim import RoomEnv
+from pedrl.sim import RoomEnv, RoomParams
 from pedrl.sim.controllers import GreedyDoorController
 from pedrl.sim.motion import MOTION_MODELS, Continuous
 from tests.sim.test_contact import kernels_on
@@ -40,10 +40,8 @@ def greedy_out(angle: float, contact: str, motion: str = "step", decisions: int 
         if motion == "continuous"
         else MOTION_MODELS[contact](order="door_first")
     )
-    env = RoomEnv(
-        geometry, num_agents=10, num_replicas=2, agent_radius=0.2, max_speed=1.34, motion=walking,
-        max_decisions=decisions, **GOAL,
-    )  # fmt: skip
+    params = RoomParams(agent_radius=0.2, max_speed=1.34, motion=walking, max_decisions=decisions, **GOAL)
+    env = RoomEnv(geometry, params, num_agents=10, num_replicas=2)
     obs, info = env.reset(seed=0)
     controller = GreedyDoorController(epsilon=0.0, generator=torch.Generator().manual_seed(0))
     out = 0

@@ -1,6 +1,7 @@
 """conf/env/room.yaml builds a room (through the scenario group's area) and mirrors the defaults of the room's
 settings and of the paper's room."""
 
+import dataclasses
 import inspect
 from pathlib import Path
 
@@ -8,10 +9,9 @@ from omegaconf import OmegaConf
 
 from pedrl.configs import AREA_SETTINGS, env_factory
 from pedrl.scenarios import paper_room
-from pedrl.sim import RoomEnv
+from pedrl.sim import RoomEnv, RoomParams
 
 CONFIG = Path(__file__).resolve().parents[2] / "conf" / "env" / "room.yaml"
-RUN_TIME = {"num_replicas", "num_agents", "device", "area", "motion"}  # area, motion: the scenario and motion groups
 
 
 def test_room_config_builds_a_room_with_run_time_arguments():
@@ -24,11 +24,11 @@ def test_room_config_builds_a_room_with_run_time_arguments():
 
 
 def test_room_config_lists_every_parameter_with_the_constructor_default():
-    """The room's settings take RoomEnv's defaults; the paper's room's sizes take paper_room's."""
+    """The room's settings take RoomParams's defaults (its motion model: conf/motion/); the paper's room's sizes
+    take paper_room's."""
     cfg = OmegaConf.to_container(OmegaConf.load(CONFIG))
     assert cfg.pop("_target_") == "pedrl.sim.RoomEnv"
-    parameters = inspect.signature(RoomEnv.__init__).parameters
-    expected = {name: p.default for name, p in parameters.items() if name != "self" and name not in RUN_TIME}
+    expected = {item.name: item.default for item in dataclasses.fields(RoomParams) if item.name != "motion"}
     area = inspect.signature(paper_room).parameters
     expected |= {name: area[name].default for name in AREA_SETTINGS}
     assert set(cfg) == set(expected)

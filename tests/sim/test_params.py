@@ -3,13 +3,16 @@ kernels receive it, the fast path's eligibility is the allow-list computed from 
 room constants are packed from them."""
 
 import dataclasses
+import importlib
 import inspect
+import pkgutil
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from pedrl.scenarios import paper_room
-from pedrl.sim import RoomEnv
+from pedrl.sim import DEFAULT_SPEED_RATIOS, RoomEnv
 from pedrl.sim.motion import CONTACT_MODELS, Continuous, Headway, Simultaneous, Yield
 from pedrl.sim.params import (
     ANY,
@@ -26,13 +29,62 @@ from pedrl.sim.params import (
     unread,
 )
 
-BATCH_ARGUMENTS = {"self", "num_replicas", "num_agents", "device", "area"}
-"""RoomEnv's arguments that are not settings of the room: the batch shape, the device and the walkable area."""
+MAX_ARGUMENTS = 8
+"""Most arguments of a hand-written constructor (self aside): more, and a reader cannot follow a call."""
 
 
-def test_every_setting_of_the_room_has_a_field():
-    settings = set(inspect.signature(RoomEnv.__init__).parameters) - BATCH_ARGUMENTS
-    assert settings == {field.name for field in dataclasses.fields(RoomParams)}
+def constructor_arguments(cls: type) -> list[str]:
+    """The arguments of ``cls.__init__`` but ``self``."""
+    return [name for name in inspect.signature(cls.__init__).parameters if name != "self"]
+
+
+def hand_written_classes(package) -> list[type]:
+    """The classes defined in ``package``'s modules with a constructor of their own that no dataclass or named
+    tuple generated (those are value objects: one field per argument)."""
+    found = []
+    for info in pkgutil.walk_packages(package.__path__, f"{package.__name__}."):
+        if info.name.endswith("_kernel"):
+            continue  # numba kernels: no classes, a slow import
+        module = importlib.import_module(info.name)
+        for cls in vars(module).values():
+            if not isinstance(cls, type) or cls.__module__ != module.__name__ or "__init__" not in vars(cls):
+                continue
+            if dataclasses.is_dataclass(cls) or issubclass(cls, tuple):
+                continue
+            found.append(cls)
+    return found
+
+
+def test_the_room_takes_its_area_its_settings_and_the_batch():
+    """RoomEnv(area, params, num_replicas, num_agents, device): every setting of the room is a field of RoomParams."""
+    assert constructor_arguments(RoomEnv) == ["area", "params", "num_replicas", "num_agents", "device"]
+    assert isinstance(paper_room().room(num_agents=2).params, RoomParams)
+
+
+def test_no_constructor_of_the_simulation_takes_more_than_eight_arguments():
+    """The control: a planted class of nine arguments is found."""
+    import pedrl.sim
+
+    classes = hand_written_classes(pedrl.sim)
+    assert RoomEnv in classes
+    crowded = {cls.__qualname__: len(constructor_arguments(cls)) for cls in classes}
+    assert {name: count for name, count in crowded.items() if count > MAX_ARGUMENTS} == {}
+
+    class Planted:
+        def __init__(self, a, b, c, d, e, f, g, h, i):
+            pass
+
+    assert len(constructor_arguments(Planted)) > MAX_ARGUMENTS
+
+
+def test_settings_by_name_are_the_settings_and_a_wrong_name_is_refused_in_one_line():
+    params = RoomParams.from_settings({"max_speed": 1.34}, motion=Yield(order="door_first"))
+    assert params == RoomParams(max_speed=1.34, motion=Yield(order="door_first"))
+    assert params.agent_radius == 0.4 and params.speed_ratios == DEFAULT_SPEED_RATIOS  # the rest: the defaults
+    with pytest.raises(ValueError, match=r"^contact is not a setting of the room: its settings are agent_radius, "):
+        RoomParams.from_settings(contact="yield")
+    with pytest.raises(ValueError, match=r"^max_speed=-1.0 is invalid"):
+        replace(params, max_speed=-1.0)  # checked when made, a changed copy too
 
 
 def test_every_field_declares_its_fast_path_support():
@@ -115,7 +167,7 @@ def test_the_params_are_the_validated_arguments():
     )
     assert env.params.motion == Yield()
     assert env.params.speed_ratios == (0, 0, 0, 0, 0, 0.1, 0.2, 0.5, 1)
-    assert env.params.substep_length == env.agent_radius  # None means the body radius
+    assert env.params.substep_length is None and env.substep_length == env.agent_radius  # None: the body radius
     with pytest.raises(dataclasses.FrozenInstanceError):
         env.params.max_speed = 5.0
 
