@@ -7,9 +7,10 @@
 from __future__ import annotations
 
 import csv
+import math
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Final
+from typing import Any, Final
 
 import numpy as np
 from matplotlib.axes import Axes
@@ -139,13 +140,40 @@ def plot_runs(
     labels: Sequence[str] | None = None,
     metric: str = "success_rate",
     smooth: int = 1,
+    marks: Sequence[Sequence[Any]] = (),
 ) -> Path:
-    """Draw the learning curves of ``runs`` in one figure saved at ``output``; returns ``output``."""
+    """Draw the learning curves of ``runs`` in one figure saved at ``output``; returns ``output``. ``marks``:
+    ``(trials, value, text)`` points a reference states (a paper figure's end point), drawn as stars with their
+    text."""
+    checked = check_marks(marks)
     axes = draw_runs(runs, labels=labels, metric=metric, smooth=smooth)
+    draw_marks(axes, checked)
     output = Path(output)
     output.parent.mkdir(parents=True, exist_ok=True)
     axes.figure.savefig(output, dpi=120)  # the figure's constrained layout already fits the labels
     return output
+
+
+def check_marks(marks: Sequence[Sequence[Any]] | None) -> list[tuple[float, float, str]]:
+    """``marks`` as ``(trials, value, text)`` triples; a one-line ``ValueError`` naming the first that is not a
+    finite trial count >= 0, a finite value and a text."""
+    checked = []
+    for mark in marks or ():
+        items = list(mark) if isinstance(mark, Sequence) and not isinstance(mark, str) else None
+        good = items is not None and len(items) == 3 and isinstance(items[2], str)
+        good = good and all(isinstance(v, int | float) and not isinstance(v, bool) for v in items[:2])
+        if not good or not (math.isfinite(items[0]) and items[0] >= 0 and math.isfinite(items[1])):
+            raise ValueError(f"marks entry {mark!r} is invalid: must be [trials >= 0, value, 'text'] (finite numbers)")
+        checked.append((float(items[0]), float(items[1]), items[2]))
+    return checked
+
+
+def draw_marks(axes: Axes, marks: Sequence[tuple[float, float, str]]) -> Axes:
+    """Each of the checked ``marks`` (:func:`check_marks`) as a black star with its text, into ``axes``."""
+    for trials, value, text in marks:
+        axes.plot([trials], [value], marker="*", markersize=12, color="black", linestyle="none")
+        axes.annotate(text, (trials, value), textcoords="offset points", xytext=(-8, 8), ha="right")
+    return axes
 
 
 def _default_labels(runs: Sequence[Path]) -> list[str]:

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 import hydra
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from pedrl.cli import CONFIG_DIR, checked_groups, run_reporting_errors
 from pedrl.learning_curves import plot_runs
@@ -24,8 +24,14 @@ def main(cfg: DictConfig) -> None:
     """Plot the runs of ``cfg.runs`` together."""
 
     def plot() -> Path:
+        marks = OmegaConf.to_container(cfg.marks) if cfg.get("marks") else ()
         return plot_runs(
-            _as_list(cfg.runs), cfg.output, labels=_as_list(cfg.labels), metric=cfg.metric, smooth=cfg.smooth
+            _as_list(cfg.runs),
+            cfg.output,
+            labels=_as_list(cfg.labels),
+            metric=cfg.metric,
+            smooth=cfg.smooth,
+            marks=marks,
         )
 
     path = run_reporting_errors("pedrl-plot", plot)

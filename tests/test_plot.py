@@ -16,7 +16,7 @@ from omegaconf import open_dict
 import pedrl.plot
 from pedrl.algos.records import CURVE_COLUMNS
 from pedrl.cli import CONFIG_DIR
-from pedrl.learning_curves import draw_runs, plot_runs, read_learning_curve
+from pedrl.learning_curves import check_marks, draw_marks, draw_runs, plot_runs, read_learning_curve
 from pedrl.train import train
 from tests.refusals import (
     assert_nothing_computed,
@@ -144,6 +144,21 @@ def test_plot_runs_writes_a_figure_without_layout_warnings(runs, tmp_path):
         warnings.simplefilter("error")
         path = plot_runs(list(runs.values()), tmp_path / "out" / "curves.png", smooth=5)
     assert path.is_file() and path.stat().st_size > 10_000
+
+
+def test_marks_are_drawn_as_stars_with_their_text(runs, tmp_path):
+    axes = draw_marks(draw_runs(list(runs.values())), check_marks([[40, 0.4, "Figure 4: near 0.4"]]))
+    stars = [line for line in axes.get_lines() if line.get_marker() == "*"]
+    assert len(stars) == 1 and list(stars[0].get_xdata()) == [40.0] and list(stars[0].get_ydata()) == [0.4]
+    assert [text.get_text() for text in axes.texts] == ["Figure 4: near 0.4"]
+    path = plot_runs(list(runs.values()), tmp_path / "marked.png", marks=[[40, 0.4, "end"]])
+    assert path.is_file()
+
+
+@pytest.mark.parametrize("mark", [[1, 2], [1, 2, 3], ["a", 0.4, "x"], [-1, 0.4, "x"], [1, float("nan"), "x"], "abc"])
+def test_bad_marks_are_refused_in_one_line(mark):
+    with pytest.raises(ValueError, match=r"^marks entry .* is invalid: must be \[trials >= 0, value, 'text'\]"):
+        check_marks([mark])
 
 
 def test_default_labels_tell_runs_with_the_same_name_apart(tmp_path):
