@@ -26,7 +26,7 @@ import torch
 
 from pedrl.sim.actions import DEFAULT_SPEED_RATIOS, DEFAULT_TURN_RATIOS
 from pedrl.sim.motion import CONTACT_MODELS, Continuous, Headway, MotionModel, Slide, Stop, Yield
-from pedrl.sim.motion.common import steering_array
+from pedrl.sim.motion.common import search_array, steering_array
 from pedrl.sim.rewards import RewardTable
 from pedrl.sim.room_checks import check_substeps, check_time_steps, checked_settings
 
@@ -225,6 +225,7 @@ class RoomParams:
             time_gap=lambda motion: float(1.0 if motion.time_gap is None else motion.time_gap),  # headway rules only
             continuous=lambda motion: motion.steering is not None,
             steering=lambda motion: steering_array(motion.steering),
+            search=lambda motion: search_array(),  # the neighbour search (grids from GRID_MIN_AGENTS agents)
         ),
         Stop(),
     )

@@ -160,8 +160,8 @@ def act_room(r, state, actions, room, walls, exits, routes, work, events, scratc
             r, positions, velocities, going, present, order, walls.starts, walls.directions, walls.inverse, exit_start,
             exit_normal, exit_tangent, exit_span, np.float32(radius * radius), np.float32(4.0 * radius * radius),
             np.float32(length / substeps), substeps, contact >= HEADWAY, contact == YIELD, np.float32(room.time_gap),
-            np.float32(2.0 * radius), _MARGIN, room.continuous, room.steering, moved_to, blocked, cut_wall, cut_body,
-            reached, step[r], current, moved, scratch.rank_of,
+            np.float32(2.0 * radius), _MARGIN, room.continuous, room.steering, room.search, moved_to, blocked, cut_wall,
+            cut_body, reached, step[r], current, moved, scratch.rank_of,
         )  # fmt: skip
     decisions[r] += 1
     for i in range(num_agents):

@@ -180,6 +180,18 @@ STEERING_CUTOFF: Final = -20.0
 ``2e-9`` of its strength (the rule is otherwise unchanged; it bounds the work to the bodies and walls nearby)."""
 
 
+GRID_MIN_AGENTS: Final = 48
+"""Rooms with at least this many agents find neighbours in grids of cells (:mod:`pedrl.sim.grid_kernel`, linear time),
+the others over all pairs: below it building the grid costs more than it saves (``python -m pedrl.bench --only
+walk``). The numbers are the same either way."""
+
+
+def search_array(min_agents: int = GRID_MIN_AGENTS, reach_scale: float = 1.0) -> np.ndarray:
+    """The kernels' neighbour search ``(min_agents, reach_scale)`` float32: rooms of at least ``min_agents`` agents
+    search grids whose reaches are scaled by ``reach_scale`` (1: exact; the tests' control shrinks it)."""
+    return np.array([min_agents, reach_scale], np.float32)
+
+
 MAX_STRENGTH: Final = 1e6
 """Largest strength ``a`` or ``b`` of the direction rule."""
 MAX_RANGE: Final = 10.0

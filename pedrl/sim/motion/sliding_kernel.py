@@ -9,10 +9,28 @@ import torch
 
 from pedrl._numba import cached_njit
 from pedrl.sim.geometry import Geometry
-from pedrl.sim.motion.common import PAIR_MARGIN, STEERING_CUTOFF, Movement, Steering, steering_array
+from pedrl.sim.grid_kernel import (
+    RELATIVE_SLACK,
+    SLACK,
+    bin_points,
+    bin_segments,
+    cell_range,
+    make_cells,
+)
+from pedrl.sim.motion.common import (
+    PAIR_MARGIN,
+    STEERING_CUTOFF,
+    Movement,
+    Steering,
+    search_array,
+    steering_array,
+)
 from pedrl.sim.motion.sequential_kernel import _passes_exits
 
-__all__ = ["sliding_room", "sliding_substeps"]
+__all__ = ["SEARCH", "sliding_room", "sliding_substeps"]
+
+SEARCH = search_array()
+"""The default neighbour search (:func:`pedrl.sim.motion.common.search_array`)."""
 
 
 @cached_njit(nogil=True, inline="always")
@@ -98,11 +116,136 @@ def _steer(i, r, velocities, current, present_row, starts, directions, inverse, 
     return ex * speed, ey * speed
 
 
+@cached_njit(nogil=True, inline="always")
+def _cell_of(cells, x, y):
+    """The index of the cell holding ``(x, y)``."""
+    x0, _, y0, _ = cell_range(cells, x, y, np.float32(0.0))
+    return y0 * cells.shape[0] + x0
+
+
+@cached_njit(nogil=True, inline="always")
+def _listed_wall(x, y, walls, c, starts, directions, inverse):
+    """:func:`_nearest_wall_kernel` over the segments listed in cell ``c`` of ``walls`` (ascending: the same first
+    minimum)."""
+    nearest = np.float32(np.inf)
+    index = 0
+    for k in range(walls.start[c], walls.start[c + 1]):
+        s = walls.items[k]
+        along = ((x - starts[s, 0]) * directions[s, 0] + (y - starts[s, 1]) * directions[s, 1]) * inverse[s]
+        along = min(max(along, np.float32(0.0)), np.float32(1.0))
+        gap_x = x - (starts[s, 0] + along * directions[s, 0])
+        gap_y = y - (starts[s, 1] + along * directions[s, 1])
+        distance_sq = gap_x * gap_x + gap_y * gap_y
+        if distance_sq < nearest:
+            nearest = distance_sq
+            index = s
+    return nearest, index
+
+
+@cached_njit(nogil=True, inline="always")
+def _near_body(x, y, mover, here_x, here_y, current, present_row, cells, reach):
+    """:func:`_nearest_body` over the bodies binned within ``reach`` of ``(here_x, here_y)``, the first minimum by
+    index as the loop over all."""
+    nearest = np.float32(np.inf)
+    index = 0
+    x0, x1, y0, y1 = cell_range(cells, here_x, here_y, reach)
+    nx = cells.shape[0]
+    for cy in range(y0, y1 + 1):
+        for k in range(cells.start[cy * nx + x0], cells.start[cy * nx + x1 + 1]):
+            j = cells.items[k]
+            if j == mover or not present_row[j]:
+                continue
+            gap_x = x - current[j, 0]
+            gap_y = y - current[j, 1]
+            distance_sq = gap_x * gap_x + gap_y * gap_y
+            if distance_sq < nearest or (distance_sq == nearest and j < index):
+                nearest = distance_sq
+                index = j
+    return nearest, index
+
+
+@cached_njit(nogil=True, inline="always")
+def _steer_grid(i, r, velocities, current, present_row, cells, walls, c, starts, directions, inverse, radius,
+                diameter, steering, reach, near):  # fmt: skip
+    """:func:`_steer` over the bodies binned within ``reach`` (the direction rule's cut-off) and the walls listed in
+    the mover's cell ``c``, summed in index order as :func:`_steer` sums them; ``near`` ``(N,)`` int64 scratch."""
+    zero = np.float32(0.0)
+    cx = velocities[r, i, 0]
+    cy = velocities[r, i, 1]
+    speed = np.sqrt(cx * cx + cy * cy)
+    if not speed > zero:
+        return zero, zero
+    ex = cx / speed
+    ey = cy / speed
+    fx = ex
+    fy = ey
+    x = current[i, 0]
+    y = current[i, 1]
+    count = 0  # the bodies whose term survives the cut-off, then summed in index order
+    x0, x1, y0, y1 = cell_range(cells, x, y, reach)
+    nx = cells.shape[0]
+    for row in range(y0, y1 + 1):
+        for k in range(cells.start[row * nx + x0], cells.start[row * nx + x1 + 1]):
+            j = cells.items[k]
+            if j == i or not present_row[j]:
+                continue
+            dx = x - current[j, 0]
+            dy = y - current[j, 1]
+            distance = np.sqrt(dx * dx + dy * dy)
+            if (diameter - distance) / steering[1] > _CUTOFF and distance > zero:
+                near[count] = j
+                count += 1
+    near[:count].sort()
+    for k in range(count):
+        j = near[k]
+        fx, fy = _push(fx, fy, x - current[j, 0], y - current[j, 1], diameter, steering[0], steering[1])
+    for k in range(walls.start[c], walls.start[c + 1]):
+        s = walls.items[k]
+        along = ((x - starts[s, 0]) * directions[s, 0] + (y - starts[s, 1]) * directions[s, 1]) * inverse[s]
+        along = min(max(along, zero), np.float32(1.0))
+        dx = x - (starts[s, 0] + along * directions[s, 0])
+        dy = y - (starts[s, 1] + along * directions[s, 1])
+        fx, fy = _push(fx, fy, dx, dy, radius, steering[2], steering[3])
+    norm = np.sqrt(fx * fx + fy * fy)
+    if norm > zero:
+        return fx / norm * speed, fy / norm * speed
+    return ex * speed, ey * speed
+
+
+@cached_njit(nogil=True)
+def _grids(r, velocities, current, present_row, starts, directions, inverse, radius, diameter, substep_length,
+           num_substeps, headway, time_gap, steer, steering, scale):  # fmt: skip
+    """The grids of one decision of room ``r``: the bodies' cells (binned at each sub-step) over the box the present
+    bodies cannot leave in the decision, the walls listed per cell, and the reaches (m) of the searches: the
+    direction rule's bodies (its cut-off), the headway rule's (a gap of ``v T`` leaves the speed), a contact (the two
+    moves of a sub-step); each times ``scale`` (1 but in the tests' control)."""
+    fastest = np.float32(0.0)
+    low_x = low_y = np.float32(np.inf)
+    high_x = high_y = np.float32(-np.inf)
+    present = 0
+    for i in range(current.shape[0]):
+        if present_row[i]:
+            present += 1
+            fastest = max(fastest, np.sqrt(velocities[r, i, 0] ** 2 + velocities[r, i, 1] ** 2))
+            low_x, high_x = min(low_x, current[i, 0]), max(high_x, current[i, 0])
+            low_y, high_y = min(low_y, current[i, 1]), max(high_y, current[i, 1])
+    step = fastest * substep_length
+    slack = step * np.float32(num_substeps) + SLACK
+    one = np.float32(1.0) + RELATIVE_SLACK
+    body = (diameter + np.float32(2.0) * step) * one * scale + SLACK
+    steer_reach = (diameter - _CUTOFF * steering[1]) * one * scale + SLACK if steer else np.float32(0.0)
+    headway_reach = (diameter + fastest * time_gap) * one * scale + SLACK if headway else np.float32(0.0)
+    wall = (max(radius - _CUTOFF * steering[3] if steer else np.float32(0.0), radius + step)) * one * scale + SLACK
+    cells = make_cells(low_x - slack, low_y - slack, high_x + slack, high_y + slack,
+                       max(body, steer_reach, headway_reach), current.shape[0], present)  # fmt: skip
+    return cells, bin_segments(cells, starts, directions, inverse, wall), body, steer_reach, headway_reach
+
+
 @cached_njit(nogil=True)
 def _sliding(
     positions, velocities, going, present, order, starts, directions, inverse, exit_start, exit_normal,
     exit_tangent, exit_span, radius_sq, contact_sq, substep_length, num_substeps, headway, yield_order, time_gap,
-    diameter, margin, steer, steering, out, blocked, cut_wall, cut_body, reached,
+    diameter, margin, steer, steering, search, out, blocked, cut_wall, cut_body, reached,
 ):  # fmt: skip
     num_replicas, num_agents = going.shape
     wanted = np.empty((num_agents, 2), dtype=np.float32)
@@ -113,8 +256,8 @@ def _sliding(
         sliding_room(
             r, positions, velocities, going, present, order, starts, directions, inverse, exit_start, exit_normal,
             exit_tangent, exit_span, radius_sq, contact_sq, substep_length, num_substeps, headway, yield_order,
-            time_gap, diameter, margin, steer, steering, out, blocked, cut_wall, cut_body, reached, wanted, current,
-            factor, rank_of,
+            time_gap, diameter, margin, steer, steering, search, out, blocked, cut_wall, cut_body, reached, wanted,
+            current, factor, rank_of,
         )  # fmt: skip
 
 
@@ -122,11 +265,12 @@ def _sliding(
 def sliding_room(
     r, positions, velocities, going, present, order, starts, directions, inverse, exit_start, exit_normal,
     exit_tangent, exit_span, radius_sq, contact_sq, substep_length, num_substeps, headway, yield_order, time_gap,
-    diameter, margin, steer, steering, out, blocked, cut_wall, cut_body, reached,
+    diameter, margin, steer, steering, search, out, blocked, cut_wall, cut_body, reached,
     wanted, current, factor, rank_of,
 ):  # fmt: skip
     """The sub-steps of replica ``r`` (of :func:`sliding_substeps`); ``wanted``, ``current`` ``(N, 2)``, ``factor`` and
-    ``rank_of`` ``(N,)`` are scratch. ``steer``: ``motion=continuous``, with ``steering`` ``(a, D, b, B)`` float32."""
+    ``rank_of`` ``(N,)`` are scratch. ``steer``: ``motion=continuous``, with ``steering`` ``(a, D, b, B)`` float32.
+    ``search``: :data:`SEARCH`; with a grid, the same numbers as every pair (:mod:`pedrl.sim.grid_kernel`)."""
     num_agents = going.shape[1]
     zero = np.float32(0.0)
     one = np.float32(1.0)
@@ -138,17 +282,32 @@ def sliding_room(
         current[i, 1] = positions[r, i, 1]
         wanted[i, 0] = velocities[r, i, 0] if present[r, i] else zero
         wanted[i, 1] = velocities[r, i, 1] if present[r, i] else zero
+    radius = diameter * np.float32(0.5)  # float32(r) exactly
+    grid = num_agents >= search[0]
+    cells, walls, body_reach, steer_reach, headway_reach = _grids(
+        r, velocities, current, present[r], starts, directions, inverse, radius, diameter, substep_length,
+        num_substeps if grid else 0, headway, time_gap, steer, steering, search[1],
+    )  # fmt: skip
+    near = np.empty(num_agents if grid else 0, np.int64)
+    nx = cells.shape[0]
     for _ in range(num_substeps):
         anyone = False
         for i in range(num_agents):
             anyone |= going[r, i]
         if not anyone:
             break
+        if grid:
+            bin_points(cells, current, present[r])
         if steer:  # the direction rule, from the positions at the start of the sub-step
-            radius = diameter * np.float32(0.5)  # float32(r) exactly
             for i in range(num_agents):
                 wanted[i, 0], wanted[i, 1] = zero, zero
-                if present[r, i]:
+                if present[r, i] and grid:
+                    c = _cell_of(cells, current[i, 0], current[i, 1])
+                    wanted[i, 0], wanted[i, 1] = _steer_grid(
+                        i, r, velocities, current, present[r], cells, walls, c, starts, directions, inverse, radius,
+                        diameter, steering, steer_reach, near,
+                    )  # fmt: skip
+                elif present[r, i]:
                     wanted[i, 0], wanted[i, 1] = _steer(
                         i, r, velocities, current, present[r], starts, directions, inverse, radius, diameter, steering
                     )
@@ -162,13 +321,17 @@ def sliding_room(
             ex = wanted[i, 0] / speed
             ey = wanted[i, 1] / speed
             spacing = np.float32(np.inf)
-            for j in range(num_agents):
-                if j == i or not present[r, j] or (yield_order and rank_of[j] > rank_of[i]):
-                    continue
-                ox = current[j, 0] - current[i, 0]
-                oy = current[j, 1] - current[i, 1]
-                if ox * ex + oy * ey >= zero and abs(ox * ey - oy * ex) <= diameter:
-                    spacing = min(spacing, np.sqrt(ox * ox + oy * oy) - diameter)
+            x0, x1, y0, y1 = cell_range(cells, current[i, 0], current[i, 1], headway_reach) if grid else (0, 0, 0, 0)
+            for row in range(y0, y1 + 1):  # the bodies binned within reach, or (no grid) all
+                first, last = (cells.start[row * nx + x0], cells.start[row * nx + x1 + 1]) if grid else (0, num_agents)
+                for k in range(first, last):
+                    j = cells.items[k] if grid else k
+                    if j == i or not present[r, j] or (yield_order and rank_of[j] > rank_of[i]):
+                        continue
+                    ox = current[j, 0] - current[i, 0]
+                    oy = current[j, 1] - current[i, 1]
+                    if ox * ex + oy * ey >= zero and abs(ox * ey - oy * ex) <= diameter:
+                        spacing = min(spacing, np.sqrt(ox * ox + oy * oy) - diameter)
             factor[i] = min(speed, max(spacing / time_gap, zero)) / speed
         for rank in range(num_agents):
             i = order[r, rank]
@@ -181,8 +344,15 @@ def sliding_room(
             scale = factor[i] * substep_length
             target_x = here_x + vx * scale
             target_y = here_y + vy * scale
-            wall_sq, wall = _nearest_wall_kernel(target_x, target_y, starts, directions, inverse)
-            body_sq, body = _nearest_body(target_x, target_y, i, current, present[r])
+            if grid:  # the cell of the mover's binned place (it has not moved in this sub-step)
+                c = _cell_of(cells, here_x, here_y)
+                wall_sq, wall = _listed_wall(target_x, target_y, walls, c, starts, directions, inverse)
+                body_sq, body = _near_body(
+                    target_x, target_y, i, here_x, here_y, current, present[r], cells, body_reach
+                )
+            else:
+                wall_sq, wall = _nearest_wall_kernel(target_x, target_y, starts, directions, inverse)
+                body_sq, body = _nearest_body(target_x, target_y, i, current, present[r])
             hits_wall = wall_sq < radius_sq
             hits_body = body_sq < contact_sq
             if hits_wall or hits_body:
@@ -209,8 +379,14 @@ def sliding_room(
                 wanted[i, 1] = vy
                 target_x = here_x + vx * scale
                 target_y = here_y + vy * scale
-                slid_sq, _ = _nearest_wall_kernel(target_x, target_y, starts, directions, inverse)
-                slid_body_sq, _ = _nearest_body(target_x, target_y, i, current, present[r])
+                if grid:
+                    slid_sq, _ = _listed_wall(target_x, target_y, walls, c, starts, directions, inverse)
+                    slid_body_sq, _ = _near_body(
+                        target_x, target_y, i, here_x, here_y, current, present[r], cells, body_reach
+                    )
+                else:
+                    slid_sq, _ = _nearest_wall_kernel(target_x, target_y, starts, directions, inverse)
+                    slid_body_sq, _ = _nearest_body(target_x, target_y, i, current, present[r])
                 slid_wall = slid_sq < radius_sq
                 slid_body = slid_body_sq < contact_sq
                 if hits_wall or slid_wall:
@@ -251,6 +427,7 @@ def sliding_substeps(
     time_gap: float | None,
     yield_to_earlier: bool = False,
     steering: Steering | None = None,
+    search: np.ndarray = SEARCH,
 ) -> Movement:
     """:func:`pedrl.sim.motion.sliding.move_agents_sliding_torch`, agent by agent, compiled (same float32
     operations, same order).
@@ -270,6 +447,7 @@ def sliding_substeps(
         time_gap: ``T`` (s) of the headway rule, or ``None`` for ``slide``.
         yield_to_earlier: the ``yield`` rule: only bodies earlier in ``order`` slow a mover.
         steering: ``motion=continuous``'s direction rule, or None.
+        search: :data:`SEARCH` (the tests change it).
 
     Returns:
         The :class:`~pedrl.sim.motion.Movement` of the decision.
@@ -305,6 +483,7 @@ def sliding_substeps(
         np.float32(PAIR_MARGIN),
         steering is not None,
         steering_array(steering),
+        search,
         out.numpy(),
         blocked.numpy(),
         cut_wall.numpy(),
