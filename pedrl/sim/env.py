@@ -281,10 +281,23 @@ class RoomEnv:
                 value.
             PlacementError: If random placement fails (too many agents for the room).
         """
+        self.place(seed=seed, options=options)
+        shape = (self.num_replicas, self.num_agents)
+        observation = self._observe(observers=self.active, sensed=self.active)
+        info = self._info(
+            observation,
+            crashed_agent=torch.zeros(shape, dtype=torch.bool, device=self.device),
+            crashed_wall=torch.zeros(shape, dtype=torch.bool, device=self.device),
+            reached=torch.zeros(shape, dtype=torch.bool, device=self.device),
+        )
+        return observation.features, info
+
+    def place(self, *, seed: int | None = None, options: Mapping[str, Any] | None = None) -> None:
+        """:meth:`reset` without the observation: the state of a new trial, for a caller that senses in its own kernels
+        (the fused trial), so that a crowd of any size is placed in memory that grows with it, not its square."""
         if seed is not None:
             self.generator.manual_seed(check_integer("seed", seed, minimum=0, maximum=MAX_RESET_SEED))
         options = read_options(options)
-        shape = (self.num_replicas, self.num_agents)
         replicas = read_option(options, "replicas", (self.num_replicas,), device=self.device, dtype=torch.bool)
         if replicas is None:
             replicas = torch.ones(self.num_replicas, dtype=torch.bool, device=self.device)
@@ -307,15 +320,6 @@ class RoomEnv:
         self._reset_at[replicas.cpu()] = self._steps_taken
         self._oldest_reset = int(self._reset_at.min())
         self._was_reset = True
-
-        observation = self._observe(observers=self.active, sensed=self.active)
-        info = self._info(
-            observation,
-            crashed_agent=torch.zeros(shape, dtype=torch.bool, device=self.device),
-            crashed_wall=torch.zeros(shape, dtype=torch.bool, device=self.device),
-            reached=torch.zeros(shape, dtype=torch.bool, device=self.device),
-        )
-        return observation.features, info
 
     def step(
         self, actions: torch.Tensor

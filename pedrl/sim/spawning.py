@@ -16,6 +16,7 @@ import numpy as np
 import torch
 
 from pedrl.sim.geometry import Geometry, X, Y, inside_polygon, wrap_angle
+from pedrl.sim.pairs import close_pairs, overlaps_earlier
 from pedrl.sim.room_checks import read_option
 from pedrl.sim.routing import choose_exits, follow_routes, route_lengths
 
@@ -82,7 +83,6 @@ class Spawns:
         hand_made: Whether each agent's group has hand-made waypoints ``(N,)`` bool (else its route is its own).
         waypoints: Each agent's route in each replica ``(R, N, K, 2)`` (m), NaN past its end; set at placement.
         route_length: The number of waypoints of each agent's route ``(R, N)`` int64; set at placement.
-        earlier_agents: ``(N, N)`` bool, true where the column's agent has a lower index than the row's.
         agent_radius, num_replicas, width, length, device: As given; num_agents: ``N = sum(counts)``.
     """
 
@@ -128,7 +128,6 @@ class Spawns:
         self.waypoints = routes[group].expand(num_replicas, -1, -1, -1).clone()  # (R, N, K, 2)
         self.route_length = counts[group].expand(num_replicas, -1).clone()  # (R, N)
         self.exit_widths = geometry.exit_spans.sqrt()
-        self.earlier_agents = torch.ones(self.num_agents, self.num_agents, dtype=torch.bool, device=device).tril_(-1)
 
     @property
     def has_routes(self) -> bool:
@@ -200,11 +199,9 @@ class Spawns:
         """
         shape = (self.num_replicas, self.num_agents)
         positions = self.uniform_positions(shape, generator)
-        contact_sq = (2.0 * self.agent_radius) ** 2
         for _ in range(rounds):
-            offsets = positions.unsqueeze(2) - positions.unsqueeze(1)
-            overlapping = ((offsets * offsets).sum(-1) < contact_sq) & self.earlier_agents
-            redraw = (overlapping.any(-1) | self.misplaced(positions)) & replicas.unsqueeze(-1)
+            overlapping = overlaps_earlier(positions, 2.0 * self.agent_radius)
+            redraw = (overlapping | self.misplaced(positions)) & replicas.unsqueeze(-1)
             if not bool(redraw.any()):
                 return positions
             positions = torch.where(redraw.unsqueeze(-1), self.uniform_positions(shape, generator), positions)
@@ -228,12 +225,12 @@ class Spawns:
                 f"options['positions'] is invalid: agent {agent} of replica {replica} at ({x:.4g}, {y:.4g})"
                 f" m is outside the room or closer than agent_radius={self.agent_radius} m to a wall"
             )
-        offsets = positions.unsqueeze(2) - positions.unsqueeze(1)
-        contact = 2.0 * self.agent_radius - PLACEMENT_TOLERANCE
-        overlapping = ((offsets * offsets).sum(-1) < contact * contact) & self.earlier_agents
-        overlapping &= chosen.unsqueeze(-1)
-        if bool(overlapping.any()):
-            replica, agent, other = (int(index) for index in overlapping.nonzero()[0])
+        replica, agent, other = close_pairs(positions, 2.0 * self.agent_radius - PLACEMENT_TOLERANCE)
+        overlapping = replicas[replica]
+        if bool(overlapping.any()):  # the first pair in (replica, agent, other) order
+            key = (replica * self.num_agents + agent) * self.num_agents + other
+            first = int(torch.where(overlapping, key, key.max() + 1).argmin())
+            replica, agent, other = int(replica[first]), int(agent[first]), int(other[first])
             raise ValueError(
                 f"options['positions'] is invalid: agents {other} and {agent} of replica {replica} overlap"
                 f" (centres closer than 2 * agent_radius = {2.0 * self.agent_radius} m)"

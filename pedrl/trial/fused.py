@@ -138,7 +138,7 @@ def _launch(env, policy, epsilon, generator, learn, alpha, gamma, *, record, gre
 
     set_kernel_threads(torch.get_num_threads())
     if reset:
-        env.reset()
+        env.place()
     rooms, agents = env.num_replicas, env.num_agents
     layout = policy.layout
     process, base_rows = layout.of(rooms, agents, env.device)
