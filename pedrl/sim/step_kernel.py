@@ -148,8 +148,8 @@ def act_room(r, state, actions, room, walls, exits, routes, work, events, scratc
         sequential_room(
             r, positions, step, going, present, depth, work.no_walls, walls.low, walls.high,
             np.float32(radius * radius), exit_start, exit_normal, exit_tangent, exit_span, order,
-            np.float32(4.0 * radius * radius), moved_to, blocked, cut_wall, reached, moved, scratch.flags[0],
-            scratch.flags[1], current,
+            np.float32(4.0 * radius * radius), room.search, moved_to, blocked, cut_wall, reached, moved,
+            scratch.flags[0], scratch.flags[1], current,
         )  # fmt: skip
         for i in range(num_agents):
             cut_body[r, i] = blocked[r, i] and not cut_wall[r, i]

@@ -1,6 +1,7 @@
 """The kernels' grids of cells (:mod:`pedrl.sim.grid_kernel`) return the all-pairs loop's numbers to the bit: whole
-walks of crowds through the built-in rooms under every sliding rule and the walking layer, grid against every pair;
-and a grid that drops the neighbours beyond half its reach (the control) differs."""
+walks of crowds through the built-in rooms under every contact rule (the stop rule's kernel and the sliding one's)
+and the walking layer, grid against every pair; and a grid that drops the neighbours beyond half its reach (the
+control) differs."""
 
 from __future__ import annotations
 
@@ -9,15 +10,15 @@ import pytest
 import torch
 
 from pedrl._numba import numba_available
-from pedrl.scenarios import bottleneck, corridor, custom, four_exits
-from pedrl.sim.motion.common import Steering, search_array
+from pedrl.scenarios import bottleneck, corridor, custom, four_exits, paper_room
+from pedrl.sim.motion.common import Movement, Steering, search_array
 
 pytestmark = pytest.mark.skipif(not numba_available(), reason="the grids are the numba kernels'")
 
 PAIRS = search_array(min_agents=2**30)
 GRID = search_array(min_agents=0)
 SHRUNK = search_array(min_agents=0, reach_scale=0.5)
-RULES = ("slide", "headway", "yield", "continuous")
+RULES = ("stop", "slide", "headway", "yield", "continuous")
 
 
 def _ring_room():
@@ -30,6 +31,7 @@ def _ring_room():
 
 
 ROOMS = {
+    "paper_room": (lambda: paper_room(width=12.0, length=15.0, door_width=1.5), 150),
     "bottleneck": (bottleneck, 60),
     "corridor": (corridor, 80),
     "four_exits": (four_exits, 200),
@@ -55,18 +57,39 @@ def walk(room: str, rule: str, search: np.ndarray, decisions: int = 12, seed: in
         norm = torch.linalg.vector_norm(offset, dim=-1, keepdim=True).clamp_min(1e-6)
         speeds = 1.34 * (0.5 + 0.5 * torch.rand(active.shape, generator=generator)).unsqueeze(-1)
         velocities = offset / norm * speeds
-        movement = sliding_substeps(
-            positions=positions, velocities=velocities, active=active, geometry=env.geometry,
-            wall_starts=starts, wall_directions=directions, wall_inverse=inverse, agent_radius=env.agent_radius,
-            substep_length=0.05 if rule == "continuous" else 0.25, num_substeps=20 if rule == "continuous" else 4,
-            order=torch.rand(active.shape, generator=generator).argsort(dim=1),
-            time_gap=None if rule == "slide" else 0.4, yield_to_earlier=rule in ("yield", "continuous"),
-            steering=Steering() if rule == "continuous" else None, search=search,
-        )  # fmt: skip
+        order = torch.rand(active.shape, generator=generator)
+        if rule == "stop":
+            movement = _stop(positions, velocities, active, env, order, search)
+        else:
+            movement = sliding_substeps(
+                positions=positions, velocities=velocities, active=active, geometry=env.geometry,
+                wall_starts=starts, wall_directions=directions, wall_inverse=inverse, agent_radius=env.agent_radius,
+                substep_length=0.05 if rule == "continuous" else 0.25, num_substeps=20 if rule == "continuous" else 4,
+                order=order.argsort(dim=1), time_gap=None if rule == "slide" else 0.4,
+                yield_to_earlier=rule in ("yield", "continuous"),
+                steering=Steering() if rule == "continuous" else None, search=search,
+            )  # fmt: skip
         positions = movement.positions
         active = active & ~movement.reached
         out += [movement.positions, movement.blocked, movement.crashed_wall, movement.crashed_agent, movement.reached]
     return out
+
+
+def _stop(positions, velocities, active, env, priority, search) -> Movement:
+    """One decision of the stop rule's kernel (``sequential_substeps``, as ``move_agents_sequential`` calls it)."""
+    from pedrl.sim.motion.sequential_kernel import sequential_substeps
+
+    step = velocities * (1.0 / 4)
+    walls = None
+    if not env.geometry.axis_aligned:
+        substeps = torch.arange(1, 5).to(positions.dtype).view(-1, 1, 1, 1)
+        walls = env.geometry.touches_walls(positions + substeps * step, radius=env.agent_radius)
+    moved_to, blocked, crashed_wall, reached = sequential_substeps(
+        positions=positions, step=step, going=active & (step != 0).any(-1), active=active, geometry=env.geometry,
+        agent_radius=env.agent_radius, num_substeps=4, walls=walls, depth=step.norm(dim=-1) + 1e-3,
+        priority=priority, search=search,
+    )  # fmt: skip
+    return Movement(moved_to, blocked, crashed_wall, blocked & ~crashed_wall, reached)
 
 
 @pytest.mark.parametrize("rule", RULES)
@@ -77,7 +100,7 @@ def test_grid_walks_as_every_pair_to_the_bit(room, rule):
         assert torch.equal(a, b), f"output {index % 5} of decision {index // 5}"
 
 
-@pytest.mark.parametrize("rule", ["headway", "continuous"])
+@pytest.mark.parametrize("rule", ["stop", "headway", "continuous"])
 def test_a_grid_that_drops_neighbours_differs(rule):
     """The control: a grid that searches half the reach misses bodies the rules react to."""
     shrunk, pairs = walk("bottleneck", rule, SHRUNK), walk("bottleneck", rule, PAIRS)

@@ -11,8 +11,13 @@ import torch
 
 from pedrl._numba import cached_njit
 from pedrl.sim.geometry import Geometry
+from pedrl.sim.grid_kernel import RELATIVE_SLACK, SLACK, bin_points, bin_segments, cell_range, make_cells
+from pedrl.sim.motion.common import search_array
 
 __all__ = ["sequential_room", "sequential_substeps"]
+
+SEARCH = search_array()
+"""The default neighbour search (:func:`pedrl.sim.motion.common.search_array`)."""
 
 
 @cached_njit(nogil=True, inline="always")
@@ -20,6 +25,18 @@ def _touches_walls(x, y, low, high, radius_sq):
     """`Geometry.touches_walls` of an axis-aligned geometry: clamp to each wall's box, nearest squared gap."""
     nearest = np.float32(np.inf)
     for s in range(low.shape[0]):
+        gap_x = min(max(x, low[s, 0]), high[s, 0]) - x
+        gap_y = min(max(y, low[s, 1]), high[s, 1]) - y
+        nearest = min(nearest, gap_x * gap_x + gap_y * gap_y)
+    return nearest < radius_sq
+
+
+@cached_njit(nogil=True, inline="always")
+def _touches_listed(x, y, low, high, boxes, c, radius_sq):
+    """:func:`_touches_walls` over the walls listed in cell ``c`` of ``boxes``."""
+    nearest = np.float32(np.inf)
+    for k in range(boxes.start[c], boxes.start[c + 1]):
+        s = boxes.items[k]
         gap_x = min(max(x, low[s, 0]), high[s, 0]) - x
         gap_y = min(max(y, low[s, 1]), high[s, 1]) - y
         nearest = min(nearest, gap_x * gap_x + gap_y * gap_y)
@@ -40,9 +57,47 @@ def _passes_exits(x, y, depth, start, normal, tangent, span):
 
 
 @cached_njit(nogil=True)
+def _step_grids(r, positions, step, present, low, high, contact_sq, num_substeps, grid, scale):
+    """The grids of one decision of room ``r`` under the sequential rule: the bodies' cells over the box they cannot
+    leave in the decision, the axis-aligned walls (``low``-``high`` segments) listed per cell within a body's radius
+    plus a step, and the reach of a contact (a body and a mover each within a step of their binned places), times
+    ``scale`` (1 but in the tests' control). Without ``grid``, a grid of one cell."""
+    longest = np.float32(0.0)
+    low_x = low_y = np.float32(np.inf)
+    high_x = high_y = np.float32(-np.inf)
+    count = 0
+    for i in range(positions.shape[1]):
+        if present[r, i] and grid:
+            count += 1
+            longest = max(longest, np.sqrt(step[r, i, 0] ** 2 + step[r, i, 1] ** 2))
+            low_x, high_x = min(low_x, positions[r, i, 0]), max(high_x, positions[r, i, 0])
+            low_y, high_y = min(low_y, positions[r, i, 1]), max(high_y, positions[r, i, 1])
+    if count == 0:
+        low_x = low_y = high_x = high_y = np.float32(0.0)
+    slack = longest * np.float32(num_substeps) + SLACK
+    one = np.float32(1.0) + RELATIVE_SLACK
+    contact = np.sqrt(contact_sq)
+    reach = (contact + np.float32(2.0) * longest) * one * scale + SLACK
+    cells = make_cells(low_x - slack, low_y - slack, high_x + slack, high_y + slack, reach, positions.shape[1], count)
+    walls = low.shape[0] if grid else 0
+    inverse = np.empty(walls, np.float32)
+    for s in range(walls):
+        length_sq = (high[s, 0] - low[s, 0]) ** 2 + (high[s, 1] - low[s, 1]) ** 2
+        inverse[s] = np.float32(1.0) / length_sq if length_sq > 0 else np.float32(0.0)
+    boxes = bin_segments(
+        cells,
+        low[:walls],
+        high[:walls] - low[:walls],
+        inverse,
+        (contact * np.float32(0.5) + longest) * one * scale + SLACK,
+    )
+    return cells, boxes, reach
+
+
+@cached_njit(nogil=True)
 def _sequential(
     positions, step, going, present, depth, walls, low, high, radius_sq, start, normal, tangent, span,
-    order, contact_sq, out, blocked, crashed_wall, reached,
+    order, contact_sq, search, out, blocked, crashed_wall, reached,
 ):  # fmt: skip
     num_replicas, num_agents = going.shape
     moved = np.zeros(num_agents, dtype=np.float32)  # sub-steps moved, per agent of the replica
@@ -52,17 +107,18 @@ def _sequential(
     for r in range(num_replicas):
         sequential_room(
             r, positions, step, going, present, depth, walls, low, high, radius_sq, start, normal, tangent, span,
-            order, contact_sq, out, blocked, crashed_wall, reached, moved, acted_moved, passed, current,
+            order, contact_sq, search, out, blocked, crashed_wall, reached, moved, acted_moved, passed, current,
         )  # fmt: skip
 
 
 @cached_njit(nogil=True)
 def sequential_room(
     r, positions, step, going, present, depth, walls, low, high, radius_sq, start, normal, tangent, span,
-    order, contact_sq, out, blocked, crashed_wall, reached, moved, acted_moved, passed, current,
+    order, contact_sq, search, out, blocked, crashed_wall, reached, moved, acted_moved, passed, current,
 ):  # fmt: skip
     """The sub-steps of replica ``r`` (of :func:`sequential_substeps`); ``moved``, ``acted_moved``, ``passed`` ``(N,)``
-    and ``current`` ``(N, 2)`` are scratch."""
+    and ``current`` ``(N, 2)`` are scratch. ``search``: :data:`SEARCH`; with a grid (rebuilt each sub-step from the
+    bodies' places, each within one step of them while it lasts), the same numbers as every pair."""
     num_agents = going.shape[1]
     num_substeps = walls.shape[0]
     own_walls = low.shape[0] > 0  # axis-aligned walls: tested here, else ``walls`` holds the tests
@@ -70,12 +126,17 @@ def sequential_room(
         moved[i] = 0.0
         current[i, 0] = positions[r, i, 0]
         current[i, 1] = positions[r, i, 1]
+    grid = num_agents >= search[0]
+    cells, boxes, reach = _step_grids(r, positions, step, present, low, high, contact_sq, num_substeps, grid, search[1])
+    nx = cells.shape[0]
     for k in range(num_substeps):
         anyone = False
         for i in range(num_agents):
             anyone |= going[r, i]
         if not anyone:
             break
+        if grid:
+            bin_points(cells, current, present[r])
         scale = np.float32(k + 1)
         for i in range(num_agents):
             acted_moved[i] = False
@@ -86,25 +147,37 @@ def sequential_room(
                 continue
             proposal_x = positions[r, i, 0] + scale * step[r, i, 0]
             proposal_y = positions[r, i, 1] + scale * step[r, i, 1]
-            if _touches_walls(proposal_x, proposal_y, low, high, radius_sq) if own_walls else walls[k, r, i]:
+            if own_walls and grid:  # the walls listed in the cell of the mover's place
+                x0, _, y0, _ = cell_range(cells, current[i, 0], current[i, 1], np.float32(0.0))
+                c = y0 * nx + x0
+                touches = _touches_listed(proposal_x, proposal_y, low, high, boxes, c, radius_sq)
+            else:
+                touches = _touches_walls(proposal_x, proposal_y, low, high, radius_sq) if own_walls else walls[k, r, i]
+            if touches:
                 blocked[r, i] = True
                 crashed_wall[r, i] = True
                 going[r, i] = False
                 continue
             hit = False
-            for j in range(num_agents):
-                if j == i or not present[r, j]:
-                    continue
-                if acted_moved[j]:  # acted before i and moved: it stands on its proposal
-                    other_x = positions[r, j, 0] + scale * step[r, j, 0]
-                    other_y = positions[r, j, 1] + scale * step[r, j, 1]
-                else:  # still to act, or stopped: where it stands
-                    other_x = current[j, 0]
-                    other_y = current[j, 1]
-                gap_x = proposal_x - other_x
-                gap_y = proposal_y - other_y
-                if gap_x * gap_x + gap_y * gap_y < contact_sq:
-                    hit = True
+            x0, x1, y0, y1 = cell_range(cells, current[i, 0], current[i, 1], reach) if grid else (0, 0, 0, 0)
+            for row in range(y0, y1 + 1):  # the bodies binned within reach, or (no grid) all
+                first, last = (cells.start[row * nx + x0], cells.start[row * nx + x1 + 1]) if grid else (0, num_agents)
+                for index in range(first, last):
+                    j = cells.items[index] if grid else index
+                    if j == i or not present[r, j]:
+                        continue
+                    if acted_moved[j]:  # acted before i and moved: it stands on its proposal
+                        other_x = positions[r, j, 0] + scale * step[r, j, 0]
+                        other_y = positions[r, j, 1] + scale * step[r, j, 1]
+                    else:  # still to act, or stopped: where it stands
+                        other_x = current[j, 0]
+                        other_y = current[j, 1]
+                    gap_x = proposal_x - other_x
+                    gap_y = proposal_y - other_y
+                    if gap_x * gap_x + gap_y * gap_y < contact_sq:
+                        hit = True
+                        break
+                if hit:
                     break
             if hit:
                 blocked[r, i] = True
@@ -139,6 +212,7 @@ def sequential_substeps(
     walls: torch.Tensor | None,
     depth: torch.Tensor,
     priority: torch.Tensor,
+    search: np.ndarray = SEARCH,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """The sub-steps of :func:`pedrl.sim.motion.sequential.move_agents_sequential_torch`, agent by agent, compiled.
 
@@ -157,6 +231,7 @@ def sequential_substeps(
         walls: ``(S, R, N)`` bool wall tests of the proposals, needed only when some wall is not axis-aligned.
         depth: ``(R, N)`` float32 depth of the exit test.
         priority: ``(R, N)`` order of action, lowest first.
+        search: :data:`SEARCH` (the tests change it).
 
     Returns:
         ``(positions, blocked, crashed_wall, reached)``.
@@ -189,6 +264,7 @@ def sequential_substeps(
         geometry.exit_spans.contiguous().numpy(),
         priority.argsort(dim=1).numpy(),
         np.float32(contact_sq),
+        search,
         out.numpy(),
         blocked.numpy(),
         crashed_wall.numpy(),
