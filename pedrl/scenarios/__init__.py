@@ -19,6 +19,8 @@ Built-in scenarios (:data:`SCENARIOS`):
                 before the exit
 ``four_exits``  RiMEA test 9: a 30 m x 20 m room with four 1 m exits, two in each long side; ``closed_exits`` closes
                 some (they become walls); each agent takes its nearest open exit
+``hall``        a large hall, 200 m x 100 m by default, with ``exits_per_side`` exits of ``exit_width`` evenly spaced
+                along each side; each agent takes its nearest exit (crowds of thousands and more)
 ``custom``      ``geometry``: a WKT file of the walkable polygon, or its WKT text; ``exits``: ``[[x1, y1, x2, y2],
                 ...]`` segments on its boundary; ``spawn``: ``[[x_min, y_min, x_max, y_max], ...]`` boxes (default:
                 the whole area)
@@ -45,6 +47,7 @@ from pedrl.scenarios.builders import (
     corridor,
     custom,
     four_exits,
+    hall,
     paper_room,
 )
 from pedrl.scenarios.model import MAX_EXITS, MAX_SPAWNS, PaperRoom, Scenario, Spawn
@@ -85,6 +88,7 @@ __all__ = [
     "corridor",
     "custom",
     "four_exits",
+    "hall",
     "geometry_file",
     "inline_geometry",
     "is_wkt_text",

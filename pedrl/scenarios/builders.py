@@ -19,7 +19,7 @@ from pedrl.scenarios.polygons import MAX_COORDINATE, MISSING, TOLERANCE, bounds_
 from pedrl.scenarios.routes import with_routes
 from pedrl.scenarios.wkt import MAX_WKT_BYTES, read_geometry
 
-SCENARIOS: Final = ("paper_room", "bottleneck", "corridor", "corner", "four_exits", "custom")
+SCENARIOS: Final = ("paper_room", "bottleneck", "corridor", "corner", "four_exits", "hall", "custom")
 """Names accepted by ``scenario.name``."""
 WAYPOINT_SETBACK: Final = 0.8
 """Distance (m) before and after the bottleneck's entrance of the waypoints that line agents up with it."""
@@ -180,6 +180,43 @@ def four_exits(
     return Scenario("four_exits", room, open_exits, (Spawn(spawn),))
 
 
+def hall(
+    *,
+    width: float = 200.0,
+    length: float = 100.0,
+    exit_width: float = 3.0,
+    exits_per_side: int = 3,
+    spawn_margin: float = 2.0,
+) -> Scenario:
+    """A large hall (a station concourse, an arena's floor): ``width x length`` with ``exits_per_side`` exits of
+    ``exit_width`` evenly spaced along each of its four sides; agents start anywhere at least ``spawn_margin`` m from
+    the walls and each takes its nearest exit. For crowds of thousands to hundreds of thousands."""
+    _positive(width=width, length=length, exit_width=exit_width)
+    if not isinstance(exits_per_side, int) or isinstance(exits_per_side, bool) or not 1 <= exits_per_side <= 100:
+        raise ValueError(f"scenario.exits_per_side={exits_per_side!r} is invalid: must be an integer in [1, 100]")
+    if exits_per_side * exit_width >= min(width, length) / 2:
+        raise ValueError(
+            f"scenario.exit_width={exit_width!r} is invalid: {exits_per_side} exits of it must take less than half"
+            f" of the shorter side ({min(width, length):g} m)"
+        )
+    if not 0.0 <= spawn_margin < min(width, length) / 2:
+        raise ValueError(
+            f"scenario.spawn_margin={spawn_margin!r} is invalid: must be in [0, {min(width, length) / 2:g}) m"
+        )
+    exits = []
+    for k in range(exits_per_side):  # counter-clockwise along each side, so that each is on the boundary
+        share = (k + 0.5) / exits_per_side
+        x, y, half = width * share, length * share, exit_width / 2
+        exits += [
+            LineString([(x - half, 0.0), (x + half, 0.0)]),
+            LineString([(width, y - half), (width, y + half)]),
+            LineString([(x + half, length), (x - half, length)]),
+            LineString([(0.0, y + half), (0.0, y - half)]),
+        ]
+    spawn = box(spawn_margin, spawn_margin, width - spawn_margin, length - spawn_margin)
+    return Scenario("hall", box(0.0, 0.0, width, length), tuple(exits), (Spawn(spawn),))
+
+
 def custom(
     *,
     geometry: str | Path | Polygon,
@@ -232,6 +269,7 @@ BUILDERS: Final = {
     "corridor": corridor,
     "corner": corner,
     "four_exits": four_exits,
+    "hall": hall,
     "custom": custom,
 }
 

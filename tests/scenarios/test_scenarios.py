@@ -17,7 +17,7 @@ from pedrl.sim.controllers import GreedyDoorController
 from pedrl.sim.geometry import distances_to_segments
 
 BUILT_IN = [name for name in SCENARIOS if name != "custom"]
-AGENTS = {"paper_room": 20, "bottleneck": 30, "corridor": 30, "corner": 7, "four_exits": 40}
+AGENTS = {"paper_room": 20, "bottleneck": 30, "corridor": 30, "corner": 7, "four_exits": 40, "hall": 60}
 ENV = {"_target_": "pedrl.sim.RoomEnv", "max_decisions": 60}
 
 
@@ -72,6 +72,21 @@ def test_corridor_groups_head_for_opposite_ends_and_four_exits_take_the_nearest(
     assert len(set(env.exit_index[0].tolist())) == 4
 
 
+def test_the_hall_has_its_exits_on_every_side_and_each_walker_takes_the_nearest():
+    env = env_factory(ENV | {"agent_radius": 0.2}, {"name": "hall", "exits_per_side": 2})(
+        num_replicas=1, num_agents=400
+    )
+    env.reset(seed=0)
+    geometry = env.geometry
+    assert geometry.num_exits == 8
+    assert torch.equal(geometry.exit_spans.sqrt(), torch.full((8,), 3.0))
+    normals = {tuple(round(v) for v in normal) for normal in geometry.exit_normals.tolist()}
+    assert normals == {(0, -1), (1, 0), (0, 1), (-1, 0)}  # out of every side
+    distance = torch.cdist(env.positions[0], geometry.exit_goals)
+    assert torch.equal(env.exit_index[0], distance.argmin(-1))
+    assert len(set(env.exit_index[0].tolist())) == 8
+
+
 def test_closed_exits_become_walls():
     open_all = build_scenario({"name": "four_exits"}).geometry()
     two_closed = build_scenario({"name": "four_exits", "closed_exits": [2, 3]}).geometry()
@@ -115,6 +130,9 @@ BAD = [
     ({"name": "four_exits", "closed_exits": [0, 1, 2, 3]}, "at least one exit must stay open"),
     ({"name": "four_exits", "closed_exits": [7]}, "scenario.closed_exits holds 7"),
     ({"name": "corridor", "exits": [[0, 0, 1, 1]]}, "scenario.exits is set without scenario.geometry"),
+    ({"name": "hall", "exits_per_side": 0}, "scenario.exits_per_side=0 is invalid: must be an integer in [1, 100]"),
+    ({"name": "hall", "exits_per_side": 40}, "scenario.exit_width=3.0 is invalid: 40 exits of it must take less"),
+    ({"name": "hall", "spawn_margin": 60.0}, "scenario.spawn_margin=60.0 is invalid: must be in [0, 50) m"),
     ({"name": "corridor", "ratio": [1, -1]}, "scenario.ratio=[1, -1] is invalid: must be two shares in [0, 1e+06]"),
     ({"name": "corridor", "ratio": [1e308, 1e308]}, "scenario.ratio=[1e+308, 1e+308] is invalid"),
     ({"name": "corridor", "ratio": [0, 0]}, "scenario.ratio=[0, 0] is invalid"),

@@ -11,7 +11,7 @@ from pedrl.evaluation import evaluate
 from pedrl.io import load_checkpoint
 from pedrl.train import train
 
-AGENTS = {"paper_room": 4, "bottleneck": 6, "corridor": 6, "corner": 4, "four_exits": 8}
+AGENTS = {"paper_room": 4, "bottleneck": 6, "corridor": 6, "corner": 4, "four_exits": 8, "hall": 8}
 
 
 def compose_config(name, overrides):
