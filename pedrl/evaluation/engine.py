@@ -132,21 +132,54 @@ def load_controller(
 
 
 # ---------------------------------------------------------------------- recording
-def record_batch(env: RoomEnv, controller: Controller, *, fused: bool | None = False) -> BatchRecord:
-    """Reset ``env`` (its generator draws the scene) and run one trial in every replica to its end.
+PROGRESS_AGENTS: Final = 5_000
+"""Batches of at least this many agents (all rooms together) show a progress bar on the terminal."""
+
+
+class CrowdProgress:
+    """A progress bar (tqdm, on stderr) of the decisions of a batch of ``env``'s rooms, with the agents left; a
+    no-op for batches smaller than :data:`PROGRESS_AGENTS`."""
+
+    def __init__(self, env: RoomEnv, label: str) -> None:
+        self.bar = None
+        if env.num_replicas * env.num_agents >= PROGRESS_AGENTS:
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=env.max_decisions, desc=label, unit="decision", dynamic_ncols=True, leave=False)
+
+    def __call__(self, decisions: int, left: int) -> None:
+        if self.bar is not None:
+            self.bar.update(decisions - self.bar.n)
+            self.bar.set_postfix(agents_left=left, refresh=False)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+def record_batch(
+    env: RoomEnv, controller: Controller, *, fused: bool | None = False, label: str = "pedrl-eval"
+) -> BatchRecord:
+    """Reset ``env`` (its generator draws the scene) and run one trial in every replica to its end, with a progress
+    bar named ``label`` for a large crowd (:class:`CrowdProgress`).
 
     ``fused``: the learned tables or the greedy walker through the fused trial's kernels (on the CPU, one compiled
     pass per batch), or the torch loop, the reference (False); None: the fused pass wherever it can run
     (:func:`pedrl.trial.crowd.run_crowd` chooses). The two agree within the fused trial's tolerances, not to the bit
-    (their random streams differ).
+    (their random streams differ). A crowd too large to record every decision is recorded every few
+    (:func:`pedrl.trial.fused.record_every`; the frame rate says how often).
     """
-    record = run_crowd(env, controller, fused=fused, record=True).record
+    progress = CrowdProgress(env, label)
+    try:
+        record = run_crowd(env, controller, fused=fused, record=True, progress=progress).record
+    finally:
+        progress.close()
     return BatchRecord(
         positions=record.positions,
         velocities=record.velocities,
         in_room=record.in_room,
         exit_time=np.where(record.left_at >= 0, record.left_at * env.decision_length, np.nan).astype(np.float32),
-        frame_rate=env.decisions_per_second,
+        frame_rate=env.decisions_per_second / record.every,
         radius=env.agent_radius,
         max_speed=env.max_speed,
         crashes=record.crashes,
@@ -439,7 +472,8 @@ def simulate_agent_count(
         if isinstance(policy.controller, Recorder):
             record = policy.controller.record(env)
         else:
-            record = record_batch(env, policy.controller, fused=settings.fused)
+            label = f"{env.num_agents} agents, runs {first_run + 1}-{min(first_run + runs_per_batch, total_runs)}"
+            record = record_batch(env, policy.controller, fused=settings.fused, label=label)
         keep = min(runs_per_batch, total_runs - first_run)
         stats.add(record, keep)
         runs = [record.run(i, geometry) for i in range(keep)]

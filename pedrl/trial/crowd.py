@@ -28,7 +28,7 @@ from pedrl._numba import numba_available
 from pedrl.rl.policy import PolicyController, TabularPolicy
 from pedrl.sim import RoomEnv
 from pedrl.sim.controllers import GreedyDoorController
-from pedrl.trial.fused import FusedRecord, record_trial_fused, run_trial_fused
+from pedrl.trial.fused import FusedRecord, Progress, record_trial_fused, run_trial_fused
 from pedrl.trial.loop import CrowdRun, Learner, TrialRecord, crowd_loop
 from pedrl.trial.stats import TOTALS, TrialStats
 
@@ -76,19 +76,21 @@ def run_crowd(
     fused: bool | None,
     record: bool = False,
     start: tuple[torch.Tensor, Mapping[str, Any]] | None = None,
+    progress: Progress | None = None,
 ) -> CrowdRun:
     """One trial in every room of ``env``, acted by ``controller`` (see :func:`choose_path`), on the path
     :func:`choose_path` chooses for ``fused``: its statistics and, with ``record``, its recording.
 
     It starts from a reset (``env``'s generator draws the scenes) or from ``start``, the ``(obs, info)`` of a reset
     the caller made (placed agents). A :class:`~pedrl.trial.loop.Learner` draws the fused trial's seed from its
-    generator; a controller its own ``epsilon`` and ``generator``.
+    generator; a controller its own ``epsilon`` and ``generator``. ``progress`` (a recorded trial's) is called with
+    the decisions taken and the agents left, now and then (:data:`pedrl.trial.fused.Progress`).
     """
     if choose_path([env], controller, fused, record=record, placed=start is not None).name == "torch":
-        return crowd_loop(env, controller, record=record, start=start)
+        return crowd_loop(env, controller, record=record, start=start, progress=progress)
     if isinstance(controller, Learner):
         return CrowdRun(run_trial_fused(env, controller), None)
-    trace = record_trial_fused(env, controller, reset=start is None)
+    trace = record_trial_fused(env, controller, reset=start is None, progress=progress)
     return CrowdRun(_fused_stats(env, trace), _fused_record(trace) if record else None)
 
 
@@ -150,6 +152,7 @@ def _fused_record(trace: FusedRecord) -> TrialRecord:
         speed_sum=np.sqrt(speed_sq).sum((1, 2)),
         speed_sq_sum=speed_sq.sum((1, 2)),
         speed_count=taken.sum((1, 2)).astype(np.int64),
+        every=trace.every,
     )
 
 

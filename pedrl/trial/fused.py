@@ -13,8 +13,9 @@ itself for a seed at any thread count. Both are run by :func:`pedrl.trial.crowd.
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any, Final, NamedTuple
 
 import numpy as np
 import torch
@@ -56,7 +57,7 @@ def run_trial_fused(env: RoomEnv, learner: Learner) -> TrialStats:
 
 @dataclass(frozen=True)
 class FusedRecord:
-    """A recorded trial of every room (numpy, frame 0 the reset, frame t after decision t).
+    """A recorded trial of every room (numpy, frame 0 the reset, frame t after decision ``t * every``).
 
     Attributes:
         positions: ``(R, T, N, 2)`` agent centres (m).
@@ -64,34 +65,59 @@ class FusedRecord:
         active: ``(R, T, N)`` bool: in frame 0 the agents in the room, in frame t those that took decision t.
         totals: ``(len(TOTALS), R, N)`` float64 per-agent totals (:data:`pedrl.trial.stats.TOTALS`): the goal row
             says who reached its own exit, the decisions row when (the decision at which it left).
+        every: Decisions between frames (1 but for crowds too large to record every decision, :func:`record_every`).
     """
 
     positions: np.ndarray
     velocities: np.ndarray
     active: np.ndarray
     totals: np.ndarray
+    every: int = 1
 
     def in_room(self) -> np.ndarray:
         """``(R, T, N)`` bool: who is in the room after frame t (who takes decision t + 1; nobody after the last)."""
         return np.concatenate((self.active[:, 1:], np.zeros_like(self.active[:, :1])), axis=1)
 
 
-def record_trial_fused(env: RoomEnv, controller: Any, *, reset: bool = True) -> FusedRecord:
+def record_trial_fused(
+    env: RoomEnv, controller: Any, *, reset: bool = True, progress: Progress | None = None
+) -> FusedRecord:
     """One trial of every room of ``env``, acted by ``controller`` (a learned policy, epsilon-greedy without
     learning, or the greedy walker, with the controller's own ``epsilon`` and ``generator``), recorded frame by
     frame: from a reset (its generator draws the scene), or with ``reset=False`` from the rooms' current state (a
-    reset the caller made, e.g. with placed agents)."""
+    reset the caller made, e.g. with placed agents). A trial whose every frame would take more than
+    :data:`RECORD_BYTES` is recorded every ``every`` decisions (:func:`record_every`); ``progress`` is called as the
+    trial goes on (:data:`Progress`)."""
     greedy = not isinstance(controller, PolicyController)
     policy = _walker_policy(env) if greedy else controller.policy
+    every = record_every(env.num_replicas, env.num_agents, env.max_decisions)
     totals, _, steps, trace, room_steps = _launch(
-        env, policy, controller.epsilon, controller.generator, False, 0.0, 0.0, record=True, greedy=greedy, reset=reset
-    )
-    frames = int(steps.max()) + 1
+        env, policy, controller.epsilon, controller.generator, False, 0.0, 0.0, record=True, greedy=greedy,
+        reset=reset, every=every, progress=progress,
+    )  # fmt: skip
+    frames = -(-int(steps.max()) // every) + 1
     positions, velocities, active = trace.positions[:, :frames], trace.velocities[:, :frames], trace.present[:, :frames]
     for r, last in enumerate(room_steps.tolist()):  # a room that emptied early keeps its last frame, as in torch
+        last = -(-last // every)
         positions[r, last + 1 :] = positions[r, last]
         velocities[r, last + 1 :] = velocities[r, last]
-    return FusedRecord(positions, velocities, active, totals)
+    return FusedRecord(positions, velocities, active, totals, every)
+
+
+RECORD_BYTES: Final = 2 << 30
+"""A recorded trial's frames take at most this many bytes (2 GiB): a larger crowd or a longer trial is recorded
+every few decisions (:func:`record_every`)."""
+PROGRESS_EVERY: Final = 2_000_000
+"""A trial with a progress bar returns to it after about this many agent-decisions (a part of the trial)."""
+Progress = Callable[[int, int], None]
+"""Called with the decisions taken and the agents still in the rooms, after each part of a trial."""
+
+
+def record_every(rooms: int, agents: int, max_decisions: int) -> int:
+    """Decisions between recorded frames: 1, or as few more as keep ``max_decisions + 1`` frames of ``rooms x
+    agents`` positions, velocities and flags (17 bytes an agent) within :data:`RECORD_BYTES`."""
+    per_frame = 17 * rooms * agents
+    return max(1, -(-(max_decisions + 1) * per_frame // RECORD_BYTES))
 
 
 def _walker_policy(env: RoomEnv) -> TabularPolicy:
@@ -127,10 +153,12 @@ def room_inputs(env: RoomEnv) -> RoomInputs:
     )
 
 
-def _launch(env, policy, epsilon, generator, learn, alpha, gamma, *, record, greedy=False, reset=True):
-    """Reset ``env`` (unless ``reset`` is False), run :func:`pedrl.trial.fused_kernels.fused_trial` and write the
+def _launch(env, policy, epsilon, generator, learn, alpha, gamma, *, record, greedy=False, reset=True, every=1,
+            progress=None):  # fmt: skip
+    """Reset ``env`` (unless ``reset`` is False), run :func:`pedrl.trial.fused_kernels.fused_trial` (in parts of
+    about :data:`PROGRESS_EVERY` agent-decisions, each followed by ``progress``, when it is given) and write the
     rooms' state back: the per-agent totals, the TD sums, each thread's decisions, the trace (one frame unless
-    ``record``) and each room's decisions."""
+    ``record``, else a frame every ``every`` decisions) and each room's decisions."""
     from pedrl.sim.step_kernel import Events, Work
     from pedrl.sim.streams import seed_streams
     from pedrl.trial.fused_kernels import Learning, Observed, Trace, fused_trial
@@ -152,36 +180,31 @@ def _launch(env, policy, epsilon, generator, learn, alpha, gamma, *, record, gre
     steps = np.zeros(rooms // group, np.int64)
     settings = policy.encoder.settings
     random_void = settings.void_features == "random"
-    trace = Trace.allocate(rooms, env.max_decisions + 1 if record else 1, agents if record else 1)
+    frames = -(-env.max_decisions // every) + 1 if record else 1
+    trace = Trace.allocate(rooms, frames, agents if record else 1, every)
+    part = max(1, PROGRESS_EVERY // (rooms * agents)) if progress is not None else 2**62
     learning = Learning(np.float32(epsilon), learn, np.float32(alpha), np.float32(gamma),
-                        settings.void_draws == "decision", greedy)  # fmt: skip
+                        settings.void_draws == "decision", greedy, np.int64(part))  # fmt: skip
     packed = pack_encoder(policy.encoder, policy.num_processes)
     inputs = room_inputs(env)
-    fused_trial(
-        group,
-        state,
-        inputs.room,
-        inputs.walls,
-        inputs.exits,
-        inputs.routes,
-        packed.arrays,
-        packed.tree,
-        packed.pruned,
-        settings.kernel(),
-        learning,
-        policy.q_values.view(-1, policy.num_actions).numpy(),
-        base_rows.view(rooms, agents).numpy(),
-        process.view(rooms, agents)[:, 0].contiguous().numpy(),
-        streams,
+    scratch = (
         Work.allocate(rooms, agents, env.num_substeps),
         Events.allocate(rooms, agents),
         Observed.allocate(rooms, agents, env.num_features),
         np.zeros((rooms, agents, 3 * settings.num_neighbours + 1 if random_void else 1), np.float32),
-        totals,
-        td_sums,
-        steps,
-        trace,
     )
+    arrays = (packed.arrays, packed.tree, packed.pruned, settings.kernel())
+    table, rows = policy.q_values.view(-1, policy.num_actions).numpy(), base_rows.view(rooms, agents).numpy()
+    room_of = process.view(rooms, agents)[:, 0].contiguous().numpy()
+    while True:  # one call, or parts of one trial (the same numbers)
+        fused_trial(group, state, inputs.room, inputs.walls, inputs.exits, inputs.routes, *arrays, learning, table,
+                    rows, room_of, streams, *scratch, totals, td_sums, steps, trace)  # fmt: skip
+        if progress is None or not state.active.any():
+            break
+        progress(int(steps.max()), int(state.active.sum()))
+        learning = learning._replace(until=learning.until + part)
+    if progress is not None:
+        progress(int(steps.max()), 0)
     room_steps = state.decisions.copy()  # each room's own decisions, before every clock is set to the trial's
     _write_back(env, state, int(steps.max()))
     return totals, td_sums, steps, trace, room_steps

@@ -43,6 +43,9 @@ class Learning(NamedTuple):
     """Random void fillings drawn again at every decision (else once per trial)."""
     greedy: bool
     """The greedy walker acts (:func:`pedrl.sim.greedy_kernel.greedy_action`), and nothing is encoded."""
+    until: np.int64
+    """The call returns once the trial has taken this many decisions (a trial run in parts, for a progress bar; the
+    next call goes on where it stopped, with the same numbers)."""
 
 
 class Observed(NamedTuple):
@@ -63,21 +66,25 @@ class Observed(NamedTuple):
 
 
 class Trace(NamedTuple):
-    """A recorded trial (``T = 1``: not recorded): frame 0 the reset, frame t after decision t (:meth:`allocate`)."""
+    """A recorded trial (``T = 1``: not recorded): frame 0 the reset, frame t after decision ``t * every`` (and a
+    room's last frame after its last decision) (:meth:`allocate`)."""
 
     positions: np.ndarray
     """``(R, T, N, 2)`` float32 (m)."""
     velocities: np.ndarray
     """``(R, T, N, 2)`` float32 (m/s)."""
     present: np.ndarray
-    """``(R, T, N)`` bool: in frame 0 the agents in the room, in frame t those that took decision t."""
+    """``(R, T, N)`` bool: in frame 0 the agents in the room, in frame t those that took its decision."""
+    every: np.int64
+    """Decisions between frames (1: every decision)."""
 
     @classmethod
-    def allocate(cls, rooms: int, frames: int, agents: int) -> Trace:
+    def allocate(cls, rooms: int, frames: int, agents: int, every: int = 1) -> Trace:
         return cls(
             np.zeros((rooms, frames, agents, 2), np.float32),
             np.zeros((rooms, frames, agents, 2), np.float32),
             np.zeros((rooms, frames, agents), np.bool_),
+            np.int64(every),
         )
 
 
@@ -92,15 +99,15 @@ def _record(r, frame, state, present, trace):
 @cached_njit(nogil=True)
 def _run_process(
     p, rooms, state, room, walls, exits, routes, encoder, tree, pruned, settings, learning, table, base_rows,
-    process_of, streams, work, events, observed, void, totals, td_sums, trace,
+    process_of, streams, work, events, observed, void, totals, td_sums, trace, start,
 ):  # fmt: skip
-    """Every decision of process ``p``'s rooms ``p E .. p E + E - 1`` until they are empty; returns the decisions
-    taken."""
+    """Every decision of process ``p``'s rooms ``p E .. p E + E - 1`` until they are empty (or ``learning.until``),
+    from decision ``start`` (0: the reset, observed first); returns the decisions taken."""
     positions, speeds, active = state.positions, state.speeds, state.active
     k, w = room.num_neighbours, room.num_walls
     random_void, epsilon, greedy = settings.random_void, learning.epsilon, learning.greedy
     speed_changes, turn_changes, goal_frame = room.speed_changes, room.turn_changes, room.goal_frame
-    record = trace.present.shape[1] > 1  # frame 0 the reset, frame t after decision t
+    record = trace.present.shape[1] > 1  # frame 0 the reset, frame t after decision t * every
     features, num_sensed, rows, next_rows = observed.features, observed.num_sensed, observed.rows, observed.next_rows
     actions, reward, acting = observed.actions, events.reward, events.acting
     num_agents = positions.shape[1]
@@ -117,7 +124,7 @@ def _run_process(
     keys, tally, slot_of = np.empty(slots, np.int64), np.empty(slots, np.int64), np.empty(rooms * num_agents, np.int64)
 
     # ---- the first observation and choice
-    for r in range(first, first + rooms):
+    for r in range(first, first + rooms if start == 0 else first):
         if record:
             _record(r, 0, state, active, trace)
         if random_void:
@@ -132,15 +139,15 @@ def _run_process(
                     greedy_action(features[r, i, 1], speed_changes, turn_changes, goal_frame, epsilon, streams, r)
                     if greedy else epsilon_greedy_row(table, rows[r, i], epsilon, streams, r)
                 )  # fmt: skip
-    steps = 0
-    while active[first : first + rooms].any():
+    steps = start
+    while steps < learning.until and active[first : first + rooms].any():
         # ---- act, sense, encode (each room)
         for r in range(first, first + rooms):
             for i in range(num_agents):
                 work.draws[r, i] = next_uniform(streams, r)  # the order of the movers
             act_room(r, state, actions, room, walls, exits, routes, work, events, scratch)
-            if record:
-                _record(r, steps + 1, state, acting, trace)
+            if record and ((steps + 1) % trace.every == 0 or not active[r].any()):
+                _record(r, (steps + trace.every) // trace.every, state, acting, trace)
             if random_void and learning.void_each_decision:
                 draw_void(r, void, streams)
             sense_room(r, state, events.in_room, walls, k, w, features, num_sensed, distances, indices)
@@ -182,17 +189,18 @@ def fused_trial(
     streams, work, events, observed, void, totals, td_sums, steps, trace,
 ):  # fmt: skip
     """A whole trial of every room from its reset state: the processes ``p`` of ``E = rooms`` rooms each in
-    parallel, each by :func:`_run_process`; ``steps[p]`` gets its decisions.
+    parallel, each by :func:`_run_process`; ``steps[p]`` holds the decisions taken before (0: from the reset) and
+    gets them after.
 
     ``state`` (:class:`pedrl.sim.state.KernelState`) is updated in place; ``learning`` is :class:`Learning`;
     ``totals`` ``(6, R, N)`` float64 gets each agent's return, body contacts, wall contacts, goal, speed sum and
     decisions; ``td_sums`` ``(P, 2)`` float64 the sum of ``|TD error|`` and the updates; ``trace`` (:class:`Trace`)
-    gets every frame when it has more than one (``T = max_decisions + 1``). ``room``, ``walls``, ``exits``,
+    gets a frame every ``trace.every`` decisions when it has more than one. ``room``, ``walls``, ``exits``,
     ``routes``, ``work`` and ``events`` are :func:`pedrl.sim.step_kernel.act_room`'s; ``encoder``, ``tree``,
     ``pruned`` and ``settings`` :func:`pedrl.vq.encode_kernel.encode_room`'s.
     """
     for p in prange(steps.shape[0]):
         steps[p] = _run_process(
             p, rooms, state, room, walls, exits, routes, encoder, tree, pruned, settings, learning, table, base_rows,
-            process_of, streams, work, events, observed, void, totals, td_sums, trace,
+            process_of, streams, work, events, observed, void, totals, td_sums, trace, steps[p],
         )  # fmt: skip

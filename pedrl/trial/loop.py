@@ -11,7 +11,7 @@ trial, is chosen in one place: :func:`pedrl.trial.crowd.run_crowd`.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, Final, NamedTuple
 
@@ -141,6 +141,8 @@ class TrialRecord:
         speed_sum: ``(R,)`` float64 sum over agents and decisions taken of the speed after the decision (m/s).
         speed_sq_sum: ``(R,)`` float64 the same sum of squared speeds (m^2/s^2).
         speed_count: ``(R,)`` int64 decisions taken (agent-decisions).
+        every: Decisions between frames: 1, but for a crowd too large to record each decision
+            (:func:`pedrl.trial.fused.record_every`), whose speed sums are then over the recorded frames.
     """
 
     positions: np.ndarray
@@ -152,6 +154,7 @@ class TrialRecord:
     speed_sum: np.ndarray
     speed_sq_sum: np.ndarray
     speed_count: np.ndarray
+    every: int = 1
 
 
 class CrowdRun(NamedTuple):
@@ -216,10 +219,12 @@ def crowd_loop(
     *,
     record: bool = False,
     start: tuple[torch.Tensor, Mapping[str, Any]] | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> CrowdRun:
     """One trial in every room of ``env``, acted by ``controller`` (a :class:`Driver` such as a :class:`Learner`, or
     any controller with ``act(env, obs, info) -> (R, N)``), from a reset (``env``'s generator draws the scene) or
     from ``start``, the ``(obs, info)`` of a reset the caller made (placed agents). ``record``: keep every frame.
+    ``progress``: called after each decision with the decisions taken and the agents left.
 
     The trial ends when every room is empty. The loop reads that flag after every decision, but off the CPU for an
     unrecorded trial of a ``sync_free`` driver only every :data:`DEVICE_CHECK_EVERY` decisions, so that no decision
@@ -249,6 +254,8 @@ def crowd_loop(
         if frames is not None:
             frames.add(env, info, valid.view(rooms, num_agents))
         step += 1
+        if progress is not None:
+            progress(step, int(env.active.sum()))
     stats = TrialStats.from_totals(
         totals,
         processes=driver.processes,

@@ -1,0 +1,56 @@
+"""A fused trial run in parts (for a progress bar) gives the numbers of one call, and a crowd too large to record
+every decision is recorded every few: the same frames, fewer of them."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from pedrl._numba import numba_available
+from pedrl.scenarios import paper_room
+from pedrl.sim.controllers import GreedyDoorController
+from pedrl.trial import fused
+from pedrl.trial.crowd import run_crowd
+
+pytestmark = pytest.mark.skipif(not numba_available(), reason="the fused trial is numba's")
+
+
+def recorded(monkeypatch=None, *, progress=None, record_bytes=None, every_call=None):
+    env = paper_room(width=8.0, length=10.0, door_width=1.2).room(num_replicas=3, num_agents=12)
+    env.reset(seed=3)
+    if monkeypatch is not None and record_bytes is not None:
+        monkeypatch.setattr(fused, "RECORD_BYTES", record_bytes)
+    if monkeypatch is not None and every_call is not None:
+        monkeypatch.setattr(fused, "PROGRESS_EVERY", every_call)
+    controller = GreedyDoorController(epsilon=0.3, generator=torch.Generator().manual_seed(5))
+    return run_crowd(env, controller, fused=True, record=True, progress=progress)
+
+
+def test_a_trial_in_parts_equals_one_call(monkeypatch):
+    whole = recorded()
+    calls = []
+    parts = recorded(monkeypatch, progress=lambda done, left: calls.append((done, left)), every_call=3 * 12 * 4)
+    assert len(calls) > 3  # four decisions a part
+    assert [done for done, _ in calls] == sorted(done for done, _ in calls)
+    assert calls[-1][1] == 0 and all(left > 0 for _, left in calls[:-1])
+    for name in ("positions", "velocities", "in_room", "left_at", "crashes", "speed_sum"):
+        assert np.array_equal(getattr(parts.record, name), getattr(whole.record, name)), name
+    assert parts.stats == whole.stats
+
+
+def test_a_crowd_too_large_to_record_is_recorded_every_few_decisions(monkeypatch):
+    whole = recorded().record
+    per_frame = 17 * 3 * 12
+    sampled = recorded(monkeypatch, record_bytes=per_frame * 8).record  # 8 frames fit
+    decisions = whole.positions.shape[1] - 1
+    assert sampled.every == -(-(fused_max_decisions() + 1) // 8) > 1
+    assert sampled.positions.shape[1] == -(-decisions // sampled.every) + 1
+    for frame in range(sampled.positions.shape[1] - 1):  # frame k after decision k * every
+        assert np.array_equal(sampled.positions[:, frame], whole.positions[:, frame * sampled.every])
+    assert np.array_equal(sampled.positions[:, -1], whole.positions[:, -1])  # and the end
+    assert np.array_equal(sampled.left_at, whole.left_at)  # exits are counted, not sampled
+
+
+def fused_max_decisions() -> int:
+    return paper_room(width=8.0, length=10.0, door_width=1.2).room(num_agents=12).max_decisions
