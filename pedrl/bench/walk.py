@@ -75,6 +75,7 @@ SIM_TIME: Final = 10.0
 """Simulated seconds per run (``--sim-time``); ``--quick``: :data:`QUICK_SIM_TIME`."""
 QUICK_SIM_TIME: Final = 3.0
 MIN_AGENTS, MAX_AGENTS = 10, 1_000_000
+"""The sizes ``--agents`` takes (10 agents: a hall of 5 m)."""
 MAX_SIM_TIME: Final = 3600.0
 SIMULATORS: Final = ("pedrl", "jupedsim")
 MARKERS: Final = ("<!-- walk-bench:start -->", "<!-- walk-bench:end -->")
@@ -257,8 +258,9 @@ def _in_subprocess(simulator: str, agents: int, sim_time: float) -> dict:
     return json.loads(lines[-1])
 
 
-def run(*, quick: bool = False, sizes: tuple[int, ...] | None = None, sim_time: float | None = None,
-        docs: str | None = None) -> dict:  # fmt: skip
+def run(
+    *, quick: bool = False, sizes: tuple[int, ...] | None = None, sim_time: float | None = None, docs: str | None = None
+) -> dict:
     """Both simulators at every size (``sizes``, default :data:`SIZES`, ``quick`` :data:`QUICK_SIZES`) for
     ``sim_time`` s (default :data:`SIM_TIME`, ``quick`` :data:`QUICK_SIM_TIME`); with ``docs``, the table written into
     that page between :data:`MARKERS`. JuPedSim is skipped, with a note, where it is not installed.
