@@ -13,6 +13,10 @@ Sections:
               trial's kernels against the torch loop, in agent-decisions/s and their ratio (target 3x at 100 agents)
     literal   the literal presets' nearest-prototype search at one thread, K = 4096: us/state of the scan against the
               batched search of pedrl.vq.pruned (the same ids), and the search's work per state
+    walk      pedrl's continuous walking layer (the greedy walker through the fused trial, one room of N) against
+              JuPedSim's collision-free speed model in the same hall at 0.4 persons/m^2, N = 100 to 100,000: wall time,
+              agent-steps/s (per core), their ratio, peak memory and linearity, each run in its own one-thread
+              process (--agents, --sim-time; --write-docs puts the table into docs/performance.md)
 """
 
 from __future__ import annotations
@@ -25,13 +29,15 @@ from pathlib import Path
 
 import torch
 
-SECTIONS = ("sim", "kmeans", "e2e", "eval", "literal")
+SECTIONS = ("sim", "kmeans", "e2e", "eval", "literal", "walk")
+PERFORMANCE_PAGE = "docs/performance.md"
 
 
 def _arguments(argv: list[str] | None) -> tuple[argparse.Namespace, list[int] | None, list[str]]:
     """The command line checked at the door (one line and exit code 2 for a mistake): the arguments, the e2e room
     counts and the sections to run; sets the thread count."""
-    from pedrl.common.commands import OneLineParser, integer_arg
+    from pedrl.bench import walk
+    from pedrl.common.commands import OneLineParser, integer_arg, number_arg
     from pedrl.io.files import output_problem
 
     parser = OneLineParser(prog="python -m pedrl.bench", description=__doc__.splitlines()[0])
@@ -50,7 +56,31 @@ def _arguments(argv: list[str] | None) -> tuple[argparse.Namespace, list[int] | 
     parser.add_argument(
         "--baseline", default=None, metavar="COMMIT", help="e2e: also measure COMMIT's code (temporary worktree), first"
     )
+    parser.add_argument(
+        "--agents",
+        default=None,
+        help="walk: comma-separated agent counts (default 100,1000,10000,100000; quick 100,1000)",
+    )
+    parser.add_argument(
+        "--sim-time",
+        type=number_arg(0.0, walk.MAX_SIM_TIME, low_open=True),
+        default=None,
+        help=f"walk: simulated seconds per run (default {walk.SIM_TIME:g}; quick {walk.QUICK_SIM_TIME:g})",
+    )
+    parser.add_argument(
+        "--write-docs",
+        nargs="?",
+        const=PERFORMANCE_PAGE,
+        default=None,
+        metavar="PAGE",
+        help=f"walk: write its table into PAGE between its marker comments (default {PERFORMANCE_PAGE})",
+    )
     args = parser.parse_args(argv)
+    try:
+        args.agents = walk.parse_agents(args.agents) if args.agents is not None else None
+        args.sim_time = walk.check_sim_time(args.sim_time) if args.sim_time is not None else None
+    except ValueError as err:
+        parser.error(str(err))
     rooms = None
     if args.rooms:
         try:
@@ -61,9 +91,10 @@ def _arguments(argv: list[str] | None) -> tuple[argparse.Namespace, list[int] | 
             parser.error(f"--rooms={args.rooms!r} is invalid: must be comma-separated integers >= 1, e.g. 1,4,16")
     if not (args.device == "cpu" or args.device == "cuda" or args.device.startswith("cuda:")):
         parser.error(f"--device={args.device!r} is invalid: must be cpu or cuda[:index]")
-    problem = output_problem(args.output)
-    if problem is not None:
-        parser.error(f"--output: {problem}")
+    for option, path in (("--output", args.output), ("--write-docs", args.write_docs)):
+        problem = output_problem(path) if path is not None else None
+        if problem is not None:
+            parser.error(f"{option}: {problem}")
     if args.threads is not None:
         torch.set_num_threads(args.threads)
         os.environ["OMP_NUM_THREADS"] = str(args.threads)  # the same for the --baseline subprocess
@@ -71,6 +102,8 @@ def _arguments(argv: list[str] | None) -> tuple[argparse.Namespace, list[int] | 
     unknown = sorted(set(sections) - set(SECTIONS))
     if unknown:
         parser.error(f"--only={args.only!r} names unknown sections {unknown}: allowed {', '.join(SECTIONS)}")
+    if args.write_docs is not None and "walk" not in sections:
+        parser.error(f"--write-docs is invalid with --only={args.only!r}: it writes the walk section's table")
     if args.device.startswith("cuda") and not torch.cuda.is_available():
         parser.error(f"--device={args.device!r} is invalid here: no CUDA GPU is available")
     return args, rooms, sections
@@ -119,6 +152,11 @@ def main(argv: list[str] | None = None) -> dict:
 
         print("literal encoding ...", flush=True)
         report.update(run_literal(quick=args.quick))
+    if "walk" in sections:
+        from pedrl.bench.walk import run as run_walk
+
+        print("walking layer against JuPedSim ...", flush=True)
+        report.update(run_walk(quick=args.quick, sizes=args.agents, sim_time=args.sim_time, docs=args.write_docs))
     output = Path(args.output)
     output.parent.mkdir(parents=True, exist_ok=True)
     previous = json.loads(output.read_text()) if output.exists() else {}

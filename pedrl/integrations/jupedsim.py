@@ -69,6 +69,7 @@ __all__ = [
     "JuPedSimRun",
     "JuPedSimRunError",
     "Scene",
+    "build_simulation",
     "check_model",
     "installed",
     "model_from_settings",
@@ -187,6 +188,29 @@ def simulate(
     )
     simulation, agents = _jupedsim_scene(jps, scenario, model, start)
     return _run_frames(simulation, agents, scenario, model, start, pass_waypoints=pass_waypoints)
+
+
+def build_simulation(
+    scenario: Scenario,
+    *,
+    positions: ArrayLike,
+    exit_index: ArrayLike,
+    waypoints: Sequence[Sequence[tuple[float, float]]],
+    model: JuPedSimModel | None = None,
+) -> Any:
+    """JuPedSim's ``Simulation`` of the start :func:`simulate` takes (the same arguments, checked alike), its agents
+    added and no step taken, for a caller that steps it itself (``python -m pedrl.bench --only walk`` times its
+    ``iterate``); it records nothing and passes no waypoint by the line past it.
+
+    Raises:
+        ModuleNotFoundError: jupedsim is not installed.
+        ValueError: one line, for a bad value.
+    """
+    jps = _import_jupedsim()
+    model = model if model is not None else JuPedSimModel()
+    checked = {"positions": positions, "exit_index": exit_index, "waypoints": waypoints}
+    start = _checked_start(scenario, model=model, **checked, max_time=model.dt, frame_rate=1.0 / model.dt)
+    return _jupedsim_scene(jps, scenario, model, start)[0]
 
 
 @dataclass(frozen=True)
