@@ -15,6 +15,7 @@ from typing import Any, Final
 
 import torch
 
+from pedrl._numba import numba_available
 from pedrl.common.checks import (
     check_device,
     check_integer,
@@ -150,6 +151,7 @@ class RoomEnv:
             device=self.device,
             advice="fewer agents or replicas (processes, rooms_per_process, trials_per_batch)",
         )
+        self._torch_memory_checked = False
         return area
 
     def _build(self, geometry: Geometry) -> None:
@@ -244,9 +246,13 @@ class RoomEnv:
         if self.spawns.has_routes:
             self.stage, self._targets = self.spawns.advance(self.positions, self.stage, self.exit_index)
 
-    def step_memory(self) -> int:
-        """Estimated peak bytes of one :meth:`step` (:func:`~pedrl.sim.room_checks.step_memory`)."""
-        return step_memory(self.num_replicas, self.num_agents, self.num_substeps, self.motion.rule)
+    def step_memory(self, *, fused: bool | None = None) -> int:
+        """Estimated peak bytes of one decision (:func:`~pedrl.sim.room_checks.step_memory`): of the fused trial's
+        kernels (linear in the agents) or of :meth:`step` (``fused=False``, every pair); None: the fused trial's
+        where it can run this room (on the CPU with numba)."""
+        if fused is None:
+            fused = self.device.type == "cpu" and numba_available() and self.params.fast_path_reason() is None
+        return step_memory(self.num_replicas, self.num_agents, self.num_substeps, self.motion.rule, fused=fused)
 
     # ------------------------------------------------------------------ public API
 
@@ -433,6 +439,14 @@ class RoomEnv:
         return movement, speeds, velocities
 
     def _observe(self, *, observers: torch.Tensor, sensed: torch.Tensor) -> Observation:
+        if not self._torch_memory_checked:  # the torch step senses every pair: refuse what cannot fit, once
+            check_memory(
+                {"the torch step's pairs (sensing, collisions)": self.step_memory(fused=False)},
+                device=self.device,
+                advice="fewer agents or replicas; on the CPU, pedrl-eval's fused trial (fused=null) senses through"
+                " grids of cells in memory linear in the agents",
+            )
+            self._torch_memory_checked = True
         sense = compiled_observe() if self.compile_sensing else observe
         return sense(
             positions=self.positions,

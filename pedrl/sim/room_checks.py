@@ -177,12 +177,20 @@ STATE_BYTES: Final = 128
 """Bytes per agent of the state, observations, rewards and flags of one decision."""
 
 
-def step_memory(num_replicas: int, num_agents: int, num_substeps: int, collision_rule: str) -> int:
-    """Estimated peak bytes of one ``RoomEnv.step``: the worst case, every pair of agents close enough to collide.
+GRID_BYTES: Final = 96
+"""Bytes per agent of the fused trial's grids of cells and scratch (cells, items, candidates)."""
 
-    Pairwise ``(R, N, N)`` matrices, plus the candidate pairs of the collision rule: ``R N (N - 1)`` ordered pairs,
-    each held once (sequential) or at every sub-step (simultaneous).
+
+def step_memory(
+    num_replicas: int, num_agents: int, num_substeps: int, collision_rule: str, *, fused: bool = False
+) -> int:
+    """Estimated peak bytes of one decision. ``fused``: of the fused trial's kernels, which find neighbours through
+    grids of cells (linear in the agents). Else of ``RoomEnv.step`` (the torch reference), the worst case, every
+    pair of agents close enough to collide: pairwise ``(R, N, N)`` matrices, plus the candidate pairs of the collision
+    rule, ``R N (N - 1)`` ordered pairs, each held once (sequential) or at every sub-step (simultaneous).
     """
+    if fused:
+        return num_replicas * num_agents * (STATE_BYTES + GRID_BYTES)
     ordered_pairs = num_replicas * num_agents * (num_agents - 1)
     per_pair = PAIR_BYTES_PER_SUBSTEP * num_substeps if collision_rule == "simultaneous" else PAIR_BYTES
     return num_replicas * num_agents * (STATE_BYTES + PAIRWISE_BYTES * num_agents) + ordered_pairs * per_pair
