@@ -165,9 +165,10 @@ def _last_ring(cells, cx, cy):
 
 
 @cached_njit(nogil=True)
-def _nearest_agents(i, x, y, points, cells, slots, values, index, scale, margin):
-    """The ``slots`` nearest others of agent ``i`` at ``(x, y)`` among the agents binned in ``cells`` (``points``
-    ``(N, 2)``) into ``values`` (squared distances) and ``index``, by a ring search; returns how many."""
+def _nearest_agents(i, x, y, binned, cells, slots, values, index, scale, margin):
+    """The ``slots`` nearest others of agent ``i`` at ``(x, y)`` among the agents binned in ``cells`` (``binned``:
+    their positions in the order of ``cells.items``) into ``values`` (squared distances) and ``index``, by a ring
+    search; returns how many."""
     cx, _, cy, _ = cell_range(cells, x, y, np.float32(0.0))
     count = 0
     for rho in range(_last_ring(cells, cx, cy) + 1):
@@ -177,7 +178,7 @@ def _nearest_agents(i, x, y, points, cells, slots, values, index, scale, margin)
                 for t in range(a, b):
                     j = cells.items[t]
                     if j != i:
-                        gap_x, gap_y = points[j, 0] - x, points[j, 1] - y
+                        gap_x, gap_y = binned[t, 0] - x, binned[t, 1] - y
                         count = _insert_keyed(values, index, count, slots, gap_x * gap_x + gap_y * gap_y, j)
         if _done(count, slots, values, rho, cells, scale, margin):
             break
@@ -242,16 +243,19 @@ def _bare():
 @cached_njit(nogil=True)
 def _agent_grid(points, use, slots):
     """The present agents binned in a grid over their box (a bare grid where no one is present or ``slots`` is 0),
-    and its slack (m)."""
+    their positions in the grid's order (read in sequence by the ring search), and its slack (m)."""
     count, low_x, low_y, high_x, high_y = _box(points, use)
     if count == 0 or slots == 0:
-        return _bare(), np.float32(0.0)
+        return _bare(), np.empty((0, 2), np.float32), np.float32(0.0)
     width, height = high_x - low_x, high_y - low_y
     near = np.float32(max(min(slots, count - 1), 1)) / np.float32(count)
     size = np.sqrt(width * height * near) if width * height > 0 else max(width, height) * near
     cells = make_cells(low_x, low_y, high_x, high_y, _CELL_SCALE * size, points.shape[0], count)
     bin_points(cells, points, use)
-    return cells, _margin(low_x, low_y, high_x, high_y)
+    binned = np.empty((count, 2), np.float32)
+    for t in range(count):
+        binned[t, 0], binned[t, 1] = points[cells.items[t], 0], points[cells.items[t], 1]
+    return cells, binned, _margin(low_x, low_y, high_x, high_y)
 
 
 @cached_njit(nogil=True)
@@ -332,16 +336,16 @@ def _sense_grid(r, state, present, walls, slots, w, first, scale, features, num_
     """:func:`sense_room` by the grids (module docstring), the agents queried cell by cell (near in memory)."""
     positions = state.positions
     near_d, wall_d, near_j, wall_s = distances[0], distances[1], indices[0], indices[1]
-    cells, margin = _agent_grid(positions[r], present[r], slots)
+    cells, binned, margin = _agent_grid(positions[r], present[r], slots)
     wall_grid = _wall_grid(positions[r], present[r], walls)
-    binned = cells.items.shape[0] > 0  # else no neighbour slot: by index
-    for query in range(cells.start[cells.start.shape[0] - 1] if binned else positions.shape[1]):
-        i = cells.items[query] if binned else query
+    listed = binned.shape[0] > 0  # else no neighbour slot: by index
+    for query in range(binned.shape[0] if listed else positions.shape[1]):
+        i = cells.items[query] if listed else query
         if not present[r, i]:
             continue
         x, y = positions[r, i, 0], positions[r, i, 1]
         phi = _goal_features(r, i, state, features)
-        count = _nearest_agents(i, x, y, positions[r], cells, slots, near_d, near_j, scale, margin) if binned else 0
+        count = _nearest_agents(i, x, y, binned, cells, slots, near_d, near_j, scale, margin) if listed else 0
         _near_features(r, i, state, phi, count, near_d, near_j, features, num_sensed)
         count = 0
         if wall_grid[2].shape[0] > 0 and w > 0:
