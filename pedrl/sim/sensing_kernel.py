@@ -22,7 +22,8 @@ bound on the distance to everything in the unvisited cells. The result is the sc
   the same squared distances whichever order the candidates come in;
 - a wall segment is listed in every cell it passes within the slack of (:func:`pedrl.sim.grid_kernel.bin_segments`),
   so a segment not met is in no visited cell; each segment is measured once per query (a stamp per segment); the
-  segments not wholly inside the grid's box (the padding points far away) are measured by every query.
+  segments not wholly inside the crowd's box widened by its larger side (the padding points far away) are left out
+  of the grid and measured by every query.
 
 ``search[1]`` (``reach_scale``, 1) is the tests' control: below 1 the bound trusts part of the next ring, at 0 one
 whole ring, so the search stops a ring early and misses neighbours.
