@@ -129,7 +129,7 @@ def _run_process(
             _record(r, 0, state, active, trace)
         if random_void:
             draw_void(r, void, streams)
-        sense_room(r, state, active, walls, k, w, features, num_sensed, distances, indices)
+        sense_room(r, state, active, walls, k, w, room.search, features, num_sensed, distances, indices)
         if not greedy:
             encode_room(r, process_of[r], active, base_rows, rows, features, num_sensed, void, settings, encoder,
                         tree, pruned, buffers)  # fmt: skip
@@ -150,7 +150,7 @@ def _run_process(
                 _record(r, (steps + trace.every) // trace.every, state, acting, trace)
             if random_void and learning.void_each_decision:
                 draw_void(r, void, streams)
-            sense_room(r, state, events.in_room, walls, k, w, features, num_sensed, distances, indices)
+            sense_room(r, state, events.in_room, walls, k, w, room.search, features, num_sensed, distances, indices)
             if not greedy:
                 encode_room(r, process_of[r], events.in_room, base_rows, next_rows, features, num_sensed, void,
                             settings, encoder, tree, pruned, buffers)  # fmt: skip

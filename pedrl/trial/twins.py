@@ -146,8 +146,9 @@ def check_twins(
         mine = env.state.arrays()
         in_room = (acting & ~terminated).numpy()  # terminated: passed any exit
         for r in range(rooms):
-            sense_room(r, mine, in_room, inputs.walls, env.num_neighbours, env.num_walls, features, num_sensed,
-                       np.empty((2, size), np.float32), np.empty((2, size), np.int64))  # fmt: skip
+            sense_room(r, mine, in_room, inputs.walls, env.num_neighbours, env.num_walls, inputs.room.search,
+                       features, num_sensed, np.empty((2, size), np.float32),
+                       np.empty((2, size), np.int64))  # fmt: skip
         if not np.array_equal(num_sensed, info["num_sensed"].numpy()):
             report.other.append(f"decision {report.decisions}: the numbers of sensed neighbours differ")
         present = torch.from_numpy(in_room)

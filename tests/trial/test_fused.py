@@ -69,10 +69,10 @@ def fused_features(env: RoomEnv, present: torch.Tensor) -> tuple[np.ndarray, np.
     features = np.zeros((rooms, agents, env.num_features), np.float32)
     num_sensed = np.zeros((rooms, agents), np.int64)
     size = max(agents, env.geometry.num_walls)
-    state = env.state.arrays()
+    state, search = env.state.arrays(), env.params.kernel_room(env).search
     for r in range(rooms):
-        sense_room(r, state, present.numpy(), env.geometry.kernel_walls(), env.num_neighbours, env.num_walls, features,
-                   num_sensed, np.empty((2, size), np.float32), np.empty((2, size), np.int64))  # fmt: skip
+        sense_room(r, state, present.numpy(), env.geometry.kernel_walls(), env.num_neighbours, env.num_walls, search,
+                   features, num_sensed, np.empty((2, size), np.float32), np.empty((2, size), np.int64))  # fmt: skip
     return features, num_sensed
 
 
