@@ -160,8 +160,7 @@ def parse_agents(text: str) -> tuple[int, ...]:
 def walk_pedrl(agents: int, sim_time: float, *, seed: int = 0) -> dict:
     """pedrl's walk of the scene (module docstring), timed; the room refuses in one line what it cannot hold."""
     from pedrl.sim.controllers import GreedyDoorController
-    from pedrl.trial.crowd import choose_path
-    from pedrl.trial.fused import record_trial_fused
+    from pedrl.trial.crowd import choose_path, run_crowd
 
     scenario, positions = hall(agents), start_positions(agents, seed=seed)
     env = scenario.room(room_params(_decisions(sim_time)), num_agents=agents)
@@ -169,12 +168,12 @@ def walk_pedrl(agents: int, sim_time: float, *, seed: int = 0) -> dict:
     walker = GreedyDoorController()
     choose_path([env], walker, True, record=True, placed=True)  # one line where the fused trial cannot run
     start = time.perf_counter()
-    trace = record_trial_fused(env, walker, reset=False)
+    record = run_crowd(env, walker, fused=True, record=True, start="placed").record
     seconds = time.perf_counter() - start
     return {
         "wall_s": seconds,
-        "agent_steps": int(trace.totals[5].sum()) * env.num_substeps,
-        "agents_left": int(trace.totals[3].sum()),
+        "agent_steps": int(record.speed_count.sum()) * env.num_substeps,
+        "agents_left": int((record.left_at >= 0).sum()),
         "same_exits_share": float((env.exit_index[0].numpy() == nearest_exits(positions, scenario)).mean()),
         "time_step_s": env.decision_length / env.num_substeps,
     }

@@ -246,13 +246,13 @@ class RoomEnv:
         if self.spawns.has_routes:
             self.stage, self._targets = self.spawns.advance(self.positions, self.stage, self.exit_index)
 
-    def step_memory(self, *, fused: bool | None = None) -> int:
+    def step_memory(self, *, kernels: bool | None = None) -> int:
         """Estimated peak bytes of one decision (:func:`~pedrl.sim.room_checks.step_memory`): of the fused trial's
-        kernels (linear in the agents) or of :meth:`step` (``fused=False``, every pair); None: the fused trial's
-        where it can run this room (on the CPU with numba)."""
-        if fused is None:
-            fused = self.device.type == "cpu" and numba_available() and self.params.fast_path_reason() is None
-        return step_memory(self.num_replicas, self.num_agents, self.num_substeps, self.motion.rule, fused=fused)
+        kernels (linear in the agents) or of :meth:`step` (``kernels=False``, every pair); None: the kernels' where
+        they can run this room (on the CPU with numba)."""
+        if kernels is None:
+            kernels = self.device.type == "cpu" and numba_available() and self.params.fast_path_reason() is None
+        return step_memory(self.num_replicas, self.num_agents, self.num_substeps, self.motion.rule, kernels=kernels)
 
     # ------------------------------------------------------------------ public API
 
@@ -441,7 +441,7 @@ class RoomEnv:
     def _observe(self, *, observers: torch.Tensor, sensed: torch.Tensor) -> Observation:
         if not self._torch_memory_checked:  # the torch step senses every pair: refuse what cannot fit, once
             check_memory(
-                {"the torch step's pairs (sensing, collisions)": self.step_memory(fused=False)},
+                {"the torch step's pairs (sensing, collisions)": self.step_memory(kernels=False)},
                 device=self.device,
                 advice="fewer agents or replicas; on the CPU, pedrl-eval's fused trial (fused=null) senses through"
                 " grids of cells in memory linear in the agents",

@@ -182,14 +182,14 @@ GRID_BYTES: Final = 96
 
 
 def step_memory(
-    num_replicas: int, num_agents: int, num_substeps: int, collision_rule: str, *, fused: bool = False
+    num_replicas: int, num_agents: int, num_substeps: int, collision_rule: str, *, kernels: bool = False
 ) -> int:
-    """Estimated peak bytes of one decision. ``fused``: of the fused trial's kernels, which find neighbours through
+    """Estimated peak bytes of one decision. ``kernels``: of the fused trial's kernels, which find neighbours through
     grids of cells (linear in the agents). Else of ``RoomEnv.step`` (the torch reference), the worst case, every
     pair of agents close enough to collide: pairwise ``(R, N, N)`` matrices, plus the candidate pairs of the collision
     rule, ``R N (N - 1)`` ordered pairs, each held once (sequential) or at every sub-step (simultaneous).
     """
-    if fused:
+    if kernels:
         return num_replicas * num_agents * (STATE_BYTES + GRID_BYTES)
     ordered_pairs = num_replicas * num_agents * (num_agents - 1)
     per_pair = PAIR_BYTES_PER_SUBSTEP * num_substeps if collision_rule == "simultaneous" else PAIR_BYTES

@@ -19,7 +19,7 @@ agree within the tolerances of :mod:`pedrl.trial.twins`, not to the bit: their r
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
-from typing import Any, NamedTuple
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 import torch
@@ -75,18 +75,21 @@ def run_crowd(
     *,
     fused: bool | None,
     record: bool = False,
-    start: tuple[torch.Tensor, Mapping[str, Any]] | None = None,
+    start: tuple[torch.Tensor, Mapping[str, Any]] | Literal["placed"] | None = None,
     progress: Progress | None = None,
 ) -> CrowdRun:
     """One trial in every room of ``env``, acted by ``controller`` (see :func:`choose_path`), on the path
     :func:`choose_path` chooses for ``fused``: its statistics and, with ``record``, its recording.
 
     It starts from a reset (``env``'s generator draws the scenes) or from ``start``, the ``(obs, info)`` of a reset
-    the caller made (placed agents). A :class:`~pedrl.trial.loop.Learner` draws the fused trial's seed from its
-    generator; a controller its own ``epsilon`` and ``generator``. ``progress`` (a recorded trial's) is called with
+    the caller made (placed agents), or ``"placed"``: the caller placed them with :meth:`RoomEnv.place` (no
+    observation: a crowd of any size, through the fused trial only). A :class:`~pedrl.trial.loop.Learner` draws the
+    fused trial's seed from its generator; a controller its own ``epsilon`` and ``generator``. ``progress`` (a recorded trial's) is called with
     the decisions taken and the agents left, now and then (:data:`pedrl.trial.fused.Progress`).
     """
     if choose_path([env], controller, fused, record=record, placed=start is not None).name == "torch":
+        if start == "placed":
+            raise ValueError("start='placed' is invalid here: the torch loop starts from a reset's observation")
         return crowd_loop(env, controller, record=record, start=start, progress=progress)
     if isinstance(controller, Learner):
         return CrowdRun(run_trial_fused(env, controller), None)

@@ -100,7 +100,7 @@ def test_a_crowd_of_100000_is_built_for_the_fused_trial_and_refused_by_the_torch
     """The memory check of a room counts the fused trial's linear grids where it runs the room; the torch step, which
     senses every pair (40 GiB a thousand million pairs), refuses in one line before it allocates them."""
     env = paper_room(width=500.0, length=500.0, door_width=4.0).room(num_agents=100_000, agent_radius=0.2)
-    assert env.step_memory() < 1 << 30 < env.step_memory(fused=False)
+    assert env.step_memory() < 1 << 30 < env.step_memory(kernels=False)
     env.place(seed=0)  # the fused trial's reset
     assert int(env.active.sum()) == 100_000
     with pytest.raises(ValueError, match=r"^this run needs about .* pairs .*fused trial") as error:

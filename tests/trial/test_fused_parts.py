@@ -54,3 +54,16 @@ def test_a_crowd_too_large_to_record_is_recorded_every_few_decisions(monkeypatch
 
 def fused_max_decisions() -> int:
     return paper_room(width=8.0, length=10.0, door_width=1.2).room(num_agents=12).max_decisions
+
+
+def test_a_placed_crowd_runs_through_the_fused_trial_only():
+    """``start="placed"`` (agents placed by ``RoomEnv.place``, no observation): the fused trial walks them from where
+    they stand; the torch loop, which needs a reset's observation, refuses in one line."""
+    env = paper_room(width=8.0, length=10.0, door_width=1.2).room(num_replicas=1, num_agents=12)
+    env.place(seed=0)
+    start = env.positions.clone()
+    record = run_crowd(env, GreedyDoorController(), fused=True, record=True, start="placed").record
+    assert np.array_equal(record.positions[:, 0], start.numpy())
+    with pytest.raises(ValueError, match=r"^start='placed' is invalid here: the torch loop") as error:
+        run_crowd(env, GreedyDoorController(), fused=False, start="placed")
+    assert "\n" not in str(error.value)
