@@ -180,10 +180,11 @@ STEERING_CUTOFF: Final = -20.0
 ``2e-9`` of its strength (the rule is otherwise unchanged; it bounds the work to the bodies and walls nearby)."""
 
 
-GRID_MIN_AGENTS: Final = 48
+GRID_MIN_AGENTS: Final = 80
 """Rooms with at least this many agents find neighbours in grids of cells (:mod:`pedrl.sim.grid_kernel`, linear time),
-the others over all pairs: below it building the grid costs more than it saves (``python -m pedrl.bench --only
-walk``). The numbers are the same either way."""
+the others over all pairs. The numbers are the same either way; measured on the walking layer (20 sub-steps a
+decision), the grid took 1.15-1.2x the pairs' time at 40 agents, 0.9-1.1x at 60 and 0.75-1.0x at 100
+(``docs/performance.md``)."""
 
 
 def search_array(min_agents: int = GRID_MIN_AGENTS, reach_scale: float = 1.0) -> np.ndarray:
