@@ -15,6 +15,7 @@ from pedrl.algos.registry import env_factory
 from pedrl.scenarios import SCENARIOS
 from pedrl.sim.actions import NUM_ACTIONS
 from pedrl.sim.motion import CONTACT_MODELS
+from pedrl.sim.motion.common import search_array
 from pedrl.sim.state import RoomState
 from pedrl.trial import fused
 from pedrl.trial.twins import TOLERANCES, check_twins
@@ -23,7 +24,7 @@ from tests.trial.test_fused import policies
 
 pytestmark = pytest.mark.skipif(not numba_available(), reason="numba is off (PEDRL_NO_NUMBA)")
 
-AGENTS = {"paper_room": 20, "bottleneck": 24, "corridor": 24, "corner": 7, "four_exits": 30}
+AGENTS = {"paper_room": 20, "bottleneck": 24, "corridor": 24, "corner": 7, "four_exits": 30, "hall": 30}
 BUILT_IN = [name for name in SCENARIOS if name != "custom"]  # custom is a WKT file of the user's
 
 
@@ -110,6 +111,38 @@ def test_a_kernel_that_walks_too_fast_fails_the_harness(monkeypatch):
     monkeypatch.setattr(fused, "room_inputs", faster)
     report = check_twins(room("paper_room", "stop"), scenario_policies("paper_room")["shared"], seed=7)
     assert any(failure.startswith(("position", "speed")) for failure in report.failures())
+
+
+def _search(monkeypatch, **search):
+    """The kernel path's neighbour search set to ``search_array(**search)`` (its grids forced, or shrunk)."""
+    original = fused.room_inputs
+
+    def searching(env):
+        inputs = original(env)
+        return inputs._replace(room=inputs.room._replace(search=search_array(**search)))
+
+    monkeypatch.setattr(fused, "room_inputs", searching)
+
+
+@pytest.mark.parametrize(("contact", "motion"), [("stop", "step"), ("yield", "step"), ("yield", "continuous")])
+@pytest.mark.parametrize("name", BUILT_IN)
+def test_the_kernels_grids_match_the_torch_pairs_through_whole_trials(monkeypatch, name, contact, motion):
+    """The kernels' grids of cells forced at every size (motion, contacts, sensing) against the torch loop, which
+    compares every pair: the same tolerances."""
+    _search(monkeypatch, min_agents=0)
+    policy = scenario_policies(name)["shared"]
+    policy.q_values.normal_(generator=torch.Generator().manual_seed(1))
+    report = check_twins(room(name, contact, "goal", motion=motion), policy, seed=7)
+    assert report.failures() == []
+    assert report.decisions >= 10 and report.agent_decisions > 100
+
+
+def test_grids_that_drop_neighbours_fail_the_harness(monkeypatch):
+    """The control: grids whose reach is halved (neighbours beyond it dropped) are caught."""
+    _search(monkeypatch, min_agents=0, reach_scale=0.5)
+    policy = scenario_policies("four_exits")["shared"]
+    report = check_twins(room("four_exits", "yield", "goal", motion="continuous"), policy, seed=7)
+    assert report.failures()
 
 
 def test_the_tolerances_are_the_declared_ones():
