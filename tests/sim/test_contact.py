@@ -37,7 +37,7 @@ RULES = ("slide", "headway", "yield")
 ACCELERATE = 8 * NUM_TURNS + 4  # full speed up, no turn
 NOOP = 4 * NUM_TURNS + 4
 BUILT_IN = [name for name in SCENARIOS if name != "custom"]
-AGENTS = {"paper_room": 20, "bottleneck": 30, "corridor": 30, "corner": 7, "four_exits": 40}
+AGENTS = {"paper_room": 20, "bottleneck": 30, "corridor": 30, "corner": 7, "four_exits": 40, "hall": 100}
 
 needs_numba = pytest.mark.skipif(not numba_available(), reason="numba is off (PEDRL_NO_NUMBA)")
 
