@@ -5,11 +5,11 @@ relative (``tests/trial/test_twins.py`` states and checks the tolerances).
 
 The ``k`` nearest others and the ``w`` nearest walls are chosen by squared distance, as the scan over every agent
 (every wall) in index order chooses them: the least by the key ``(squared distance, index)``, nearest first
-(:func:`_insert` puts a later equal value after). In a room of at least ``search[0]`` agents
+(:func:`_insert`: a later equal value goes after). In a room of at least ``search[0]`` agents
 (:func:`pedrl.sim.motion.common.search_array`) a uniform grid of cells (:mod:`pedrl.sim.grid_kernel`) replaces the
 scan over the agents, and, where there are at least :data:`_WALL_GRID_MIN` segments, a second grid the scan over the
 walls: linear time in the crowd instead of quadratic. A query visits the cells ring by ring (Chebyshev distance
-``rho`` from its own cell), keeps the best by the same key (:func:`_insert_keyed`: candidates come in any order),
+``rho`` from its own cell), keeps the best by the same key (:func:`_insert`, whatever order the candidates come in),
 and stops once it holds its ``k`` and the ``k``-th squared distance is below the square of :func:`_covered`, a lower
 bound on the distance to everything in the unvisited cells. The result is the scan's to the bit
 (``tests/sim/test_grid_sensing.py``), because
@@ -84,30 +84,9 @@ def _wall_offset(x, y, s, walls):
 
 @cached_njit(nogil=True, inline="always")
 def _insert(values, index, count, size, value, item):
-    """Insert ``value`` (of ``item``) into the ascending ``values[:count]`` kept to ``size`` entries (a later equal
-    value goes after); returns the new count."""
-    if size == 0:
-        return count
-    if count < size:
-        place = count
-        count += 1
-    elif value < values[size - 1]:
-        place = size - 1
-    else:
-        return count
-    while place > 0 and values[place - 1] > value:
-        values[place] = values[place - 1]
-        index[place] = index[place - 1]
-        place -= 1
-    values[place] = value
-    index[place] = item
-    return count
-
-
-@cached_njit(nogil=True, inline="always")
-def _insert_keyed(values, index, count, size, value, item):
-    """:func:`_insert` by the key ``(value, item)``: candidates met in any order kept as the scan in index order keeps
-    them."""
+    """Insert ``value`` (of ``item``) into ``values[:count]``, ascending by the key ``(value, item)`` and kept to
+    ``size`` entries; returns the new count. Candidates met in any order are kept as a scan in index order keeps
+    them (a later equal value after)."""
     if size == 0:
         return count
     if count < size:
@@ -180,7 +159,7 @@ def _nearest_agents(i, x, y, binned, cells, slots, values, index, scale, margin)
                     j = cells.items[t]
                     if j != i:
                         gap_x, gap_y = binned[t, 0] - x, binned[t, 1] - y
-                        count = _insert_keyed(values, index, count, slots, gap_x * gap_x + gap_y * gap_y, j)
+                        count = _insert(values, index, count, slots, gap_x * gap_x + gap_y * gap_y, j)
         if _done(count, slots, values, rho, cells, scale, margin):
             break
     return count
@@ -196,7 +175,7 @@ def _nearest_walls(i, x, y, walls, grid, size, values, index, scale):
         s = outside[t]
         stamp[s] = i
         off_x, off_y = _wall_offset(x, y, s, walls)
-        count = _insert_keyed(values, index, count, size, off_x * off_x + off_y * off_y, s)
+        count = _insert(values, index, count, size, off_x * off_x + off_y * off_y, s)
     cx, _, cy, _ = cell_range(cells, x, y, np.float32(0.0))
     for rho in range(_last_ring(cells, cx, cy) + 1):
         for row in range(max(cy - rho, 0), min(cy + rho, cells.shape[1] - 1) + 1):
@@ -207,7 +186,7 @@ def _nearest_walls(i, x, y, walls, grid, size, values, index, scale):
                     if stamp[s] != i:
                         stamp[s] = i
                         off_x, off_y = _wall_offset(x, y, s, walls)
-                        count = _insert_keyed(values, index, count, size, off_x * off_x + off_y * off_y, s)
+                        count = _insert(values, index, count, size, off_x * off_x + off_y * off_y, s)
         if _done(count, size, values, rho, cells, scale, margin):
             break
     return count

@@ -34,16 +34,24 @@ SEARCH = search_array()
 
 
 @cached_njit(nogil=True, inline="always")
-def _nearest_wall_kernel(x, y, starts, directions, inverse):
-    """Squared distance to the nearest wall and that wall (``pedrl.sim.motion.sliding._nearest_wall`` of one point): the
-    projection clamped to each segment."""
+def _from_wall(x, y, s, starts, directions, inverse):
+    """``(x, y)`` minus the closest point of wall ``s``: the projection clamped to the segment."""
+    along = ((x - starts[s, 0]) * directions[s, 0] + (y - starts[s, 1]) * directions[s, 1]) * inverse[s]
+    along = min(max(along, np.float32(0.0)), np.float32(1.0))
+    return x - (starts[s, 0] + along * directions[s, 0]), y - (starts[s, 1] + along * directions[s, 1])
+
+
+@cached_njit(nogil=True, inline="always")
+def _nearest_wall_kernel(x, y, starts, directions, inverse, walls, c):
+    """Squared distance to the nearest wall and that wall (``pedrl.sim.motion.sliding._nearest_wall`` of one point):
+    over every wall, or (``c >= 0``) over those listed in cell ``c`` of ``walls`` (ascending: the same first
+    minimum)."""
     nearest = np.float32(np.inf)
     index = 0
-    for s in range(starts.shape[0]):
-        along = ((x - starts[s, 0]) * directions[s, 0] + (y - starts[s, 1]) * directions[s, 1]) * inverse[s]
-        along = min(max(along, np.float32(0.0)), np.float32(1.0))
-        gap_x = x - (starts[s, 0] + along * directions[s, 0])
-        gap_y = y - (starts[s, 1] + along * directions[s, 1])
+    first, last = (walls.start[c], walls.start[c + 1]) if c >= 0 else (0, starts.shape[0])
+    for k in range(first, last):
+        s = walls.items[k] if c >= 0 else k
+        gap_x, gap_y = _from_wall(x, y, s, starts, directions, inverse)
         distance_sq = gap_x * gap_x + gap_y * gap_y
         if distance_sq < nearest:
             nearest = distance_sq
@@ -52,19 +60,25 @@ def _nearest_wall_kernel(x, y, starts, directions, inverse):
 
 
 @cached_njit(nogil=True, inline="always")
-def _nearest_body(x, y, mover, current, present_row):
-    """Squared distance to the nearest present body other than ``mover``, and that body."""
+def _nearest_body(x, y, mover, here_x, here_y, current, present_row, grid, cells, reach):
+    """Squared distance to the nearest present body other than ``mover``, and that body: over every body, or (``grid``)
+    over those binned within ``reach`` of ``(here_x, here_y)``, the first minimum by index either way."""
     nearest = np.float32(np.inf)
     index = 0
-    for j in range(current.shape[0]):
-        if j == mover or not present_row[j]:
-            continue
-        gap_x = x - current[j, 0]
-        gap_y = y - current[j, 1]
-        distance_sq = gap_x * gap_x + gap_y * gap_y
-        if distance_sq < nearest:
-            nearest = distance_sq
-            index = j
+    x0, x1, y0, y1 = cell_range(cells, here_x, here_y, reach) if grid else (0, 0, 0, 0)
+    nx = cells.shape[0]
+    for row in range(y0, y1 + 1):
+        first, last = (cells.start[row * nx + x0], cells.start[row * nx + x1 + 1]) if grid else (0, current.shape[0])
+        for k in range(first, last):
+            j = cells.items[k] if grid else k
+            if j == mover or not present_row[j]:
+                continue
+            gap_x = x - current[j, 0]
+            gap_y = y - current[j, 1]
+            distance_sq = gap_x * gap_x + gap_y * gap_y
+            if distance_sq < nearest or (distance_sq == nearest and j < index):
+                nearest = distance_sq
+                index = j
     return nearest, index
 
 
@@ -85,38 +99,6 @@ def _push(fx, fy, dx, dy, limit, strength, reach):
 
 
 @cached_njit(nogil=True, inline="always")
-def _steer(i, r, velocities, current, present_row, starts, directions, inverse, radius, diameter, steering):
-    """The wanted velocity of mover ``i`` under ``motion=continuous`` (``pedrl.sim.motion.sliding.steer`` of one
-    agent): its commanded speed along the direction rule's unit vector. ``steering`` is ``(a, D, b, B)``."""
-    zero = np.float32(0.0)
-    cx = velocities[r, i, 0]
-    cy = velocities[r, i, 1]
-    speed = np.sqrt(cx * cx + cy * cy)
-    if not speed > zero:
-        return zero, zero
-    ex = cx / speed
-    ey = cy / speed
-    fx = ex
-    fy = ey
-    x = current[i, 0]
-    y = current[i, 1]
-    for j in range(current.shape[0]):
-        if j == i or not present_row[j]:
-            continue
-        fx, fy = _push(fx, fy, x - current[j, 0], y - current[j, 1], diameter, steering[0], steering[1])
-    for s in range(starts.shape[0]):
-        along = ((x - starts[s, 0]) * directions[s, 0] + (y - starts[s, 1]) * directions[s, 1]) * inverse[s]
-        along = min(max(along, zero), np.float32(1.0))
-        dx = x - (starts[s, 0] + along * directions[s, 0])
-        dy = y - (starts[s, 1] + along * directions[s, 1])
-        fx, fy = _push(fx, fy, dx, dy, radius, steering[2], steering[3])
-    norm = np.sqrt(fx * fx + fy * fy)
-    if norm > zero:
-        return fx / norm * speed, fy / norm * speed
-    return ex * speed, ey * speed
-
-
-@cached_njit(nogil=True, inline="always")
 def _cell_of(cells, x, y):
     """The index of the cell holding ``(x, y)``."""
     x0, _, y0, _ = cell_range(cells, x, y, np.float32(0.0))
@@ -124,51 +106,12 @@ def _cell_of(cells, x, y):
 
 
 @cached_njit(nogil=True, inline="always")
-def _listed_wall(x, y, walls, c, starts, directions, inverse):
-    """:func:`_nearest_wall_kernel` over the segments listed in cell ``c`` of ``walls`` (ascending: the same first
-    minimum)."""
-    nearest = np.float32(np.inf)
-    index = 0
-    for k in range(walls.start[c], walls.start[c + 1]):
-        s = walls.items[k]
-        along = ((x - starts[s, 0]) * directions[s, 0] + (y - starts[s, 1]) * directions[s, 1]) * inverse[s]
-        along = min(max(along, np.float32(0.0)), np.float32(1.0))
-        gap_x = x - (starts[s, 0] + along * directions[s, 0])
-        gap_y = y - (starts[s, 1] + along * directions[s, 1])
-        distance_sq = gap_x * gap_x + gap_y * gap_y
-        if distance_sq < nearest:
-            nearest = distance_sq
-            index = s
-    return nearest, index
-
-
-@cached_njit(nogil=True, inline="always")
-def _near_body(x, y, mover, here_x, here_y, current, present_row, cells, reach):
-    """:func:`_nearest_body` over the bodies binned within ``reach`` of ``(here_x, here_y)``, the first minimum by
-    index as the loop over all."""
-    nearest = np.float32(np.inf)
-    index = 0
-    x0, x1, y0, y1 = cell_range(cells, here_x, here_y, reach)
-    nx = cells.shape[0]
-    for cy in range(y0, y1 + 1):
-        for k in range(cells.start[cy * nx + x0], cells.start[cy * nx + x1 + 1]):
-            j = cells.items[k]
-            if j == mover or not present_row[j]:
-                continue
-            gap_x = x - current[j, 0]
-            gap_y = y - current[j, 1]
-            distance_sq = gap_x * gap_x + gap_y * gap_y
-            if distance_sq < nearest or (distance_sq == nearest and j < index):
-                nearest = distance_sq
-                index = j
-    return nearest, index
-
-
-@cached_njit(nogil=True, inline="always")
-def _steer_grid(i, r, velocities, current, present_row, cells, walls, c, starts, directions, inverse, radius,
-                diameter, steering, reach, near):  # fmt: skip
-    """:func:`_steer` over the bodies binned within ``reach`` (the direction rule's cut-off) and the walls listed in
-    the mover's cell ``c``, summed in index order as :func:`_steer` sums them; ``near`` ``(N,)`` int64 scratch."""
+def _steer(i, r, velocities, current, present_row, starts, directions, inverse, radius, diameter, steering, grid,
+           cells, walls, c, reach, near):  # fmt: skip
+    """The wanted velocity of mover ``i`` under ``motion=continuous`` (``pedrl.sim.motion.sliding.steer`` of one
+    agent): its commanded speed along the direction rule's unit vector. ``steering`` is ``(a, D, b, B)``. With
+    ``grid``, over the bodies binned within ``reach`` (the rule's cut-off) and the walls listed in the mover's cell
+    ``c``, summed in index order as the loop over all sums them; ``near`` ``(N,)`` int64 scratch."""
     zero = np.float32(0.0)
     cx = velocities[r, i, 0]
     cy = velocities[r, i, 1]
@@ -181,30 +124,32 @@ def _steer_grid(i, r, velocities, current, present_row, cells, walls, c, starts,
     fy = ey
     x = current[i, 0]
     y = current[i, 1]
-    count = 0  # the bodies whose term survives the cut-off, then summed in index order
-    x0, x1, y0, y1 = cell_range(cells, x, y, reach)
-    nx = cells.shape[0]
-    for row in range(y0, y1 + 1):
-        for k in range(cells.start[row * nx + x0], cells.start[row * nx + x1 + 1]):
-            j = cells.items[k]
-            if j == i or not present_row[j]:
-                continue
-            dx = x - current[j, 0]
-            dy = y - current[j, 1]
-            distance = np.sqrt(dx * dx + dy * dy)
-            if (diameter - distance) / steering[1] > _CUTOFF and distance > zero:
-                near[count] = j
-                count += 1
-    near[:count].sort()
-    for k in range(count):
-        j = near[k]
-        fx, fy = _push(fx, fy, x - current[j, 0], y - current[j, 1], diameter, steering[0], steering[1])
-    for k in range(walls.start[c], walls.start[c + 1]):
-        s = walls.items[k]
-        along = ((x - starts[s, 0]) * directions[s, 0] + (y - starts[s, 1]) * directions[s, 1]) * inverse[s]
-        along = min(max(along, zero), np.float32(1.0))
-        dx = x - (starts[s, 0] + along * directions[s, 0])
-        dy = y - (starts[s, 1] + along * directions[s, 1])
+    if grid:  # the bodies whose term survives the cut-off, then summed in index order
+        count = 0
+        x0, x1, y0, y1 = cell_range(cells, x, y, reach)
+        nx = cells.shape[0]
+        for row in range(y0, y1 + 1):
+            for k in range(cells.start[row * nx + x0], cells.start[row * nx + x1 + 1]):
+                j = cells.items[k]
+                if j == i or not present_row[j]:
+                    continue
+                dx = x - current[j, 0]
+                dy = y - current[j, 1]
+                distance = np.sqrt(dx * dx + dy * dy)
+                if (diameter - distance) / steering[1] > _CUTOFF and distance > zero:
+                    near[count] = j
+                    count += 1
+        near[:count].sort()
+        for k in range(count):
+            j = near[k]
+            fx, fy = _push(fx, fy, x - current[j, 0], y - current[j, 1], diameter, steering[0], steering[1])
+    else:
+        for j in range(current.shape[0]):
+            if j != i and present_row[j]:
+                fx, fy = _push(fx, fy, x - current[j, 0], y - current[j, 1], diameter, steering[0], steering[1])
+    first, last = (walls.start[c], walls.start[c + 1]) if grid else (0, starts.shape[0])
+    for k in range(first, last):
+        dx, dy = _from_wall(x, y, walls.items[k] if grid else k, starts, directions, inverse)
         fx, fy = _push(fx, fy, dx, dy, radius, steering[2], steering[3])
     norm = np.sqrt(fx * fx + fy * fy)
     if norm > zero:
@@ -301,16 +246,12 @@ def sliding_room(
         if steer:  # the direction rule, from the positions at the start of the sub-step
             for i in range(num_agents):
                 wanted[i, 0], wanted[i, 1] = zero, zero
-                if present[r, i] and grid:
-                    c = _cell_of(cells, current[i, 0], current[i, 1])
-                    wanted[i, 0], wanted[i, 1] = _steer_grid(
-                        i, r, velocities, current, present[r], cells, walls, c, starts, directions, inverse, radius,
-                        diameter, steering, steer_reach, near,
-                    )  # fmt: skip
-                elif present[r, i]:
+                if present[r, i]:
+                    c = _cell_of(cells, current[i, 0], current[i, 1]) if grid else -1
                     wanted[i, 0], wanted[i, 1] = _steer(
-                        i, r, velocities, current, present[r], starts, directions, inverse, radius, diameter, steering
-                    )
+                        i, r, velocities, current, present[r], starts, directions, inverse, radius, diameter, steering,
+                        grid, cells, walls, c, steer_reach, near,
+                    )  # fmt: skip
         for i in range(num_agents):  # headway_factors, from the positions at the start of the sub-step
             factor[i] = one
             if not headway:
@@ -344,26 +285,15 @@ def sliding_room(
             scale = factor[i] * substep_length
             target_x = here_x + vx * scale
             target_y = here_y + vy * scale
-            if grid:  # the cell of the mover's binned place (it has not moved in this sub-step)
-                c = _cell_of(cells, here_x, here_y)
-                wall_sq, wall = _listed_wall(target_x, target_y, walls, c, starts, directions, inverse)
-                body_sq, body = _near_body(
-                    target_x, target_y, i, here_x, here_y, current, present[r], cells, body_reach
-                )
-            else:
-                wall_sq, wall = _nearest_wall_kernel(target_x, target_y, starts, directions, inverse)
-                body_sq, body = _nearest_body(target_x, target_y, i, current, present[r])
+            c = _cell_of(cells, here_x, here_y) if grid else -1  # of the mover's binned place (not moved yet)
+            wall_sq, wall = _nearest_wall_kernel(target_x, target_y, starts, directions, inverse, walls, c)
+            body_sq, body = _nearest_body(target_x, target_y, i, here_x, here_y, current, present[r], grid, cells,
+                                          body_reach)  # fmt: skip
             hits_wall = wall_sq < radius_sq
             hits_body = body_sq < contact_sq
             if hits_wall or hits_body:
-                if hits_wall:  # closest point of that wall to the mover's centre
-                    along = (
-                        (here_x - starts[wall, 0]) * directions[wall, 0]
-                        + (here_y - starts[wall, 1]) * directions[wall, 1]
-                    ) * inverse[wall]
-                    along = min(max(along, zero), one)
-                    normal_x = here_x - (starts[wall, 0] + along * directions[wall, 0])
-                    normal_y = here_y - (starts[wall, 1] + along * directions[wall, 1])
+                if hits_wall:  # from the closest point of that wall to the mover's centre
+                    normal_x, normal_y = _from_wall(here_x, here_y, wall, starts, directions, inverse)
                 else:
                     normal_x = here_x - current[body, 0]
                     normal_y = here_y - current[body, 1]
@@ -379,14 +309,9 @@ def sliding_room(
                 wanted[i, 1] = vy
                 target_x = here_x + vx * scale
                 target_y = here_y + vy * scale
-                if grid:
-                    slid_sq, _ = _listed_wall(target_x, target_y, walls, c, starts, directions, inverse)
-                    slid_body_sq, _ = _near_body(
-                        target_x, target_y, i, here_x, here_y, current, present[r], cells, body_reach
-                    )
-                else:
-                    slid_sq, _ = _nearest_wall_kernel(target_x, target_y, starts, directions, inverse)
-                    slid_body_sq, _ = _nearest_body(target_x, target_y, i, current, present[r])
+                slid_sq, _ = _nearest_wall_kernel(target_x, target_y, starts, directions, inverse, walls, c)
+                slid_body_sq, _ = _nearest_body(target_x, target_y, i, here_x, here_y, current, present[r], grid,
+                                                cells, body_reach)  # fmt: skip
                 slid_wall = slid_sq < radius_sq
                 slid_body = slid_body_sq < contact_sq
                 if hits_wall or slid_wall:
