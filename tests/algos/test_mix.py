@@ -101,7 +101,7 @@ ENV = {"_target_": "pedrl.sim.RoomEnv"}
         ([{"name": "corridor"}], r"mix\[0\]\.agents=None is invalid: must be an integer in \[1, 10000\]"),
         ([{"name": "corridor", "agents": 0}], r"mix\[0\]\.agents=0 is invalid"),
         ([{"name": "corridor", "agents": True}], r"mix\[0\]\.agents=True is invalid"),
-        ([{"name": "hall", "agents": 4}], r"mix\[0\]: scenario\.name='hall' is invalid: must be one of"),
+        ([{"name": "mall", "agents": 4}], r"mix\[0\]: scenario\.name='mall' is invalid: must be one of"),
         ([{"name": "corridor", "opening": 1.0, "agents": 4}], r"mix\[0\]: scenario\.opening is not a setting"),
         ([{"name": "corridor", "agents": 4}] * 17, r"mix holds 17 rooms: at most 16"),
     ],
