@@ -84,8 +84,9 @@ def run_crowd(
     It starts from a reset (``env``'s generator draws the scenes) or from ``start``, the ``(obs, info)`` of a reset
     the caller made (placed agents), or ``"placed"``: the caller placed them with :meth:`RoomEnv.place` (no
     observation: a crowd of any size, through the fused trial only). A :class:`~pedrl.trial.loop.Learner` draws the
-    fused trial's seed from its generator; a controller its own ``epsilon`` and ``generator``. ``progress`` (a recorded trial's) is called with
-    the decisions taken and the agents left, now and then (:data:`pedrl.trial.fused.Progress`).
+    fused trial's seed from its generator; a controller its own ``epsilon`` and ``generator``. ``progress`` (a
+    recorded trial's) is called with the decisions taken and the agents left, now and then
+    (:data:`pedrl.trial.fused.Progress`).
     """
     if choose_path([env], controller, fused, record=record, placed=start is not None).name == "torch":
         if start == "placed":
