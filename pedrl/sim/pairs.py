@@ -21,6 +21,9 @@ DENSE_AGENTS: Final = 512
 """Crowds of fewer agents take the ``(R, N, N)`` table itself (faster there, the same pairs)."""
 CELLS_PER_POINT: Final = 4
 """A grid gets at most this many cells per point (plus 64)."""
+CELL_SCALE = 1.0
+"""Cells are at least this times the limit: at 1 the 3 x 3 block round a point's cell holds everything within the
+limit (the tests' control shrinks it)."""
 
 
 def close_pairs(points: torch.Tensor, limit: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -37,7 +40,7 @@ def close_pairs(points: torch.Tensor, limit: float) -> tuple[torch.Tensor, torch
     safe = torch.where(finite.reshape(-1, 1), flat, 0.0)
     low = safe.amin(0)
     extent = (safe.amax(0) - low).clamp_min(0.0)
-    size = max(limit, 1e-6)
+    size = max(limit * CELL_SCALE, 1e-6)
     area = float(extent[0] + size) * float(extent[1] + size)
     size = max(size, math.sqrt(area / (CELLS_PER_POINT * num_agents + 64)))
     nx, ny = (int(value) + 1 for value in (extent / size).tolist())

@@ -55,13 +55,7 @@ def test_a_search_of_fewer_cells_misses_pairs(monkeypatch):
     """The control: cells half the limit wide (the 3 x 3 block then reaches only half of it) miss pairs."""
     points = crowd(0, 2, 900, 12.0)
     expected = table(points, 0.8)
-    real_max = max
-
-    def narrow(first, *rest):  # make the cell size 0.4 where the search asks for at least 0.8
-        value = real_max(first, *rest)
-        return 0.4 if value == 0.8 else value
-
-    monkeypatch.setattr(pairs, "max", narrow, raising=False)
+    monkeypatch.setattr(pairs, "CELL_SCALE", 0.5)
     assert found(points, 0.8) != expected
 
 
