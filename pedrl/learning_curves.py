@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any, Final
 
 import numpy as np
+from matplotlib import colormaps
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
@@ -37,6 +38,38 @@ def read_learning_curve(path: str | Path, *, metric: str = "success_rate", smoot
     Raises:
         ValueError: no such file, no rows, an unknown metric, a bad ``smooth`` or a malformed row.
     """
+    columns = _read_columns(path, metric, smooth, room)
+    trials, mean, std, phases = (columns[k] for k in ("global_trial", "mean", "std", "phase"))
+    boundaries = trials[1:][np.diff(phases) != 0].tolist()
+    return trials, mean, std, boundaries
+
+
+def read_phases(path: str | Path, *, metric: str = "success_rate", smooth: int = 1, room: str | None = None):
+    """The phases (IT-VQQL iterations, IN-VQQL stages, VQQL blocks) of ``learning_curve.csv`` one by one, each
+    against its own trials from 0 (the paper's Figures 4 and 6).
+
+    Arguments and errors as :func:`read_learning_curve`. Returns a list of ``(phase, agents, trials (T,), mean (T,),
+    std (T,))`` in the order the phases ran, ``agents`` the learning agents of the phase's first row.
+    """
+    columns = _read_columns(path, metric, smooth, room)
+    phases = columns["phase"]
+    starts = np.flatnonzero(np.r_[True, np.diff(phases) != 0])
+    ends = np.r_[starts[1:], phases.size]
+    return [
+        (
+            int(phases[a]),
+            int(columns["agents"][a]),
+            columns["global_trial"][a:b] - columns["global_trial"][a],
+            columns["mean"][a:b],
+            columns["std"][a:b],
+        )
+        for a, b in zip(starts, ends, strict=True)
+    ]
+
+
+def _read_columns(path: str | Path, metric: str, smooth: int, room: str | None) -> dict[str, np.ndarray]:
+    """The columns of a learning curve the plots draw (``global_trial``, ``phase``, ``agents``, ``mean``, ``std`` of
+    ``metric``, smoothed per phase), checked as :func:`read_learning_curve` states."""
     if isinstance(smooth, bool) or not isinstance(smooth, int) or smooth < 1:
         raise ValueError(f"smooth={smooth!r} is invalid: must be an integer >= 1 (trials in the moving average)")
     path = Path(path)
@@ -63,12 +96,12 @@ def read_learning_curve(path: str | Path, *, metric: str = "success_rate", smoot
         mean = np.array([float(r[f"{metric}_mean"]) for r in rows])
         std = np.array([float(r[f"{metric}_std"]) for r in rows])
         phases = np.array([int(r["phase"]) for r in rows])
+        agents = np.array([int(r.get("agents") or 0) for r in rows])
     except (KeyError, TypeError, ValueError) as err:
         raise ValueError(f"learning curve {str(path)!r} is malformed: {err!r}") from None
-    boundaries = trials[1:][np.diff(phases) != 0].tolist()
     if smooth > 1:
         mean, std = _moving_average(mean, phases, smooth), _moving_average(std, phases, smooth)
-    return trials, mean, std, boundaries
+    return {"global_trial": trials, "phase": phases, "agents": agents, "mean": mean, "std": std}
 
 
 def room_rows(rows: Sequence[dict[str, str]], room: str | None = None) -> list[dict[str, str]]:
@@ -111,26 +144,65 @@ def draw_runs(
     phases (a VQQL block, an IT-VQQL iteration, an IN-VQQL stage) stay apart. Default labels are the run
     directories' names, made unique with their parents' names where two runs share a name.
     """
-    runs = [Path(r) for r in runs]
-    if not runs:
-        raise ValueError("runs=[] is invalid: give one or more run directories, e.g. runs=[outputs/a,outputs/b]")
-    labels = [str(label) for label in labels] if labels else _default_labels(runs)
-    if len(labels) != len(runs):
-        raise ValueError(f"labels={labels!r} is invalid: must give one label per run ({len(runs)})")
-    if len(set(labels)) != len(labels):
-        raise ValueError(f"labels={labels!r} is invalid: every run needs its own label")
+    runs, labels = _runs_and_labels(runs, labels)
     curves, boundaries = {}, {}
     for run, label in zip(runs, labels, strict=True):
         trials, mean, std, bounds = read_learning_curve(run, metric=metric, smooth=smooth)
         curves[label] = (trials, mean, std)
         boundaries[label] = bounds
-    ylabel = "success rate (fraction of agents reaching the door)" if metric == "success_rate" else metric
-    axes = plot_learning_curves(curves, axes=axes, ylabel=ylabel)
+    axes = plot_learning_curves(curves, axes=axes, ylabel=_ylabel(metric))
     colours = {line.get_label(): line.get_color() for line in axes.get_lines()}
     for label, bounds in boundaries.items():
         for boundary in bounds:
             axes.axvline(boundary, color=colours[label], linestyle="--", linewidth=0.8, alpha=0.8)
     return axes
+
+
+def draw_phases(
+    runs: Sequence[str | Path],
+    *,
+    labels: Sequence[str] | None = None,
+    metric: str = "success_rate",
+    smooth: int = 1,
+    axes: Axes | None = None,
+) -> Axes:
+    """Draw every phase of ``runs`` against its own trials, one curve each (the paper's Figures 4 and 6), into
+    ``axes``; returns the axes.
+
+    A run of one phase (VQQL's) is a dashed reference curve labelled with the run; a run of several phases gets a
+    colour per phase, from the first phase (dark) to the last (light), labelled ``<run> k (n agents)``; the
+    runs after the first with several phases are told apart by their line style.
+    """
+    runs, labels = _runs_and_labels(runs, labels)
+    phased = 0
+    curves, styles = {}, {}
+    for run, label in zip(runs, labels, strict=True):
+        phases = read_phases(run, metric=metric, smooth=smooth)
+        if len(phases) == 1:
+            curves[label] = phases[0][2:]
+            styles[label] = {"linestyle": "--", "color": "black"}
+            continue
+        linestyle = PHASE_LINESTYLES[phased % len(PHASE_LINESTYLES)]
+        phased += 1
+        for index, (phase, agents, *curve) in enumerate(phases):
+            name = f"{label} {phase} ({agents} agent{'' if agents == 1 else 's'})"
+            curves[name] = tuple(curve)
+            styles[name] = {
+                "linestyle": linestyle,
+                "color": colormaps["viridis"](index / max(len(phases) - 1, 1) * 0.9),
+            }
+    axes = plot_learning_curves(curves, axes=axes, styles=styles, ylabel=_ylabel(metric))
+    axes.set_xlabel("trials within the phase")
+    if len(curves) > 6:
+        axes.legend(fontsize="x-small", loc="lower right")
+    return axes
+
+
+PHASE_LINESTYLES: Final = ("-", ":", "-.")
+"""Line styles of the runs with several phases in :func:`draw_phases`, in turn."""
+
+LAYOUTS: Final = {"whole": draw_runs, "phases": draw_phases}
+"""``pedrl-plot layout=``: the runs one after another (Figures 5 and 7) or each phase from its own start (4 and 6)."""
 
 
 def plot_runs(
@@ -141,12 +213,16 @@ def plot_runs(
     metric: str = "success_rate",
     smooth: int = 1,
     marks: Sequence[Sequence[Any]] = (),
+    layout: str = "whole",
 ) -> Path:
     """Draw the learning curves of ``runs`` in one figure saved at ``output``; returns ``output``. ``marks``:
     ``(trials, value, text)`` points a reference states (a paper figure's end point), drawn as stars with their
-    text."""
+    text, or ``(trials, None, text)``: a bound on the trials, drawn as a dotted vertical line. ``layout``: a key of
+    :data:`LAYOUTS`."""
+    if layout not in LAYOUTS:
+        raise ValueError(f"layout={layout!r} is invalid: one of {', '.join(LAYOUTS)}")
     checked = check_marks(marks)
-    axes = draw_runs(runs, labels=labels, metric=metric, smooth=smooth)
+    axes = LAYOUTS[layout](runs, labels=labels, metric=metric, smooth=smooth)
     draw_marks(axes, checked)
     output = Path(output)
     output.parent.mkdir(parents=True, exist_ok=True)
@@ -154,26 +230,57 @@ def plot_runs(
     return output
 
 
-def check_marks(marks: Sequence[Sequence[Any]] | None) -> list[tuple[float, float, str]]:
+def check_marks(marks: Sequence[Sequence[Any]] | None) -> list[tuple[float, float | None, str]]:
     """``marks`` as ``(trials, value, text)`` triples; a one-line ``ValueError`` naming the first that is not a
-    finite trial count >= 0, a finite value and a text."""
+    finite trial count >= 0, a finite value or None (a bound on the trials) and a text."""
     checked = []
     for mark in marks or ():
         items = list(mark) if isinstance(mark, Sequence) and not isinstance(mark, str) else None
         good = items is not None and len(items) == 3 and isinstance(items[2], str)
-        good = good and all(isinstance(v, int | float) and not isinstance(v, bool) for v in items[:2])
-        if not good or not (math.isfinite(items[0]) and items[0] >= 0 and math.isfinite(items[1])):
-            raise ValueError(f"marks entry {mark!r} is invalid: must be [trials >= 0, value, 'text'] (finite numbers)")
-        checked.append((float(items[0]), float(items[1]), items[2]))
+        good = good and all(_is_number(v) for v in items[:1]) and (items[1] is None or _is_number(items[1]))
+        if not good or not (math.isfinite(items[0]) and items[0] >= 0 and math.isfinite(items[1] or 0.0)):
+            raise ValueError(
+                f"marks entry {mark!r} is invalid: must be [trials >= 0, value or null, 'text'] (finite numbers)"
+            )
+        checked.append((float(items[0]), None if items[1] is None else float(items[1]), items[2]))
     return checked
 
 
-def draw_marks(axes: Axes, marks: Sequence[tuple[float, float, str]]) -> Axes:
-    """Each of the checked ``marks`` (:func:`check_marks`) as a black star with its text, into ``axes``."""
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def draw_marks(axes: Axes, marks: Sequence[tuple[float, float | None, str]]) -> Axes:
+    """Each of the checked ``marks`` (:func:`check_marks`) into ``axes``: a point as a black star with its text, a
+    bound on the trials (value None) as a dotted black vertical line with its text along it."""
     for trials, value, text in marks:
+        if value is None:
+            axes.axvline(trials, color="black", linestyle=":", linewidth=1.2)
+            axes.annotate(
+                text, (trials, 0.02), xycoords=("data", "axes fraction"), rotation=90, ha="right", va="bottom"
+            )
+            continue
         axes.plot([trials], [value], marker="*", markersize=12, color="black", linestyle="none")
         axes.annotate(text, (trials, value), textcoords="offset points", xytext=(-8, 8), ha="right")
     return axes
+
+
+def _runs_and_labels(runs: Sequence[str | Path], labels: Sequence[str] | None) -> tuple[list[Path], list[str]]:
+    """``runs`` as paths and their labels (default: :func:`_default_labels`); a one-line ``ValueError`` for no run,
+    a label count that is not the runs' or two runs with one label."""
+    runs = [Path(r) for r in runs]
+    if not runs:
+        raise ValueError("runs=[] is invalid: give one or more run directories, e.g. runs=[outputs/a,outputs/b]")
+    labels = [str(label) for label in labels] if labels else _default_labels(runs)
+    if len(labels) != len(runs):
+        raise ValueError(f"labels={labels!r} is invalid: must give one label per run ({len(runs)})")
+    if len(set(labels)) != len(labels):
+        raise ValueError(f"labels={labels!r} is invalid: every run needs its own label")
+    return runs, labels
+
+
+def _ylabel(metric: str) -> str:
+    return "success rate (fraction of agents reaching the door)" if metric == "success_rate" else metric
 
 
 def _default_labels(runs: Sequence[Path]) -> list[str]:

@@ -1,9 +1,9 @@
-"""``pedrl-plot``: learning curves of one or more runs together, in the style of the paper's Figures 5 and 7.
+"""``pedrl-plot``: learning curves of one or more runs together, in the style of the paper's Figures 4 to 7.
 
 ``pedrl-plot runs=[outputs/A,outputs/B,outputs/C]`` reads each run's ``learning_curve.csv`` and draws the success
 rate (mean over learning processes, with a ±std band) against the trial number, with the iteration or stage
-boundaries of every run dashed. ``main`` is a thin Hydra wrapper around
-:func:`pedrl.learning_curves.plot_runs`.
+boundaries of every run dashed (Figures 5 and 7); ``layout=phases`` draws every phase from its own start instead
+(Figures 4 and 6). ``main`` is a thin Hydra wrapper around :func:`pedrl.learning_curves.plot_runs`.
 """
 
 from __future__ import annotations
@@ -32,6 +32,7 @@ def main(cfg: DictConfig) -> None:
             metric=cfg.metric,
             smooth=cfg.smooth,
             marks=marks,
+            layout=cfg.layout,
         )
 
     path = run_reporting_errors("pedrl-plot", plot)

@@ -16,7 +16,15 @@ from omegaconf import open_dict
 import pedrl.plot
 from pedrl.algos.records import CURVE_COLUMNS
 from pedrl.cli import CONFIG_DIR
-from pedrl.learning_curves import check_marks, draw_marks, draw_runs, plot_runs, read_learning_curve
+from pedrl.learning_curves import (
+    check_marks,
+    draw_marks,
+    draw_phases,
+    draw_runs,
+    plot_runs,
+    read_learning_curve,
+    read_phases,
+)
 from pedrl.train import train
 from tests.refusals import (
     assert_nothing_computed,
@@ -88,6 +96,20 @@ def test_moving_average_is_trailing_and_restarts_at_every_phase(tmp_path):
     np.testing.assert_allclose(read_learning_curve(path, smooth=100)[1][3], 0.45)
 
 
+def test_phases_are_read_each_from_its_own_first_trial(tmp_path):
+    path = write_curve(tmp_path / "learning_curve.csv", [1, 1, 1, 2, 2, 3], [0.1, 0.2, 0.3, 0.4, 0.5, 0.6])
+    phases = read_phases(path, smooth=2)
+    assert [(phase, agents, trials.tolist()) for phase, agents, trials, _, _ in phases] == [
+        (1, 20, [0.0, 1.0, 2.0]),
+        (2, 20, [0.0, 1.0]),
+        (3, 20, [0.0]),
+    ]
+    # the same smoothed values as the whole curve's, cut at the boundaries
+    _, whole, _, _ = read_learning_curve(path, smooth=2)
+    np.testing.assert_allclose(np.concatenate([mean for *_, mean, _ in phases]), whole)
+    np.testing.assert_allclose(phases[1][3], [0.4, 0.45])
+
+
 def test_other_metrics_are_read(tmp_path):
     path = write_curve(tmp_path / "learning_curve.csv", [1, 1], [0.5, 0.5])
     trials, mean, std, _ = read_learning_curve(path, metric="crashes_wall")
@@ -139,11 +161,37 @@ def test_three_algorithms_are_drawn_together_with_their_phase_boundaries(runs):
     assert [t.get_text() for t in axes.get_legend().get_texts()] == list(runs)
 
 
+def test_phases_layout_draws_each_phase_from_zero_and_one_phase_runs_dashed(runs, tmp_path):
+    one_phase = write_curve(tmp_path / "vqql" / "learning_curve.csv", [1] * 12, [0.4] * 12).parent
+    axes = draw_phases([runs["IN-VQQL"], runs["IT-VQQL"], one_phase], labels=["IN", "IT", "VQQL"])
+    curves = {line.get_label(): line for line in axes.get_lines() if not line.get_label().startswith("_")}
+    # debug runs: IN-VQQL stages of 1, 2 and 4 agents, IT-VQQL 2 iterations of 20 agents, 10 trials each
+    assert list(curves) == ["IN 1 (1 agent)", "IN 2 (2 agents)", "IN 3 (4 agents)", "IT 1 (20 agents)"] + [
+        "IT 2 (20 agents)",
+        "VQQL",
+    ]
+    assert all(list(line.get_xdata()) == list(range(10)) for label, line in curves.items() if label != "VQQL")
+    assert list(curves["VQQL"].get_xdata()) == list(range(12)) and curves["VQQL"].get_linestyle() == "--"
+    # a colour per phase from dark to light, the second phased run in its own line style
+    assert len({curves[f"IN {k}"].get_color() for k in ("1 (1 agent)", "2 (2 agents)", "3 (4 agents)")}) == 3
+    assert curves["IN 1 (1 agent)"].get_linestyle() == "-" and curves["IT 1 (20 agents)"].get_linestyle() == ":"
+    assert axes.get_xlabel() == "trials within the phase"
+
+
+def test_a_bound_on_the_trials_is_a_dotted_vertical_line(runs):
+    axes = draw_marks(draw_runs([runs["IN-VQQL"]]), check_marks([[15, None, "within 1.5e5"], [5, 0.4, "end"]]))
+    bounds = [line for line in axes.get_lines() if line.get_linestyle() == ":"]
+    assert len(bounds) == 1 and list(bounds[0].get_xdata()) == [15, 15]
+    assert [text.get_text() for text in axes.texts] == ["within 1.5e5", "end"]
+    assert len([line for line in axes.get_lines() if line.get_marker() == "*"]) == 1
+
+
 def test_plot_runs_writes_a_figure_without_layout_warnings(runs, tmp_path):
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
-        path = plot_runs(list(runs.values()), tmp_path / "out" / "curves.png", smooth=5)
-    assert path.is_file() and path.stat().st_size > 10_000
+    for layout in ("whole", "phases"):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            path = plot_runs(list(runs.values()), tmp_path / "out" / f"{layout}.png", smooth=5, layout=layout)
+        assert path.is_file() and path.stat().st_size > 10_000
 
 
 def test_marks_are_drawn_as_stars_with_their_text(runs, tmp_path):
@@ -155,9 +203,11 @@ def test_marks_are_drawn_as_stars_with_their_text(runs, tmp_path):
     assert path.is_file()
 
 
-@pytest.mark.parametrize("mark", [[1, 2], [1, 2, 3], ["a", 0.4, "x"], [-1, 0.4, "x"], [1, float("nan"), "x"], "abc"])
+@pytest.mark.parametrize(
+    "mark", [[1, 2], [1, 2, 3], ["a", 0.4, "x"], [-1, 0.4, "x"], [1, float("nan"), "x"], [None, None, "x"], "abc"]
+)
 def test_bad_marks_are_refused_in_one_line(mark):
-    with pytest.raises(ValueError, match=r"^marks entry .* is invalid: must be \[trials >= 0, value, 'text'\]"):
+    with pytest.raises(ValueError, match=r"^marks entry .* is invalid: must be \[trials >= 0, value or null, 'text'\]"):
         check_marks([mark])
 
 
@@ -244,6 +294,7 @@ PLOT_CASES: list[tuple[str, str, Callable[[Path], None] | None, tuple[str, ...]]
     ("smooth_abc", "smooth=abc", None, ("smooth='abc'", "integer >= 1")),
     ("metric_foo", "metric=foo", None, ("metric='foo'", "one of", "success_rate")),
     ("two_labels", "labels=[a,b]", None, ("labels=", "one label per run")),
+    ("layout_foo", "layout=foo", None, ("layout='foo'", "one of whole, phases")),
     ("same_labels", "runs=[{run},{run}] labels=[a,a]", None, ("labels=['a', 'a']", "its own label")),
     ("binary_csv", "", binary_curve, ("learning_curve.csv", "not a CSV text file")),
     ("foreign_csv", "", _foreign_csv, ("metric='success_rate' is not in", "learning_curve.csv", "one of speed")),
