@@ -170,8 +170,9 @@ def draw_phases(
     ``axes``; returns the axes.
 
     A run of one phase (VQQL's) is a dashed reference curve labelled with the run; a run of several phases gets a
-    colour per phase, from the first phase (dark) to the last (light), labelled ``<run> k (n agents)``; the
-    runs after the first with several phases are told apart by their line style.
+    colour per phase, from the first phase (dark) to the last (light), labelled ``<run> k``, with ``(n agents)``
+    where its phases differ in learning agents (IN-VQQL's stages); the runs after the first with several phases are
+    told apart by their line style. More than six curves put the legend beside the axes.
     """
     runs, labels = _runs_and_labels(runs, labels)
     phased = 0
@@ -184,8 +185,9 @@ def draw_phases(
             continue
         linestyle = PHASE_LINESTYLES[phased % len(PHASE_LINESTYLES)]
         phased += 1
+        counts = len({agents for _, agents, *_ in phases}) > 1  # IN's stages: say how many learn in each
         for index, (phase, agents, *curve) in enumerate(phases):
-            name = f"{label} {phase} ({agents} agent{'' if agents == 1 else 's'})"
+            name = f"{label} {phase}" + (f" ({agents} agent{'' if agents == 1 else 's'})" if counts else "")
             curves[name] = tuple(curve)
             styles[name] = {
                 "linestyle": linestyle,
@@ -193,8 +195,8 @@ def draw_phases(
             }
     axes = plot_learning_curves(curves, axes=axes, styles=styles, ylabel=_ylabel(metric))
     axes.set_xlabel("trials within the phase")
-    if len(curves) > 6:
-        axes.legend(fontsize="x-small", loc="lower right")
+    if len(curves) > 6:  # beside the axes, where it hides no curve or mark
+        axes.legend(fontsize="x-small", loc="upper left", bbox_to_anchor=(1.01, 1.0))
     return axes
 
 
