@@ -169,19 +169,21 @@ def draw_phases(
     """Draw every phase of ``runs`` against its own trials, one curve each (the paper's Figures 4 and 6), into
     ``axes``; returns the axes.
 
-    A run of one phase (VQQL's) is a dashed reference curve labelled with the run; a run of several phases gets a
-    colour per phase, from the first phase (dark) to the last (light), labelled ``<run> k``, with ``(n agents)``
-    where its phases differ in learning agents (IN-VQQL's stages); the runs after the first with several phases are
-    told apart by their line style. More than six curves put the legend beside the axes.
+    A run of one phase (VQQL's) is a dashed reference curve labelled with the run (black if it is the only one); a
+    run of several phases gets a colour per phase, from the first phase (dark) to the last (light), labelled
+    ``<run> k``, with ``(n agents)`` where its phases differ in learning agents (IN-VQQL's stages); the runs after
+    the first with several phases are told apart by their line style. More than six curves put the legend beside
+    the axes.
     """
     runs, labels = _runs_and_labels(runs, labels)
+    read = [read_phases(run, metric=metric, smooth=smooth) for run in runs]
+    references = sum(len(phases) == 1 for phases in read)
     phased = 0
     curves, styles = {}, {}
-    for run, label in zip(runs, labels, strict=True):
-        phases = read_phases(run, metric=metric, smooth=smooth)
-        if len(phases) == 1:
+    for label, phases in zip(labels, read, strict=True):
+        if len(phases) == 1:  # black when it is the only reference, else the colour cycle's
             curves[label] = phases[0][2:]
-            styles[label] = {"linestyle": "--", "color": "black"}
+            styles[label] = {"linestyle": "--"} | ({"color": "black"} if references == 1 else {})
             continue
         linestyle = PHASE_LINESTYLES[phased % len(PHASE_LINESTYLES)]
         phased += 1
@@ -239,7 +241,7 @@ def check_marks(marks: Sequence[Sequence[Any]] | None) -> list[tuple[float, floa
     for mark in marks or ():
         items = list(mark) if isinstance(mark, Sequence) and not isinstance(mark, str) else None
         good = items is not None and len(items) == 3 and isinstance(items[2], str)
-        good = good and all(_is_number(v) for v in items[:1]) and (items[1] is None or _is_number(items[1]))
+        good = good and _is_number(items[0]) and (items[1] is None or _is_number(items[1]))
         if not good or not (math.isfinite(items[0]) and items[0] >= 0 and math.isfinite(items[1] or 0.0)):
             raise ValueError(
                 f"marks entry {mark!r} is invalid: must be [trials >= 0, value or null, 'text'] (finite numbers)"

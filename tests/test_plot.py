@@ -174,6 +174,12 @@ def test_phases_layout_draws_each_phase_from_zero_and_one_phase_runs_dashed(runs
     assert len({curves[f"IN {k}"].get_color() for k in ("1 (1 agent)", "2 (2 agents)", "3 (4 agents)")}) == 3
     assert curves["IN 1 (1 agent)"].get_linestyle() == "-" and curves["IT 1"].get_linestyle() == ":"
     assert axes.get_xlabel() == "trials within the phase"
+    # the only reference is black; two references keep colours of their own
+    assert curves["VQQL"].get_color() == "black"
+    other = write_curve(tmp_path / "vqql_b" / "learning_curve.csv", [1] * 5, [0.3] * 5).parent
+    axes = draw_phases([one_phase, other], labels=["A", "B"])
+    colours = [line.get_color() for line in axes.get_lines() if not line.get_label().startswith("_")]
+    assert len(set(colours)) == 2 and "black" not in colours
 
 
 def test_a_bound_on_the_trials_is_a_dotted_vertical_line(runs):
