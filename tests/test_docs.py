@@ -171,6 +171,28 @@ def test_the_manual_cites_no_issue_numbers(page):
     assert not found, f"{page.relative_to(ROOT)} cites {found}"
 
 
+def broken_tables(text: str) -> list[int]:
+    """Line numbers of table rows that follow a line of prose: a paragraph dropped into a table ends it there, and
+    the rows after it render as text."""
+    lines = text.splitlines()
+    return [
+        number + 1
+        for number, (before, line) in enumerate(zip(["", *lines], lines, strict=False))
+        if line.startswith("|") and before.strip() and not before.startswith("|")
+    ]
+
+
+@pytest.mark.parametrize("page", MANUAL, ids=lambda p: str(p.relative_to(ROOT)))
+def test_no_table_is_cut_by_a_paragraph(page):
+    assert broken_tables(page.read_text()) == [], page.relative_to(ROOT)
+
+
+def test_a_paragraph_inside_a_table_is_found():
+    table = "| a | b |\n|---|---|\n| 1 | 2 |\n"
+    assert broken_tables("text\n\n" + table + "\nmore text\n") == []
+    assert broken_tables("text\n\n" + table + "cut\n| 3 | 4 |\n") == [7]
+
+
 def test_the_results_page_holds_current_figures_in_at_most_800_lines():
     """docs/results.md is the reference of what the presets give now; the story and superseded figures live in
     docs/history.md."""
