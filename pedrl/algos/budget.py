@@ -62,14 +62,15 @@ def check_gathering_yield(trainer: TrainerView) -> None:
         if not trainer.vq.per_process:
             factors = {"processes": trainer.processes, **factors}
         most = math.prod(factors.values())
-        if most < trainer.vq.num_prototypes:
+        if most < trainer.vq.fit_states:
             scope = "for the shared quantizer" if not trainer.vq.per_process else "per process"
             product = " x ".join(
                 agents_text(value, trained_in) if key == "agents" else f"{key}={value}"
                 for key, value in factors.items()
             )
+            key = "vq.num_prototypes" if trainer.vq.factors is None else "vq.factors.own.num_prototypes"
             raise ValueError(
-                f"vq.num_prototypes={trainer.vq.num_prototypes} is invalid: phase {phase.index} gathers at most "
+                f"{key}={trainer.vq.fit_states} is invalid: phase {phase.index} gathers at most "
                 f"{most} states {scope} ({product}) and k-means needs one per prototype: must be at most "
                 f"{most}, or raise algo.gather_trials"
             )

@@ -117,7 +117,7 @@ def fit_quantizers(
         warnings.filterwarnings("ignore", message=KMEANS_SHRINK, category=UserWarning)  # said once below
         if not vq.per_process:
             quantizer, distortion = fit(None, previous)
-            report_shrink(phase, quantizer.num_prototypes - kept, vq.num_prototypes, None)
+            report_shrink(phase, quantizer.num_prototypes - kept, vq.table_states, None)
             return quantizer, distortion
         fits = [fit(process == index, _part(previous, index)) for index in range(processes)]
         sizes = [part.num_prototypes for part, _ in fits]

@@ -13,6 +13,7 @@ from pedrl.algos.phase import Phase, staged_phases
 from pedrl.rl.qtable import empty_tables
 from pedrl.sim.sensing import feature_indices
 from pedrl.vq import UnionQuantizer
+from pedrl.vq.settings import VQSettings
 
 PAPER_STAGES = (1, 2, 3, 4, 5, 6, 7, 8, 10, 20)
 
@@ -68,6 +69,13 @@ class INVQQL(Trainer):
         self.trial_budgets = _budgets("trials", trials, len(self.stages), trials_growth)
         self.gather_trials = gather_trials
         self.gather_epsilon = gather_epsilon
+        vq = common.get("vq")
+        if (vq.factors if isinstance(vq, VQSettings) else (vq or {}).get("factors")) is not None:
+            raise ValueError(
+                "vq.factors is invalid with algo=in_vqql: a factored table reads any number of neighbours by its "
+                "shared neighbour factor, which is what IN-VQQL's projection and union are for; use algo=vqql or "
+                "algo=it_vqql"
+            )
         super().__init__(**common)
 
     def phases(self) -> list[Phase]:

@@ -11,7 +11,7 @@ import torch
 from pedrl.algos.base import Trainer
 from pedrl.algos.phase import MAX_TRIALS, Phase, staged_phases
 from pedrl.common.checks import check_bool, check_integer, check_number
-from pedrl.vq import ProcessQuantizers
+from pedrl.vq import FactoredQuantizer, ProcessQuantizers
 
 
 class ITVQQL(Trainer):
@@ -87,6 +87,11 @@ class ITVQQL(Trainer):
         old_tables = torch.arange(q_values.shape[1], device=q_values.device) % old_q_values.shape[1]
         for process in range(q_values.shape[0]):
             new, old = _process_part(quantizer, process), _process_part(old_quantizer, process)
+            if isinstance(new, FactoredQuantizer):
+                nearest = new.nearest_in(old)  # (K,), -1 where the old quantizer lacks the factor
+                rows = old_q_values[process][old_tables][:, nearest.clamp_min(0)]
+                q_values[process] = torch.where((nearest >= 0)[None, :, None], rows, q_values[process])
+                continue
             nearest = old.encode(new.decode(torch.arange(new.num_prototypes, device=new.device)))  # (K,)
             q_values[process] = old_q_values[process][old_tables][:, nearest]
         return q_values

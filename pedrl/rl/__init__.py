@@ -3,7 +3,15 @@ the learned policy (:class:`TabularPolicy`: a state encoder, the tables and the 
 
 from pedrl.rl.policy import PolicyController, TableLayout, TabularPolicy
 from pedrl.rl.qlearning import td_update, td_update_torch
-from pedrl.rl.qtable import NUM_ACTIONS, epsilon_greedy, greedy, in_huge_pages, table_rows, zeros_q_values
+from pedrl.rl.qtable import (
+    NUM_ACTIONS,
+    epsilon_greedy,
+    factored_values,
+    greedy,
+    in_huge_pages,
+    table_rows,
+    zeros_q_values,
+)
 from pedrl.rl.schedules import ConstantSchedule, ExponentialSchedule, LinearSchedule, Schedule
 
 __all__ = [
@@ -16,6 +24,7 @@ __all__ = [
     "TableLayout",
     "TabularPolicy",
     "epsilon_greedy",
+    "factored_values",
     "greedy",
     "in_huge_pages",
     "table_rows",

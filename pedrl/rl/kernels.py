@@ -7,7 +7,8 @@ function of `pedrl.rl` to the bit, with the same random numbers drawn by torch
 beforehand, so a seed gives the same run either way (the tests check it): :func:`td_update_kernel` is the twin of
 :func:`pedrl.rl.qlearning.td_update_torch`, :func:`greedy_kernel` that of :func:`pedrl.rl.qtable.greedy_torch`.
 On a CPU a decision's greedy choice or TD update is a dozen small torch operations; here it is one pass over the
-batch.
+batch. The row sets of a factored table have their twins too: :func:`greedy_set`, :func:`epsilon_greedy_set` and
+:func:`td_set_batch` (the sum of a set's rows, :func:`pedrl.rl.factored_values`).
 """
 
 from __future__ import annotations
@@ -18,7 +19,17 @@ import torch
 from pedrl._numba import cached_njit
 from pedrl.sim.streams import GOLDEN, next_uniform
 
-__all__ = ["epsilon_greedy_row", "greedy_kernel", "greedy_row", "td_batch", "td_scratch", "td_update_kernel"]
+__all__ = [
+    "epsilon_greedy_row",
+    "epsilon_greedy_set",
+    "greedy_kernel",
+    "greedy_row",
+    "greedy_set",
+    "td_batch",
+    "td_scratch",
+    "td_set_batch",
+    "td_update_kernel",
+]
 
 
 @cached_njit(nogil=True)
@@ -105,16 +116,54 @@ def epsilon_greedy_row(table, row, epsilon, streams, r):
     return greedy_row(table, row, next_uniform(streams, r))
 
 
+@cached_njit(nogil=True, inline="always")
+def set_values(table, rows, values):
+    """``values (1, U)``: the sum of the rows ``rows (M,)`` of ``table`` (-1 reads nothing), slot by slot."""
+    for a in range(table.shape[1]):
+        values[0, a] = np.float32(0.0)
+    for m in range(rows.shape[0]):
+        if rows[m] >= 0:
+            for a in range(table.shape[1]):
+                values[0, a] += table[rows[m], a]
+
+
+@cached_njit(nogil=True, inline="always")
+def greedy_set(table, rows, uniform, values):
+    """:func:`greedy_row` of the summed rows of the set ``rows (M,)`` (``values (1, U)`` is scratch)."""
+    set_values(table, rows, values)
+    return greedy_row(values, 0, uniform)
+
+
+@cached_njit(nogil=True, inline="always")
+def epsilon_greedy_set(table, rows, values, epsilon, streams, r):
+    """:func:`epsilon_greedy_row` of the row set ``rows (M,)`` (the same draws)."""
+    num_actions = table.shape[1]
+    if next_uniform(streams, r) < epsilon:
+        return min(np.int64(next_uniform(streams, r) * np.float32(num_actions)), num_actions - 1)
+    return greedy_set(table, rows, next_uniform(streams, r), values)
+
+
 @cached_njit(nogil=True)
 def _greedy(table, rows, uniform, actions):
     for b in range(rows.shape[0]):
         actions[b] = greedy_row(table, rows[b], uniform[b])
 
 
+@cached_njit(nogil=True)
+def _greedy_sets(table, rows, uniform, actions):
+    values = np.empty((1, table.shape[1]), np.float32)
+    for b in range(rows.shape[0]):
+        actions[b] = greedy_set(table, rows[b], uniform[b], values)
+
+
 def greedy_kernel(q_values: torch.Tensor, rows: torch.Tensor, uniform: torch.Tensor) -> torch.Tensor:
     """Greedy actions of ``rows (B,)`` of the flat tables, the ``floor(uniform * c)``-th of ``c`` tied maxima."""
     actions = torch.empty(rows.shape[0], dtype=torch.int64)
     table = q_values.view(-1, q_values.shape[-1]).numpy()
+    if rows.ndim == 2:  # row sets of a factored table
+        _check_sets(table, rows.numpy(), None)
+        _greedy_sets(table, rows.numpy(), uniform.numpy(), actions.numpy())
+        return actions
     num = rows.shape[0]
     _checked_prefetch(
         table, rows.numpy(), np.zeros(num, np.int64), np.ones(num, np.bool_), rows.numpy()[:0], np.zeros(0, np.bool_)
@@ -173,6 +222,71 @@ def td_batch(table, rows, actions, rewards, next_rows, terminal, valid, alpha, g
     return total, count
 
 
+def _check_sets(table, rows, actions) -> None:
+    """``IndexError`` (as torch's gathers) for a row of a set beyond the table (-1 is an empty slot) or an action out
+    of range."""
+    if rows.size and (rows.max() >= table.shape[0] or rows.min() < -1):
+        raise IndexError(f"a row set holds a row out of range for Q tables of {table.shape[0]} rows")
+    if actions is not None and actions.size and (actions.min() < 0 or actions.max() >= table.shape[1]):
+        raise IndexError(f"an action is out of range for Q tables of {table.shape[1]} actions")
+
+
+@cached_njit(nogil=True)
+def td_set_batch(table, rows, actions, rewards, next_rows, terminal, valid, alpha, gamma, td_error, values, keys,
+                 tally, slot_of):  # fmt: skip
+    """:func:`td_batch` for row sets ``rows``, ``next_rows`` ``(B, M)`` of a factored table
+    (:func:`pedrl.rl.qlearning.td_update_torch`'s rule for them): the TD error of the summed values, shared by the
+    ``n`` rows of the set (``delta / n`` each), the increments of one ``(row, action)`` averaged and added in
+    entry order. ``values (1, U)`` is scratch; ``keys`` and ``tally`` are :func:`td_scratch` of ``B M`` entries,
+    ``slot_of (B M,)``. Returns the sum of ``|TD error|`` and the number of updates."""
+    num, slots_per = rows.shape
+    num_actions = table.shape[1]
+    flat = table.reshape(-1)
+    mask = keys.shape[0] - 1
+    bits = np.uint64(64 - np.int64(np.log2(keys.shape[0])))
+    keys[:] = -1
+    tally[:] = 0
+    total, count = 0.0, 0
+    for b in range(num):
+        for m in range(slots_per):
+            slot_of[b * slots_per + m] = -1
+        if not valid[b]:
+            td_error[b] = 0.0
+            continue
+        next_value = np.float32(0.0)
+        if not terminal[b]:
+            set_values(table, next_rows[b], values)
+            next_value = _row_max(values, 0)
+        value = np.float32(0.0)
+        for m in range(slots_per):
+            if rows[b, m] >= 0:
+                value += table[rows[b, m], actions[b]]
+        td_error[b] = (rewards[b] + gamma * next_value) - value
+        for m in range(slots_per):
+            if rows[b, m] >= 0:
+                entry = rows[b, m] * num_actions + actions[b]
+                slot = np.int64((np.uint64(entry) * GOLDEN) >> bits)
+                while keys[slot] != -1 and keys[slot] != entry:
+                    slot = (slot + 1) & mask
+                keys[slot] = entry
+                tally[slot] += 1
+                slot_of[b * slots_per + m] = slot
+        total += abs(td_error[b])
+        count += 1
+    for b in range(num):
+        n = 0
+        for m in range(slots_per):
+            n += rows[b, m] >= 0
+        share = td_error[b] / np.float32(max(n, 1))
+        for m in range(slots_per):
+            slot = slot_of[b * slots_per + m]
+            if slot >= 0:
+                flat[rows[b, m] * num_actions + actions[b]] += share * (
+                    (np.float32(1.0) / np.float32(tally[slot])) * alpha
+                )
+    return total, count
+
+
 def td_update_kernel(
     q_values: torch.Tensor,
     rows: torch.Tensor,
@@ -191,6 +305,16 @@ def td_update_kernel(
     table = q_values.view(-1, q_values.shape[-1]).numpy()
     rows, actions, next_rows = rows.numpy(), actions.numpy(), next_rows.numpy()
     terminal, valid = terminal.numpy(), valid.numpy()
+    if rows.ndim == 2:  # row sets of a factored table
+        _check_sets(table, rows[valid], actions[valid])
+        _check_sets(table, next_rows[valid & ~terminal], None)
+        keys, tally, _ = td_scratch(num * rows.shape[1])
+        td_set_batch(
+            table, rows, actions, rewards.to(torch.float32).numpy(), next_rows, terminal, valid, np.float32(alpha),
+            np.float32(gamma), td_error.numpy(), np.empty((1, table.shape[1]), np.float32), keys, tally,
+            np.empty(max(num * rows.shape[1], 1), np.int64),
+        )  # fmt: skip
+        return td_error
     _checked_prefetch(table, rows, actions, valid, next_rows, valid & ~terminal)
     td_batch(
         table,

@@ -38,6 +38,7 @@ QUANTIZER_DTYPES: Final = {
     "prototypes": torch.float32,
     "feature_index": torch.int64,
     "num_sensed": torch.int64,
+    "slots": torch.int64,
 }
 """dtype of every quantizer tensor, by the last part of its name (``process000/part3.prototypes``)."""
 
@@ -131,15 +132,16 @@ class TabularPolicy:
         rows_mask: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """Flat rows ``(R * N,)`` of every agent's state in ``q_values.view(-1, U)`` for observations
-        ``(R, N, F)``; with ``rows_mask (R * N,)`` only those agents are encoded (the others get their table's
-        first row). ``generator`` draws random void fillings."""
+        ``(R, N, F)`` (row sets ``(R * N, M)``, -1 for an empty slot, of a factored table); with ``rows_mask
+        (R * N,)`` only those agents are encoded (the others get their table's first row, or an empty set).
+        ``generator`` draws random void fillings."""
         replicas, agents = obs.shape[0], obs.shape[1]
         process, base_rows = self.layout.of(replicas, agents, obs.device)
         implicit = self.layout.blocks(replicas)  # the trainers' layout: the quantizers need not be told
         ids = self.encoder.encode(
             obs, info, generator, None if implicit else process, rows_mask=rows_mask, process_of_rows=process
         )
-        return base_rows + ids
+        return offset_ids(base_rows, ids)
 
     def act(
         self,
@@ -275,6 +277,14 @@ def check_policy_file(meta: Mapping[str, Any], tensors: Mapping[str, torch.Tenso
         if not name.startswith(QUANTIZER_PREFIX + "/"):
             raise ValueError(f"tensor {name} is unknown: allowed: q_values, quantizer/...")
     return settings
+
+
+def offset_ids(base_rows: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:
+    """Flat table rows of state ids: ``base_rows (B,)`` (each agent's table's first row) plus ``ids (B,)``, or plus
+    each id of the sets ``ids (B, M)`` of a factored table (-1 stays -1, an empty slot)."""
+    if ids.ndim == 2:
+        return torch.where(ids >= 0, base_rows[:, None] + ids, -1)
+    return base_rows + ids
 
 
 class PolicyController:

@@ -2,6 +2,12 @@
 
 Twins: :func:`td_update_torch` is the specification (torch, any device), :func:`pedrl.rl.kernels.td_update_kernel`
 its numba kernel for the CPU (the same numbers to the bit), and :func:`td_update` chooses between them.
+
+A factored table (row sets ``(B, M)``, :mod:`pedrl.vq.factored`) learns by the same equation on the sum of a state's
+rows: the TD error ``delta = r + gamma max_a' Q(s', a') - Q(s, a)`` of the summed values is shared among the ``n``
+rows the state reads, each moving by ``alpha delta / n`` (then averaged with the other entries that hit the same
+``(row, action)`` in the call, as in the plain table). An agent alone thus moves its own ``Q(s, a)`` by exactly
+``alpha delta``, as one plain row would: the rows of a state never overshoot together.
 """
 
 from __future__ import annotations
@@ -9,6 +15,7 @@ from __future__ import annotations
 import torch
 
 from pedrl._numba import use_kernels
+from pedrl.rl.qtable import factored_values
 
 __all__ = ["td_update", "td_update_torch"]
 
@@ -41,10 +48,11 @@ def td_update(
 
     Args:
         q_values: `(R, A, K, U)` float32 Q tables, updated in place.
-        rows: `(B,)` int64 flat rows of `s` (`pedrl.rl.table_rows`).
+        rows: `(B,)` int64 flat rows of `s` (`pedrl.rl.table_rows`), or `(B, M)` row sets of a factored table
+            (-1: a slot that reads nothing; module docstring).
         actions: `(B,)` int64 actions `a` in `[0, U)`.
         rewards: `(B,)` float32 rewards `r` received after the action.
-        next_rows: `(B,)` int64 flat rows of `s'` (ignored where `terminal` or not `valid`).
+        next_rows: `(B,)` int64 flat rows of `s'`, or `(B, M)` row sets (ignored where `terminal` or not `valid`).
         terminal: `(B,)` bool, True where the transition ends the agent's trial at the door.
         valid: `(B,)` bool, False for entries to skip.
         alpha: learning rate `alpha` in `(0, 1]`.
@@ -76,6 +84,10 @@ def td_update_torch(
 ) -> torch.Tensor:
     """:func:`td_update` in torch, on any device: the specification of
     :func:`pedrl.rl.kernels.td_update_kernel` (same arguments but ``compiled``, same result)."""
+    if rows.ndim == 2:
+        return _td_factored_torch(
+            q_values, rows, actions, rewards, next_rows, terminal, valid, alpha=alpha, gamma=gamma
+        )
     num_actions = q_values.shape[-1]
     flat = q_values.view(-1, num_actions)
     zero = torch.zeros((), dtype=rows.dtype, device=rows.device)
@@ -86,13 +98,39 @@ def td_update_torch(
     target = rewards + gamma * torch.where(bootstrap, next_value, torch.zeros_like(next_value))
     entries = rows * num_actions + actions
     td_error = torch.where(valid, target - q_values.view(-1).index_select(0, entries), torch.zeros_like(target))
+    _add_averaged(q_values, entries, td_error, valid, alpha)
+    return td_error
 
+
+def _add_averaged(
+    q_values: torch.Tensor, entries: torch.Tensor, steps: torch.Tensor, valid: torch.Tensor, alpha: float
+) -> None:
+    """``q_values.view(-1)[entries] += steps * alpha / c``, ``c`` the number of valid entries hitting the same value
+    (their increments averaged), added in entry order; entries not ``valid`` must be 0 with a step of 0."""
     # duplicates: the size of each entry's group, found by sorting (no host read: skipped entries form a group
     # of their own under the key -1, and add 0 to entry 0)
     keys, order = torch.where(valid, entries, -1).sort()
     starts = torch.ones_like(keys, dtype=torch.bool)
     starts[1:] = keys[1:] != keys[:-1]
     group = torch.empty_like(order).scatter_(0, order, starts.cumsum(0) - 1)
-    counts = torch.zeros_like(td_error).index_add_(0, group, torch.ones_like(td_error))
-    q_values.view(-1).index_add_(0, entries, td_error * (alpha / counts.index_select(0, group)))
+    counts = torch.zeros_like(steps).index_add_(0, group, torch.ones_like(steps))
+    q_values.view(-1).index_add_(0, entries, steps * (alpha / counts.index_select(0, group)))
+
+
+def _td_factored_torch(q_values, rows, actions, rewards, next_rows, terminal, valid, *, alpha, gamma) -> torch.Tensor:
+    """:func:`td_update_torch` of row sets ``(B, M)`` (module docstring): the specification of
+    :func:`pedrl.rl.kernels.td_set_batch`."""
+    num_actions = q_values.shape[-1]
+    zero = torch.zeros((), dtype=rows.dtype, device=rows.device)
+    actions = torch.where(valid, actions, zero)
+    bootstrap = valid & ~terminal
+    value = factored_values(q_values, rows).gather(1, actions[:, None]).squeeze(1)
+    next_value = factored_values(q_values, next_rows).amax(1)
+    target = rewards + gamma * torch.where(bootstrap, next_value, torch.zeros_like(next_value))
+    td_error = torch.where(valid, target - value, torch.zeros_like(target))
+    active = valid[:, None] & (rows >= 0)
+    share = td_error / active.sum(1).clamp_min(1).to(td_error.dtype)
+    entries = torch.where(active, rows * num_actions + actions[:, None], zero).reshape(-1)
+    steps = torch.where(active, share[:, None], torch.zeros((), dtype=share.dtype)).reshape(-1)
+    _add_averaged(q_values, entries, steps, active.reshape(-1), alpha)
     return td_error

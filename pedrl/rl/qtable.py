@@ -5,6 +5,10 @@ agents (one table each), `K` prototypes (states), `U = 81` actions; float32, zer
 *flat rows* of `q_values.view(R * A * K, U)`: row `(r * A + a) * K + s` holds the action values of state `s` in
 table `a` of process `r` (`table_rows`). Any batch layout (replicas, rooms, agents) flattens to a `(B,)` vector of
 rows, and nothing loops over agents.
+
+A factored table (:class:`pedrl.vq.FactoredQuantizer`) gives each state a set of `M` rows, `(B, M)` with -1 for a
+slot that reads nothing, and a state's action values are the sum of its rows (:func:`factored_values`); every function
+here takes `(B,)` rows or `(B, M)` row sets.
 """
 
 from __future__ import annotations
@@ -16,7 +20,15 @@ import torch
 
 from pedrl._numba import use_kernels
 
-__all__ = ["NUM_ACTIONS", "epsilon_greedy", "greedy", "in_huge_pages", "table_rows", "zeros_q_values"]
+__all__ = [
+    "NUM_ACTIONS",
+    "epsilon_greedy",
+    "factored_values",
+    "greedy",
+    "in_huge_pages",
+    "table_rows",
+    "zeros_q_values",
+]
 
 #: Actions per decision: 9 speed changes x 9 turns (see docs/design.md).
 NUM_ACTIONS = 81
@@ -107,6 +119,19 @@ def table_rows(
     return (process * num_tables + table) * num_states + state
 
 
+def factored_values(q_values: torch.Tensor, rows: torch.Tensor) -> torch.Tensor:
+    """Action values ``(B, U)`` of row sets ``rows (B, M)``: the sum of each set's rows, slot by slot in order
+    (slots of -1 add nothing), the order :func:`pedrl.rl.kernels.greedy_set` sums them in."""
+    flat = q_values.view(-1, q_values.shape[-1])
+    active = rows >= 0
+    safe = rows.clamp_min(0)
+    total = torch.zeros(rows.shape[0], flat.shape[1], dtype=flat.dtype, device=flat.device)
+    for slot in range(rows.shape[1]):
+        values = flat.index_select(0, safe[:, slot])
+        total = total + torch.where(active[:, slot, None], values, torch.zeros((), dtype=flat.dtype))
+    return total
+
+
 def greedy(
     q_values: torch.Tensor,
     rows: torch.Tensor,
@@ -121,7 +146,7 @@ def greedy(
 
     Args:
         q_values: `(R, A, K, U)` Q tables.
-        rows: `(B,)` int64 flat rows (`table_rows`).
+        rows: `(B,)` int64 flat rows (`table_rows`), or `(B, M)` row sets of a factored table.
         generator: random source for ties (on `q_values.device`; None: torch's default).
         compiled: use the numba kernel (`pedrl.rl.kernels`, the same actions for the same random numbers; None:
             on the CPU when numba is there).
@@ -145,8 +170,10 @@ def greedy_torch(q_values: torch.Tensor, rows: torch.Tensor, generator: torch.Ge
     exceeds `j` first at that action. One random number per row, not one per action. Counts are int16 (`U` is
     small), the fastest of the variants measured on CPU.
     """
-    # index_select: a plain row gather from a large table is several times slower on CPU
-    values = q_values.view(-1, q_values.shape[-1]).index_select(0, rows)
+    if rows.ndim == 2:
+        values = factored_values(q_values, rows)
+    else:  # index_select: a plain row gather from a large table is several times slower on CPU
+        values = q_values.view(-1, q_values.shape[-1]).index_select(0, rows)
     num_rows, num_actions = values.shape
     best = values.amax(1, keepdim=True)
     running = (values == best).to(torch.int16).cumsum(1, dtype=torch.int16)
@@ -171,7 +198,7 @@ def epsilon_greedy(
 
     Args:
         q_values: `(R, A, K, U)` Q tables.
-        rows: `(B,)` int64 flat rows (`table_rows`).
+        rows: `(B,)` int64 flat rows (`table_rows`), or `(B, M)` row sets.
         epsilon: exploration probability in `[0, 1]`, a float or a tensor broadcastable to `(B,)`.
         generator: random source (on `q_values.device`; None: torch's default).
         compiled: see `greedy`.

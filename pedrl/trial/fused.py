@@ -163,6 +163,7 @@ def _launch(env, policy, epsilon, generator, learn, alpha, gamma, *, record, gre
     from pedrl.sim.streams import seed_streams
     from pedrl.trial.fused_kernels import Learning, Observed, Trace, fused_trial
     from pedrl.vq.encode_kernel import pack_encoder
+    from pedrl.vq.factored_kernel import pack_factored
 
     set_kernel_threads(torch.get_num_threads())
     if reset:
@@ -185,15 +186,16 @@ def _launch(env, policy, epsilon, generator, learn, alpha, gamma, *, record, gre
     part = max(1, PROGRESS_EVERY // (rooms * agents)) if progress is not None else 2**62
     learning = Learning(np.float32(epsilon), learn, np.float32(alpha), np.float32(gamma),
                         settings.void_draws == "decision", greedy, np.int64(part))  # fmt: skip
-    packed = pack_encoder(policy.encoder, policy.num_processes)
+    factored = pack_factored(None if greedy else policy.encoder)
+    packed = pack_encoder(_walker_policy(env).encoder if factored.num_slots else policy.encoder, policy.num_processes)
     inputs = room_inputs(env)
     scratch = (
         Work.allocate(rooms, agents, env.num_substeps),
         Events.allocate(rooms, agents),
-        Observed.allocate(rooms, agents, env.num_features),
+        Observed.allocate(rooms, agents, env.num_features, int(factored.num_slots)),
         np.zeros((rooms, agents, 3 * settings.num_neighbours + 1 if random_void else 1), np.float32),
     )
-    arrays = (packed.arrays, packed.tree, packed.pruned, settings.kernel())
+    arrays = (packed.arrays, packed.tree, packed.pruned, settings.kernel(), factored)
     table, rows = policy.q_values.view(-1, policy.num_actions).numpy(), base_rows.view(rooms, agents).numpy()
     room_of = process.view(rooms, agents)[:, 0].contiguous().numpy()
     while True:  # one call, or parts of one trial (the same numbers)

@@ -3,9 +3,11 @@ process, composed of the stage kernels that sit beside their torch twins:
 
 - act: :func:`pedrl.sim.step_kernel.act_room` (:meth:`pedrl.sim.RoomEnv.step` without the observation);
 - sense: :func:`pedrl.sim.sensing_kernel.sense_room` (:func:`pedrl.sim.sensing.observe`);
-- encode: :func:`pedrl.vq.encode_kernel.encode_room` (:meth:`pedrl.vq.StateEncoder.prepare` and the nearest prototype);
-- learn: :func:`pedrl.rl.kernels.td_batch` (:func:`pedrl.rl.td_update_torch`), the same kernel as the torch loop's;
-- choose: :func:`pedrl.rl.kernels.epsilon_greedy_row` (:func:`pedrl.rl.epsilon_greedy`).
+- encode: :func:`pedrl.vq.encode_kernel.encode_room` (:meth:`pedrl.vq.StateEncoder.prepare` and the nearest prototype),
+  or for a factored table :func:`pedrl.vq.factored_kernel.encode_factored_room` (a row set per agent);
+- learn: :func:`pedrl.rl.kernels.td_batch` (:func:`pedrl.rl.td_update_torch`), the same kernel as the torch loop's
+  (:func:`pedrl.rl.kernels.td_set_batch` for row sets);
+- choose: :func:`pedrl.rl.kernels.epsilon_greedy_row` (:func:`pedrl.rl.epsilon_greedy`; ``epsilon_greedy_set``).
 
 The learning processes run in parallel (``prange``); a process runs its ``E`` rooms in turn, decision by decision,
 and owns its tables, so no two threads write the same row. Every room draws from its own counter-based stream
@@ -21,12 +23,13 @@ import numpy as np
 from numba import prange
 
 from pedrl._numba import cached_njit
-from pedrl.rl.kernels import epsilon_greedy_row, td_batch
+from pedrl.rl.kernels import epsilon_greedy_row, epsilon_greedy_set, td_batch, td_set_batch
 from pedrl.sim.greedy_kernel import greedy_action
 from pedrl.sim.sensing_kernel import sense_room
 from pedrl.sim.step_kernel import act_room, act_scratch
 from pedrl.sim.streams import next_uniform
 from pedrl.vq.encode_kernel import draw_void, encode_buffers, encode_room
+from pedrl.vq.factored_kernel import encode_factored_room
 
 __all__ = ["Learning", "Observed", "Trace", "fused_trial"]
 
@@ -58,11 +61,18 @@ class Observed(NamedTuple):
     """``(R, N)`` int64: each agent's table row."""
     next_rows: np.ndarray
     actions: np.ndarray
+    sets: np.ndarray
+    """``(R, N, M)`` int64: each agent's row set of a factored table (``M = 0`` for a plain one)."""
+    next_sets: np.ndarray
 
     @classmethod
-    def allocate(cls, rooms: int, agents: int, features: int) -> Observed:
+    def allocate(cls, rooms: int, agents: int, features: int, slots: int = 0) -> Observed:
         shape = (rooms, agents)
-        return cls(np.zeros((*shape, features), np.float32), *(np.zeros(shape, np.int64) for _ in range(4)))
+        return cls(
+            np.zeros((*shape, features), np.float32),
+            *(np.zeros(shape, np.int64) for _ in range(4)),
+            *(np.full((*shape, slots), -1, np.int64) for _ in range(2)),
+        )
 
 
 class Trace(NamedTuple):
@@ -98,11 +108,13 @@ def _record(r, frame, state, present, trace):
 
 @cached_njit(nogil=True)
 def _run_process(
-    p, rooms, state, room, walls, exits, routes, encoder, tree, pruned, settings, learning, table, base_rows,
-    process_of, streams, work, events, observed, void, totals, td_sums, trace, start,
+    p, rooms, state, room, walls, exits, routes, encoder, tree, pruned, settings, factored, learning, table,
+    base_rows, process_of, streams, work, events, observed, void, totals, td_sums, trace, start,
 ):  # fmt: skip
     """Every decision of process ``p``'s rooms ``p E .. p E + E - 1`` until they are empty (or ``learning.until``),
-    from decision ``start`` (0: the reset, observed first); returns the decisions taken."""
+    from decision ``start`` (0: the reset, observed first); returns the decisions taken. ``factored``
+    (:class:`pedrl.vq.factored_kernel.FactoredArrays`) of any slots: the table is factored, and the agents act on
+    and learn into row sets."""
     positions, speeds, active = state.positions, state.speeds, state.active
     k, w = room.num_neighbours, room.num_walls
     random_void, epsilon, greedy = settings.random_void, learning.epsilon, learning.greedy
@@ -118,10 +130,15 @@ def _run_process(
     buffers = encode_buffers(num_agents, features.shape[2])
     scratch = act_scratch(num_agents)
     errors = np.empty(rooms * num_agents, np.float32)
+    sets, next_sets = observed.sets, observed.next_sets
+    num_slots = sets.shape[2]
+    is_factored = factored.num_slots > 0
+    entries = rooms * num_agents * max(num_slots, 1)
     slots = 1
-    while slots < 2 * rooms * num_agents:
+    while slots < 2 * entries:
         slots *= 2
-    keys, tally, slot_of = np.empty(slots, np.int64), np.empty(slots, np.int64), np.empty(rooms * num_agents, np.int64)
+    keys, tally, slot_of = np.empty(slots, np.int64), np.empty(slots, np.int64), np.empty(entries, np.int64)
+    values, x = np.empty((1, table.shape[1]), np.float32), np.empty(features.shape[2], np.float32)
 
     # ---- the first observation and choice
     for r in range(first, first + rooms if start == 0 else first):
@@ -130,15 +147,15 @@ def _run_process(
         if random_void:
             draw_void(r, void, streams)
         sense_room(r, state, active, walls, k, w, room.search, features, num_sensed, distances, indices)
-        if not greedy:
+        if is_factored:
+            encode_factored_room(r, active, base_rows, sets, features, num_sensed, settings, factored, x)
+        elif not greedy:
             encode_room(r, process_of[r], active, base_rows, rows, features, num_sensed, void, settings, encoder,
                         tree, pruned, buffers)  # fmt: skip
         for i in range(num_agents):
             if active[r, i]:
-                actions[r, i] = (
-                    greedy_action(features[r, i, 1], speed_changes, turn_changes, goal_frame, epsilon, streams, r)
-                    if greedy else epsilon_greedy_row(table, rows[r, i], epsilon, streams, r)
-                )  # fmt: skip
+                actions[r, i] = _choose(r, i, greedy, is_factored, features, speed_changes, turn_changes, goal_frame,
+                                        epsilon, streams, table, rows, sets, values)  # fmt: skip
     steps = start
     while steps < learning.until and active[first : first + rooms].any():
         # ---- act, sense, encode (each room)
@@ -151,11 +168,24 @@ def _run_process(
             if random_void and learning.void_each_decision:
                 draw_void(r, void, streams)
             sense_room(r, state, events.in_room, walls, k, w, room.search, features, num_sensed, distances, indices)
-            if not greedy:
+            if is_factored:
+                encode_factored_room(r, events.in_room, base_rows, next_sets, features, num_sensed, settings, factored,
+                                     x)  # fmt: skip
+            elif not greedy:
                 encode_room(r, process_of[r], events.in_room, base_rows, next_rows, features, num_sensed, void,
                             settings, encoder, tree, pruned, buffers)  # fmt: skip
         # ---- learn (the process's rooms at once, into its tables)
-        if learning.learn:
+        if learning.learn and is_factored:
+            flat_sets = sets.reshape((sets.shape[0] * num_agents, num_slots))
+            flat_next = next_sets.reshape((sets.shape[0] * num_agents, num_slots))
+            total, count = td_set_batch(
+                table, flat_sets[batch], actions.reshape(-1)[batch], reward.reshape(-1)[batch], flat_next[batch],
+                events.left.reshape(-1)[batch], acting.reshape(-1)[batch], learning.alpha, learning.gamma, errors,
+                values, keys, tally, slot_of,
+            )  # fmt: skip
+            td_sums[p, 0] += total
+            td_sums[p, 1] += count
+        elif learning.learn:
             total, count = td_batch(
                 table, rows.reshape(-1)[batch], actions.reshape(-1)[batch], reward.reshape(-1)[batch],
                 next_rows.reshape(-1)[batch], events.left.reshape(-1)[batch], acting.reshape(-1)[batch],
@@ -174,19 +204,30 @@ def _run_process(
                     totals[4, r, i] += speeds[r, i]
                     totals[5, r, i] += 1.0
                 rows[r, i] = next_rows[r, i]
+                for m in range(num_slots):
+                    sets[r, i, m] = next_sets[r, i, m]
                 if active[r, i]:
-                    actions[r, i] = (
-                        greedy_action(features[r, i, 1], speed_changes, turn_changes, goal_frame, epsilon, streams, r)
-                        if greedy else epsilon_greedy_row(table, rows[r, i], epsilon, streams, r)
-                    )  # fmt: skip
+                    actions[r, i] = _choose(r, i, greedy, is_factored, features, speed_changes, turn_changes,
+                                            goal_frame, epsilon, streams, table, rows, sets, values)  # fmt: skip
         steps += 1
     return steps
 
 
+@cached_njit(nogil=True, inline="always")
+def _choose(r, i, greedy, is_factored, features, speed_changes, turn_changes, goal_frame, epsilon, streams, table, rows,
+            sets, values):  # fmt: skip
+    """Agent ``i``'s action: the greedy walker's, or epsilon-greedy on its table row or (factored) its row set."""
+    if greedy:
+        return greedy_action(features[r, i, 1], speed_changes, turn_changes, goal_frame, epsilon, streams, r)
+    if is_factored:
+        return epsilon_greedy_set(table, sets[r, i], values, epsilon, streams, r)
+    return epsilon_greedy_row(table, rows[r, i], epsilon, streams, r)
+
+
 @cached_njit(nogil=True, parallel=True)
 def fused_trial(
-    rooms, state, room, walls, exits, routes, encoder, tree, pruned, settings, learning, table, base_rows, process_of,
-    streams, work, events, observed, void, totals, td_sums, steps, trace,
+    rooms, state, room, walls, exits, routes, encoder, tree, pruned, settings, factored, learning, table, base_rows,
+    process_of, streams, work, events, observed, void, totals, td_sums, steps, trace,
 ):  # fmt: skip
     """A whole trial of every room from its reset state: the processes ``p`` of ``E = rooms`` rooms each in
     parallel, each by :func:`_run_process`; ``steps[p]`` holds the decisions taken before (0: from the reset) and
@@ -197,10 +238,11 @@ def fused_trial(
     decisions; ``td_sums`` ``(P, 2)`` float64 the sum of ``|TD error|`` and the updates; ``trace`` (:class:`Trace`)
     gets a frame every ``trace.every`` decisions when it has more than one. ``room``, ``walls``, ``exits``,
     ``routes``, ``work`` and ``events`` are :func:`pedrl.sim.step_kernel.act_room`'s; ``encoder``, ``tree``,
-    ``pruned`` and ``settings`` :func:`pedrl.vq.encode_kernel.encode_room`'s.
+    ``pruned`` and ``settings`` :func:`pedrl.vq.encode_kernel.encode_room`'s, ``factored``
+    :func:`pedrl.vq.factored_kernel.encode_factored_room`'s (a stub of no slots for a plain table).
     """
     for p in prange(steps.shape[0]):
         steps[p] = _run_process(
-            p, rooms, state, room, walls, exits, routes, encoder, tree, pruned, settings, learning, table, base_rows,
-            process_of, streams, work, events, observed, void, totals, td_sums, trace, steps[p],
+            p, rooms, state, room, walls, exits, routes, encoder, tree, pruned, settings, factored, learning, table,
+            base_rows, process_of, streams, work, events, observed, void, totals, td_sums, trace, steps[p],
         )  # fmt: skip

@@ -14,7 +14,7 @@ from typing import Any, NamedTuple
 import torch
 
 from pedrl.rl import epsilon_greedy
-from pedrl.rl.policy import TableLayout, TabularPolicy
+from pedrl.rl.policy import TableLayout, TabularPolicy, offset_ids
 from pedrl.sim import RoomEnv
 from pedrl.trial.loop import Driver, crowd_loop
 from pedrl.trial.stats import TrialStats
@@ -100,7 +100,7 @@ class Gatherer(Driver):
         if self.policy is None:
             actions = torch.randint(env.num_actions, (rooms * num_agents,), generator=self.generator, device=env.device)
         else:
-            rows = self.base_rows + self.policy.encoder.encode_prepared(flat_obs, num_sensed)
+            rows = offset_ids(self.base_rows, self.policy.encoder.encode_prepared(flat_obs, num_sensed))
             actions = epsilon_greedy(self.policy.q_values, rows, self.epsilon, self.generator)
         return actions.view(rooms, num_agents)
 

@@ -8,9 +8,11 @@ error of one stage never feeds the next and every comparison is of one stage alo
 - **act**: :func:`pedrl.sim.step_kernel.act_room` against :meth:`pedrl.sim.RoomEnv.step`, with the same actions and
   the same order of action (the draws ``RoomEnv`` makes for it);
 - **sense**: :func:`pedrl.sim.sensing_kernel.sense_room` against the step's observation;
-- **encode**: :func:`pedrl.vq.encode_kernel.encode_room` against :meth:`pedrl.rl.TabularPolicy.rows`, from the
+- **encode**: :func:`pedrl.vq.encode_kernel.encode_room` (a factored table's
+  :func:`pedrl.vq.factored_kernel.encode_factored_room`) against :meth:`pedrl.rl.TabularPolicy.rows`, from the
   same features and the same void fillings;
-- **learn**: :func:`pedrl.rl.kernels.td_batch` against :func:`pedrl.rl.td_update_torch`, on the same transitions.
+- **learn**: :func:`pedrl.rl.kernels.td_batch` (``td_set_batch`` for row sets) against
+  :func:`pedrl.rl.td_update_torch`, on the same transitions.
 
 The actions are epsilon-greedy on the torch path's tables. :data:`TOLERANCES` is the one declared table; the tests
 (``tests/trial/test_twins.py``) run it over every scenario x contact rule x quantizer kind.
@@ -27,6 +29,7 @@ import torch
 
 from pedrl.rl.policy import TabularPolicy
 from pedrl.rl.qlearning import td_update_torch
+from pedrl.rl.qtable import factored_values
 from pedrl.sim import RoomEnv
 from pedrl.sim.sensing import void_draws
 from pedrl.sim.state import RoomState
@@ -111,10 +114,11 @@ def check_twins(
 
     ``policy``'s tables are updated by the torch path (a copy by the kernel path, compared after each update). The
     report's :meth:`~TwinReport.failures` lists what exceeds ``tolerances``."""
-    from pedrl.rl.kernels import td_batch, td_scratch
+    from pedrl.rl.kernels import td_batch, td_scratch, td_set_batch
     from pedrl.sim.sensing_kernel import sense_room
     from pedrl.sim.step_kernel import Events, Work, act_room, act_scratch
     from pedrl.vq.encode_kernel import pack_encoder
+    from pedrl.vq.factored_kernel import pack_factored
 
     report = TwinReport(other=[])
     rooms, agents = env.num_replicas, env.num_agents
@@ -123,7 +127,8 @@ def check_twins(
     inputs = fused.room_inputs(env)
     work, scratch = Work.allocate(rooms, agents, env.num_substeps), act_scratch(agents)
     events = Events.allocate(rooms, agents)
-    encoder = pack_encoder(policy.encoder, policy.num_processes)
+    factored = policy.encoder.num_slots is not None
+    encoder = pack_factored(policy.encoder) if factored else pack_encoder(policy.encoder, policy.num_processes)
     process = policy.layout.of(rooms, agents, env.device)[0].view(rooms, agents)[:, 0].tolist()
     angles = _angle_columns(env)
     table = policy.q_values.view(-1, policy.num_actions)
@@ -161,8 +166,14 @@ def check_twins(
         td_update_torch(policy.q_values, rows, actions.view(-1), reward.view(-1), next_rows, left, valid,
                         alpha=alpha, gamma=gamma)  # fmt: skip
         arrays = (copy, rows, actions.view(-1), reward.view(-1).float(), next_rows, left, valid)
-        td_batch(*(a.contiguous().numpy() for a in arrays), np.float32(alpha), np.float32(gamma),
-                 np.zeros(valid.shape[0], np.float32), *td_scratch(valid.shape[0]))  # fmt: skip
+        numbers = (np.float32(alpha), np.float32(gamma), np.zeros(valid.shape[0], np.float32))
+        if factored:
+            entries = rows.numel()
+            keys, tally, _ = td_scratch(entries)
+            td_set_batch(*(a.contiguous().numpy() for a in arrays), *numbers, np.empty((1, table.shape[1]), np.float32),
+                         keys, tally, np.empty(entries, np.int64))  # fmt: skip
+        else:
+            td_batch(*(a.contiguous().numpy() for a in arrays), *numbers, *td_scratch(valid.shape[0]))
         report.table = max(report.table, float((copy - table).abs().max()))
         rows = next_rows
         report.decisions += 1
@@ -183,9 +194,10 @@ def _angle_columns(env: RoomEnv) -> torch.Tensor:
 
 
 def _epsilon_greedy(table: torch.Tensor, rows: torch.Tensor, epsilon: float, generator: torch.Generator):
-    explore = torch.rand(rows.shape, generator=generator) < epsilon
-    uniform = torch.randint(table.shape[1], rows.shape, generator=generator)
-    return torch.where(explore, uniform, table.index_select(0, rows).argmax(1))
+    explore = torch.rand(rows.shape[:1], generator=generator) < epsilon
+    uniform = torch.randint(table.shape[1], rows.shape[:1], generator=generator)
+    values = factored_values(table, rows) if rows.ndim == 2 else table.index_select(0, rows)
+    return torch.where(explore, uniform, values.argmax(1))
 
 
 def _compare_step(report, env, state, events, acting, reward, terminated, info) -> None:
@@ -233,6 +245,7 @@ def _encode(report, policy, obs, info, present, generator, process, encoder, voi
     """The torch path's rows of ``obs`` and the kernel's from the same features and void fillings, compared for the
     ``present`` agents; returns the torch rows and the void fillings (kept for a trial under ``void_draws=trial``)."""
     from pedrl.vq.encode_kernel import encode_buffers, encode_room
+    from pedrl.vq.factored_kernel import encode_factored_room
 
     rooms, agents = present.shape
     settings = policy.encoder.settings
@@ -242,8 +255,17 @@ def _encode(report, policy, obs, info, present, generator, process, encoder, voi
     rows = policy.rows(obs, info, generator)
     fills = void.view(rooms, agents, -1).numpy() if random_void else np.zeros((rooms, agents, 1), np.float32)
     base = policy.layout.of(rooms, agents, obs.device)[1].view(rooms, agents).numpy()
-    mine = np.zeros((rooms, agents), np.int64)
     features, num_sensed = obs.contiguous().numpy(), info["num_sensed"].contiguous().numpy()
+    if rows.ndim == 2:  # row sets of a factored table: the same set, slot by slot
+        mine = np.zeros((rooms, agents, rows.shape[1]), np.int64)
+        x = np.empty(obs.shape[-1], np.float32)
+        for r in range(rooms):
+            encode_factored_room(r, present.numpy(), base, mine, features, num_sensed, settings.kernel(), encoder, x)
+        same = (torch.from_numpy(mine).view(rows.shape) == rows).all(1).view(rooms, agents)[present]
+        report.id_mismatches += int((~same).sum())
+        report.encoded += int(same.numel())
+        return rows, void
+    mine = np.zeros((rooms, agents), np.int64)
     buffers = encode_buffers(agents, obs.shape[-1])
     for r in range(rooms):
         encode_room(r, process[r], present.numpy(), base, mine, features, num_sensed, fills, settings.kernel(),

@@ -10,7 +10,9 @@ The quantizer is one of three kinds, and :meth:`StateEncoder.encode_prepared` di
 - :class:`~pedrl.vq.ProcessQuantizers`: one part per learning process (``vq.per_process``), each part encoding the
   states of the agents its process drives;
 - :class:`~pedrl.vq.UnionQuantizer`: IN-VQQL's union, a part per number of sensed neighbours, each reading its
-  projection of the state.
+  projection of the state;
+- :class:`~pedrl.vq.FactoredQuantizer`: a quantizer per factor (own, neighbour, wall), whose state ids are sets of
+  ``M`` ids (``(B, M)``, -1 for a slot that reads nothing) of a factored table (``vq.factors``).
 
 The feature weights are applied inside the quantizer (its prototypes are fitted in weighted, standardised
 units), so they travel with it.
@@ -34,6 +36,7 @@ from pedrl.sim.sensing import (
     num_features,
     void_draws,
 )
+from pedrl.vq.factored import FactoredQuantizer
 from pedrl.vq.quantizer import ProcessQuantizers, Quantizer, UnionQuantizer
 
 VOID_FEATURES: Final = ("zero", "random")
@@ -42,7 +45,7 @@ VOID_DRAWS: Final = ("trial", "decision")
 """Values of ``void_draws``: the random filling drawn once per agent and trial, or anew at every encode."""
 DISTANCE_TRANSFORMS: Final = ("none", "log")
 """Values of ``distance_transform``: raw distances (the paper) or ``log(1 + d)``."""
-AnyQuantizer = Quantizer | ProcessQuantizers | UnionQuantizer
+AnyQuantizer = Quantizer | ProcessQuantizers | UnionQuantizer | FactoredQuantizer
 
 
 class KernelEncoding(NamedTuple):
@@ -161,6 +164,11 @@ class StateEncoder:
             raise ValueError("the encoder has no quantizer yet")
         return self.quantizer.num_prototypes
 
+    @property
+    def num_slots(self) -> int | None:
+        """M, the ids of one state of a factored quantizer; None for the others (one id a state)."""
+        return self.quantizer.num_slots if isinstance(self.quantizer, FactoredQuantizer) else None
+
     # ------------------------------------------------------------------ encoding
     def prepare(self, obs: torch.Tensor, num_sensed: torch.Tensor, decision: int, generator: torch.Generator):
         """Observations ``(B, F)`` as the quantizer sees them: void slots filled, distances transformed.
@@ -200,7 +208,8 @@ class StateEncoder:
     def encode_prepared(
         self, prepared: torch.Tensor, num_sensed: torch.Tensor, process: torch.Tensor | None = None
     ) -> torch.Tensor:
-        """State ids ``(B,)`` of prepared observations ``(B, F)`` with ``num_sensed (B,)`` neighbours.
+        """State ids ``(B,)`` of prepared observations ``(B, F)`` with ``num_sensed (B,)`` neighbours (``(B, M)`` id
+        sets of a :class:`~pedrl.vq.FactoredQuantizer`).
 
         ``process (B,)`` names the learning process of every row, whose quantizer encodes it when there is one per
         process; None means the trainers' layout (``B / P`` consecutive rows per process).
@@ -208,7 +217,7 @@ class StateEncoder:
         quantizer = self.quantizer
         if isinstance(quantizer, ProcessQuantizers):
             return quantizer.encode(prepared, num_sensed, process=process)
-        if isinstance(quantizer, UnionQuantizer):
+        if isinstance(quantizer, UnionQuantizer | FactoredQuantizer):
             return quantizer.encode(prepared, num_sensed)
         if quantizer is None:
             raise ValueError("the encoder has no quantizer yet")
@@ -228,8 +237,8 @@ class StateEncoder:
 
         ``process (R * N,)``: the learning process of every agent (None: the trainers' layout, see
         :meth:`encode_prepared`). ``rows_mask (R * N,)`` bool: encode only these agents (those still in a room),
-        whose processes ``process_of_rows (R * N,)`` then gives when ``process`` is None; the others get id 0. With
-        every agent masked in, or ``None``, all are encoded at once.
+        whose processes ``process_of_rows (R * N,)`` then gives when ``process`` is None; the others get id 0 (an
+        empty set, all -1, of a factored quantizer). With every agent masked in, or ``None``, all are encoded at once.
         """
         num_sensed = info["num_sensed"].reshape(-1)
         prepared = self.prepare(obs.reshape(-1, obs.shape[-1]), num_sensed, info["decision"], generator)
@@ -237,7 +246,9 @@ class StateEncoder:
             selected = rows_mask.nonzero().squeeze(1)
             if selected.shape[0] < rows_mask.shape[0]:
                 owner = process if process is not None else process_of_rows
-                ids = torch.zeros(rows_mask.shape[0], dtype=torch.int64, device=obs.device)
+                slots = self.num_slots
+                shape = (rows_mask.shape[0],) if slots is None else (rows_mask.shape[0], slots)
+                ids = torch.full(shape, 0 if slots is None else -1, dtype=torch.int64, device=obs.device)
                 if selected.shape[0] > 0:
                     own = self.encode_prepared(
                         prepared.index_select(0, selected),
@@ -264,6 +275,14 @@ class StateEncoder:
         """One-line ``ValueError`` if the quantizer cannot encode this encoder's observations: a plain part must
         read all F features, and a union's part for ``n`` sensed neighbours exactly their projection."""
         quantizer, settings = self.quantizer, self.settings
+        if isinstance(quantizer, FactoredQuantizer):
+            slots = (quantizer.num_neighbours, quantizer.num_walls)
+            if slots != (settings.num_neighbours, settings.num_walls):
+                raise ValueError(
+                    f"the factored quantizer reads {slots[0]} neighbour and {slots[1]} wall slots: the observations "
+                    f"have {settings.num_neighbours} and {settings.num_walls}"
+                )
+            return
         parts = quantizer.parts if isinstance(quantizer, ProcessQuantizers) else [quantizer]
         for index, part in enumerate(parts):
             if isinstance(part, Quantizer):
@@ -289,8 +308,10 @@ class StateEncoder:
 
 
 def quantizer_from_state_dict(tensors: dict[str, torch.Tensor]) -> AnyQuantizer:
-    """The quantizer saved as ``tensors``: one per process or one shared, each plain or a union (read from the
-    tensor names)."""
+    """The quantizer saved as ``tensors``: one per process or one shared, each plain or a union, or a factored one
+    (read from the tensor names)."""
+    if FactoredQuantizer.holds(tensors):
+        return FactoredQuantizer.from_state_dict(tensors)
     if ProcessQuantizers.holds(tensors):
         return ProcessQuantizers.from_state_dict(tensors, _part_from_state_dict)
     return _part_from_state_dict(tensors)

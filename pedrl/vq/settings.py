@@ -8,6 +8,7 @@ from typing import Any, Final
 
 from pedrl.common.checks import check_bool, check_choice, check_integer, check_number
 from pedrl.vq.encoder import DISTANCE_TRANSFORMS
+from pedrl.vq.factored import FactorSpec, factor_specs
 
 KMEANS_INITS: Final = ("kmeans++", "random")
 """Values of ``vq.init``: k-means++ seeding or K random states (see :func:`pedrl.vq.kmeans`)."""
@@ -34,6 +35,10 @@ class VQSettings:
             feature before standardisation: fine near the door and the neighbours, coarse far away).
         per_process: one quantizer per learning process, fitted on that process's own states (the paper's
             processes are independent); False: one quantizer fitted on all processes' states and shared.
+        factors: None (one quantizer over the whole state), or a factored table (:mod:`pedrl.vq.factored`): a
+            mapping of the factors ``own`` (required), ``neighbour`` and ``wall`` to ``{num_prototypes: K,
+            weights: {feature: weight}}``; ``num_prototypes`` and the ``weight_*`` keys are then not read, and the
+            quantizer is shared (``per_process=false``).
     """
 
     num_prototypes: int = 4096
@@ -47,6 +52,7 @@ class VQSettings:
     weight_walls: float = 0.5
     per_process: bool = True
     distance_transform: str = "log"
+    factors: Mapping[str, Any] | None = None
 
     def __post_init__(self) -> None:
         """Check every value (except the neighbour weights, which need the room) before any compute."""
@@ -66,6 +72,29 @@ class VQSettings:
         check_number("vq.weight_walls", self.weight_walls, low=0.0, low_open=True)
         check_bool("vq.per_process", self.per_process)
         check_choice("vq.distance_transform", self.distance_transform, DISTANCE_TRANSFORMS)
+        if self.factor_specs is not None and self.per_process:
+            raise ValueError(
+                "vq.per_process=true is invalid with vq.factors: a factored table's quantizers are shared by the "
+                "processes (set vq.per_process=false)"
+            )
+
+    @property
+    def factor_specs(self) -> tuple[FactorSpec, ...] | None:
+        """The factors of a factored table, checked (None: one plain quantizer)."""
+        return factor_specs(self.factors)
+
+    @property
+    def table_states(self) -> int:
+        """K of a phase's tables: ``num_prototypes``, or the factors' together."""
+        specs = self.factor_specs
+        return self.num_prototypes if specs is None else sum(spec.num_prototypes for spec in specs)
+
+    @property
+    def fit_states(self) -> int:
+        """The distinct states one fit needs: ``num_prototypes``, or the own factor's K (every gathered state is an
+        own state; neighbours and walls are more)."""
+        specs = self.factor_specs
+        return self.num_prototypes if specs is None else specs[0].num_prototypes
 
     @classmethod
     def from_config(cls, values: Mapping[str, Any]) -> VQSettings:
@@ -74,4 +103,9 @@ class VQSettings:
         unknown = sorted(set(values) - known)
         if unknown:
             raise ValueError(f"vq.{unknown[0]} is not a quantizer setting: allowed: {', '.join(sorted(known))}")
-        return cls(**dict(values))
+        return cls(**{key: _plain(value) if key == "factors" else value for key, value in values.items()})
+
+
+def _plain(value: Any) -> Any:
+    """``value`` with every mapping in it a dict (a DictConfig's entries are DictConfigs)."""
+    return {key: _plain(entry) for key, entry in value.items()} if isinstance(value, Mapping) else value

@@ -34,6 +34,7 @@ from pedrl.trial.crowd import run_crowd
 from pedrl.trial.loop import Learner
 from pedrl.trial.rollout import gather
 from pedrl.vq.encoder import EncoderSettings, StateEncoder
+from pedrl.vq.factored import FactoredQuantizer, factor_specs
 from pedrl.vq.quantizer import ProcessQuantizers, Quantizer, UnionQuantizer
 from tests.conftest import compose_config
 
@@ -163,7 +164,8 @@ def test_a_decision_matches_the_room_step(name, agents, contact, frame):
 
 
 def policies(env: RoomEnv, processes: int) -> dict[str, TabularPolicy]:
-    """A policy of each quantizer kind over ``env``'s observations (random void fillings, log distances)."""
+    """A policy of each quantizer kind over ``env``'s observations (random void fillings, log distances): one shared,
+    one per process, IN-VQQL's union and a factored one."""
     settings = EncoderSettings.for_room(env, void_features="random", distance_transform="log")
     generator = torch.Generator().manual_seed(0)
     env.reset(seed=0)
@@ -175,7 +177,11 @@ def policies(env: RoomEnv, processes: int) -> dict[str, TabularPolicy]:
         index = torch.cat((torch.arange(3 + 3 * sensed), torch.arange(24, 28)))
         union = union.unite(sensed, index, Quantizer.fit(states.states[:, index], 40 + sensed, generator=generator,
                                                         max_iterations=5)[0])  # fmt: skip
-    kinds = {"shared": shared, "per_process": ProcessQuantizers(parts), "union": union}
+    neighbour = {"num_prototypes": 40, "weights": {"distance": 2}}
+    specs = factor_specs({"own": {"num_prototypes": 60}, "neighbour": neighbour, "wall": {"num_prototypes": 16}})
+    factored, _ = FactoredQuantizer.fit(states.states, states.num_sensed, specs, num_neighbours=7, num_walls=2,
+                                        max_states=20_000, generator=generator, max_iterations=5)  # fmt: skip
+    kinds = {"shared": shared, "per_process": ProcessQuantizers(parts), "union": union, "factored": factored}
     return {
         kind: TabularPolicy(StateEncoder(settings, q), torch.randn(processes, 1, q.num_prototypes, 81))
         for kind, q in kinds.items()

@@ -40,7 +40,8 @@ def room(name: str, contact: str, frame: str = "heading", motion: str = "step"):
 
 @functools.cache
 def scenario_policies(name: str):
-    """A policy of each quantizer kind (shared, per process, IN-VQQL's union) fitted to the scenario's states."""
+    """A policy of each quantizer kind (shared, per process, IN-VQQL's union, factored) fitted to the scenario's
+    states."""
     return policies(room(name, "yield"), 2)
 
 
@@ -58,6 +59,33 @@ def test_the_kernel_path_matches_the_torch_path_through_whole_trials(name, conta
     report = check_twins(room(name, contact, frame), policy, seed=7)
     assert report.failures() == []
     assert report.decisions >= 10 and report.agent_decisions > 100 and report.encoded > 100  # real trials
+
+
+@pytest.mark.parametrize(("contact", "motion"), [("yield", "step"), ("stop", "step"), ("yield", "continuous")])
+@pytest.mark.parametrize("name", BUILT_IN)
+def test_a_factored_table_matches_through_whole_trials(name, contact, motion):
+    """Row sets of a factored table: encoded, chosen on and learned into alike on both paths."""
+    policy = scenario_policies(name)["factored"]
+    policy.q_values.normal_(generator=torch.Generator().manual_seed(1))
+    report = check_twins(room(name, contact, "goal", motion=motion), policy, seed=7)
+    assert report.failures() == []
+    assert report.decisions >= 10 and report.agent_decisions > 100 and report.encoded > 100
+
+
+def test_a_factored_update_that_steps_too_far_fails_the_harness(monkeypatch):
+    """The control: a kernel update of row sets at twice the step size."""
+    import pedrl.rl.kernels as kernels
+
+    original = kernels.td_set_batch
+
+    def too_far(table, rows, actions, rewards, next_rows, terminal, valid, alpha, gamma, *rest):
+        return original(table, rows, actions, rewards, next_rows, terminal, valid, alpha * 2, gamma, *rest)
+
+    monkeypatch.setattr(kernels, "td_set_batch", too_far)
+    policy = scenario_policies("paper_room")["factored"]
+    policy.q_values.normal_(generator=torch.Generator().manual_seed(1))
+    report = check_twins(room("paper_room", "yield", "goal"), policy, seed=7)
+    assert any("table" in failure for failure in report.failures())
 
 
 @pytest.mark.parametrize("contact", ["headway", "yield"])
