@@ -118,12 +118,18 @@ def process_ids(
     encoder: StateEncoder, prepared: torch.Tensor, num_sensed: torch.Tensor, processes: int
 ) -> torch.Tensor:
     """State ids ``(P, B)`` of prepared rows ``(B, F)`` with ``num_sensed (B,)`` neighbours, as each of ``encoder``'s
-    first ``processes`` learning processes encodes them."""
-    ids = [
-        encoder.encode_prepared(prepared, num_sensed, torch.full_like(num_sensed, process))
-        for process in range(processes)
-    ]
-    return torch.stack(ids)
+    first ``processes`` learning processes encodes them. A factored table's states are sets of ids: each distinct set
+    gets one number (the measures count distinct states and their changes)."""
+    ids = torch.stack(
+        [
+            encoder.encode_prepared(prepared, num_sensed, torch.full_like(num_sensed, process))
+            for process in range(processes)
+        ]
+    )
+    if ids.ndim == 3:
+        _, inverse = torch.unique(ids.flatten(0, 1), dim=0, return_inverse=True)
+        ids = inverse.view(ids.shape[:2])
+    return ids
 
 
 def policy_room(policy: TabularPolicy, *, num_replicas: int, num_agents: int):
