@@ -9,6 +9,8 @@ Sections:
               (simulation, sensing, encoding, epsilon-greedy and the TD update), for several E (rooms per process),
               each also as a fraction of the float32 matmul peak measured in the same run; optionally with a
               second busy torch process (--contention) and beside the code of another commit (--baseline)
+    factored  the fused learning trial of the main job's room (80 agents, 8 x 8 rooms) with one plain quantizer
+              (K = 2048) and with experiment=main_factored's factored table: agent-decisions/s and their ratio
     eval      pedrl-eval's recording of a batch (the greedy walker, 80 rooms of 100 and of 20 agents) through the fused
               trial's kernels against the torch loop, in agent-decisions/s and their ratio (target 3x at 100 agents)
     literal   the literal presets' nearest-prototype search at one thread, K = 4096: us/state of the scan against the
@@ -29,7 +31,7 @@ from pathlib import Path
 
 import torch
 
-SECTIONS = ("sim", "kmeans", "e2e", "eval", "literal", "walk")
+SECTIONS = ("sim", "kmeans", "e2e", "factored", "eval", "literal", "walk")
 PERFORMANCE_PAGE = "docs/performance.md"
 
 
@@ -142,6 +144,11 @@ def main(argv: list[str] | None = None) -> dict:
                 baseline=args.baseline,
             )
         )
+    if "factored" in sections:
+        from pedrl.bench.factored import run as run_factored
+
+        print("factored table ...", flush=True)
+        report.update(run_factored(quick=args.quick, trials=args.trials))
     if "eval" in sections:
         from pedrl.bench.evaluation import run as run_eval
 
