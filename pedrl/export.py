@@ -31,7 +31,8 @@ def export(cfg: DictConfig) -> Path:
     if Path(cfg.out).resolve() == Path(cfg.checkpoint).resolve():
         raise ValueError(f"out={cfg.out!r} is invalid: it is the checkpoint itself, which would be overwritten")
     check_outputs(files=[cfg.out])  # before the checkpoint is read
-    return export_policy(cfg.checkpoint, cfg.out, device=check_device(cfg.get("device", "cpu")))
+    processes = cfg.get("processes")
+    return export_policy(cfg.checkpoint, cfg.out, device=check_device(cfg.get("device", "cpu")), processes=processes)
 
 
 @checked_groups("pedrl-export", CONFIG_DIR, groups=())

@@ -33,7 +33,7 @@ from typing import Any, Final
 
 import torch
 
-from pedrl.common.checks import check_device, first_line, shown
+from pedrl.common.checks import check_device, check_integer, first_line, shown
 from pedrl.configs import (
     ALGO_TARGETS,
     VOID_FEATURES_DEFAULTS,
@@ -47,7 +47,8 @@ from pedrl.configs import (
 from pedrl.io import Checkpoint, CheckpointError, load_checkpoint
 from pedrl.rl.policy import POLICY_KIND, TabularPolicy, check_policy_file, from_tensors
 from pedrl.sim import RoomEnv
-from pedrl.vq.encoder import EncoderSettings
+from pedrl.vq.encoder import EncoderSettings, StateEncoder
+from pedrl.vq.quantizer import ProcessQuantizers
 
 RNG_KEYS: Final = ("rng/trainer", "rng/env")
 """Generator states a training checkpoint holds (to resume mid-phase)."""
@@ -124,13 +125,25 @@ def load_policy(
     return policy
 
 
-def export_policy(checkpoint: str | Path, out: str | Path, *, device: str | torch.device = "cpu") -> Path:
-    """Write the policy of a training checkpoint to ``out``: its encoder and tables, with their metadata.
+def export_policy(
+    checkpoint: str | Path, out: str | Path, *, device: str | torch.device = "cpu", processes: int | None = None
+) -> Path:
+    """Write the policy of a training checkpoint to ``out``: its encoder and tables, with their metadata;
+    ``processes`` keeps the tables (and per-process quantizers) of the first ``processes`` learning processes only
+    (None: all), for a smaller file.
 
     Raises:
         CheckpointError: one line, for a checkpoint that cannot be read or a file that cannot be written.
+        ValueError: one line, for ``processes`` outside ``1 .. P``.
     """
     policy = load_policy(checkpoint, device=device, kind="checkpoint", hint="it is exported already")
+    if processes is not None:
+        check_integer("processes", processes, minimum=1, maximum=policy.num_processes)
+        quantizer = policy.encoder.quantizer
+        if isinstance(quantizer, ProcessQuantizers):
+            quantizer = ProcessQuantizers(quantizer.parts[:processes])
+        encoder = StateEncoder(policy.encoder.settings, quantizer)
+        policy = TabularPolicy(encoder, policy.q_values[:processes].clone(), metadata=policy.metadata)
     return policy.save(out)
 
 

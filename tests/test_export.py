@@ -353,3 +353,18 @@ def test_a_file_of_an_unknown_kind_is_named_as_such(trained, tmp_path, which):
     with pytest.raises(CheckpointError, match=r"has metadata kind='bogus', which is unknown") as refused:
         pedrl.load_policy(crafted)
     assert "training checkpoint has no kind" in str(refused.value) and "\n" not in str(refused.value)
+
+
+def test_an_export_of_fewer_processes_is_smaller_and_acts_as_those_processes(trained, tmp_path):
+    checkpoint, _ = trained
+    full = pedrl.load_policy(checkpoint)
+    assert full.num_processes == 2
+    small = pedrl.load_policy(pedrl.export_policy(checkpoint, tmp_path / "one.safetensors", processes=1))
+    assert small.num_processes == 1 and torch.equal(small.q_values, full.q_values[:1])
+    room = room_factory(small)(num_replicas=1, num_agents=3)  # replica 0 acts with process 0 in both
+    obs, info = room.reset(seed=3)
+    want = full.act(obs, info, epsilon=0.0, generator=torch.Generator().manual_seed(1))
+    assert torch.equal(small.act(obs, info, epsilon=0.0, generator=torch.Generator().manual_seed(1)), want)
+    with pytest.raises(ValueError, match=r"processes=3 is invalid: must be an integer in \[1, 2\]"):
+        pedrl.export_policy(checkpoint, tmp_path / "three.safetensors", processes=3)
+    assert not (tmp_path / "three.safetensors").exists()
