@@ -217,11 +217,13 @@ def describe_hydra_error(err: Exception, *, config_dir: str | Path, config_name:
     key = str(full_key)
     from pedrl.configs.motion import command_line_advice  # a flat key of the motion model: its new spelling
 
-    moved = command_line_advice(key, argv)
+    config = _composed_config(config_dir, config_name, argv)
+    motion = OmegaConf.select(config, "env.motion", default=None) if config is not None else None
+    motion = OmegaConf.to_container(motion) if OmegaConf.is_dict(motion) else None
+    moved = command_line_advice(key, _typed_overrides(argv), motion)
     if moved is not None:
         return moved
     new_key = ""  # no `+key=` advice: an added key is refused too (check_added_keys), as nothing reads it
-    config = _composed_config(config_dir, config_name, argv)
     if config is None:
         return f"{key} is not a key of the config" + (f" ({new_key})" if new_key else "")
     parent, _, _ = key.rpartition(".")
@@ -235,6 +237,23 @@ def describe_hydra_error(err: Exception, *, config_dir: str | Path, config_name:
     shown = ", ".join(keys[:20]) + (", ..." if len(keys) > 20 else "")
     where = f"the keys of {parent} are" if parent else "the top-level keys are"
     return f"{key} is not a key of the config: {where} {shown}" + (f"; {new_key}" if new_key else "")
+
+
+def _typed_overrides(argv: list[str]) -> dict[str, Any]:
+    """The command line's overrides, key to value as Hydra's grammar reads them (``4e-1`` a float); one Hydra cannot
+    parse keeps its text."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    parser, typed = OverridesParser.create(), {}
+    for item in argv:
+        written, sep, text = item.lstrip("+~").partition("=")
+        if not sep or written.startswith("-"):
+            continue
+        try:
+            typed[written] = parser.parse_overrides([item])[0].value()
+        except Exception:  # an override Hydra cannot parse is quoted as typed
+            typed[written] = text
+    return typed
 
 
 def nearest_key(key: str, config: DictConfig) -> str | None:

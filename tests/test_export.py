@@ -2,8 +2,10 @@
 ``policy=`` and in the PettingZoo adapter, and bad input is refused in one line."""
 
 import csv
+import dataclasses
 import subprocess
 import sys
+import warnings
 
 import pytest
 import torch
@@ -343,6 +345,25 @@ def test_the_adapter_refuses_a_crowd_it_cannot_run(trained):
 
     with pytest.raises(ValueError, match="crowd of type str is invalid: must be a pedrl.TabularPolicy"):
         parallel_env(num_agents=3, width=8.0, length=8.0, crowd=str(trained[1]))
+
+
+def test_the_adapter_puts_a_crowd_in_its_own_room_and_warns_of_another(trained):
+    """``parallel_env(crowd=policy)`` with no room keywords builds the policy's training room (not the paper's
+    default room), silently; a room given that differs gets one warning line naming what differs."""
+    from pedrl.integrations.pettingzoo import parallel_env
+
+    crowd = pedrl.load_policy(trained[1])
+    own = room_factory(crowd)(num_replicas=1, num_agents=4)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # its own room: no warning
+        room = parallel_env(crowd=crowd, num_agents=4, max_decisions=30).env
+    assert room.params == dataclasses.replace(own.params, max_decisions=30)
+    assert torch.equal(room.geometry.walls, own.geometry.walls) and torch.equal(room.geometry.exits, own.geometry.exits)
+    with pytest.warns(UserWarning) as caught:
+        parallel_env(crowd=crowd, num_agents=3, width=8.0, length=8.0, max_speed=0.9)
+    (message,) = (str(item.message) for item in caught)
+    assert message.startswith("crowd was trained in another room: the walkable area, ") and "\n" not in message
+    assert "max_speed" in message and "pedrl.room_factory(crowd)" in message
 
 
 @pytest.mark.parametrize("which", [0, 1])

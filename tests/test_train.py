@@ -79,6 +79,14 @@ TRAIN_CASES: list[tuple[str, tuple[str, ...]]] = [
     # ---- the flat keys of the motion model, before env.motion named one: the new spelling, in one line
     ("env.contact=yield", ("env.contact='yield'", "old keys of the motion model", "motion=yield")),
     ("env.collision_order=door_first", ("motion=stop env.motion.order=door_first",)),
+    # on a walking-layer run, the walking layer's own key; the value as Hydra reads it (4e-1 is 0.4)
+    ("motion=continuous env.time_gap=0.4", ("env.time_gap=0.4:", "motion=continuous env.motion.time_gap=0.4 on")),
+    ("motion=continuous env.time_gap=4e-1", ("env.time_gap=0.4:", "motion=continuous env.motion.time_gap=0.4 on")),
+    ("motion=headway env.time_gap=0.4", ("motion=headway env.motion.time_gap=0.4 on",)),
+    (
+        "experiment=pedestrian_walk env.time_gap=0.8",
+        ("motion=continuous env.motion.contact=yield env.motion.time_gap=0.8", "Continuous(contact='yield'"),
+    ),
     ("env.contact=bounce", ("env.contact='bounce'", "stop, slide, headway, yield")),
     ("env.contact=headway env.collision_rule=simultaneous", ("collision_rule='simultaneous'", "contact='headway'")),
     ("env.goal_depth=-1", ("goal_depth=-1", ">= 0")),
@@ -168,6 +176,8 @@ TRAIN_CASES: list[tuple[str, tuple[str, ...]]] = [
 
 
 TRAIN_FAST = {
+    "motion=continuous env.time_gap=0.4",
+    "motion=continuous env.time_gap=4e-1",
     "processes=0",
     "processes=1e9",
     "processes=1000000000",

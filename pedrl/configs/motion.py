@@ -24,6 +24,7 @@ from pedrl.sim.motion import (
     Simultaneous,
     Steering,
     Stop,
+    motion_from_config,
 )
 
 FLAT_DEFAULTS: Final = {
@@ -93,6 +94,30 @@ def _pair(name: str, flat: Mapping[str, Any]) -> tuple[Any, Any]:
     return value[0], value[1]
 
 
+def flat_keys_of(model: MotionModel) -> dict[str, Any]:
+    """The flat keys that give ``model`` (:func:`flat_motion` of them is ``model``): the base onto which a flat key
+    typed today is read, so that ``env.time_gap=0.4`` on a run of ``motion=continuous`` means that model's gap."""
+    own = {item.name for item in fields(model)}  # type: ignore[arg-type]
+    flat: dict[str, Any] = {"collision_order": model.order if "order" in own else FLAT_DEFAULTS["collision_order"]}
+    if isinstance(model, Simultaneous):
+        flat["collision_rule"] = "simultaneous"
+    elif isinstance(model, Continuous):
+        steering = model.steering
+        flat.update(
+            motion="continuous",
+            contact=model.contact,
+            time_gap=model.time_gap,
+            time_step=model.time_step,
+            neighbour_repulsion=[steering.neighbour_strength, steering.neighbour_range],
+            wall_repulsion=[steering.wall_strength, steering.wall_range],
+        )
+    else:  # the step models, each named after its contact rule
+        flat["contact"] = model.name
+        if "time_gap" in own:
+            flat["time_gap"] = model.time_gap
+    return flat
+
+
 def overrides(model: MotionModel) -> str:
     """The command line that chooses ``model``: ``motion=<name>`` and each field that differs from the model's
     default (``env.motion.order=door_first``)."""
@@ -113,10 +138,11 @@ def overrides(model: MotionModel) -> str:
     return " ".join(words)
 
 
-def old_keys_advice(env: Mapping[str, Any], where: str = "env.") -> str:
+def old_keys_advice(env: Mapping[str, Any], where: str = "env.", base: MotionModel | None = None) -> str:
     """One line for a config that names the motion model by its flat keys (``where`` prefixes them): the model they
-    mean and how to choose it now; or, where they do not make a model, why."""
-    given = {key: env[key] for key in FLAT_KEYS if key in env}
+    mean and how to choose it now; or, where they do not make a model, why. ``base``: the model the rest of the
+    config chooses (``motion=continuous``), which the flat keys change (None: the flat keys' own defaults)."""
+    given = {key: env[key] for key in FLAT_KEYS if key in env and not isinstance(env[key], Mapping)}
     named = ", ".join(f"{where}{key}={shown(value)}" for key, value in given.items())
     if list(given) == ["motion"] and given["motion"] in MOTION_MODELS:  # env.motion=<name>: a model's name
         return (
@@ -124,7 +150,7 @@ def old_keys_advice(env: Mapping[str, Any], where: str = "env.") -> str:
             f" command line (its settings: env.motion.<key>; {ADVICE})"
         )
     try:
-        model = flat_motion(given)
+        model = flat_motion({**(flat_keys_of(base) if base is not None else {}), **given})
     except ValueError as err:
         return f"{named}: old keys of the motion model, and {err} ({ADVICE})"
     return (
@@ -133,30 +159,41 @@ def old_keys_advice(env: Mapping[str, Any], where: str = "env.") -> str:
     )
 
 
-def command_line_advice(key: str, argv: list[str]) -> str | None:
+def command_line_advice(key: str, typed: Mapping[str, Any], motion: Any = None) -> str | None:
     """One line for an override of a flat key of the motion model on the command line (``env.contact=yield``, which
-    the config no longer holds): the model it means and how to choose it now; None for any other key."""
+    the config no longer holds): the model it means and how to choose it now; None for any other key.
+
+    ``typed``: the command line's overrides, key to value as Hydra reads them (``env.time_gap=4e-1`` is 0.4). The flat
+    keys change the model the rest of the command line chooses: ``motion`` (the composed ``env.motion`` node), else
+    its ``motion=<name>``, else the flat keys' defaults (the step model)."""
     section, _, name = key.partition(".")
     if section != "env" or name not in FLAT_KEYS or name == "motion":
         return None
-    import yaml  # OmegaConf's own parser of override values
+    given = {written[4:]: value for written, value in typed.items() if _is_flat_key(written)}
+    chosen = typed.get("motion")
+    base = _chosen_model(motion) or _chosen_model({"name": chosen} if isinstance(chosen, str) else None)
+    return old_keys_advice(given or {name: FLAT_DEFAULTS[name]}, base=base)
 
-    given = {}
-    for item in argv:
-        written, _, value = item.lstrip("+").partition("=")
-        if written.startswith("env.") and written[4:] in FLAT_KEYS:
-            try:
-                given[written[4:]] = yaml.safe_load(value)
-            except yaml.YAMLError:
-                given[written[4:]] = value
-    return old_keys_advice(given or {name: FLAT_DEFAULTS[name]})
+
+def _is_flat_key(written: str) -> bool:
+    return written.startswith("env.") and written[4:] in FLAT_KEYS
+
+
+def _chosen_model(node: Any) -> MotionModel | None:
+    """The motion model of an ``env.motion`` node, None for none or a bad one (told by its own check)."""
+    if not isinstance(node, Mapping):
+        return None
+    try:
+        return motion_from_config(node)
+    except ValueError:
+        return None
 
 
 def check_no_flat_keys(env: Mapping[str, Any], where: str = "env.") -> None:
     """One-line ``ValueError`` (:func:`old_keys_advice`) for a config typed today that holds a flat key of the motion
     model, or an ``env.motion`` that is a string (``env.motion=continuous`` replaces the model's node)."""
     if any(key in env for key in FLAT_KEYS if key != "motion") or isinstance(env.get("motion"), str):
-        raise ValueError(old_keys_advice(env, where))
+        raise ValueError(old_keys_advice(env, where, _chosen_model(env.get("motion"))))
 
 
 __all__ = [
@@ -166,6 +203,7 @@ __all__ = [
     "flat_motion",
     "check_no_flat_keys",
     "command_line_advice",
+    "flat_keys_of",
     "is_flat",
     "old_keys_advice",
     "overrides",

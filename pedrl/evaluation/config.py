@@ -40,10 +40,13 @@ from pedrl.evaluation.engine import (
 )
 from pedrl.integrations.jupedsim import INSTALL_HINT, JuPedSimModel, installed, model_from_settings
 from pedrl.io.files import check_outputs
+from pedrl.rl.policy import PolicyController
 from pedrl.runtime import set_threads
 from pedrl.sim import RoomEnv
 from pedrl.sim.routing import check_queue_weight
 from pedrl.trial.crowd import choose_path
+from pedrl.trial.fused import record_every
+from pedrl.vq.pruned import graph_memory
 
 CONTROLLERS: Final = ("learned", "greedy", "jupedsim")
 DENSITY_MAP_BYTES_PER_TILE: Final = 40
@@ -120,7 +123,7 @@ def _prepare(cfg: DictConfig, controller: str, device: torch.device) -> tuple[An
     trials_per_batch = min(int(cfg.trials_per_batch), int(cfg.trials))
     envs = build_rooms(policy, list(cfg.agents), trials_per_batch=trials_per_batch, device=device)
     geometry = room_geometry(envs, policy.env_factory.scenario)
-    check_against_room(cfg, geometry, envs)
+    check_against_room(cfg, geometry, envs, policy.controller)
     if isinstance(policy.controller, Recorder):
         for env in envs.values():
             policy.controller.check(env)
@@ -239,9 +242,13 @@ def _validate_values(cfg: DictConfig) -> None:
     choose_path([], None, cfg.get("fused"))  # the value; the rooms are checked once built
 
 
-def check_against_room(cfg: DictConfig, geometry: Geometry, envs: dict[int, RoomEnv]) -> None:
+def check_against_room(cfg: DictConfig, geometry: Geometry, envs: dict[int, RoomEnv], controller: Any = None) -> None:
     """The checks that need the checkpoint's room, before any compute: the measurement point lies inside it, and
-    the recordings, density maps and room states fit in memory."""
+    the recordings, density maps, room states and the encoder's search structures fit in memory.
+
+    ``controller`` (None: the rooms alone) decides each batch's path (:func:`pedrl.trial.crowd.choose_path`): the fused
+    trial keeps a frame every :func:`pedrl.trial.fused.record_every` decisions and builds the nearest-prototype lists
+    of a learned policy's quantizer (:func:`pedrl.vq.pruned.graph_memory`); the torch loop keeps every frame."""
     distance = float(cfg.measurement.distance)
     if distance >= geometry.length or not bool(geometry.contains(measurement_point(geometry, distance))):
         raise ValueError(
@@ -250,16 +257,34 @@ def check_against_room(cfg: DictConfig, geometry: Geometry, envs: dict[int, Room
         )
     tile_size = float(cfg.density_map.tile_size)
     tiles = math.ceil(geometry.width / tile_size) * math.ceil(geometry.length / tile_size)
-    largest = max(envs.values(), key=lambda env: env.num_replicas * env.num_agents)
-    frames = largest.num_replicas * (largest.max_decisions + 1) * largest.num_agents  # agent-frames of one batch
+    fused = {agents: _records_fused(env, controller, cfg.get("fused")) for agents, env in envs.items()}
+    frames = max(_kept_frames(env, thinned=fused[agents]) for agents, env in envs.items())  # of one batch
+    needs = {
+        f"density map (density_map.tile_size={cfg.density_map.tile_size!r}: {tiles:.3g} tiles)": (
+            DENSITY_MAP_BYTES_PER_TILE * tiles
+        ),
+        "recorded trials": RECORD_BYTES_PER_AGENT_FRAME * frames,
+        "room": max(env.step_memory() for env in envs.values()),
+    }
+    if any(fused.values()) and isinstance(controller, PolicyController):
+        from pedrl.vq.encode_kernel import packed_sets  # numba's module, loaded where the fused trial runs
+
+        sets, size = packed_sets(controller.policy.encoder.quantizer)
+        needs[f"nearest-prototype lists ({sets} x {size} prototypes)"] = graph_memory(sets, size)
     check_memory(
-        {
-            f"density map (density_map.tile_size={cfg.density_map.tile_size!r}: {tiles:.3g} tiles)": (
-                DENSITY_MAP_BYTES_PER_TILE * tiles
-            ),
-            "recorded trials": RECORD_BYTES_PER_AGENT_FRAME * frames,
-            "room": max(env.step_memory() for env in envs.values()),
-        },
-        device=largest.device,
+        needs,
+        device=next(iter(envs.values())).device,
         advice="raise density_map.tile_size, or lower trials_per_batch, the agents or max_decisions",
     )
+
+
+def _records_fused(env: RoomEnv, controller: Any, fused: Any) -> bool:
+    """Whether a batch in ``env`` runs through the fused trial (``fused=true`` where it cannot is refused apart)."""
+    return choose_path([env], controller, None if fused is True else fused, record=True).name == "fused"
+
+
+def _kept_frames(env: RoomEnv, *, thinned: bool) -> int:
+    """Agent-frames a batch in ``env`` keeps: every decision's (the torch loop), or every
+    :func:`pedrl.trial.fused.record_every` decisions' and the start (the fused trial), in every room."""
+    every = record_every(env.num_replicas, env.num_agents, env.max_decisions) if thinned else 1
+    return env.num_replicas * (-(-env.max_decisions // every) + 1) * env.num_agents

@@ -18,10 +18,12 @@ its trial; the step in which it reaches the door (``terminations``) or the trial
 
 from __future__ import annotations
 
+import inspect
 import math
 import operator
 import warnings
 from collections.abc import Mapping
+from dataclasses import fields
 from typing import Any, Final
 
 import numpy as np
@@ -324,6 +326,14 @@ class PedestrianParallelEnv(ParallelEnv):
         return infos
 
 
+RUN_KEYWORDS: Final = ("num_agents", "max_decisions", "device")
+"""Keywords of :func:`parallel_env` that say how to run a room, not which room: with a ``crowd`` and none but these,
+the room is the crowd's own."""
+IGNORED_SETTINGS: Final = ("max_decisions", "compile_sensing")
+"""Room settings in which a given room may differ from the crowd's training room without a warning: the trial's
+length and how sensing is computed."""
+
+
 def parallel_env(
     *,
     render_mode: str | None = None,
@@ -336,10 +346,14 @@ def parallel_env(
     """Build a room of one replica in ``scenario`` (:meth:`pedrl.scenarios.Scenario.room`) and wrap it in a
     :class:`PedestrianParallelEnv`.
 
+    With a ``crowd`` that holds its training config and no room given (no ``scenario``, no room keyword but
+    :data:`RUN_KEYWORDS`), the room is the crowd's own (:func:`pedrl.policy_files.room_factory`: its area, bodies,
+    speeds, sensing and motion). A room given that differs from it gets one ``UserWarning`` line naming what differs.
+
     Args:
         render_mode: Only ``None``.
         scenario: A scenario name of :data:`pedrl.scenarios.SCENARIOS` or a ``scenario`` config (``{"name": ...,
-            ...}``); ``None``: the paper's room of ``width``, ``length`` and ``door_width``.
+            ...}``); ``None``: the paper's room of ``width``, ``length`` and ``door_width`` (or the crowd's own room).
         crowd, learners, crowd_epsilon: a learned crowd for the agents after the first ``learners`` (see
             :class:`PedestrianParallelEnv`).
         **room_kwargs: The room's keywords (``num_agents``, ``max_decisions``, ``device``...), and the paper's room's
@@ -349,10 +363,43 @@ def parallel_env(
         ValueError: For an invalid room keyword or scenario (one-line messages) or ``num_replicas`` other than 1.
     """
     from pedrl.configs import room_keywords
-    from pedrl.scenarios import build_scenario
+    from pedrl.policy_files import room_factory
+    from pedrl.scenarios import Scenario, build_scenario
 
-    built = build_scenario({"name": scenario} if isinstance(scenario, str) else scenario, room=room_kwargs)
-    room = built.room(**{"num_replicas": 1, **room_keywords(room_kwargs)})
+    trained_in = isinstance(crowd, TabularPolicy) and crowd.metadata.get("config") is not None
+    if trained_in and scenario is None and set(room_kwargs) <= set(RUN_KEYWORDS):
+        factory = room_factory(crowd, max_decisions=room_kwargs.get("max_decisions"))
+        agents = room_kwargs.get("num_agents", inspect.signature(Scenario.room).parameters["num_agents"].default)
+        room = factory(num_replicas=1, num_agents=agents, device=room_kwargs.get("device", "cpu"))
+    else:
+        built = build_scenario({"name": scenario} if isinstance(scenario, str) else scenario, room=room_kwargs)
+        room = built.room(**{"num_replicas": 1, **room_keywords(room_kwargs)})
+        if trained_in:
+            _warn_other_room(room, room_factory(crowd)(num_replicas=1, num_agents=1, device=room.device))
     return PedestrianParallelEnv(
         room, render_mode=render_mode, crowd=crowd, learners=learners, crowd_epsilon=crowd_epsilon
     )
+
+
+def _warn_other_room(room: RoomEnv, own: RoomEnv) -> None:
+    """One ``UserWarning`` line when ``room`` differs from the crowd's training room ``own`` beyond
+    :data:`IGNORED_SETTINGS`: the settings that differ (the walkable area as one)."""
+    differ = [
+        item.name
+        for item in fields(room.params)
+        if item.name not in IGNORED_SETTINGS and getattr(room.params, item.name) != getattr(own.params, item.name)
+    ]
+    area, trained = room.geometry, own.geometry
+    same_area = area.name == trained.name and all(
+        a.shape == b.shape and torch.equal(a.cpu(), b.cpu())
+        for a, b in ((area.walls[: area.num_walls], trained.walls[: trained.num_walls]), (area.exits, trained.exits))
+    )
+    if not same_area:
+        differ.insert(0, "the walkable area")
+    if differ:
+        warnings.warn(
+            f"crowd was trained in another room: {', '.join(differ)} differ; parallel_env(crowd=...) with no room"
+            " keywords but num_agents, max_decisions and device builds its own (pedrl.room_factory(crowd))",
+            UserWarning,
+            stacklevel=3,
+        )

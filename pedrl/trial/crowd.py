@@ -87,7 +87,15 @@ def run_crowd(
     fused trial's seed from its generator; a controller its own ``epsilon`` and ``generator``. ``progress`` (a
     recorded trial's) is called with the decisions taken and the agents left, now and then
     (:data:`pedrl.trial.fused.Progress`).
+
+    Raises:
+        ValueError: one line, for ``fused`` (:func:`choose_path`), or ``start="placed"`` in a room with no agent in
+            it (never placed, or emptied by a trial): its trial would be empty.
     """
+    if isinstance(start, str) and start == "placed" and not bool(env.active.any()):
+        raise ValueError(
+            "start='placed' is invalid here: no agent is in the room; call RoomEnv.place first (or start=None to reset)"
+        )
     if choose_path([env], controller, fused, record=record, placed=start is not None).name == "torch":
         if start == "placed":
             raise ValueError("start='placed' is invalid here: the torch loop starts from a reset's observation")

@@ -32,6 +32,7 @@ __all__ = [
     "encode_buffers",
     "encode_room",
     "pack_encoder",
+    "packed_sets",
 ]
 
 _PI = np.float32(np.pi)
@@ -245,6 +246,20 @@ def pack_encoder(encoder: StateEncoder, processes: int) -> PackedEncoder:
     if quantizer not in _PACKED or _PACKED[quantizer][0] != key:
         _PACKED[quantizer] = (key, _pack(encoder, processes))
     return _PACKED[quantizer][1]
+
+
+def packed_sets(quantizer: Any) -> tuple[int, int]:
+    """``(T, K)``: the prototype sets :func:`pack_encoder` lays out for ``quantizer`` and the size they are padded
+    to, without packing them (what the memory checks count: :func:`pedrl.vq.pruned.graph_memory`). A quantizer it
+    does not pack (a factored one: its own kernels) counts as one set of one prototype."""
+    if isinstance(quantizer, Quantizer):
+        return 1, quantizer.num_prototypes
+    if isinstance(quantizer, UnionQuantizer):
+        return len(quantizer.num_sensed), max(quantizer.part_sizes.values())
+    if isinstance(quantizer, ProcessQuantizers):
+        counts = [packed_sets(part) for part in quantizer.parts]
+        return sum(count for count, _ in counts), max(size for _, size in counts)
+    return 1, 1
 
 
 def _pack(encoder: StateEncoder, processes: int) -> PackedEncoder:

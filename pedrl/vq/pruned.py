@@ -41,11 +41,30 @@ import torch
 from pedrl._numba import cached_njit
 from pedrl.vq.pruned_kernel import LANES, exact_distance, prepare_batch, search_batch
 
-__all__ = ["GRAPH_SIZE", "LEAD_COLUMNS", "BatchScratch", "PrunedArrays", "PrunedIndex", "batch_scratch"]
+__all__ = [
+    "GRAPH_BLOCK_BYTES",
+    "GRAPH_MAX_PAIRS",
+    "GRAPH_SIZE",
+    "LEAD_COLUMNS",
+    "BatchScratch",
+    "PrunedArrays",
+    "PrunedIndex",
+    "batch_scratch",
+    "graph_memory",
+    "graph_size",
+]
 
 GRAPH_SIZE = 16
 """Nearest prototypes stored per prototype for the greedy walk to a first candidate (measured on literal states:
 8 neighbours reach the nearest prototype in 43 % of decisions, 16 in 57 %, 32 in 69 % at twice the cost)."""
+GRAPH_MAX_PAIRS = 2**32
+"""Most prototype pairs whose distances build the nearest-prototype lists of an index (all its sets together: ``T
+K^2``; about a minute and a half at one thread, 20 ns a pair). Past it the lists grow with ``K`` squared in time (200
+000 prototypes: 14 minutes a set), so an index of more is built without them (:func:`graph_size`): the walk then starts
+from the agent's previous prototype alone, the answer the same."""
+GRAPH_BLOCK_BYTES = 256 << 20
+"""Most bytes of the distance blocks (three ``rows x K`` float32 arrays) while the lists are built: memory linear in
+``K``, 256 MiB whatever ``K`` is."""
 LEAD_COLUMNS = 4
 """Leaves group prototypes by a k-d split of their first principal coordinates (4 or 8 measured alike)."""
 _FAR_NORM = 1e30
@@ -76,7 +95,7 @@ class PrunedIndex:
         width = -(-self.dim // 4) * 4  # rotated columns, padded to whole groups of four
         cuts = np.array([min(8, width), min(16, width), width], np.int64)
         parts = [_build_set(part, width, cuts) for part in values]
-        graph = min(GRAPH_SIZE, self.num_prototypes - 1)
+        graph = graph_size(self.num_sets, self.num_prototypes)
         self._arrays = PrunedArrays(
             cuts,
             np.stack([p["mean"] for p in parts]),
@@ -195,14 +214,39 @@ def _padded_rows(values: np.ndarray) -> np.ndarray:
     return rows
 
 
+def graph_size(num_sets: int, num_prototypes: int) -> int:
+    """Nearest prototypes listed per prototype in an index of ``num_sets`` sets of ``num_prototypes``:
+    :data:`GRAPH_SIZE` (fewer for a small set), or 0 where building the lists would take more than
+    :data:`GRAPH_MAX_PAIRS` pair distances."""
+    if num_sets * num_prototypes * num_prototypes > GRAPH_MAX_PAIRS:
+        return 0
+    return max(0, min(GRAPH_SIZE, num_prototypes - 1))
+
+
+def graph_memory(num_sets: int, num_prototypes: int) -> int:
+    """Peak bytes of the nearest-prototype lists of an index of ``num_sets`` sets of ``num_prototypes``: the lists
+    (int64) and, while one set's are built, its distance blocks (at most :data:`GRAPH_BLOCK_BYTES`)."""
+    size = graph_size(num_sets, num_prototypes)
+    if size == 0:
+        return 0
+    rows = _block_rows(num_prototypes)
+    return 8 * num_sets * num_prototypes * size + 12 * rows * num_prototypes
+
+
+def _block_rows(num_prototypes: int) -> int:
+    """Prototypes whose distances to all the others one block of :func:`_nearest_prototypes` holds."""
+    return max(1, min(1024, GRAPH_BLOCK_BYTES // (12 * num_prototypes)))
+
+
 def _nearest_prototypes(values: np.ndarray, size: int) -> np.ndarray:
-    """``(K, size)`` int64: each prototype's ``size`` nearest other prototypes (float32 distances; a guide only)."""
+    """``(K, size)`` int64: each prototype's ``size`` nearest other prototypes (float32 distances; a guide only),
+    in blocks of at most :data:`GRAPH_BLOCK_BYTES`."""
     if size == 0:
         return np.zeros((values.shape[0], 0), np.int64)
     points = torch.from_numpy(values).to(torch.float32)
     norms = (points * points).sum(1)
     rows = []
-    for block in torch.split(torch.arange(points.shape[0]), 1024):
+    for block in torch.split(torch.arange(points.shape[0]), _block_rows(points.shape[0])):
         distances = norms[block, None] + norms[None] - 2.0 * points[block] @ points.T
         distances[torch.arange(len(block)), block] = float("inf")
         rows.append(distances.topk(size, largest=False).indices)

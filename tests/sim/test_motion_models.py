@@ -7,7 +7,7 @@ import itertools
 
 import pytest
 
-from pedrl.configs.motion import flat_motion, old_keys_advice
+from pedrl.configs.motion import check_no_flat_keys, flat_keys_of, flat_motion, old_keys_advice
 from pedrl.scenarios import paper_room
 from pedrl.sim.motion import (
     COLLISION_ORDERS,
@@ -122,3 +122,25 @@ def test_the_old_keys_are_told_the_model_they_mean():
     assert "motion=yield env.motion.time_gap=0.4 env.motion.order=door_first" in advice
     assert "Yield(time_gap=0.4, order='door_first') in Python" in advice and "\n" not in advice
     assert "motion=stop" in old_keys_advice({"collision_order": "random"}) and Stop() == flat_motion({})
+
+
+@pytest.mark.parametrize("name", list(MOTION_MODELS))
+def test_the_old_keys_change_the_model_the_config_chooses(name):
+    """On a run that chooses a model (``motion=continuous``), an old key means that model's field: the walking layer's
+    ``env.motion.time_gap=0.4``, not the step model the flat keys' defaults give (the control: no model chosen)."""
+    model = MOTION_MODELS[name]()
+    assert flat_motion(flat_keys_of(model)) == model  # the inverse, the base of the advice
+    advice = old_keys_advice({"time_gap": 0.4}, base=model)
+    if "time_gap" in {item.name for item in dataclasses.fields(model)}:
+        assert f"motion={name} env.motion.time_gap=0.4 on the command line" in advice
+    else:
+        assert f"motion={name} on the command line" in advice
+    assert "motion=stop on the command line" in old_keys_advice({"time_gap": 0.4})  # no model chosen: the flat ones
+    walking = Continuous(contact="yield", time_gap=0.4, steering=Steering(wall_strength=2.0))
+    assert flat_motion(flat_keys_of(walking)) == walking
+
+
+def test_a_config_holding_a_model_and_an_old_key_is_told_that_models_key():
+    env = {"motion": {"name": "continuous", "contact": "yield"}, "time_gap": 0.4}
+    with pytest.raises(ValueError, match=r"motion=continuous env\.motion\.contact=yield env\.motion\.time_gap=0\.4 on"):
+        check_no_flat_keys(env)

@@ -64,6 +64,24 @@ def test_a_placed_crowd_runs_through_the_fused_trial_only():
     start = env.positions.clone()
     record = run_crowd(env, GreedyDoorController(), fused=True, record=True, start="placed").record
     assert np.array_equal(record.positions[:, 0], start.numpy())
+    env.place(seed=0)
     with pytest.raises(ValueError, match=r"^start='placed' is invalid here: the torch loop") as error:
         run_crowd(env, GreedyDoorController(), fused=False, start="placed")
     assert "\n" not in str(error.value)
+
+
+@pytest.mark.parametrize("fused", [True, None, False])
+def test_a_placed_start_in_a_room_never_placed_is_refused(fused):
+    """``start="placed"`` with no agent in the room (never placed, or emptied by a trial) would be an empty trial:
+    one line naming the value and ``RoomEnv.place``, on either path; the same room once placed runs (the control)."""
+    env = paper_room(width=8.0, length=10.0, door_width=1.2).room(num_replicas=1, num_agents=12)
+    with pytest.raises(ValueError, match=r"^start='placed' is invalid here: .*call RoomEnv\.place first") as error:
+        run_crowd(env, GreedyDoorController(), fused=fused, start="placed")
+    assert "\n" not in str(error.value)
+    if fused is False:
+        return
+    env.place(seed=0)
+    run = run_crowd(env, GreedyDoorController(), fused=fused, record=True, start="placed")
+    assert run.record.in_room[:, 0].sum() == 12 and not env.active.any()  # the crowd walked out
+    with pytest.raises(ValueError, match=r"^start='placed' is invalid here: no agent is in the room"):
+        run_crowd(env, GreedyDoorController(), fused=fused, start="placed")  # emptied: place it again first

@@ -7,7 +7,7 @@ import torch
 
 from pedrl._numba import numba_available
 from pedrl.algos.registry import env_factory
-from pedrl.vq import Quantizer
+from pedrl.vq import Quantizer, pruned
 from pedrl.vq.pruned import PrunedIndex
 from pedrl.vq.tree import TreeIndex
 from tests.vq.test_tree import brute_force, clustered
@@ -55,6 +55,21 @@ def test_the_search_equals_float64_brute_force_and_the_scan(num_prototypes, dim,
     make = spread if data == "spread" else clustered
     prototypes, points = make(num_prototypes, generator, dim=dim), make(400, generator, dim=dim)
     check(prototypes, points)
+
+
+def test_past_the_pair_budget_the_index_goes_without_its_nearest_lists_and_finds_the_same(monkeypatch):
+    """An index whose nearest-prototype lists would take more than GRAPH_MAX_PAIRS pair distances (``T K^2``: 200 000
+    prototypes, 14 minutes a set) is built without them, and its answers are the scan's still; built in blocks small
+    enough, the lists are those of one block (the control)."""
+    generator = torch.Generator().manual_seed(5)
+    prototypes, points = spread(600, generator), spread(400, generator)
+    hints = torch.randint(600, (400,), generator=generator)
+    whole = PrunedIndex(prototypes).kernel_arrays().graph
+    monkeypatch.setattr(pruned, "GRAPH_BLOCK_BYTES", 12 * 600 * 7)  # blocks of 7 rows
+    assert np.array_equal(PrunedIndex(prototypes).kernel_arrays().graph, whole)
+    monkeypatch.setattr(pruned, "GRAPH_MAX_PAIRS", 600 * 600 - 1)
+    assert PrunedIndex(prototypes).kernel_arrays().graph.shape == (1, 600, 0)
+    assert torch.equal(check(prototypes, points, hints=hints), check(prototypes, points))
 
 
 def literal_states(agents: int = 20, decisions: int = 40) -> torch.Tensor:
