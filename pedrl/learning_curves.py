@@ -18,6 +18,7 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
 from pedrl.analysis import plot_learning_curves
+from pedrl.common.checks import shown
 from pedrl.io import read_csv
 
 
@@ -216,7 +217,7 @@ def plot_runs(
     labels: Sequence[str] | None = None,
     metric: str = "success_rate",
     smooth: int = 1,
-    marks: Sequence[Sequence[Any]] = (),
+    marks: Any = (),
     layout: str = "whole",
 ) -> Path:
     """Draw the learning curves of ``runs`` in one figure saved at ``output``; returns ``output``. ``marks``:
@@ -234,24 +235,49 @@ def plot_runs(
     return output
 
 
-def check_marks(marks: Sequence[Sequence[Any]] | None) -> list[tuple[float, float | None, str]]:
-    """``marks`` as ``(trials, value, text)`` triples; a one-line ``ValueError`` naming the first that is not a
-    finite trial count >= 0, a finite value or None (a bound on the trials) and a text."""
+MAX_MARK_TRIALS: Final = 1e9
+"""Largest trial count of a mark (the most trials of one learning phase, ``MAX_TRIALS``): a mark beyond it squeezes
+every curve against the axis."""
+MAX_MARK_VALUE: Final = 1e9
+"""Largest magnitude of a mark's value: a mark at 1e300 leaves the curves a flat line."""
+MAX_MARK_TEXT: Final = 200
+"""Most characters of a mark's text: a longer one runs off the figure."""
+MARKS_ALLOWED: Final = "a list of [trials, value or null, 'text'], e.g. \"marks=[[150000,0.4,'Figure 4']]\""
+
+
+def check_marks(marks: Any) -> list[tuple[float, float | None, str]]:
+    """``marks`` as ``(trials, value, text)`` triples: trials a number in ``[0, MAX_MARK_TRIALS]``, value a number of
+    magnitude at most :data:`MAX_MARK_VALUE` or None (a bound on the trials), text a string of at most
+    :data:`MAX_MARK_TEXT` characters; else a one-line ``ValueError`` naming ``marks`` or the first bad ``marks[i]``
+    and what is allowed."""
+    if marks is None:
+        return []
+    if isinstance(marks, str | bytes) or not isinstance(marks, Sequence):
+        raise ValueError(f"marks={shown(marks)} is invalid: must be {MARKS_ALLOWED}")
     checked = []
-    for mark in marks or ():
-        items = list(mark) if isinstance(mark, Sequence) and not isinstance(mark, str) else None
-        good = items is not None and len(items) == 3 and isinstance(items[2], str)
-        good = good and _is_number(items[0]) and (items[1] is None or _is_number(items[1]))
-        if not good or not (math.isfinite(items[0]) and items[0] >= 0 and math.isfinite(items[1] or 0.0)):
+    for index, mark in enumerate(marks):
+        where = f"marks[{index}]={shown(mark)} is invalid"
+        items = list(mark) if isinstance(mark, Sequence) and not isinstance(mark, str | bytes) else None
+        if items is None or len(items) != 3:
+            raise ValueError(f"{where}: must be [trials, value or null, 'text'], e.g. [150000, 0.4, 'Figure 4']")
+        trials, value, text = items
+        if not (_is_number(trials) and 0 <= trials <= MAX_MARK_TRIALS):
+            raise ValueError(f"{where}: its trials {shown(trials)} must be a number in [0, {MAX_MARK_TRIALS:.0e}]")
+        if value is not None and not (_is_number(value) and abs(value) <= MAX_MARK_VALUE):
             raise ValueError(
-                f"marks entry {mark!r} is invalid: must be [trials >= 0, value or null, 'text'] (finite numbers)"
+                f"{where}: its value {shown(value)} must be null (a bound on the trials) or a number in"
+                f" [{-MAX_MARK_VALUE:.0e}, {MAX_MARK_VALUE:.0e}]"
             )
-        checked.append((float(items[0]), None if items[1] is None else float(items[1]), items[2]))
+        if not isinstance(text, str) or len(text) > MAX_MARK_TEXT:
+            got = f"{len(text):,} characters" if isinstance(text, str) else shown(text)
+            raise ValueError(f"{where}: its text must be a string of at most {MAX_MARK_TEXT} characters, got {got}")
+        checked.append((float(trials), None if value is None else float(value), text))
     return checked
 
 
 def _is_number(value: Any) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool)
+    """A finite int or float (not a bool)."""
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def draw_marks(axes: Axes, marks: Sequence[tuple[float, float | None, str]]) -> Axes:

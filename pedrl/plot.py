@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 import hydra
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from pedrl.cli import CONFIG_DIR, checked_groups, run_reporting_errors
 from pedrl.learning_curves import plot_runs
@@ -24,7 +24,9 @@ def main(cfg: DictConfig) -> None:
     """Plot the runs of ``cfg.runs`` together."""
 
     def plot() -> Path:
-        marks = OmegaConf.to_container(cfg.marks) if cfg.get("marks") else ()
+        marks = cfg.get("marks")  # checked in plot_runs: marks=5 is a number, not a list
+        if isinstance(marks, ListConfig | DictConfig):
+            marks = OmegaConf.to_container(marks, resolve=True)
         return plot_runs(
             _as_list(cfg.runs),
             cfg.output,

@@ -5,8 +5,13 @@ After ``pedrl-train experiment=k_sweep`` (or any ``--multirun``), every job dire
 :func:`summarise_sweep` reads them all and writes, into the sweep directory,
 
 - ``sweep_summary.csv``: one row per finished job: its overrides, the swept parameter, the final figures;
-- ``sweep_k.png``: final success rate against the swept parameter (by default ``vq.num_prototypes``, K, on a
-  log2 axis), with ±1 standard deviation over the learning processes as error bars.
+- ``sweep_k.png``: final success rate against the swept parameter (a log2 axis where its values are powers of two,
+  as K), with ±1 standard deviation over the learning processes as error bars.
+
+The swept parameter is ``--parameter`` if given, else the key the sweep varies (:func:`swept_parameter`): the one
+override key set in every job with a value that differs between jobs (``seed`` aside); of several such keys, the one
+whose values are all numbers (``algo=vqql,it_vqql vq.num_prototypes=512,1024``: K); more than one numeric key is
+refused in one line asking for ``--parameter``; no varying key (one job, or seeds only): ``vq.num_prototypes``.
 
 Jobs that differ in other swept overrides (``algo=vqql,it_vqql``) are drawn as separate series; jobs that differ
 only in ``seed`` are pooled into one point (mean over jobs, standard deviation over all their processes).
@@ -17,7 +22,7 @@ from __future__ import annotations
 import csv
 import json
 import math
-from collections.abc import Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, Final
 
@@ -30,6 +35,7 @@ from pedrl.learning_curves import room_rows
 SUMMARY_CSV: Final = "sweep_summary.csv"
 FIGURE: Final = "sweep_k.png"
 DEFAULT_PARAMETER: Final = "vq.num_prototypes"
+"""The x axis of a sweep that varies no key (one job, or seeds only): K."""
 POOLED_OVERRIDES: Final = ("seed",)
 """Override keys whose jobs are pooled into one point of the figure (repetitions, not settings)."""
 LAST_TRIALS: Final = 10
@@ -57,7 +63,7 @@ COLUMNS: Final = (
 def summarise_sweep(
     sweep_dir: str | Path,
     *,
-    parameter: str = DEFAULT_PARAMETER,
+    parameter: str | None = None,
     write: bool = True,
 ) -> list[dict[str, Any]]:
     """Read every finished job of a sweep; write ``sweep_summary.csv`` and ``sweep_k.png`` into ``sweep_dir``.
@@ -65,7 +71,8 @@ def summarise_sweep(
     Args:
         sweep_dir: the sweep directory (``hydra.sweep.dir``), whose sub-directories are the jobs.
         parameter: the dotted config key on the x axis; its value is read from each job's resolved config
-            (``.hydra/config.yaml``), so it need not be among the job's overrides.
+            (``.hydra/config.yaml``), so it need not be among the job's overrides. None: the key the sweep varies
+            (:func:`swept_parameter`).
         write: write the CSV and the figure (False: only return the rows).
 
     Returns:
@@ -74,9 +81,10 @@ def summarise_sweep(
         mean and standard deviation over the job's learning processes; ``wall_time_s`` in seconds).
 
     Raises:
-        ValueError: ``sweep_dir`` is not a directory, holds no finished job, a job lacks ``parameter``, or jobs
-            differ in which keys they override (beyond ``parameter`` and the pooled ``seed``): they come from
-            different sweeps, and their series could not be named.
+        ValueError: ``sweep_dir`` is not a directory, holds no finished job, a job lacks ``parameter``, the sweep
+            varies several numeric keys and ``parameter`` is None, or jobs differ in which keys they override
+            (beyond ``parameter`` and the pooled ``seed``): they come from different sweeps, and their series could
+            not be named.
     """
     sweep_dir = Path(sweep_dir)
     if sweep_dir.exists() and not sweep_dir.is_dir():
@@ -90,6 +98,8 @@ def summarise_sweep(
         )
     job_overrides = {job: _read_overrides(job) for job in jobs}
     varying = _varying_keys(job_overrides.values())
+    if parameter is None:
+        parameter, _ = swept_parameter(job_overrides.values())
     _check_series_keys(job_overrides, [k for k in varying if k != parameter and k not in POOLED_OVERRIDES])
     rows = [_job_row(job, job_overrides[job], varying, parameter) for job in jobs]
     rows.sort(key=lambda row: (row["series"], _sort_value(row["value"]), row["job"]))
@@ -98,6 +108,39 @@ def summarise_sweep(
         axes = plot_sweep(rows, parameter=parameter)
         axes.figure.savefig(sweep_dir / FIGURE, dpi=120)
     return rows
+
+
+def swept_parameter(all_overrides: Iterable[Mapping[str, str]]) -> tuple[str, str]:
+    """The key a sweep varies, the x axis when ``--parameter`` is not given, and why it was chosen (for the console).
+
+    The candidates are the override keys set in every job whose value differs between jobs, ``seed`` (pooled)
+    aside: one candidate is the parameter; of several, the one whose values all read as numbers (the others, such
+    as ``algo``, become series); none: :data:`DEFAULT_PARAMETER`.
+
+    Args:
+        all_overrides: each job's ``key -> value`` overrides (``.hydra/overrides.yaml``).
+
+    Raises:
+        ValueError: one line, when several candidates have numeric values: the x axis is ambiguous.
+    """
+    all_overrides = list(all_overrides)
+    candidates = [
+        key
+        for key in _varying_keys(all_overrides)
+        if key not in POOLED_OVERRIDES and all(key in overrides for overrides in all_overrides)
+    ]
+    if not candidates:
+        return DEFAULT_PARAMETER, f"no key varies between the jobs: {DEFAULT_PARAMETER} by default"
+    if len(candidates) == 1:
+        return candidates[0], "the key the sweep varies"
+    numeric = [key for key in candidates if all(_is_number(_parse_scalar(o[key])) for o in all_overrides)]
+    if len(numeric) == 1:
+        others = ", ".join(key for key in candidates if key != numeric[0])
+        return numeric[0], f"the numeric key the sweep varies; {others}: series"
+    raise ValueError(
+        f"the sweep varies {', '.join(numeric or candidates)}: give --parameter KEY, the key on the x axis (the other"
+        " varying keys become series)"
+    )
 
 
 def plot_sweep(rows: Sequence[dict[str, Any]], *, parameter: str = DEFAULT_PARAMETER, axes: Axes | None = None) -> Axes:
@@ -208,13 +251,17 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("sweep_dir", help="the sweep directory (hydra.sweep.dir), e.g. multirun/k_sweep/<date>")
     parser.add_argument(
         "--parameter",
-        default=DEFAULT_PARAMETER,
-        help=f"dotted config key on the x axis (default: {DEFAULT_PARAMETER})",
+        default=None,
+        help="dotted config key on the x axis (default: the key whose value differs between the jobs, seed aside;"
+        f" of several, the numeric one; none: {DEFAULT_PARAMETER})",
     )
     args = parser.parse_args(argv)
     rows = run_reporting_errors("pedrl-sweep", lambda: summarise_sweep(args.sweep_dir, parameter=args.parameter))
     print(format_table(rows))
     sweep_dir = Path(args.sweep_dir)
+    if args.parameter is None:
+        reason = swept_parameter(_read_overrides(sweep_dir / row["job"]) for row in rows)[1]
+        print(f"x axis: {rows[0]['parameter']} ({reason})")
     print(f"wrote {sweep_dir / SUMMARY_CSV} and {sweep_dir / FIGURE}")
 
 
@@ -324,6 +371,10 @@ def _varying_keys(all_overrides: Any) -> list[str]:
     for overrides in all_overrides:
         keys.extend(k for k in overrides if k not in keys)
     return [k for k in keys if len({o.get(k) for o in all_overrides}) > 1]
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
 
 
 def _format_number(value: Any, digits: int) -> str:

@@ -66,6 +66,7 @@ EVAL_CASES: list[tuple[str, tuple[str, ...]]] = [
     ("trials_per_batch=0", ("trials_per_batch=0", "integer >= 1")),
     ("trials=1000000000 trials_per_batch=1000000000", ("needs about", "GiB", "trials_per_batch")),
     ("controller=foo", ("controller='foo'", "learned, greedy")),
+    ("controller=jupedsim jupedsim.dt=1e-9", ("jupedsim.dt=1e-09 is invalid", ">= 0.001 s")),
     ("epsilon=2", ("epsilon=2", "[0, 1]")),
     ("epsilon=-0.1", ("epsilon=-0.1", "[0, 1]")),
     ("max_decisions=0", ("max_decisions=0", "integer >= 1")),

@@ -208,11 +208,35 @@ def test_marks_are_drawn_as_stars_with_their_text(runs, tmp_path):
 
 
 @pytest.mark.parametrize(
-    "mark", [[1, 2], [1, 2, 3], ["a", 0.4, "x"], [-1, 0.4, "x"], [1, float("nan"), "x"], [None, None, "x"], "abc"]
+    ("mark", "fragment"),
+    [
+        ([1, 2], "marks[0]=[1, 2] is invalid: must be [trials, value or null, 'text']"),
+        ("abc", "marks[0]='abc' is invalid: must be [trials, value or null, 'text']"),
+        ([1, 2, 3], "marks[0]=[1, 2, 3] is invalid: its text must be a string of at most 200 characters, got 3"),
+        (["a", 0.4, "x"], "its trials 'a' must be a number in [0, 1e+09]"),
+        ([-1, 0.4, "x"], "its trials -1 must be a number in [0, 1e+09]"),
+        ([None, None, "x"], "its trials None must be a number"),
+        ([1e300, 0.4, "x"], "marks[0]=[1e+300, 0.4, 'x'] is invalid: its trials 1e+300 must be a number in [0, 1e+09]"),
+        ([1, float("nan"), "x"], "its value nan must be null (a bound on the trials) or a number in [-1e+09, 1e+09]"),
+        ([1, -1e300, "x"], "its value -1e+300 must be null"),
+        ([1, 0.4, "x" * 5000], "its text must be a string of at most 200 characters, got 5,000 characters"),
+    ],
 )
-def test_bad_marks_are_refused_in_one_line(mark):
-    with pytest.raises(ValueError, match=r"^marks entry .* is invalid: must be \[trials >= 0, value or null, 'text'\]"):
+def test_bad_marks_are_refused_in_one_line_naming_the_entry(mark, fragment):
+    with pytest.raises(ValueError) as error:
         check_marks([mark])
+    message = str(error.value)
+    assert fragment in message and "\n" not in message and len(message) < 300, message
+
+
+def test_marks_at_the_bounds_are_taken_and_the_second_bad_one_is_named():
+    """The control: the bounds themselves pass; a bad entry after good ones is named by its own index."""
+    top = "x" * 200
+    assert check_marks([[1e9, -1e9, top], [0, None, ""]]) == [(1e9, -1e9, top), (0.0, None, "")]
+    with pytest.raises(ValueError, match=r"^marks\[1\]=\[1, 2\] is invalid"):
+        check_marks([[1, 0.5, "fine"], [1, 2]])
+    with pytest.raises(ValueError, match=r"^marks=5 is invalid: must be a list of \[trials, value or null, 'text'\]"):
+        check_marks(5)
 
 
 def test_default_labels_tell_runs_with_the_same_name_apart(tmp_path):
@@ -299,6 +323,12 @@ PLOT_CASES: list[tuple[str, str, Callable[[Path], None] | None, tuple[str, ...]]
     ("metric_foo", "metric=foo", None, ("metric='foo'", "one of", "success_rate")),
     ("two_labels", "labels=[a,b]", None, ("labels=", "one label per run")),
     ("layout_foo", "layout=foo", None, ("layout='foo'", "one of whole, phases")),
+    ("marks_5", "layout=phases marks=5", None, ("marks=5 is invalid", "a list of [trials, value or null, 'text']")),
+    ("marks_entry_5", "marks=[5]", None, ("marks[0]=5 is invalid", "[trials, value or null, 'text']")),
+    ("marks_1e300", "layout=phases marks=[[1e300,0.4,end]]", None,
+     ("marks[0]=[1e+300, 0.4, 'end'] is invalid", "its trials 1e+300 must be a number in [0, 1e+09]")),
+    ("marks_long_text", "marks=[[5,0.4,'" + "x" * 5000 + "']]", None,
+     ("marks[0]=[5, 0.4, 'xxx", "at most 200 characters, got 5,000 characters")),
     ("same_labels", "runs=[{run},{run}] labels=[a,a]", None, ("labels=['a', 'a']", "its own label")),
     ("binary_csv", "", binary_curve, ("learning_curve.csv", "not a CSV text file")),
     ("foreign_csv", "", _foreign_csv, ("metric='success_rate' is not in", "learning_curve.csv", "one of speed")),
@@ -310,11 +340,11 @@ PLOT_CASES: list[tuple[str, str, Callable[[Path], None] | None, tuple[str, ...]]
         lambda run: (run.parent / "figure.png").write_text(""),
         ("figure.png",),
     ),
-]
+]  # fmt: skip
 
 
 @pytest.mark.parametrize(
-    ("overrides", "damage", "fragments"), catalogue(PLOT_CASES, {"no_runs", "binary_csv"}, named=True)
+    ("overrides", "damage", "fragments"), catalogue(PLOT_CASES, {"no_runs", "binary_csv", "marks_5"}, named=True)
 )
 def test_plot_refuses(overrides, damage, fragments, tmp_path, capsys):
     run = tmp_path / "a_run"

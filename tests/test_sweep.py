@@ -15,7 +15,7 @@ from omegaconf import OmegaConf
 
 import pedrl.sweep
 from pedrl.cli import CONFIG_DIR
-from pedrl.sweep import FIGURE, SUMMARY_CSV, main, plot_sweep, pool_rows, summarise_sweep
+from pedrl.sweep import FIGURE, SUMMARY_CSV, main, plot_sweep, pool_rows, summarise_sweep, swept_parameter
 from tests.refusals import assert_refused, make_plain_job, run_sweep_main
 
 
@@ -105,6 +105,67 @@ def test_jobs_of_other_settings_are_series_and_seeds_are_pooled(tmp_path):
     assert vqql[0]["success_rate_std"] == pytest.approx(math.sqrt(0.1**2 + 0.1**2))
     legend = plot_sweep(rows).get_legend()
     assert sorted(t.get_text() for t in legend.get_texts()) == ["algo=it_vqql", "algo=vqql"]
+
+
+def _alpha_sweep(sweep_dir, alphas=(0.1, 0.2, 0.4), *, extra=()):
+    """Jobs of ``pedrl-train --multirun algo.alpha=...`` at K = 512 (set on the command line, the same in every job)."""
+    for number, alpha in enumerate(alphas):
+        overrides = [
+            "experiment=quick_vqql",
+            "vq.num_prototypes=512",
+            f"algo.alpha={alpha}",
+            *extra[number : number + 1],
+        ]
+        make_job(sweep_dir, str(number), overrides=overrides, success=alpha, num_prototypes=512)
+    return sweep_dir
+
+
+def test_the_x_axis_is_the_key_the_sweep_varies(tmp_path, capsys):
+    """A sweep of algo.alpha was plotted against K (one point at 512) unless --parameter was given; now against
+    the key whose value differs between the jobs, and the console says so. The control: --parameter still rules."""
+    sweep = _alpha_sweep(tmp_path)
+    main([str(sweep)])
+    out = capsys.readouterr().out
+    assert "x axis: algo.alpha (the key the sweep varies)" in out
+    with open(sweep / SUMMARY_CSV, newline="") as handle:
+        written = list(csv.DictReader(handle))
+    assert [(r["parameter"], float(r["value"])) for r in written] == [("algo.alpha", a) for a in (0.1, 0.2, 0.4)]
+    rows = summarise_sweep(sweep, parameter="vq.num_prototypes", write=False)
+    assert {(r["parameter"], r["value"]) for r in rows} == {("vq.num_prototypes", 512)}
+    main([str(sweep), "--parameter", "vq.num_prototypes"])
+    assert "x axis:" not in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ("overrides", "expected"),
+    [
+        ([{"algo.alpha": "0.1"}, {"algo.alpha": "0.2"}], ("algo.alpha", "the key the sweep varies")),
+        ([{"algo": "vqql"}, {"algo": "it_vqql"}], ("algo", "the key the sweep varies")),
+        (
+            [{"algo": "vqql", "vq.num_prototypes": "512"}, {"algo": "it_vqql", "vq.num_prototypes": "1024"}],
+            ("vq.num_prototypes", "the numeric key the sweep varies; algo: series"),
+        ),
+        ([{"seed": "0"}, {"seed": "1"}], ("vq.num_prototypes", "no key varies between the jobs")),
+        ([{"algo.alpha": "0.1"}], ("vq.num_prototypes", "no key varies between the jobs")),
+        ([{"algo": "vqql"}, {"algo": "vqql", "algo.alpha": "0.2"}], ("vq.num_prototypes", "no key varies")),
+    ],
+)
+def test_swept_parameter_picks_one_key_deterministically(overrides, expected):
+    key, reason = swept_parameter(overrides)
+    assert key == expected[0] and expected[1] in reason, (key, reason)
+    assert swept_parameter(reversed(overrides))[0] == key  # whatever the jobs' order
+
+
+def test_a_sweep_of_two_numeric_keys_asks_for_the_parameter(tmp_path, capsys):
+    """algo.alpha and algo.gamma both vary: no guess, one line naming both; --parameter settles it (the control)."""
+    sweep = _alpha_sweep(tmp_path, extra=["algo.gamma=0.9", "algo.gamma=0.95", "algo.gamma=0.99"])
+    outcome = run_sweep_main([str(sweep)], capsys)
+    assert_refused(outcome, "pedrl-sweep", ("the sweep varies algo.alpha, algo.gamma", "give --parameter KEY"))
+    assert not (sweep / SUMMARY_CSV).exists()
+    rows = summarise_sweep(sweep, parameter="algo.gamma", write=False)
+    assert [(r["series"], r["value"]) for r in rows] == [
+        ("algo.alpha=0.1", 0.9), ("algo.alpha=0.2", 0.95), ("algo.alpha=0.4", 0.99)
+    ]  # fmt: skip
 
 
 def test_unfinished_jobs_are_left_out(k_sweep_dir):

@@ -20,6 +20,7 @@ VALIDATE_CASES: list[tuple[str, tuple[str, ...]]] = [
     # a value of a column this run does not use is checked all the same
     ("controller=greedy jupedsim.model=foo", ("jupedsim.model='foo' is invalid",)),
     ("controller=greedy jupedsim.dt=0", ("jupedsim.dt=0 is invalid",)),
+    ("controller=jupedsim jupedsim.dt=1e-9", ("jupedsim.dt=1e-09 is invalid", ">= 0.001 s")),
 ]
 
 

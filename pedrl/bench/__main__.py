@@ -106,6 +106,8 @@ def _arguments(argv: list[str] | None) -> tuple[argparse.Namespace, list[int] | 
         parser.error(f"--only={args.only!r} names unknown sections {unknown}: allowed {', '.join(SECTIONS)}")
     if args.write_docs is not None and "walk" not in sections:
         parser.error(f"--write-docs is invalid with --only={args.only!r}: it writes the walk section's table")
+    if args.write_docs is not None and (problem := walk.page_problem(args.write_docs)) is not None:
+        parser.error(problem)
     if args.device.startswith("cuda") and not torch.cuda.is_available():
         parser.error(f"--device={args.device!r} is invalid here: no CUDA GPU is available")
     return args, rooms, sections

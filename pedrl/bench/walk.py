@@ -37,6 +37,7 @@ import math
 import os
 import platform
 import resource
+import stat
 import subprocess
 import sys
 import time
@@ -52,7 +53,17 @@ from pedrl.sim import RoomParams
 from pedrl.sim.actions import GOAL_SPEED_RATIOS, GOAL_TURN_RATIOS
 from pedrl.sim.motion import Continuous
 
-__all__ = ["SIZES", "hall", "measure", "nearest_exits", "parse_agents", "run", "start_positions", "write_docs"]
+__all__ = [
+    "SIZES",
+    "hall",
+    "measure",
+    "nearest_exits",
+    "page_problem",
+    "parse_agents",
+    "run",
+    "start_positions",
+    "write_docs",
+]
 
 DENSITY: Final = 0.4
 """Persons per square metre at the start, at every size."""
@@ -81,6 +92,8 @@ SIMULATORS: Final = ("pedrl", "jupedsim")
 MARKERS: Final = ("<!-- walk-bench:start -->", "<!-- walk-bench:end -->")
 """The comments between which ``--write-docs`` writes the table into docs/performance.md."""
 SECTION: Final = "## The walking layer against JuPedSim"
+MAX_PAGE_BYTES: Final = 10 * 2**20
+"""Largest page ``--write-docs`` reads and rewrites (a Markdown page; docs/performance.md is a few kB)."""
 THREAD_VARIABLES: Final = ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
 
@@ -381,11 +394,56 @@ def table(result: dict) -> str:
     return "\n".join(lines + ([""] + notes if notes else []))
 
 
+def page_problem(page: str | os.PathLike) -> str | None:
+    """Why :func:`write_docs` cannot put its table into ``page``, in one line naming it; None when it can.
+
+    ``page`` must be absent (it is created) or a regular file (not a FIFO, which would block the read, nor a device)
+    of at most :data:`MAX_PAGE_BYTES` of UTF-8 text without NUL characters; if it holds either of :data:`MARKERS`, it
+    must hold each once, the start before the end (else the table would land beside a stray marker). Checked before
+    the benchmark runs; reads the page, writes nothing.
+    """
+    page = Path(page)
+    where = f"--write-docs={str(page)!r} is invalid"
+    allowed = "must be absent or a UTF-8 text page (its table goes between the markers, else in a new section)"
+    try:
+        info = page.stat()
+    except FileNotFoundError:
+        return None
+    except OSError as err:
+        return f"{where}: cannot read it ({err.strerror or err}); {allowed}"
+    if not stat.S_ISREG(info.st_mode):
+        return f"{where}: it is not a regular file (a FIFO, a socket or a device); {allowed}"
+    if info.st_size > MAX_PAGE_BYTES:
+        return f"{where}: it holds {info.st_size:,} bytes, more than {MAX_PAGE_BYTES:,}; {allowed}"
+    try:
+        text = page.read_bytes().decode("utf-8")
+    except OSError as err:
+        return f"{where}: cannot read it ({err.strerror or err}); {allowed}"
+    except UnicodeDecodeError as err:
+        return f"{where}: it is not UTF-8 text (byte {err.start} is {err.object[err.start]:#04x}); {allowed}"
+    if "\x00" in text:
+        return f"{where}: it is not text (a NUL character at {text.index(chr(0))}); {allowed}"
+    start, end = MARKERS
+    counts = (text.count(start), text.count(end))
+    ordered = counts == (1, 1) and text.index(start) < text.index(end)
+    if counts != (0, 0) and not ordered:
+        return (
+            f"{where}: its marker comments do not pair up ({start} {counts[0]}x, {end} {counts[1]}x"
+            f"{', end first' if counts == (1, 1) else ''}); must hold each once, the start first, or neither"
+        )
+    return None
+
+
 def write_docs(page: Path, text: str) -> None:
     """Write ``text`` between :data:`MARKERS` in ``page``: in place of what they hold, else in a new section
-    :data:`SECTION` at its end (a new page with a short title if there is none)."""
+    :data:`SECTION` at its end (a new page with a short title if there is none). :func:`page_problem` says first
+    whether ``page`` can take it."""
     start, end = MARKERS
-    old = page.read_text() if page.exists() else "# Performance\n\nHow fast pedrl runs, and how it is measured.\n"
+    old = (
+        page.read_text(encoding="utf-8")
+        if page.exists()
+        else "# Performance\n\nHow fast pedrl runs, and how it is measured.\n"
+    )
     block = f"{start}\n{text}\n{end}"
     if start in old and end in old.split(start, 1)[1]:
         before, rest = old.split(start, 1)
@@ -393,7 +451,7 @@ def write_docs(page: Path, text: str) -> None:
     else:
         new = f"{old.rstrip()}\n\n{SECTION}\n\n{block}\n"
     page.parent.mkdir(parents=True, exist_ok=True)
-    page.write_text(new)
+    page.write_text(new, encoding="utf-8")
 
 
 def _child() -> None:

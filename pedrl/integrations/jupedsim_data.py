@@ -36,6 +36,9 @@ lanes), ``GeneralizedCentrifugalForceModel`` (Chraibi, Seyfried & Schadschneider
 JUPEDSIM_RANGES: Final = {"desired_speed": (0.0, 10.0), "time_gap": (0.1, 10.0), "radius": (0.0, 2.0)}
 """The ranges JuPedSim's collision-free speed model accepts (``CheckModelConstraint``: v0 in [0, 10] m/s, the time gap
 in [0.1, 10] s, the radius in (0, 2] m), checked with the config instead of failing mid-run on an agent's position."""
+MIN_DT: Final = 1e-3
+"""Smallest JuPedSim time step ``dt`` (s), a tenth of its default 0.01 s: at most 1,000 JuPedSim steps per simulated
+second, 1,000 per decision of a room deciding once a second (``dt=1e-9`` asked for 10^9 steps per decision)."""
 
 
 @dataclass(frozen=True)
@@ -57,7 +60,7 @@ class JuPedSimModel:
         time_gap: T, the time gap (s) of the collision-free speed models and the anticipation velocity model (default
             1.0; the anticipation velocity model's own is 1.06); the others ignore it.
         radius: body radius (m); JuPedSim's collision-free speed default 0.2. Pass the body size of the run compared.
-        dt: JuPedSim's time step (s); its default 0.01.
+        dt: JuPedSim's time step (s); its default 0.01, at least :data:`MIN_DT`.
 
     Raises:
         ValueError: one line naming the bad value.
@@ -73,6 +76,11 @@ class JuPedSimModel:
         check_choice("model", self.model, MODELS)
         for name, unit in (("desired_speed", "m/s"), ("time_gap", "s"), ("radius", "m"), ("dt", "s")):
             check_real(name, getattr(self, name), unit=unit, positive=True)
+        if self.dt < MIN_DT:
+            raise ValueError(
+                f"dt={self.dt!r} is invalid: must be >= {MIN_DT:g} s (JuPedSim's default 0.01 s; {self.dt!r} s would"
+                f" take {1.0 / self.dt:,.0f} JuPedSim steps per simulated second, at most {1.0 / MIN_DT:,.0f})"
+            )
         for name, (low, high) in JUPEDSIM_RANGES.items():  # JuPedSim's own model constraints, before any run
             check_number(name, getattr(self, name), low=low, high=high, low_open=low == 0.0)
 

@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -30,6 +31,10 @@ class TestResult:
         applicable: ``False`` when the test cannot be run at the crowd's body size (``note`` says why).
         counted: ``False`` for the sanity row of invariants, which stays outside the pass count.
         note: Why a row is not applicable, or what else a reader needs.
+        failed: The pass criteria not met, each naming its measured number and bound (``crossing time 17.5 s not in
+            [5.84, 8.76] s``), in the order of the test's rule: empty when ``passed`` or not ``applicable``; every
+            failed row names at least one (:func:`verdict`). ``value`` may meet its own bound while another
+            criterion fails, so the report shows these beside ``FAIL``.
     """
 
     test: str
@@ -42,9 +47,15 @@ class TestResult:
     applicable: bool = True
     counted: bool = True
     note: str = ""
+    failed: list[str] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         self.passed = bool(self.passed)  # numpy verdicts become plain booleans
+        if self.applicable and self.passed == bool(self.failed):
+            raise ValueError(
+                f"row {self.test!r} is inconsistent: passed={self.passed} with failed criteria {self.failed!r}"
+                " (a pass names none, a failure at least one)"
+            )
 
     @property
     def status(self) -> str:
@@ -119,6 +130,13 @@ class Context:
         return recording
 
 
+def verdict(criteria: Iterable[tuple[bool, str]]) -> tuple[bool, list[str]]:
+    """``(passed, failed)`` of a test's pass criteria, each ``(met, what was measured against which bound)``: passed
+    when every criterion is met; ``failed`` the texts of those not met, in order (:attr:`TestResult.failed`)."""
+    failed = [text for met, text in criteria if not met]
+    return not failed, failed
+
+
 def invariants_row(tally: InvariantTally) -> TestResult:
     """The sanity row of the physical invariants (outside the pass count)."""
     return TestResult(
@@ -137,12 +155,22 @@ def invariants_row(tally: InvariantTally) -> TestResult:
             "broken_in": sorted(tally.broken_in),
         },
         counted=False,
+        failed=tally.broken(),
     )
 
 
 def stopped(name: str, reason: str) -> TestResult:
     """The row of a test whose run the simulator stopped (``reason``): failed, nothing measured."""
-    return TestResult(name, False, None, "", "the run stopped before its end", "", note=reason)
+    return TestResult(
+        name,
+        False,
+        None,
+        "",
+        "the run stopped before its end",
+        "",
+        note=reason,
+        failed=["the run stopped before its end"],
+    )
 
 
 def not_applicable(name: str, radius: float, reason: str) -> TestResult:

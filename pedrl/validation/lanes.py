@@ -20,7 +20,7 @@ import numpy as np
 from pedrl.analysis import Recording
 from pedrl.scenarios import Scenario, build_scenario
 from pedrl.sim.geometry import spawn_counts
-from pedrl.validation.framework import Context, NotApplicableError, TestResult
+from pedrl.validation.framework import Context, NotApplicableError, TestResult, verdict
 from pedrl.validation.measures import crossing_durations, lane_order_frames
 
 LANES_SOURCE: Final = (
@@ -141,15 +141,31 @@ def judge_lanes(runs: Mapping[str, tuple[Recording, np.ndarray]]) -> TestResult:
     measured = {label: measure_lanes(*run) for label, run in runs.items()}
     judged = measured.get(LANES_JUDGED)
     low, high = LANES_CROSSING * (1 - LANES_CROSSING_TOLERANCE), LANES_CROSSING * (1 + LANES_CROSSING_TOLERANCE)
-    passed = (
-        judged is not None
-        and judged["agent_frames"] >= LANES_MIN_FRAMES
-        and judged["phi"] is not None
-        and judged["phi"] >= LANES_PHI_PASS
-        and judged["phi"] - judged["phi_chance"] >= LANES_CHANCE_MARGIN
-        and judged["crossed_share"] >= LANES_MIN_CROSSED
-        and low <= judged["crossing_s"] <= high
-    )
+    criteria = [(judged is not None, f"no run at {LANES_JUDGED}")]
+    if judged is not None:
+        phi, chance, crossing = judged["phi"], judged["phi_chance"], judged["crossing_s"]
+        criteria += [
+            (
+                judged["agent_frames"] >= LANES_MIN_FRAMES,
+                f"{judged['agent_frames']} agent-frames of >= {LANES_MIN_AGENTS} agents < {LANES_MIN_FRAMES}",
+            ),
+            (phi is not None, f"no Phi measured (no frame of >= {LANES_MIN_AGENTS} agents in the area)"),
+            (phi is None or phi >= LANES_PHI_PASS, f"Phi {phi or 0:.3g} < {LANES_PHI_PASS:g}"),
+            (
+                phi is None or phi - chance >= LANES_CHANCE_MARGIN,
+                f"Phi {phi or 0:.3g} < chance {chance or 0:.3g} + {LANES_CHANCE_MARGIN:g}",
+            ),
+            (
+                judged["crossed_share"] >= LANES_MIN_CROSSED,
+                f"{judged['crossed_share']:.0%} of the agents crossed < {LANES_MIN_CROSSED:.0%}",
+            ),
+            (crossing is not None, "nobody crossed the area"),
+            (
+                crossing is None or low <= crossing <= high,
+                f"crossing time {crossing or 0:.1f} s not in [{low:.2f}, {high:.2f}] s",
+            ),
+        ]
+    passed, failed = verdict(criteria)
 
     def per_ratio(key: str) -> dict[str, float | None]:
         return {
@@ -177,4 +193,5 @@ def judge_lanes(runs: Mapping[str, tuple[Recording, np.ndarray]]) -> TestResult:
             "agents_in_area": per_ratio("agents_in_area"),
             "agent_frames": {label: measured.get(label, {}).get("agent_frames") for label in LANES_RATIOS},
         },
+        failed=failed,
     )

@@ -269,11 +269,16 @@ class InvariantTally:
     @property
     def passed(self) -> bool:
         """All invariants held over at least one recorded agent-frame (a slack of 1e-4 m covers float32 rounding)."""
+        return not self.broken()
+
+    def broken(self) -> list[str]:
+        """The invariants that did not hold, each with its measured number (empty: :attr:`passed`)."""
         tolerance = 1e-4
-        return (
-            self.agent_frames > 0
-            and self.min_gap >= -tolerance
-            and self.min_wall_clearance >= -tolerance
-            and self.outside == 0
-            and self.max_step_ratio <= 1 + 1e-4
-        )
+        criteria = [
+            (self.agent_frames > 0, "no agent-frame recorded"),
+            (self.min_gap >= -tolerance, f"bodies overlap by {-self.min_gap:.3g} m"),
+            (self.min_wall_clearance >= -tolerance, f"a body reaches {-self.min_wall_clearance:.3g} m into a wall"),
+            (self.outside == 0, f"{self.outside} agent-frames outside the area"),
+            (self.max_step_ratio <= 1 + 1e-4, f"a step {self.max_step_ratio:.3g} times what the top speed allows"),
+        ]
+        return [text for held, text in criteria if not held]

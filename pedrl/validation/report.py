@@ -7,7 +7,7 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any
+from typing import Any, Final
 
 import numpy as np
 from matplotlib.figure import Figure
@@ -81,7 +81,8 @@ def markdown(results: Mapping[str, Sequence[TestResult]], *, meta: Mapping[str, 
     for controller, rows in results.items():
         for row in rows:
             details = ", ".join(f"{key} {_format(value)}" for key, value in row.details.items())
-            lines.append(f"- **{controller}, {row.test}**: {row.note or details}")
+            failed = f" (failed: {'; '.join(row.failed)})" if row.failed else ""
+            lines.append(f"- **{controller}, {row.test}**: {row.note or details}{failed}")
     return "\n".join(lines) + "\n"
 
 
@@ -94,12 +95,22 @@ def pass_count(rows: Sequence[TestResult]) -> str:
     return text + (f" ({missing} not applicable)" if missing else "")
 
 
+CELL_CRITERIA: Final = 2
+"""Failed criteria a table cell names beside ``FAIL`` (the Details section and validation.json name them all)."""
+
+
 def _cell(row: TestResult | None) -> str:
+    """A controller's cell: the measured value and the verdict; beside ``FAIL``, the criteria that failed (the value
+    shown may meet its own bound while another criterion fails)."""
     if row is None:
         return "not run"
     if not row.applicable:
         return f"{row.reference}: **n/a**"
-    return f"{_format(row.value)} {row.unit}: **{row.status}**"
+    cell = f"{_format(row.value)} {row.unit}: **{row.status}**"
+    if row.failed:
+        more = len(row.failed) - CELL_CRITERIA
+        cell += f" ({'; '.join(row.failed[:CELL_CRITERIA])}{f'; {more} more in the details' if more > 0 else ''})"
+    return cell
 
 
 def _format(value: Any) -> str:

@@ -34,6 +34,7 @@ from pedrl.validation.framework import (
     invariants_row,
     not_applicable,
     stopped,
+    verdict,
 )
 from pedrl.validation.lanes import LANES_NAME, lanes
 from pedrl.validation.measures import (
@@ -141,7 +142,17 @@ def judge_rimea_1(times: np.ndarray) -> TestResult:
     arrived = times[np.isfinite(times)]
     travel = float(arrived.mean()) if arrived.size else None
     low, high = RIMEA_1_WINDOW
-    passed = arrived.size == times.size and bool(((arrived >= low) & (arrived <= high)).all())
+    outside = arrived[(arrived < low) | (arrived > high)]
+    worst = float(outside[np.argmax(np.abs(outside - (low + high) / 2))]) if outside.size else None
+    passed, failed = verdict(
+        [
+            (arrived.size == times.size, f"{times.size - arrived.size} of {times.size} runs never arrived"),
+            (
+                worst is None,
+                f"travel time {worst or 0:.1f} s not in [{low:g}, {high:g}] s ({outside.size} of {times.size} runs)",
+            ),
+        ]
+    )
     return TestResult(
         rimea_name(1),
         passed,
@@ -150,6 +161,7 @@ def judge_rimea_1(times: np.ndarray) -> TestResult:
         f"in [{low:g}, {high:g}] s (40 m at {RIMEA_1_SPEED} m/s)",
         RIMEA_SOURCE + ", test 1 (A 2); the rule is RiMEA's",
         {"arrived": int(arrived.size), "runs": int(times.size), "times_s": np.round(times, 2).tolist()},
+        failed=failed,
     )
 
 
@@ -248,16 +260,22 @@ def judge_rimea_4(density: np.ndarray, speed: np.ndarray, *, radius: float) -> T
     dense = float(mean[low_edge >= WEIDMANN_SPAN[1]].mean()) if spans else None
     fall = dense / free if free else None
     tolerance = WEIDMANN_TOLERANCE * v0
-    passed = (
-        spans
-        and rms <= tolerance
-        and free >= WEIDMANN_FREE_SHARE * v0
-        and fall is not None
-        and fall <= WEIDMANN_FALL
-        and slope is not None
-        and slope < 0
-    )
     span = f"{low_edge.min():.1f}-{low_edge.max() + WEIDMANN_BIN:.1f}" if rho.size else "none"
+    criteria = [(spans, f"densities span {span} /m^2, not {WEIDMANN_SPAN[0]:g}-{WEIDMANN_SPAN[1]:g}")]
+    if spans:  # then the bins, the free speed and the fall are measured
+        criteria += [
+            (rms <= tolerance, f"RMS distance {rms:.3g} m/s > {tolerance:.3g} m/s"),
+            (free >= WEIDMANN_FREE_SHARE * v0, f"free speed {free:.3g} m/s < {WEIDMANN_FREE_SHARE * v0:.3g} m/s"),
+            (
+                fall is not None and fall <= WEIDMANN_FALL,
+                f"dense bins at {fall or 0:.0%} of the free speed > {WEIDMANN_FALL:.0%}",
+            ),
+            (
+                slope is not None and slope < 0,
+                f"speed does not fall with density (slope {slope or 0:.3g} m/s per 1/m^2)",
+            ),
+        ]
+    passed, failed = verdict(criteria)
     return TestResult(
         rimea_name(4),
         passed,
@@ -279,6 +297,7 @@ def judge_rimea_4(density: np.ndarray, speed: np.ndarray, *, radius: float) -> T
             "bin_speed_m_s": mean.round(3).tolist(),
             "samples": int(scaled.size),
         },
+        failed=failed,
     )
 
 
@@ -316,7 +335,12 @@ def judge_rimea_6(recording: Recording, scenario: Scenario) -> TestResult:
     points = shapely.points(recording.positions[recording.in_room].astype(np.float64))
     inside = shapely.contains(scenario.walkable.buffer(1e-4), points)
     in_wall = int((~inside).sum())
-    passed = recording.evacuated == 1.0 and in_wall == 0
+    passed, failed = verdict(
+        [
+            (recording.evacuated == 1.0, f"{recording.evacuated:.0%} arrived, not everyone"),
+            (in_wall == 0, f"{in_wall} trajectory points in the wall"),
+        ]
+    )
     return TestResult(
         rimea_name(6),
         passed,
@@ -325,6 +349,7 @@ def judge_rimea_6(recording: Recording, scenario: Scenario) -> TestResult:
         "1.0, and no trajectory point in the wall",
         RIMEA_SOURCE + f", test 6 (A 2, {RIMEA_6_AGENTS} persons); the rule is RiMEA's",
         {"points_in_wall": in_wall, "runs": int(recording.exit_time.shape[0])},
+        failed=failed,
     )
 
 
@@ -371,10 +396,20 @@ def judge_rimea_9(four_open: np.ndarray, two_closed: np.ndarray) -> TestResult:
     }
     ratio = last["two"] / last["four"] if everyone and last["four"] and last["two"] else None
     low, high = RIMEA_9_RATIO
-    flowing = all(flow is not None and flow >= RIMEA_9_MIN_FLOW for flow in flows.values())
+    shares = ", ".join(f"{share:.0%} with {label} exits" for label, share in evacuated.items())
+    criteria = [(everyone, f"not everyone left ({shares})")]
+    if everyone:  # then both evacuation times and flows are measured
+        criteria.append(
+            (ratio is not None and low <= ratio <= high, f"ratio {ratio or 0:.2f} not in [{low:g}, {high:g}]")
+        )
+        criteria += [
+            (flow >= RIMEA_9_MIN_FLOW, f"flow {flow:.2f} /s per exit with {label} exits < {RIMEA_9_MIN_FLOW:g} /s")
+            for label, flow in flows.items()
+        ]
+    passed, failed = verdict(criteria)
     return TestResult(
         rimea_name(9),
-        ratio is not None and low <= ratio <= high and flowing,
+        passed,
         ratio,
         "ratio of evacuation times, two exits over four",
         f"ours: in [{low:g}, {high:g}] (RiMEA: about twice as long, not a pass rule), everyone out in both runs,"
@@ -386,6 +421,7 @@ def judge_rimea_9(four_open: np.ndarray, two_closed: np.ndarray) -> TestResult:
             "evacuated": evacuated,
             "flow_per_exit_per_s": {label: None if flow is None else round(flow, 3) for label, flow in flows.items()},
         },
+        failed=failed,
     )
 
 
@@ -439,9 +475,21 @@ def judge_bottleneck(widths: Sequence[float], crossings: Sequence[Sequence[np.nd
     measured = np.isfinite(flows).all()
     distance = float(np.sqrt(np.nansum([(f - liddle_flow(w)) ** 2 for f, w in zip(flows, widths, strict=True)])))
     worst = float(np.max(errors)) if measured else None
+    unmeasured = ", ".join(f"{w:g}" for w, f in zip(widths, flows, strict=True) if not math.isfinite(f))
+    criteria = [(measured, f"no flow at {unmeasured} m (runs of < {MIN_CROSSINGS} crossings)")]
+    if measured:
+        criteria += [
+            (
+                error <= LIDDLE_TOLERANCE,
+                f"flow {f:.2f} /s at {w:g} m is {error:.0%} off Liddle's {liddle_flow(w):.2f} /s"
+                f" (> {LIDDLE_TOLERANCE:.0%})",
+            )
+            for w, f, error in zip(widths, flows, errors, strict=True)
+        ]
+    passed, failed = verdict(criteria)
     return TestResult(
         BOTTLENECK_NAME,
-        measured and worst <= LIDDLE_TOLERANCE,
+        passed,
         worst,
         "largest relative error",
         f"ours: <= {LIDDLE_TOLERANCE:g} at every width, each flow over >= {MIN_CROSSINGS} crossings",
@@ -454,6 +502,7 @@ def judge_bottleneck(widths: Sequence[float], crossings: Sequence[Sequence[np.nd
             "crossings_per_run": counts,
             "jupedsim_distance_per_s": round(distance, 3) if measured else None,
         },
+        failed=failed,
     )
 
 

@@ -2,6 +2,8 @@
 process, and its table lands between the page's markers (its figures are measurements, not asserted)."""
 
 import json
+import os
+import stat
 
 import numpy as np
 import pytest
@@ -110,3 +112,55 @@ def test_a_bad_walk_option_is_refused_in_one_line(args, fragment, tmp_path, caps
     lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
     assert exit_info.value.code == 2 and len(lines) == 1 and fragment in lines[0], lines
     assert list(tmp_path.iterdir()) == []
+
+
+def _pages(tmp_path) -> dict:
+    """Pages ``--write-docs`` cannot take: binary bytes, a FIFO (a read would block), stray markers."""
+    start, end = walk.MARKERS
+    binary = tmp_path / "binary.md"
+    binary.write_bytes(bytes(range(256)) * 4)
+    nul = tmp_path / "nul.md"
+    nul.write_text("# Performance\n\x00\n")
+    fifo = tmp_path / "fifo.md"
+    os.mkfifo(fifo)
+    lone = tmp_path / "lone.md"
+    lone.write_text(f"# Performance\n\n{start}\nold table\n")
+    reversed_ = tmp_path / "reversed.md"
+    reversed_.write_text(f"# Performance\n\n{end}\nold table\n{start}\n")
+    return {
+        binary: "it is not UTF-8 text (byte 128 is 0x80)",
+        nul: "it is not text (a NUL character",
+        fifo: "it is not a regular file",
+        lone: "its marker comments do not pair up (<!-- walk-bench:start --> 1x, <!-- walk-bench:end --> 0x",
+        reversed_: "1x, <!-- walk-bench:end --> 1x, end first); must hold each once",
+    }
+
+
+def test_a_page_that_cannot_take_the_table_is_refused_before_the_benchmark(tmp_path, capsys, monkeypatch):
+    """Binary bytes or a FIFO ended in a traceback or a hang after the walk ran, and no bench.json: now one line at
+    the door, the walk never started and the page is untouched."""
+    monkeypatch.setattr(walk, "run", lambda **_: pytest.fail("the benchmark ran"))
+    pages = _pages(tmp_path)
+    for page, fragment in pages.items():
+        before = None if stat.S_ISFIFO(page.stat().st_mode) else page.read_bytes()
+        with pytest.raises(SystemExit) as exit_info:
+            main(["--only", "walk", "--output", str(tmp_path / "bench.json"), "--write-docs", str(page)])
+        lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+        assert exit_info.value.code == 2 and len(lines) == 1, lines
+        assert lines[0].startswith(f"python -m pedrl.bench: error: --write-docs={str(page)!r} is invalid: "), lines
+        assert fragment in lines[0] and "must " in lines[0], lines
+        assert before is None or page.read_bytes() == before
+    assert not (tmp_path / "bench.json").exists()
+
+
+def test_an_absent_page_a_page_without_markers_and_one_with_both_are_taken(tmp_path):
+    """The control: what write_docs handles (a new page, a new section, the table between the markers) passes."""
+    start, end = walk.MARKERS
+    plain, marked = tmp_path / "plain.md", tmp_path / "marked.md"
+    plain.write_text("# Performance\n\nno markers here\n")
+    marked.write_text(f"# Performance\n\n{start}\nold table\n{end}\n")
+    for page in (tmp_path / "absent.md", plain, marked):
+        assert walk.page_problem(page) is None, page
+        walk.write_docs(page, "table")
+        assert walk.page_problem(page) is None, page  # and it can be written again
+        assert page.read_text().count(start) == 1

@@ -22,6 +22,7 @@ from pedrl.integrations.jupedsim import (  # noqa: E402
     simulate,
     walkable_with_aprons,
 )
+from pedrl.integrations.jupedsim_data import MIN_DT  # noqa: E402
 from pedrl.scenarios import Scenario, Spawn, build_scenario  # noqa: E402
 
 CORRIDOR = Scenario(
@@ -184,6 +185,12 @@ def test_bad_input_fails_with_one_line(overrides, message):
         ),
         ({"desired_speed": 0}, "jupedsim.desired_speed=0 is invalid"),
         ({"dt": -0.01}, "jupedsim.dt=-0.01 is invalid"),
+        (
+            {"dt": 1e-9},
+            "jupedsim.dt=1e-09 is invalid: must be >= 0.001 s (JuPedSim's default 0.01 s; 1e-09 s would"
+            " take 1,000,000,000 JuPedSim steps per simulated second, at most 1,000)",
+        ),
+        ({"dt": 0.0009}, "jupedsim.dt=0.0009 is invalid: must be >= 0.001 s"),
         ({"speed": 1.0}, "jupedsim.speed is not a setting of the JuPedSim model"),
     ],
 )
@@ -192,6 +199,7 @@ def test_bad_model_settings_fail_with_one_line(settings, message):
         model_from_settings(settings)
     assert message in str(error.value) and "\n" not in str(error.value)
     assert model_from_settings({"desired_speed": 1.34}) == JuPedSimModel(desired_speed=1.34)
+    assert model_from_settings({"dt": MIN_DT}).dt == MIN_DT  # the control: the bound itself is taken
 
 
 def test_without_jupedsim_the_error_names_the_extra(monkeypatch):

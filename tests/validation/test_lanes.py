@@ -135,3 +135,16 @@ def test_lanes_corridor_splits_feliciani_crowd_by_ratio():
         scenario = lanes_corridor(ratio)
         assert [spawn.weight for spawn in scenario.spawns] == [float(r) for r in ratio]
         assert scenario.walkable.bounds == (0.0, 0.0, 38.0, 3.0)
+
+
+def test_a_failed_lanes_row_names_the_criterion_that_failed():
+    """Lanes walked too fast showed Phi 1.0, a passing value, beside FAIL: the row now names the crossing time as
+    the criterion that failed. The control: a pass names none."""
+    assert judge_lanes(every_ratio(lanes=True)).failed == []
+    fast = judge_lanes(every_ratio(lanes=True, speed=2.5))
+    assert fast.value == pytest.approx(1.0) and fast.failed == ["crossing time 4.0 s not in [5.84, 8.76] s"]
+    sparse = judge_lanes(every_ratio(lanes=False, spread=4.0))
+    assert len(sparse.failed) == 1 and sparse.failed == ["Phi 0.841 < chance 0.843 + 0.05"]  # Phi >= 0.8, by chance
+    stuck = judge_lanes(every_ratio(lanes=True, speed=0.1, frames=40))
+    assert "nobody crossed the area" in stuck.failed and "0% of the agents crossed < 50%" in stuck.failed
+    assert judge_lanes({"5:1": walkers((5, 1), lanes=True)}).failed == ["no run at 3:3"]

@@ -273,6 +273,83 @@ def test_invariants_catch_an_overlap_a_wall_crossing_and_a_jump():
         frames = np.array([good[0], [bad]])
         tally.add(recording(frames, max_speed=1.0), scenario.walkable, scenario.exits)
         assert not tally.passed, broken
+        named = {"min_gap": "bodies overlap by 0.1 m", "outside": "1 agent-frames outside the area",
+                 "min_wall_clearance": "a body reaches 0.1 m into a wall",
+                 "max_step_ratio": "a step 2 times what the top speed allows"}  # fmt: skip
+        assert named[broken] in tally.broken(), tally.broken()  # the row names the invariant that broke
+
+
+# ---------------------------------------------------------------------------------------------- which criterion failed
+
+
+def test_every_failed_verdict_names_the_criterion_that_failed():
+    """A FAIL showed the measured value beside it, though that value may meet its own bound while another criterion
+    fails (a step model's RMS distance, a milling crowd's ratio): each failed row names its failed criteria with the
+    measured number and the bound. The controls: the passing rows of the same judges name none."""
+    rng = np.random.default_rng(1)
+    step = judge_rimea_4(*weidmann_cloud(rng, low=0.5, high=3.5, speed=lambda d: 0.9 - 0.1 * d), radius=0.2)
+    failed = {
+        "rimea_1 slow": (judge_rimea_1(walker_times(0.8)), ["travel time 50.0 s not in [26, 34] s (4 of 4 runs)"]),
+        "rimea_1 lost": (judge_rimea_1(np.array([30.0, np.nan])), ["1 of 2 runs never arrived"]),
+        "rimea_4 step": (step, ["free speed 0.83 m/s < 1.01 m/s", "dense bins at 68% of the free speed > 50%"]),
+        "rimea_4 narrow": (
+            judge_rimea_4(np.full(200, 0.2), np.full(200, 1.2), radius=0.2),
+            ["densities span 0.0-0.5 /m^2, not 1-3"],
+        ),
+        "rimea_9 milling": (
+            judge_rimea_9(milling_exit_times(400.0, 4), milling_exit_times(800.0, 2)),
+            ["flow 0.42 /s per exit with four exits < 0.5 /s", "flow 0.42 /s per exit with two exits < 0.5 /s"],
+        ),
+        "rimea_9 one exit": (
+            judge_rimea_9(exit_times(1.3, 1), exit_times(1.3, 1)),
+            ["ratio 1.00 not in [1.6, 2.4]", "flow 0.32 /s per exit with four exits < 0.5 /s"],
+        ),
+        "bottleneck few": (
+            judge_bottleneck(LIDDLE_WIDTHS, scripted_crossings(1.0, agents=49)),
+            [f"no flow at {', '.join(f'{w:g}' for w in LIDDLE_WIDTHS)} m (runs of < 50 crossings)"],
+        ),
+    }
+    for name, (row, expected) in failed.items():
+        assert row.status == "FAIL" and row.failed == expected, (name, row.failed)
+    assert step.value <= 0.335  # the value shown meets its own bound: the criteria say why it failed
+    half = judge_bottleneck(LIDDLE_WIDTHS, scripted_crossings(0.5))
+    assert (
+        len(half.failed) == len(LIDDLE_WIDTHS)
+        and half.failed[0] == "flow 0.85 /s at 0.9 m is 50% off Liddle's 1.71 /s (> 25%)"
+    )
+    passing = [
+        judge_rimea_1(walker_times(1.33)),
+        judge_rimea_4(*weidmann_cloud(np.random.default_rng(0)), radius=0.2),
+        judge_rimea_9(exit_times(1.3, 4), exit_times(1.3, 2)),
+        judge_bottleneck(LIDDLE_WIDTHS, scripted_crossings(1.0)),
+    ]
+    assert all(row.passed and row.failed == [] for row in passing)
+
+
+def test_a_fail_cell_names_its_failed_criteria_and_a_pass_cell_none():
+    from pedrl.validation.framework import TestResult
+    from pedrl.validation.report import markdown
+
+    lanes = TestResult(
+        "lanes",
+        False,
+        1.0,
+        "order parameter Phi at 3:3",
+        "ours",
+        "src",
+        failed=["crossing time 4.0 s not in [5.84, 8.76] s"],
+    )
+    many = TestResult("bottleneck", False, 0.5, "largest relative error", "ours", "src", failed=["a", "b", "c", "d"])
+    good = TestResult("rimea_1", True, 30.0, "s", "in [26, 34] s", "src")
+    report = markdown({"greedy": [lanes, many, good]}, meta={})
+    assert "| lanes | 1 order parameter Phi at 3:3: **FAIL** (crossing time 4.0 s not in [5.84, 8.76] s) |" in report
+    assert "| bottleneck | 0.5 largest relative error: **FAIL** (a; b; 2 more in the details) |" in report
+    assert "| rimea_1 | 30 s: **pass** |" in report
+    assert "**greedy, bottleneck**:  (failed: a; b; c; d)" in report
+    with pytest.raises(ValueError, match="inconsistent"):
+        TestResult("x", False, 1.0, "s", "ours", "src")  # a failure that names no criterion
+    with pytest.raises(ValueError, match="inconsistent"):
+        TestResult("x", True, 1.0, "s", "ours", "src", failed=["a"])
 
 
 # ---------------------------------------------------------------------------------------------- body sizes
@@ -436,6 +513,7 @@ def test_invariants_row_fails_when_nothing_was_simulated():
     crowd = PedrlCrowd(GreedyDoorController(), {"agent_radius": 0.4})
     rows, _ = run_suite(crowd, budget=Budget(quick=True), only=["rimea_6", "invariants"])
     assert [row.status for row in rows] == ["n/a", "FAIL"] and rows[1].details["agent_frames"] == 0
+    assert rows[1].failed == ["no agent-frame recorded"]
 
 
 @pytest.mark.parametrize("radius", [0.2, 0.25, 0.4])
