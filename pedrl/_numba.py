@@ -1,10 +1,13 @@
 """numba, for the CPU kernels of the simulation (`pedrl.sim.motion.*_kernel`), the Q tables (`pedrl.rl.kernels`) and the
 quantizer (`pedrl.vq.tree`).
 
-numba compiles a kernel at its first call (about 13 s for all of them on a 2-core CPU) and keeps it in its on-disk
-cache (``__pycache__`` next to the module, or ``NUMBA_CACHE_DIR``), so later processes load them in under a second.
-Kernels are declared with :func:`cached_njit`, whose cache heals itself: a kernel whose cache files cannot be read
-(truncated, garbage) is recompiled into a fresh cache, with one warning line per process, instead of failing every run.
+numba compiles a kernel at its first call (minutes for the fused trial's kernels on a 2-core CPU) and keeps it in its
+on-disk cache (``NUMBA_CACHE_DIR`` where it is set and writable, else ``__pycache__`` next to the module, else the
+user's cache folder, ``~/.cache/numba``), so later processes load them in under a second. Kernels are declared with
+:func:`cached_njit`: the first compile of a process whose cache is cold says so in one line on stderr
+(:data:`COMPILING`), a kernel whose cache files cannot be read (truncated, garbage) is recompiled into a fresh cache,
+with one warning line per process, instead of failing every run, and where no folder can hold a cache the kernels are
+compiled in every process, with one warning line.
 The torch code stays the reference and the path on other devices: the kernels return its numbers to the bit (the
 tree search the exact argmin, which can order float32 ties differently from the matrix search). Each kernel module
 names its specification in its first line. In `pedrl.sim.motion` and `pedrl.rl.qlearning` a function with a
@@ -16,6 +19,7 @@ from __future__ import annotations
 
 import functools
 import os
+import sys
 from collections.abc import Callable
 from types import ModuleType
 from typing import TYPE_CHECKING, Any
@@ -29,6 +33,12 @@ __all__ = ["cached_njit", "numba", "numba_available", "use_kernels"]
 
 _HEALED: list[str] = []
 """The kernels whose cache this process found unreadable and rebuilt (the first one is reported)."""
+_COMPILED: list[str] = []
+"""The kernels this process compiled because their cache held no copy (the first one is announced)."""
+_UNCACHED: list[str] = []
+"""The kernels declared without a cache because no folder could hold one (the first one is reported)."""
+COMPILING = "pedrl: compiling the numba kernels (first run: up to a few minutes; cached afterwards in {folder})"
+"""The line printed on stderr before the first compile of a process whose cache holds no copy of a kernel."""
 DISABLE_VARIABLE = "PEDRL_NO_NUMBA"
 """Set it (to anything but empty or ``0``) to run the torch code on the CPU too."""
 
@@ -73,7 +83,16 @@ def cached_njit(**options: Any) -> Callable[[Callable[..., Any]], Any]:
     """
 
     def decorate(function: Callable[..., Any]) -> Any:
-        dispatcher = numba().njit(cache=True, **options)(function)
+        try:
+            dispatcher = numba().njit(cache=True, **options)(function)
+        except RuntimeError as err:  # numba found no writable folder for the cache ("no locator available")
+            if not _UNCACHED:
+                warn(
+                    f"numba has no writable folder for its cache ({str(err).splitlines()[0]}): the kernels are"
+                    " compiled in every run; set NUMBA_CACHE_DIR to a writable folder to keep them"
+                )
+            _UNCACHED.append(function.__qualname__)
+            return numba().njit(cache=False, **options)(function)
         dispatcher._cache = _healing_cache_class()(dispatcher.py_func)  # numba has no public hook for its cache
         return dispatcher
 
@@ -88,7 +107,7 @@ def _healing_cache_class() -> type:
     class HealingCache(FunctionCache):
         def load_overload(self, sig: Any, target_context: Any) -> Any:
             try:
-                return super().load_overload(sig, target_context)
+                loaded = super().load_overload(sig, target_context)
             except Exception as err:  # whatever a corrupt file raises: pickle, EOF, type errors
                 kernel = f"{self._py_func.__module__}.{self._py_func.__qualname__}"
                 reason = f"{type(err).__name__}: {err}".splitlines()[0]
@@ -105,5 +124,22 @@ def _healing_cache_class() -> type:
                     )
                 _HEALED.append(kernel)
                 return None
+            if loaded is None and self._enabled:  # a cold cache: numba compiles next
+                if not _COMPILED and not _HEALED:
+                    print(COMPILING.format(folder=cache_folder(self)), file=sys.stderr, flush=True)
+                _COMPILED.append(f"{self._py_func.__module__}.{self._py_func.__qualname__}")
+            return loaded
 
     return HealingCache
+
+
+def cache_folder(cache: Any) -> str:
+    """The folder that holds the kernels' caches, for messages: ``NUMBA_CACHE_DIR`` or the user's cache folder (each
+    holds one sub-folder per source folder), or, for the caches beside the modules, their ``__pycache__`` folders."""
+    from numba.core.caching import InTreeCacheLocator
+
+    path = cache.cache_path
+    if isinstance(cache._impl.locator, InTreeCacheLocator):
+        package = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+        return f"the __pycache__ folders under {package}" if path.startswith(package) else path
+    return os.path.dirname(path)

@@ -87,6 +87,8 @@ EVAL_CASES: list[tuple[str, tuple[str, ...]]] = [
     ("density_map.tile_size=0", ("density_map.tile_size=0", "> 0")),
     ("density_map.tile_size=1e-6", ("density_map.tile_size=1e-06", "tiles", "needs about", "GiB")),
     ("export.trials=-1", ("export.trials=-1", "integer >= 0")),
+    ("export.fps=0", ("export.fps=0", "> 0")),
+    ("export.fps=0.5", ("export.fps=0.5", "at least the room's 1 decisions per second")),
     ("animation.enabled=maybe", ("animation.enabled='maybe'", "true or false")),
     ("animation.fps=0", ("animation.fps=0", "> 0")),
     ("animation.max_frames=0", ("animation.max_frames=0", "integer >= 1")),
@@ -99,6 +101,7 @@ EVAL_FAST = {
     "device=meta",
     "measurement.distance=1000",
     "density_map.tile_size=1e-6",
+    "export.fps=0.5",
     "scenario=nowhere",
     "scenario=corner agents=[20]",
 }

@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from pedrl._numba import numba_available
+from pedrl._numba import COMPILING, numba_available
 
 pytestmark = pytest.mark.skipif(not numba_available(), reason="numba is off (PEDRL_NO_NUMBA)")
 
@@ -46,3 +46,51 @@ def test_a_corrupt_kernel_cache_is_rebuilt_with_one_line(tmp_path):
     again = run_kernels(tmp_path)  # the rewritten cache loads: no notice
     assert again.returncode == 0 and again.stdout.strip() == "[0, 1, 0]"
     assert again.stderr.strip() == "", again.stderr
+
+
+# A tiny kernel of its own module (numba caches a function of a file only), compiled in well under a second.
+TINY_KERNEL = """
+from pedrl._numba import cached_njit
+
+
+@cached_njit()
+def twice(value):
+    return 2 * value
+"""
+
+
+def run_tiny_kernel(folder, **env_vars: str) -> subprocess.CompletedProcess:
+    (folder / "tiny_kernel.py").write_text(TINY_KERNEL)
+    env = {**os.environ, "OMP_NUM_THREADS": "1", **env_vars}
+    env["PYTHONPATH"] = os.pathsep.join([str(folder), env.get("PYTHONPATH", "")])
+    script = "from tiny_kernel import twice; print(twice(21))"
+    return subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
+
+
+def test_a_cold_cache_announces_the_compile_in_one_line_and_a_warm_one_is_silent(tmp_path):
+    cache = tmp_path / "cache"
+    (tmp_path / "code").mkdir()
+    cold = run_tiny_kernel(tmp_path / "code", NUMBA_CACHE_DIR=str(cache))
+    assert cold.returncode == 0, cold.stderr
+    assert cold.stdout.strip() == "42"
+    lines = [line for line in cold.stderr.splitlines() if line.strip()]
+    assert lines == [COMPILING.format(folder=cache)]
+    assert lines[0].startswith("pedrl: compiling the numba kernels (first run")
+    assert list(cache.rglob("tiny_kernel.twice-*.nbi")), "the kernel was not cached in NUMBA_CACHE_DIR"
+
+    warm = run_tiny_kernel(tmp_path / "code", NUMBA_CACHE_DIR=str(cache))
+    assert warm.returncode == 0 and warm.stdout.strip() == "42"
+    assert warm.stderr.strip() == "", warm.stderr  # loaded from the cache: nothing to say
+
+
+def test_without_any_writable_cache_folder_the_kernels_compile_with_one_warning(tmp_path):
+    # numba's own setting of where it may cache: a locator that never applies outside IPython leaves it none, as a
+    # read-only install with a read-only home would (a root user cannot make a folder read-only for itself).
+    (tmp_path / "code").mkdir()
+    done = run_tiny_kernel(tmp_path / "code", NUMBA_CACHE_LOCATOR_CLASSES="IPythonCacheLocator")
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "42"
+    lines = [line for line in done.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1, done.stderr
+    assert lines[0].startswith("pedrl: warning: numba has no writable folder for its cache (cannot cache function")
+    assert "set NUMBA_CACHE_DIR" in lines[0]

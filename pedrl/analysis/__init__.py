@@ -37,10 +37,12 @@ from pedrl.analysis.plots import (
 from pedrl.analysis.recording import Recording
 from pedrl.analysis.trajectories import DEFAULT_EXIT_DEPTH, AreaGeometry, Geometry, RoomGeometry, Trajectories
 from pedrl.analysis.trajectory_files import (
+    FRAMES_PAST_EXIT,
     ID_COL,
     X_COL,
     Y_COL,
     read_pedpy_trajectory,
+    trajectories_for_export,
     write_geometry_wkt,
     write_jupedsim_sqlite,
     write_pedpy_trajectories,
@@ -54,6 +56,7 @@ __all__ = [
     "DENSITY_COL",
     "FLOW_COL",
     "FRAME_COL",
+    "FRAMES_PAST_EXIT",
     "ID_COL",
     "SPEED_COL",
     "TRIAL_COL",
@@ -85,6 +88,7 @@ __all__ = [
     "plot_learning_curves",
     "plot_room",
     "read_pedpy_trajectory",
+    "trajectories_for_export",
     "write_geometry_wkt",
     "write_jupedsim_sqlite",
     "write_pedpy_trajectories",

@@ -13,7 +13,11 @@ number on a comment line containing ``framerate``, and the unit from a comment l
     0 0 12.5 3.25
     ...
 
-Rows are sorted by frame, then id, and only active agent-frames are written. One file holds one trial: PedPy
+Rows are sorted by frame, then id, and only active agent-frames are written: the writers write a trial as they are
+given it. :func:`trajectories_for_export` makes a recorded trial what ``pedrl-eval`` and ``pedrl-validate`` write: a
+walker that left stays :data:`FRAMES_PAST_EXIT` frames past its exit (PedPy counts a walker over a line only from a
+movement into a frame that is not the walker's last), at a frame rate of choice (positions interpolated linearly
+between the recorded frames). One file holds one trial: PedPy
 treats a file as one experiment with one clock, and trials of ``pedrl`` all start at frame 0; use
 :func:`write_pedpy_trajectories` to write a list of trials, one file each. Coordinates are written with enough
 significant digits to read back bit-exactly in the dtype of the positions (9 for float32, 17 for float64).
@@ -41,6 +45,95 @@ Y_COL: Final = "y"
 FRAMERATE_KEY: Final = "framerate"
 
 _SIGNIFICANT_DIGITS: Final = {np.dtype(np.float32): 9, np.dtype(np.float64): 17}
+
+FRAMES_PAST_EXIT: Final = 2
+"""Frames an exported walker that left is kept past its last recorded frame, held where it left (inside the exit's
+apron of the written walkable area, at speed 0).
+
+PedPy's crossing count (``pedpy.compute_n_t``, ``compute_crossing_frames``) reads a walker's movement into each frame
+from the frame before, except into its last frame, where its adaptive border leaves a movement of length 0: a walker
+whose rows end at the first frame past the exit line is never counted over it. One frame more is enough; the second
+gives PedPy's speeds (a window of a frame each side) a frame past the line too."""
+
+
+def trajectories_for_export(
+    trajectories: Trajectories, *, framerate: float | None = None, frames_past_exit: int = FRAMES_PAST_EXIT
+) -> Trajectories:
+    """A recorded trial as the trajectory files hold it: resampled to ``framerate``, each walker that left kept
+    ``frames_past_exit`` frames past its last frame.
+
+    Export frame ``j`` is the state at ``j / framerate`` s: between two recorded frames (one per decision, or one every
+    few decisions for a large crowd) a position is interpolated linearly and the velocity is the one of the recorded
+    frame that ends the interval; a walker is in an export frame when it is in the recorded frames on both sides.
+    The recorded frames themselves are kept exactly. A walker left when its last position lies outside the area
+    (past an exit); it then stays ``frames_past_exit`` more export frames where it left, with velocity 0, and the trial
+    grows by up to ``frames_past_exit`` frames at its end for a walker that left in its last frame. A walker still in
+    the area at its last frame (the trial ended) is not extended.
+
+    Args:
+        trajectories: the recorded trial, ``(T, N, 2)`` positions.
+        framerate: frames per second of the export (1/s), at least the trial's; None: the trial's own.
+        frames_past_exit: frames a walker that left is kept past its last one (0: none).
+
+    Returns:
+        The trial to write, ``(T', N, 2)``, positions and velocities in their recorded dtype.
+
+    Raises:
+        ValueError: one line naming the bad argument.
+    """
+    if not isinstance(trajectories, Trajectories):
+        raise TypeError(f"trajectories is a {type(trajectories).__name__}: must be pedrl.analysis.Trajectories")
+    recorded = trajectories.framerate
+    if framerate is None:
+        framerate = recorded
+    if isinstance(framerate, bool) or not isinstance(framerate, int | float) or not recorded <= framerate < 1e6:
+        raise ValueError(
+            f"framerate={framerate!r} is invalid: must be a number of frames per second of at least the trial's "
+            f"{recorded:g} (fewer frames would skip recorded ones)"
+        )
+    if isinstance(frames_past_exit, bool) or not isinstance(frames_past_exit, int | np.integer):
+        raise ValueError(f"frames_past_exit={frames_past_exit!r} is invalid: must be an integer >= 0")
+    if frames_past_exit < 0:
+        raise ValueError(f"frames_past_exit={frames_past_exit!r} is invalid: must be an integer >= 0")
+    positions, velocities, active = trajectories.positions, trajectories.velocities, trajectories.active
+    num_frames = trajectories.num_frames
+    # Recorded frame of export frame j: j * recorded / framerate, split into a frame and a weight towards the next.
+    ratio = float(framerate) / recorded
+    count = int(np.floor((num_frames - 1) * ratio + 1e-9)) + 1
+    where = np.arange(count) / ratio
+    before = np.minimum(np.floor(where + 1e-9).astype(np.int64), num_frames - 1)
+    weight = np.clip(where - before, 0.0, 1.0)
+    weight[weight < 1e-9] = 0.0
+    after = np.minimum(before + 1, num_frames - 1)
+    between = weight > 0
+    blend = weight[:, None, None]
+    interpolated = (1.0 - blend) * positions[before] + blend * positions[after]
+    out_positions = np.where(between[:, None, None], interpolated, positions[before]).astype(positions.dtype)
+    out_velocities = np.where(between[:, None, None], velocities[after], velocities[before]).astype(velocities.dtype)
+    out_active = active[before] & (~between[:, None] | active[after])
+    # Walkers that left: their last position lies outside the area; they stay there frames_past_exit frames more.
+    present = out_active.any(axis=0)
+    last = count - 1 - np.argmax(out_active[::-1], axis=0)
+    agents = np.flatnonzero(present)
+    left = agents[~trajectories.geometry.contains(out_positions[last[agents], agents])]
+    if frames_past_exit and left.size:
+        extra = max(0, int(last[left].max()) + frames_past_exit + 1 - count)
+        if extra:
+            out_positions = np.concatenate([out_positions, np.repeat(out_positions[-1:], extra, axis=0)])
+            out_velocities = np.concatenate([out_velocities, np.zeros_like(out_velocities[:extra])])
+            out_active = np.concatenate([out_active, np.zeros((extra, trajectories.num_agents), dtype=bool)])
+        for step in range(1, frames_past_exit + 1):
+            frames = last[left] + step
+            out_positions[frames, left] = out_positions[last[left], left]
+            out_velocities[frames, left] = 0.0
+            out_active[frames, left] = True
+    return Trajectories(
+        positions=out_positions,
+        velocities=out_velocities,
+        active=out_active,
+        framerate=float(framerate),
+        geometry=trajectories.geometry,
+    )
 
 
 def write_pedpy_trajectory(path: str | Path, trajectories: Trajectories, *, first_id: int = 0) -> Path:

@@ -172,6 +172,7 @@ def settings_from_config(cfg: DictConfig) -> EvalSettings:
         animation_max_frames=None if cfg.animation.max_frames is None else int(cfg.animation.max_frames),
         tensorboard=bool(cfg.tensorboard),
         fused=cfg.get("fused"),
+        export_fps=None if cfg.export.get("fps") is None else float(cfg.export.fps),
     )
 
 
@@ -234,6 +235,8 @@ def _validate_values(cfg: DictConfig) -> None:
     check_integer("measurement.plot_points", cfg.measurement.plot_points, minimum=1)
     check_number("density_map.tile_size", cfg.density_map.tile_size, low=0.0, low_open=True)
     check_integer("export.trials", cfg.export.trials, minimum=0)
+    if cfg.export.get("fps") is not None:
+        check_number("export.fps", cfg.export.fps, low=0.0, low_open=True)
     check_bool("animation.enabled", cfg.animation.enabled)
     check_number("animation.fps", cfg.animation.fps, low=0.0, low_open=True)
     if cfg.animation.max_frames is not None:
@@ -243,8 +246,9 @@ def _validate_values(cfg: DictConfig) -> None:
 
 
 def check_against_room(cfg: DictConfig, geometry: Geometry, envs: dict[int, RoomEnv], controller: Any = None) -> None:
-    """The checks that need the checkpoint's room, before any compute: the measurement point lies inside it, and
-    the recordings, density maps, room states and the encoder's search structures fit in memory.
+    """The checks that need the checkpoint's room, before any compute: the measurement point lies inside it, the
+    export's frame rate is no lower than the decisions', and the recordings, density maps, room states and the
+    encoder's search structures fit in memory.
 
     ``controller`` (None: the rooms alone) decides each batch's path (:func:`pedrl.trial.crowd.choose_path`): the fused
     trial keeps a frame every :func:`pedrl.trial.fused.record_every` decisions and builds the nearest-prototype lists
@@ -254,6 +258,12 @@ def check_against_room(cfg: DictConfig, geometry: Geometry, envs: dict[int, Room
         raise ValueError(
             f"measurement.distance={cfg.measurement.distance!r} is invalid: the measurement point must be inside the "
             f"room, a distance in [0, {geometry.length:g}) m (the room's length) in front of the door"
+        )
+    fps, decisions = cfg.export.get("fps"), next(iter(envs.values())).decisions_per_second
+    if fps is not None and fps < decisions:
+        raise ValueError(
+            f"export.fps={fps!r} is invalid: must be at least the room's {decisions:g} decisions per second "
+            "(or null: the recording's frame rate)"
         )
     tile_size = float(cfg.density_map.tile_size)
     tiles = math.ceil(geometry.width / tile_size) * math.ceil(geometry.length / tile_size)

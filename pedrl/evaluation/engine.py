@@ -23,6 +23,7 @@ from pedrl.analysis import (
     animate_trial,
     compute_density_map,
     compute_fundamental_diagram,
+    trajectories_for_export,
     write_geometry_wkt,
     write_jupedsim_sqlite,
     write_pedpy_trajectory,
@@ -288,6 +289,8 @@ class EvalSettings:
         plot_points: most samples drawn per agent count in the figure (``measurement.plot_points``).
         tile_size: density-map tile size (m) (``density_map.tile_size``).
         export_trials: simulated trials written as PedPy trajectories (``export.trials``).
+        export_fps: their frames per second, None for the recording's (``export.fps``;
+            :func:`pedrl.analysis.trajectories_for_export`).
         animation: write ``animation_<agents>.gif`` (``animation.enabled``).
         animation_fps: its frames per second (``animation.fps``).
         animation_max_frames: its most frames, None for all (``animation.max_frames``).
@@ -309,6 +312,7 @@ class EvalSettings:
     animation_max_frames: int | None
     tensorboard: bool
     fused: bool | None = None
+    export_fps: float | None = None
 
 
 def output_paths(
@@ -496,8 +500,9 @@ def simulate_agent_count(
             if first_run + i == 0:
                 folder.mkdir(parents=True, exist_ok=True)
                 write_geometry_wkt(run_dir / "trajectories" / "geometry.wkt", geometry)
-            write_pedpy_trajectory(folder / f"trial_{first_run + i:03d}.txt", runs[i])
-            write_jupedsim_sqlite(folder / f"trial_{first_run + i:03d}.sqlite", runs[i])
+            exported = trajectories_for_export(runs[i], framerate=settings.export_fps)
+            write_pedpy_trajectory(folder / f"trial_{first_run + i:03d}.txt", exported)
+            write_jupedsim_sqlite(folder / f"trial_{first_run + i:03d}.sqlite", exported)
     assert density is not None  # at least one batch ran
     return stats, _concatenate_diagrams(diagrams), density
 

@@ -1,3 +1,4 @@
+import re
 import sqlite3
 from pathlib import Path
 
@@ -5,9 +6,11 @@ import numpy as np
 import pytest
 
 from pedrl.analysis import (
+    FRAMES_PAST_EXIT,
     RoomGeometry,
     Trajectories,
     read_pedpy_trajectory,
+    trajectories_for_export,
     write_geometry_wkt,
     write_jupedsim_sqlite,
     write_pedpy_trajectories,
@@ -250,3 +253,109 @@ def test_a_failed_sqlite_write_leaves_no_partial_file_and_keeps_the_old_one(tmp_
     with pytest.raises(sqlite3.OperationalError, match="disk is full"):
         write_jupedsim_sqlite(path, exit_trial())
     assert path.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == ["trial.sqlite"]
+
+
+# What pedrl-eval and pedrl-validate write: every walker that left is counted over the exit line by PedPy.
+
+
+def pedpy_passing_count(pedpy, path: Path, geometry: RoomGeometry) -> int:
+    """PedPy's count of walkers over the door line of ``geometry``, from a JuPedSim SQLite file."""
+    line = pedpy.MeasurementLine([(geometry.door_left, geometry.length), (geometry.door_right, geometry.length)])
+    traj_data = pedpy.load_trajectory_from_jupedsim_sqlite(trajectory_file=path)
+    n_t, crossing_frames = pedpy.compute_n_t(traj_data=traj_data, measurement_line=line)
+    return len(crossing_frames)
+
+
+def through_the_door(trial: Trajectories) -> list[int]:
+    """The walkers whose last recorded step crosses the door line between the door posts."""
+    geometry = trial.geometry
+    walkers = []
+    for agent in range(trial.num_agents):
+        frame = np.flatnonzero(trial.active[:, agent])[-1]
+        (x0, y0), (x1, y1) = trial.positions[frame - 1, agent], trial.positions[frame, agent]
+        if y0 < geometry.length <= y1:
+            x = x0 + (x1 - x0) * (geometry.length - y0) / (y1 - y0)
+            walkers += [agent] if geometry.door_left <= x <= geometry.door_right else []
+    return walkers
+
+
+@pytest.mark.parametrize("framerate", [None, 4.0])
+def test_pedpy_counts_every_walker_that_left_through_the_door(tmp_path: Path, make_trial, framerate):
+    pedpy = pytest.importorskip("pedpy")
+    trial = make_trial(num_agents=40, num_frames=80)  # 1 frame per decision; rows end at the first frame past the door
+    walkers = through_the_door(trial)  # the synthetic walkers ignore walls: leave out one that cuts a corner
+    trial = Trajectories(
+        trial.positions[:, walkers], trial.velocities[:, walkers], trial.active[:, walkers], 1.0, trial.geometry
+    )
+    left = trial.num_agents
+    assert left >= 35 and ((trial.positions[..., 1] >= trial.geometry.length)[trial.active]).sum() == left
+
+    exported = trajectories_for_export(trial, framerate=framerate)
+    path = write_jupedsim_sqlite(tmp_path / "exported.sqlite", exported)
+    assert pedpy_passing_count(pedpy, path, trial.geometry) == left
+    walkable_area = pedpy.load_walkable_area_from_jupedsim_sqlite(trajectory_file=path)
+    traj_data = pedpy.load_trajectory_from_jupedsim_sqlite(trajectory_file=path)
+    assert pedpy.is_trajectory_valid(traj_data=traj_data, walkable_area=walkable_area)  # held inside the apron
+    assert traj_data.frame_rate == (framerate or 1.0)
+    text = pedpy.load_trajectory_from_txt(trajectory_file=write_pedpy_trajectory(tmp_path / "t.txt", exported))
+    assert len(text.data) == len(traj_data.data)
+
+    # Control: the trial as recorded, rows ending at the first frame past the line, is counted short by PedPy.
+    recorded = write_jupedsim_sqlite(tmp_path / "recorded.sqlite", trial)
+    assert pedpy_passing_count(pedpy, recorded, trial.geometry) < left
+
+
+def test_the_export_keeps_recorded_frames_interpolates_between_them_and_holds_walkers_past_the_exit(make_trial):
+    trial = make_trial(num_agents=12, num_frames=40, dtype=np.float64)
+    exported = trajectories_for_export(trial, framerate=4.0)
+    assert exported.framerate == 4.0
+    recorded_frames = exported.active[: 4 * trial.num_frames : 4]
+    np.testing.assert_array_equal(
+        exported.positions[::4][: trial.num_frames][trial.active], trial.positions[trial.active]
+    )
+    # a frame between two decisions lies on the straight line between them, with the velocity of the second
+    both = trial.active[5] & trial.active[6]
+    assert both.any()
+    np.testing.assert_allclose(
+        exported.positions[21][both], 0.75 * trial.positions[5][both] + 0.25 * trial.positions[6][both]
+    )
+    np.testing.assert_array_equal(exported.velocities[21][both], trial.velocities[6][both])
+    # each walker's last recorded frame (past the door) is followed by FRAMES_PAST_EXIT frames held there, at rest
+    last = trial.num_frames - 1 - np.argmax(trial.active[::-1], axis=0)
+    for agent, frame in enumerate(last):
+        rows = np.flatnonzero(exported.active[:, agent])
+        assert rows[-1] == 4 * frame + FRAMES_PAST_EXIT
+        held = exported.positions[4 * frame : rows[-1] + 1, agent]
+        np.testing.assert_array_equal(held, np.broadcast_to(trial.positions[frame, agent], held.shape))
+        assert not exported.velocities[4 * frame + 1 : rows[-1] + 1, agent].any()
+    assert recorded_frames.sum() == trial.active.sum()
+    # no frames past the exit asked for, at the recorded rate: the trial unchanged
+    same = trajectories_for_export(trial, frames_past_exit=0)
+    np.testing.assert_array_equal(same.active, trial.active)
+    np.testing.assert_array_equal(same.positions[same.active], trial.positions[trial.active])
+
+
+def test_a_walker_still_in_the_room_at_its_last_frame_is_not_held_on(make_trial):
+    trial = make_trial(num_agents=12, num_frames=40)
+    inside = trial.active & (trial.positions[..., 1] < trial.geometry.length)  # as if the trial had ended there
+    trial = Trajectories(trial.positions, trial.velocities, inside, trial.framerate, trial.geometry)
+    exported = trajectories_for_export(trial)
+    np.testing.assert_array_equal(exported.active, trial.active)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        (
+            {"framerate": 0.5},
+            "framerate=0.5 is invalid: must be a number of frames per second of at least the trial's 1",
+        ),
+        ({"framerate": "4"}, "framerate='4' is invalid"),
+        ({"frames_past_exit": -1}, "frames_past_exit=-1 is invalid"),
+        ({"frames_past_exit": 1.5}, "frames_past_exit=1.5 is invalid"),
+    ],
+)
+def test_the_export_refuses_bad_arguments_in_one_line(make_trial, kwargs, message):
+    with pytest.raises(ValueError, match=re.escape(message)) as error:
+        trajectories_for_export(make_trial(), **kwargs)
+    assert "\n" not in str(error.value)

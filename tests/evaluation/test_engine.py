@@ -180,19 +180,28 @@ def test_exported_trials_open_in_pedpy(checkpoints, tmp_path):
     pedpy = pytest.importorskip("pedpy")
     import shapely
 
-    evaluate(eval_config(checkpoints["vqql"], "agents=[5]", "animation.enabled=false"), run_dir=tmp_path)
+    cfg = eval_config(checkpoints["vqql"], "agents=[5]", "animation.enabled=false", "export.fps=4")
+    evaluate(cfg, run_dir=tmp_path)
     walkable = pedpy.WalkableArea((tmp_path / "trajectories" / "geometry.wkt").read_text())
+    door = pedpy.MeasurementLine([(3.5, 10.0), (6.5, 10.0)])  # the debug room: 10 m x 10 m, a 3 m door at y = 10
+    counted = 0
     for path in sorted((tmp_path / "trajectories" / "agents_5").glob("*.txt")):
         trajectory = pedpy.load_trajectory_from_txt(trajectory_file=path)
-        assert trajectory.frame_rate == 1.0 and set(trajectory.data["id"]) <= set(range(5))
+        assert trajectory.frame_rate == 4.0 and set(trajectory.data["id"]) <= set(range(5))
         points = shapely.points(trajectory.data[["x", "y"]].to_numpy())
-        assert shapely.covers(walkable.polygon, points).all()  # including agents in the door's exit frame
+        assert shapely.covers(walkable.polygon, points).all()  # including agents in the door's exit frames
+        # PedPy counts over the door every walker whose rows reach past it
+        left = set(trajectory.data.loc[trajectory.data["y"] >= 10.0, "id"])
+        _, crossings = pedpy.compute_n_t(traj_data=trajectory, measurement_line=door)
+        assert set(crossings["id"]) == left
+        counted += len(left)
         # the same trial as a JuPedSim SQLite file, which carries its own walkable area
         sqlite = path.with_suffix(".sqlite")
         from_sqlite = pedpy.load_trajectory_from_jupedsim_sqlite(trajectory_file=sqlite)
-        assert from_sqlite.frame_rate == 1.0 and len(from_sqlite.data) == len(trajectory.data)
+        assert from_sqlite.frame_rate == 4.0 and len(from_sqlite.data) == len(trajectory.data)
         area = pedpy.load_walkable_area_from_jupedsim_sqlite(trajectory_file=sqlite)
         assert area.polygon.equals(walkable.polygon)
+    assert counted > 0
 
 
 def test_evaluation_is_deterministic_for_a_seed(checkpoints, tmp_path):
