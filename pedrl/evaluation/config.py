@@ -259,7 +259,7 @@ def check_against_room(cfg: DictConfig, geometry: Geometry, envs: dict[int, Room
             f"measurement.distance={cfg.measurement.distance!r} is invalid: the measurement point must be inside the "
             f"room, a distance in [0, {geometry.length:g}) m (the room's length) in front of the door"
         )
-    fps, decisions = cfg.export.get("fps"), next(iter(envs.values())).decisions_per_second
+    fps, decisions = (cfg.get("export") or {}).get("fps"), next(iter(envs.values())).decisions_per_second
     if fps is not None and fps < decisions:
         raise ValueError(
             f"export.fps={fps!r} is invalid: must be at least the room's {decisions:g} decisions per second "
