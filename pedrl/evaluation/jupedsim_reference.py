@@ -26,6 +26,7 @@ from pedrl.evaluation.batch import BatchRecord
 from pedrl.integrations.jupedsim import (
     JuPedSimModel,
     JuPedSimRun,
+    apron_depth,
     check_model,
     pad_frames,
     simulate_room,
@@ -50,8 +51,9 @@ class JuPedSimReference:
     def check(self, env: RoomEnv) -> None:
         """One-line ``ValueError`` if a decision of ``env`` is not a whole number of JuPedSim steps, the scenario
         has no room for JuPedSim's exit aprons, or JuPedSim refuses the model's parameters at the room's body radius."""
-        walkable_with_aprons(self.scenario)
-        check_model(replace(self.model, radius=env.agent_radius))
+        model = replace(self.model, radius=env.agent_radius)
+        walkable_with_aprons(self.scenario, depth=apron_depth(model))
+        check_model(model)
         steps = env.decision_length / self.model.dt
         if abs(steps - round(steps)) > 1e-6 * steps or round(steps) < 1:
             raise ValueError(

@@ -20,9 +20,10 @@ Usage::
 How the scenario maps onto JuPedSim:
 
 - Area: JuPedSim removes an agent once its centre is inside an exit stage, a polygon. Each of our exits (a segment
-  on the boundary) gets an apron outside it, :data:`EXIT_APRON_DEPTH` m deep and as wide as the exit; the walkable
-  area grows by the aprons, and the aprons are the exit stages. So an agent leaves when its centre crosses its
-  exit's segment, as in our simulation (:func:`walkable_with_aprons`).
+  on the boundary) gets an apron outside it, :data:`EXIT_APRON_DEPTH` m deep (deeper for the generalized
+  centrifugal force model, whose walls repel further: :func:`apron_depth`) and as wide as the exit; the walkable area
+  grows by the aprons, and the aprons are the exit stages. So an agent leaves when its centre crosses its exit's
+  segment, as in our simulation (:func:`walkable_with_aprons`).
 - Routes: each agent walks to its exit (``exit_index``) through its waypoints first: JuPedSim waypoint stages that
   count as reached within the scenario's ``waypoint_radius``, joined by fixed transitions into one journey per
   distinct route. JuPedSim finds the way to each stage through the area itself (its routing engine). Unlike our
@@ -63,12 +64,14 @@ from pedrl.sim import RoomEnv
 
 __all__ = [
     "EXIT_APRON_DEPTH",
+    "GCFM_WALL_REACH",
     "INSTALL_HINT",
     "MODELS",
     "JuPedSimModel",
     "JuPedSimRun",
     "JuPedSimRunError",
     "Scene",
+    "apron_depth",
     "build_simulation",
     "check_model",
     "installed",
@@ -84,7 +87,11 @@ EXIT_APRON_DEPTH: Final = 1.0
 """Depth (m) of the apron outside each exit: JuPedSim's exit stage, a polygon the agent's centre enters, and the
 agents' target (its centre). 0.5 m is too shallow for the social force model: the repulsion of the apron's far end,
 ``A exp((r - d) / B)``, balances the driving force ``m v0 / tau`` about 0.6 m from it for a body of 0.4 m, and held
-such bodies just before the exit line."""
+such bodies just before the exit line. The generalized centrifugal force model gets a deeper one
+(:func:`apron_depth`)."""
+GCFM_WALL_REACH: Final = 2.0
+"""JuPedSim's ``max_geometry_interaction_distance`` (m) of the generalized centrifugal force model, its default: a
+wall repels an agent moving towards it while the gap between the wall and the agent's ellipse is below it."""
 INSTALL_HINT: Final = "jupedsim is not installed: pip install 'pedrl[jupedsim]'"
 ROUTE_CHECK_PERIOD: Final = 0.1
 """Simulated time (s) between two checks of the agents past their waypoint (``pass_waypoints``): 0.12 m of walking at
@@ -98,6 +105,21 @@ class JuPedSimRunError(ValueError):
 
 
 # ---------------------------------------------------------------------- geometry
+def apron_depth(model: JuPedSimModel) -> float:
+    """Depth (m) of the exit aprons for ``model``: :data:`EXIT_APRON_DEPTH`, but for the generalized centrifugal force
+    model so deep that the apron's far end does not reach an agent on the exit line,
+    ``GCFM_WALL_REACH + a_min + a_v v0`` (the wall's reach beyond the ellipse's semi-axis along the walk at full speed,
+    ``a_min = radius``, ``a_v = 1 s``): 3.6 m for bodies of 0.4 m at 1.2 m/s.
+
+    That model's wall force is JuPedSim's largest, 3 N against a driving force of ``m v0 / tau`` = 2.4 N, wherever
+    the wall is closer than ``0.4 m + 2 a`` to the agent's centre (``a = a_min + a_v v``). Behind a 1 m apron a body
+    of 0.4 m therefore stalled 1.2 m from the far end, short of the exit line, and crept over it at 0.01 m/s; the
+    crowd behind it blocked the door (in the paper's room 86 % of 100 agents failed)."""
+    if model.model != "generalized_centrifugal_force":
+        return EXIT_APRON_DEPTH
+    return max(EXIT_APRON_DEPTH, GCFM_WALL_REACH + model.radius + 1.0 * model.desired_speed)
+
+
 def walkable_with_aprons(scenario: Scenario, *, depth: float = EXIT_APRON_DEPTH) -> tuple[Polygon, tuple[Polygon, ...]]:
     """The walkable area grown by an apron outside every exit, and the aprons (one per exit, in order).
 
@@ -263,7 +285,7 @@ def _checked_start(
     max_time = check_real("max_time", max_time, unit="s", positive=True)
     frame_rate = check_real("frame_rate", frame_rate, unit="1/s", positive=True)
     steps_per_frame = _steps_per_frame(frame_rate, model.dt)
-    area, aprons = walkable_with_aprons(scenario)
+    area, aprons = walkable_with_aprons(scenario, depth=apron_depth(model))
     _check_inside("positions", starts, scenario.walkable)
     for index, route in enumerate(routes):
         _check_inside(f"waypoints[{index}]", np.asarray(route).reshape(-1, 2), scenario.walkable)

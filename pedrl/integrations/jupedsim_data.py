@@ -49,9 +49,11 @@ class JuPedSimModel:
     parameter of the models and their agents stays at JuPedSim's default (collision-free speed: neighbour repulsion
     strength 8, range 0.1 m, wall repulsion strength 5, range 0.02 m; anticipation velocity: anticipation time 1 s,
     reaction time 0.3 s, wall buffer 0.1 m, push-out strength 0.3, its random seed fixed at 0 so that a run repeats;
-    generalized centrifugal force: mass 1, tau 0.5 s, its ellipse's semi-axes a_min = b_min = ``radius`` and
-    b_max = 2 ``radius`` (its defaults at 0.2 m); social force: body force 120000 kg/s^2, friction 240000 kg/(m s),
-    mass 80 kg, reaction time 0.5 s, A = 2000 N, B = 0.08 m; warp driver: time horizon 2 s, step 0.5 s).
+    generalized centrifugal force: mass 1, tau 0.5 s, a_v 1 s, neighbour and wall repulsion strengths 0.3 and 0.2
+    within 2 m, its ellipse's semi-axes a_min = b_min = ``radius`` and b_max = 2 ``radius`` (its defaults at 0.2 m),
+    its exit aprons deeper than the others' (``apron_depth``); social force: body force 120000 kg/s^2, friction
+    240000 kg/(m s), mass 80 kg, reaction time 0.5 s, A = 2000 N, B = 0.08 m; warp driver: time horizon 2 s, step
+    0.5 s).
 
     Attributes:
         model: the operational model, one of :data:`MODELS`.

@@ -13,9 +13,11 @@ pytest.importorskip("jupedsim")
 
 from pedrl.integrations.jupedsim import (  # noqa: E402
     EXIT_APRON_DEPTH,
+    GCFM_WALL_REACH,
     INSTALL_HINT,
     MODELS,
     JuPedSimModel,
+    apron_depth,
     check_model,
     model_from_settings,
     room_scene,
@@ -43,10 +45,11 @@ def one_agent(scenario=CORRIDOR, **overrides):
     return simulate(scenario, **(arguments | overrides))
 
 
-@pytest.mark.parametrize("model", [name for name in MODELS if name != "generalized_centrifugal_force"])
+@pytest.mark.parametrize("model", MODELS)
 def test_one_agent_walks_the_rimea_1_corridor_in_about_30_s(model):
     run = one_agent(model=JuPedSimModel(model=model, desired_speed=1.33))
-    # 39.5 m at 1.33 m/s: 29.7 s; the social force model first accelerates (reaction time 0.5 s)
+    # 39.5 m at 1.33 m/s: 29.7 s; the social force model first accelerates (reaction time 0.5 s), and so does the
+    # generalized centrifugal force model (tau 0.5 s), whose 1 m exit apron used to slow it at the end (33.6 s)
     assert 29.0 <= run.exit_time[0] <= 31.0
     assert run.left_at[0] == math.ceil(run.exit_time[0] - 1e-9)
     assert run.positions.shape == (run.left_at[0] + 1, 1, 2)  # stops once everyone left
@@ -58,10 +61,67 @@ def test_one_agent_walks_the_rimea_1_corridor_in_about_30_s(model):
     assert speeds[-1] == pytest.approx(1.33, abs=0.05)  # over the part of the last interval before it left
 
 
-def test_the_generalized_centrifugal_force_model_walks_the_corridor_slower_than_its_desired_speed():
-    # its agents start at rest (speed 0) and relax to v0 with tau = 0.5 s, and the wall's repulsion slows them: 33.6 s
-    run = one_agent(model=JuPedSimModel(model="generalized_centrifugal_force", desired_speed=1.33))
-    assert 30.0 <= run.exit_time[0] <= 36.0
+def test_the_generalized_centrifugal_force_model_gets_jupedsims_defaults_and_the_bodys_ellipse():
+    """Every parameter pedrl passes the model and its agents: JuPedSim's own defaults (checked against JuPedSim's
+    classes, so that a change of theirs shows), the ellipse scaled to the body radius, JuPedSim's time step."""
+    import jupedsim as jps
+
+    from pedrl.integrations.jupedsim import _agent_parameters, _operational_model
+
+    gcfm = JuPedSimModel(model="generalized_centrifugal_force")
+    assert (gcfm.desired_speed, gcfm.dt) == (1.2, 0.01)
+    forces = _operational_model(jps, gcfm)
+    expected_forces = {
+        "strength_neighbor_repulsion": 0.3,
+        "strength_geometry_repulsion": 0.2,
+        "max_neighbor_interaction_distance": 2.0,
+        "max_geometry_interaction_distance": GCFM_WALL_REACH,
+        "max_neighbor_interpolation_distance": 0.1,
+        "max_geometry_interpolation_distance": 0.1,
+        "max_neighbor_repulsion_force": 9.0,
+        "max_geometry_repulsion_force": 3.0,
+    }
+    assert {key: getattr(forces, key) for key in expected_forces} == expected_forces
+    assert forces == jps.GeneralizedCentrifugalForceModel()
+    defaults = jps.GeneralizedCentrifugalForceModelAgentParameters()
+    fields = ("speed", "orientation", "mass", "tau", "desired_speed", "a_v", "a_min", "b_min", "b_max")
+    for radius, ellipse in ((0.2, (0.2, 0.2, 0.4)), (0.4, (0.4, 0.4, 0.8))):
+        agent = _agent_parameters(jps, replace(gcfm, radius=radius), np.array([1.0, 2.0]), 3, 4)
+        passed = {key: getattr(agent, key) for key in fields}
+        assert passed == {
+            "speed": 0.0, "orientation": (1.0, 0.0), "mass": 1.0, "tau": 0.5, "desired_speed": 1.2, "a_v": 1.0,
+            "a_min": ellipse[0], "b_min": ellipse[1], "b_max": ellipse[2],
+        }  # fmt: skip
+        assert (agent.position, agent.journey_id, agent.stage_id) == ((1.0, 2.0), 3, 4)
+    assert {key: getattr(defaults, key) for key in fields} == {
+        key: getattr(_agent_parameters(jps, gcfm, np.array([1.0, 2.0]), 3, 4), key) for key in fields
+    }  # at 0.2 m, JuPedSim's defaults exactly
+
+
+def test_the_generalized_centrifugal_force_models_exit_aprons_are_out_of_its_walls_reach():
+    # its walls repel from GCFM_WALL_REACH beyond the ellipse, whose semi-axis along the walk is radius + 1 s x v0
+    assert apron_depth(JuPedSimModel(model="generalized_centrifugal_force", radius=0.4)) == pytest.approx(3.6)
+    assert apron_depth(JuPedSimModel(model="generalized_centrifugal_force", radius=0.2, desired_speed=1.34)) == (
+        pytest.approx(3.54)
+    )
+    assert all(apron_depth(JuPedSimModel(model=name)) == EXIT_APRON_DEPTH for name in MODELS[:4] + MODELS[5:])
+    # one body of 0.4 m walks 9 m to a 3 m door at its desired speed: behind a 1 m apron the apron's far end held
+    # it 0.2 m short of the exit line, where it crept over at 0.01 m/s (36.4 s)
+    room = build_scenario(None, room={"width": 10.0, "length": 10.0, "door_width": 3.0})
+    model = JuPedSimModel(model="generalized_centrifugal_force", radius=0.4)
+    run = simulate(room, positions=[[5.0, 1.0]], exit_index=[0], waypoints=[[]], model=model, max_time=60.0,
+                   frame_rate=1.0)  # fmt: skip
+    assert 7.5 <= run.exit_time[0] <= 9.0
+
+
+def test_a_small_generalized_centrifugal_force_crowd_walks_out():
+    # 20 bodies of 0.4 m in a 10 m room with a 3 m door: everyone out in about 30 s (3 of them behind a 1 m apron)
+    room = build_scenario(None, room={"width": 10.0, "length": 10.0, "door_width": 3.0})
+    positions = [[1.5 + 1.75 * i, 1.5 + 1.75 * j] for i in range(5) for j in range(4)]
+    model = JuPedSimModel(model="generalized_centrifugal_force", radius=0.4)
+    run = simulate(room, positions=positions, exit_index=[0] * 20, waypoints=[[]] * 20, model=model, max_time=60.0,
+                   frame_rate=1.0)  # fmt: skip
+    assert run.left.all() and np.nanmax(run.exit_time) <= 45.0
 
 
 def test_the_anticipation_model_repeats_a_run():
