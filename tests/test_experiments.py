@@ -253,9 +253,9 @@ def test_paper_experiments_state_their_budget(name, trials, compose, tmp_path):
     extrapolated from a measured partial run, is in docs/results.md."""
     text = (Path(CONFIG_DIR) / "experiment" / f"{name}.yaml").read_text()
     assert "Budget:" in text and "extrapolated from a measured partial run" in text
-    assert "docs/results.md#the-papers-budgets-fused" in text.replace("\n# ", " ")
+    assert "docs/history.md#the-papers-budgets-fused" in text.replace("\n# ", " ")
     assert f"{trials} trials" in text
-    extrapolated = RESULTS.read_text().split("### The paper's budgets, fused", 1)[1].split("\n### ", 1)[0]
+    extrapolated = HISTORY.read_text().split("\n### The paper's budgets, fused\n", 1)[1].split("\n### ", 1)[0]
     assert re.search(rf"^- `{name}`: .* hours", extrapolated, re.MULTILINE), name
     phases = build_trainer(compose("train", [f"experiment={name}"]), tmp_path).phases()
     assert sum(p.trials for p in phases) == trials
