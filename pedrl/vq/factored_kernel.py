@@ -4,8 +4,8 @@ transformed; void slots are not read) followed by :meth:`pedrl.vq.FactoredQuanti
 distances (lowest id on ties), where the torch quantizer uses its k-d tree or matrix search, so a state within
 float32 rounding of two prototypes may get either.
 
-The factors' quantizers are small (tens to hundreds of prototypes over 2 or 3 features), so a scan is as fast as a
-tree here. :func:`pack_factored` lays them out as :class:`FactoredArrays`; a plain encoder gets a stub of no slots,
+The factors' quantizers are small (tens to hundreds of prototypes over 2 or 3 features) and each is scanned whole:
+``K_own + k K_nb + w K_wall`` distances an agent-decision (2,112 for experiment=main_factored). :func:`pack_factored` lays them out as :class:`FactoredArrays`; a plain encoder gets a stub of no slots,
 so that one compiled fused trial serves both.
 """
 
@@ -90,14 +90,16 @@ def _pack(quantizer: FactoredQuantizer, settings: Any) -> FactoredArrays:
 @cached_njit(nogil=True, inline="always")
 def _nearest(x, first, dim, t, arrays):
     """The id (with the factor's offset) of the prototype of factor ``t`` nearest to ``x[first : first + dim]``
-    standardised: the lowest id of the least squared distance."""
+    standardised: the lowest id of the least squared distance. The point is standardised once; a factor of 2
+    features reads a third of 0 against its prototypes' padding of 0, which adds exactly 0."""
     mean, std, prototypes = arrays.mean, arrays.std, arrays.prototypes
+    q0 = (x[first] - mean[t, 0]) / std[t, 0]
+    q1 = (x[first + 1] - mean[t, 1]) / std[t, 1]
+    q2 = (x[first + 2] - mean[t, 2]) / std[t, 2] if dim > 2 else np.float32(0.0)
     best, found = np.float32(np.inf), 0
     for c in range(arrays.sizes[t]):
-        distance = np.float32(0.0)
-        for j in range(dim):
-            difference = (x[first + j] - mean[t, j]) / std[t, j] - prototypes[t, c, j]
-            distance += difference * difference
+        d0, d1, d2 = q0 - prototypes[t, c, 0], q1 - prototypes[t, c, 1], q2 - prototypes[t, c, 2]
+        distance = d0 * d0 + d1 * d1 + d2 * d2
         if distance < best:
             best, found = distance, c
     return found + arrays.offsets[t]
