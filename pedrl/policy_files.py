@@ -33,7 +33,7 @@ from typing import Any, Final
 
 import torch
 
-from pedrl.common.checks import check_device, check_integer, first_line, shown
+from pedrl.common.checks import check_choice, check_device, check_integer, first_line, shown
 from pedrl.configs import (
     ALGO_TARGETS,
     VOID_FEATURES_DEFAULTS,
@@ -145,6 +145,23 @@ def export_policy(
         encoder = StateEncoder(policy.encoder.settings, quantizer)
         policy = TabularPolicy(encoder, policy.q_values[:processes].clone(), metadata=policy.metadata)
     return policy.save(out)
+
+
+PRETRAINED: Final = {
+    "main": "experiment=main, seed 0, the tables of its first learning process (pedrl-export processes=1)",
+    "pedestrian_walk": "experiment=pedestrian_walk, seed 0, the tables of its first learning process",
+}
+"""The policy files shipped with pedrl (``pedrl/policies/<name>.safetensors``), to try evaluation, validation and the
+PettingZoo adapter without training first."""
+
+
+def pretrained(name: str) -> Path:
+    """The path of the shipped policy file ``name`` (:data:`PRETRAINED`); one-line ``ValueError`` for another name.
+
+    ``pedrl.load_policy(pedrl.pretrained("main"))`` is the main job's learned crowd; ``pedrl-eval policy=<path>`` and
+    ``pedrl-validate checkpoint=<path>`` read the same file."""
+    check_choice("name", name, tuple(PRETRAINED))
+    return Path(__file__).resolve().parent / "policies" / f"{name}.safetensors"
 
 
 def room_factory(

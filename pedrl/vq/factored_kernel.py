@@ -5,8 +5,9 @@ distances (lowest id on ties), where the torch quantizer uses its k-d tree or ma
 float32 rounding of two prototypes may get either.
 
 The factors' quantizers are small (tens to hundreds of prototypes over 2 or 3 features) and each is scanned whole:
-``K_own + k K_nb + w K_wall`` distances an agent-decision (2,112 for experiment=main_factored). :func:`pack_factored` lays them out as :class:`FactoredArrays`; a plain encoder gets a stub of no slots,
-so that one compiled fused trial serves both.
+``K_own + k K_nb + w K_wall`` distances an agent-decision (2,112 for experiment=main_factored).
+:func:`pack_factored` lays them out as :class:`FactoredArrays`; a plain encoder gets a stub of no slots, so that one
+compiled fused trial serves both.
 """
 
 from __future__ import annotations
