@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import math
 import time
-import warnings
 from collections.abc import Callable, Mapping, Sequence
 from functools import partial
 from pathlib import Path
@@ -30,7 +29,13 @@ import torch
 from tqdm.auto import tqdm
 
 from pedrl.algos.budget import check_gathering_yield, memory_needs
-from pedrl.algos.fitting import KMEANS_SHRINK, feature_weights, fit_plain_quantizer, fit_quantizers
+from pedrl.algos.fitting import (
+    factored_problem,
+    feature_weights,
+    fit_factored_quantizer,
+    fit_plain_quantizer,
+    fit_quantizers,
+)
 from pedrl.algos.mix import merge_gathered, room_of_trial
 from pedrl.algos.phase import Phase, TrainResult
 from pedrl.algos.records import RunRecord, final_figures, interactive, report_phase
@@ -44,7 +49,7 @@ from pedrl.sim import RoomEnv
 from pedrl.trial.crowd import choose_path, run_crowd
 from pedrl.trial.loop import Learner
 from pedrl.trial.rollout import Gathered, TrialStats, check_finite, gather
-from pedrl.vq import FactoredQuantizer, Quantizer
+from pedrl.vq import Quantizer
 from pedrl.vq.encoder import VOID_DRAWS, VOID_FEATURES, EncoderSettings, StateEncoder
 from pedrl.vq.settings import VQSettings
 
@@ -195,25 +200,9 @@ class Trainer:
             The quantizer (anything with ``encode``, ``num_prototypes`` and ``state_dict``) and the final
             distortion (mean squared distance to the nearest prototype, standardised units).
         """
-        specs = self.vq.factor_specs
-        if specs is None:
+        if self.vq.factor_specs is None:
             return self.fit_plain_quantizer(states, num_prototypes=num_prototypes)
-        settings = self.encoder_settings
-        with warnings.catch_warnings():  # a factor of fewer distinct values keeps fewer prototypes: it is the data
-            warnings.filterwarnings("ignore", message=KMEANS_SHRINK, category=UserWarning)
-            return FactoredQuantizer.fit(
-                states,
-                num_sensed,
-                specs,
-                num_neighbours=settings.num_neighbours,
-                num_walls=settings.num_walls,
-                max_states=self.vq.max_states,
-                generator=self.generator,
-                max_iterations=self.vq.max_iterations,
-                tolerance=self.vq.tolerance,
-                init=self.vq.init,
-                chunk_size=self.vq.chunk_size,
-            )
+        return fit_factored_quantizer(states, num_sensed, self.vq, self.encoder_settings, self.generator)
 
     def kept_prototypes(self, previous: Any | None) -> int:
         """Prototypes of the previous phase's quantizer ``previous`` that this phase's quantizer keeps besides those
@@ -226,15 +215,8 @@ class Trainer:
         full state with at most ``vq.num_prototypes`` prototypes (k-means keeps fewer when the data has fewer
         distinct states)."""
         features = self.encoder_settings.num_features
-        specs = self.vq.factor_specs
-        if specs is not None:
-            sizes = {spec.name: spec.num_prototypes for spec in specs}
-            if not isinstance(part, FactoredQuantizer) or set(part.parts) != set(sizes):
-                return f"is a {type(part).__name__}: must be a FactoredQuantizer of {', '.join(sizes)}"
-            for name, quantizer in part.parts.items():
-                if quantizer.num_prototypes > sizes[name]:
-                    return f"has {quantizer.num_prototypes} {name} prototypes: must have at most {sizes[name]}"
-            return None
+        if self.vq.factor_specs is not None:
+            return factored_problem(part, self.vq)
         if not isinstance(part, Quantizer):
             return f"is a {type(part).__name__}: must be a Quantizer"
         if part.dim != features or not 1 <= part.num_prototypes <= self.vq.num_prototypes:

@@ -17,7 +17,8 @@ from pedrl.algos.budget import agents_text
 from pedrl.algos.phase import Phase
 from pedrl.notices import warn
 from pedrl.trial.rollout import Gathered
-from pedrl.vq import ProcessQuantizers, Quantizer
+from pedrl.vq import FactoredQuantizer, ProcessQuantizers, Quantizer
+from pedrl.vq.encoder import EncoderSettings
 from pedrl.vq.settings import VQSettings
 
 KMEANS_SHRINK: Final = "k-means: the data has only"
@@ -75,6 +76,45 @@ def fit_plain_quantizer(
         feature_weights=weights,
     )
     return quantizer, float(result.distortion[-1])
+
+
+def fit_factored_quantizer(
+    states: torch.Tensor,
+    num_sensed: torch.Tensor,
+    vq: VQSettings,
+    settings: EncoderSettings,
+    generator: torch.Generator,
+) -> tuple[FactoredQuantizer, float]:
+    """A :class:`pedrl.vq.FactoredQuantizer` of ``vq.factors`` fitted on prepared ``states (M, F)`` with
+    ``num_sensed (M,)`` neighbours (each factor on its slots, at most ``vq.max_states`` rows each), and the mean of
+    its factors' distortions. A factor of fewer distinct values than its K keeps fewer prototypes: that is the data,
+    not a shortfall to report."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=KMEANS_SHRINK, category=UserWarning)
+        return FactoredQuantizer.fit(
+            states,
+            num_sensed,
+            vq.factor_specs,
+            num_neighbours=settings.num_neighbours,
+            num_walls=settings.num_walls,
+            max_states=vq.max_states,
+            generator=generator,
+            max_iterations=vq.max_iterations,
+            tolerance=vq.tolerance,
+            init=vq.init,
+            chunk_size=vq.chunk_size,
+        )
+
+
+def factored_problem(part: Any, vq: VQSettings) -> str | None:
+    """Why ``part`` (a checkpoint's quantizer) cannot be the factored quantizer of ``vq.factors``, or None."""
+    sizes = {spec.name: spec.num_prototypes for spec in vq.factor_specs}
+    if not isinstance(part, FactoredQuantizer) or set(part.parts) != set(sizes):
+        return f"is a {type(part).__name__}: must be a FactoredQuantizer of {', '.join(sizes)}"
+    for name, quantizer in part.parts.items():
+        if quantizer.num_prototypes > sizes[name]:
+            return f"has {quantizer.num_prototypes} {name} prototypes: must have at most {sizes[name]}"
+    return None
 
 
 def subsample(

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import torch
 
-SECTIONS = ("sim", "kmeans", "e2e", "factored", "eval", "literal", "walk")
+SECTIONS = ("sim", "kmeans", "e2e", "eval", "literal", "walk", "factored")
 PERFORMANCE_PAGE = "docs/performance.md"
 
 

@@ -267,8 +267,9 @@ def check_against_room(cfg: DictConfig, geometry: Geometry, envs: dict[int, Room
         )
     tile_size = float(cfg.density_map.tile_size)
     tiles = math.ceil(geometry.width / tile_size) * math.ceil(geometry.length / tile_size)
-    fused = {agents: _records_fused(env, controller, cfg.get("fused")) for agents, env in envs.items()}
-    frames = max(_kept_frames(env, thinned=fused[agents]) for agents, env in envs.items())  # of one batch
+    # a batch the fused trial records keeps a frame every few decisions and builds the quantizer's search lists
+    thinned = {agents: _recording_path(env, controller, cfg.get("fused")) == "fused" for agents, env in envs.items()}
+    frames = max(_kept_frames(env, thinned=thinned[agents]) for agents, env in envs.items())  # of one batch
     needs = {
         f"density map (density_map.tile_size={cfg.density_map.tile_size!r}: {tiles:.3g} tiles)": (
             DENSITY_MAP_BYTES_PER_TILE * tiles
@@ -276,7 +277,7 @@ def check_against_room(cfg: DictConfig, geometry: Geometry, envs: dict[int, Room
         "recorded trials": RECORD_BYTES_PER_AGENT_FRAME * frames,
         "room": max(env.step_memory() for env in envs.values()),
     }
-    if any(fused.values()) and isinstance(controller, PolicyController):
+    if any(thinned.values()) and isinstance(controller, PolicyController):
         from pedrl.vq.encode_kernel import packed_sets  # numba's module, loaded where the fused trial runs
 
         sets, size = packed_sets(controller.policy.encoder.quantizer)
@@ -288,9 +289,13 @@ def check_against_room(cfg: DictConfig, geometry: Geometry, envs: dict[int, Room
     )
 
 
-def _records_fused(env: RoomEnv, controller: Any, fused: Any) -> bool:
-    """Whether a batch in ``env`` runs through the fused trial (``fused=true`` where it cannot is refused apart)."""
-    return choose_path([env], controller, None if fused is True else fused, record=True).name == "fused"
+def _recording_path(env: RoomEnv, controller: Any, setting: Any) -> str:
+    """The path a recorded batch in ``env`` takes, as :func:`pedrl.trial.crowd.choose_path` chooses it (a
+    ``fused=true`` the room cannot run is refused by the room's own check, and counted here as the torch loop)."""
+    try:
+        return choose_path([env], controller, setting, record=True).name
+    except ValueError:
+        return "torch"
 
 
 def _kept_frames(env: RoomEnv, *, thinned: bool) -> int:

@@ -51,10 +51,13 @@ from shapely.geometry import Polygon
 
 from pedrl.common.checks import check_real, first_line
 from pedrl.integrations.jupedsim_data import (
+    EXIT_APRON_DEPTH,
+    GCFM_WALL_REACH,
     MODELS,
     JuPedSimModel,
     JuPedSimRun,
     Scene,
+    apron_depth,
     model_from_settings,
     pad_frames,
     room_scene,
@@ -83,15 +86,6 @@ __all__ = [
     "walkable_with_aprons",
 ]
 
-EXIT_APRON_DEPTH: Final = 1.0
-"""Depth (m) of the apron outside each exit: JuPedSim's exit stage, a polygon the agent's centre enters, and the
-agents' target (its centre). 0.5 m is too shallow for the social force model: the repulsion of the apron's far end,
-``A exp((r - d) / B)``, balances the driving force ``m v0 / tau`` about 0.6 m from it for a body of 0.4 m, and held
-such bodies just before the exit line. The generalized centrifugal force model gets a deeper one
-(:func:`apron_depth`)."""
-GCFM_WALL_REACH: Final = 2.0
-"""JuPedSim's ``max_geometry_interaction_distance`` (m) of the generalized centrifugal force model, its default: a
-wall repels an agent moving towards it while the gap between the wall and the agent's ellipse is below it."""
 INSTALL_HINT: Final = "jupedsim is not installed: pip install 'pedrl[jupedsim]'"
 ROUTE_CHECK_PERIOD: Final = 0.1
 """Simulated time (s) between two checks of the agents past their waypoint (``pass_waypoints``): 0.12 m of walking at
@@ -105,21 +99,6 @@ class JuPedSimRunError(ValueError):
 
 
 # ---------------------------------------------------------------------- geometry
-def apron_depth(model: JuPedSimModel) -> float:
-    """Depth (m) of the exit aprons for ``model``: :data:`EXIT_APRON_DEPTH`, but for the generalized centrifugal force
-    model so deep that the apron's far end does not reach an agent on the exit line,
-    ``GCFM_WALL_REACH + a_min + a_v v0`` (the wall's reach beyond the ellipse's semi-axis along the walk at full speed,
-    ``a_min = radius``, ``a_v = 1 s``): 3.6 m for bodies of 0.4 m at 1.2 m/s.
-
-    That model's wall force is JuPedSim's largest, 3 N against a driving force of ``m v0 / tau`` = 2.4 N, wherever
-    the wall is closer than ``0.4 m + 2 a`` to the agent's centre (``a = a_min + a_v v``). Behind a 1 m apron a body
-    of 0.4 m therefore stalled 1.2 m from the far end, short of the exit line, and crept over it at 0.01 m/s; the
-    crowd behind it blocked the door (in the paper's room 86 % of 100 agents failed)."""
-    if model.model != "generalized_centrifugal_force":
-        return EXIT_APRON_DEPTH
-    return max(EXIT_APRON_DEPTH, GCFM_WALL_REACH + model.radius + 1.0 * model.desired_speed)
-
-
 def walkable_with_aprons(scenario: Scenario, *, depth: float = EXIT_APRON_DEPTH) -> tuple[Polygon, tuple[Polygon, ...]]:
     """The walkable area grown by an apron outside every exit, and the aprons (one per exit, in order).
 

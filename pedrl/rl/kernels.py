@@ -181,6 +181,25 @@ def td_scratch(num: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return np.empty(slots, np.int64), np.empty(slots, np.int64), np.empty(max(num, 1), np.int64)
 
 
+@cached_njit(nogil=True, inline="always")
+def _clear_counts(keys, tally):
+    """Empty the hash table of :func:`td_scratch`; returns its probe mask and the shift of its hash."""
+    keys[:] = -1
+    tally[:] = 0
+    return keys.shape[0] - 1, np.uint64(64 - np.int64(np.log2(keys.shape[0])))
+
+
+@cached_njit(nogil=True, inline="always")
+def _count(keys, tally, entry, mask, bits):
+    """Count one more hit of the table entry ``entry`` (open addressing, linear probing); returns its slot."""
+    slot = np.int64((np.uint64(entry) * GOLDEN) >> bits)
+    while keys[slot] != -1 and keys[slot] != entry:
+        slot = (slot + 1) & mask
+    keys[slot] = entry
+    tally[slot] += 1
+    return slot
+
+
 @cached_njit(nogil=True)
 def td_batch(table, rows, actions, rewards, next_rows, terminal, valid, alpha, gamma, td_error, keys, tally, slot_of):
     """Equation 1 for a batch of transitions (:func:`pedrl.rl.qlearning.td_update_torch`): every error from the tables
@@ -194,10 +213,7 @@ def td_batch(table, rows, actions, rewards, next_rows, terminal, valid, alpha, g
     """
     num, num_actions = rows.shape[0], table.shape[1]
     flat = table.reshape(-1)
-    mask = keys.shape[0] - 1
-    bits = np.uint64(64 - np.int64(np.log2(keys.shape[0])))
-    keys[:] = -1
-    tally[:] = 0
+    mask, bits = _clear_counts(keys, tally)
     total, count = 0.0, 0
     for b in range(num):
         slot_of[b] = -1
@@ -207,12 +223,7 @@ def td_batch(table, rows, actions, rewards, next_rows, terminal, valid, alpha, g
         next_value = np.float32(0.0) if terminal[b] else _row_max(table, next_rows[b])
         entry = rows[b] * num_actions + actions[b]
         td_error[b] = (rewards[b] + gamma * next_value) - flat[entry]
-        slot = np.int64((np.uint64(entry) * GOLDEN) >> bits)
-        while keys[slot] != -1 and keys[slot] != entry:
-            slot = (slot + 1) & mask
-        keys[slot] = entry
-        tally[slot] += 1
-        slot_of[b] = slot
+        slot_of[b] = _count(keys, tally, entry, mask, bits)
         total += abs(td_error[b])
         count += 1
     for b in range(num):
@@ -242,10 +253,7 @@ def td_set_batch(table, rows, actions, rewards, next_rows, terminal, valid, alph
     num, slots_per = rows.shape
     num_actions = table.shape[1]
     flat = table.reshape(-1)
-    mask = keys.shape[0] - 1
-    bits = np.uint64(64 - np.int64(np.log2(keys.shape[0])))
-    keys[:] = -1
-    tally[:] = 0
+    mask, bits = _clear_counts(keys, tally)
     total, count = 0.0, 0
     for b in range(num):
         for m in range(slots_per):
@@ -264,13 +272,7 @@ def td_set_batch(table, rows, actions, rewards, next_rows, terminal, valid, alph
         td_error[b] = (rewards[b] + gamma * next_value) - value
         for m in range(slots_per):
             if rows[b, m] >= 0:
-                entry = rows[b, m] * num_actions + actions[b]
-                slot = np.int64((np.uint64(entry) * GOLDEN) >> bits)
-                while keys[slot] != -1 and keys[slot] != entry:
-                    slot = (slot + 1) & mask
-                keys[slot] = entry
-                tally[slot] += 1
-                slot_of[b * slots_per + m] = slot
+                slot_of[b * slots_per + m] = _count(keys, tally, rows[b, m] * num_actions + actions[b], mask, bits)
         total += abs(td_error[b])
         count += 1
     for b in range(num):
