@@ -115,6 +115,18 @@ def factor_specs(values: Any) -> tuple[FactorSpec, ...] | None:
     return tuple(specs[name] for name in FACTORS if name in specs)
 
 
+def split_state(
+    states: torch.Tensor, num_neighbours: int, num_walls: int
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``(own (B, 3), neighbours (B, k, 3), walls (B, w, 2))`` of states ``(B, F)`` of ``k`` neighbour and ``w`` wall
+    slots (the layout of :mod:`pedrl.sim.sensing`)."""
+    first_wall = NUM_OWN_FEATURES + FEATURES_PER_NEIGHBOUR * num_neighbours
+    own = states[:, :NUM_OWN_FEATURES]
+    neighbours = states[:, NUM_OWN_FEATURES:first_wall].reshape(-1, num_neighbours, FEATURES_PER_NEIGHBOUR)
+    walls = states[:, first_wall : first_wall + FEATURES_PER_WALL * num_walls].reshape(-1, num_walls, FEATURES_PER_WALL)
+    return own, neighbours, walls
+
+
 class FactoredQuantizer:
     """Quantizers of the own state, of one neighbour (shared by every neighbour slot) and of one wall (shared by
     every wall slot); module docstring.
@@ -183,13 +195,8 @@ class FactoredQuantizer:
 
     # ------------------------------------------------------------------ encoding
     def split(self, states: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """``(own (B, 3), neighbours (B, k, 3), walls (B, w, 2))`` of prepared states ``(B, F)``."""
-        k, w = self.num_neighbours, self.num_walls
-        first_wall = NUM_OWN_FEATURES + FEATURES_PER_NEIGHBOUR * k
-        own = states[:, :NUM_OWN_FEATURES]
-        neighbours = states[:, NUM_OWN_FEATURES:first_wall].reshape(-1, k, FEATURES_PER_NEIGHBOUR)
-        walls = states[:, first_wall : first_wall + FEATURES_PER_WALL * w].reshape(-1, w, FEATURES_PER_WALL)
-        return own, neighbours, walls
+        """:func:`split_state` of prepared states ``(B, F)`` with this quantizer's slots."""
+        return split_state(states, self.num_neighbours, self.num_walls)
 
     def encode(self, states: torch.Tensor, num_sensed: torch.Tensor) -> torch.Tensor:
         """Ids ``(B, M)`` of prepared states ``(B, F)`` with ``num_sensed (B,)`` neighbours: the own id, then one id
@@ -222,14 +229,7 @@ class FactoredQuantizer:
         state, the features of every sensed neighbour, those of every wall, each capped at ``max_states`` rows (a
         uniform subset). ``kmeans`` goes to :meth:`pedrl.vq.Quantizer.fit` (iterations, tolerance, init, ...).
         Returns the quantizer and the mean of the factors' final distortions (standardised units)."""
-        empty = cls(
-            own=Quantizer(mean=torch.zeros(3), std=torch.ones(3), prototypes=torch.zeros(1, 3)),
-            neighbour=None,
-            wall=None,
-            num_neighbours=num_neighbours,
-            num_walls=num_walls,
-        )
-        own, neighbours, walls = empty.split(states)
+        own, neighbours, walls = split_state(states, num_neighbours, num_walls)
         sensed = torch.arange(num_neighbours, device=states.device)[None, :] < num_sensed[:, None]
         rows = {"own": own, "neighbour": neighbours[sensed], "wall": walls.reshape(-1, FEATURES_PER_WALL)}
         parts: dict[str, Quantizer | None] = {"neighbour": None, "wall": None}
