@@ -131,6 +131,6 @@ def _td_factored_torch(q_values, rows, actions, rewards, next_rows, terminal, va
     active = valid[:, None] & (rows >= 0)
     share = td_error / active.sum(1).clamp_min(1).to(td_error.dtype)
     entries = torch.where(active, rows * num_actions + actions[:, None], zero).reshape(-1)
-    steps = torch.where(active, share[:, None], torch.zeros((), dtype=share.dtype)).reshape(-1)
+    steps = torch.where(active, share[:, None], torch.zeros((), dtype=share.dtype, device=share.device)).reshape(-1)
     _add_averaged(q_values, entries, steps, active.reshape(-1), alpha)
     return td_error

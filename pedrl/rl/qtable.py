@@ -126,9 +126,9 @@ def factored_values(q_values: torch.Tensor, rows: torch.Tensor) -> torch.Tensor:
     active = rows >= 0
     safe = rows.clamp_min(0)
     total = torch.zeros(rows.shape[0], flat.shape[1], dtype=flat.dtype, device=flat.device)
+    nothing = torch.zeros((), dtype=flat.dtype, device=flat.device)
     for slot in range(rows.shape[1]):
-        values = flat.index_select(0, safe[:, slot])
-        total = total + torch.where(active[:, slot, None], values, torch.zeros((), dtype=flat.dtype))
+        total = total + torch.where(active[:, slot, None], flat.index_select(0, safe[:, slot]), nothing)
     return total
 
 
