@@ -69,11 +69,8 @@ def fit_plain_quantizer(
         states,
         vq.num_prototypes if num_prototypes is None else num_prototypes,
         generator=generator,
-        max_iterations=vq.max_iterations,
-        tolerance=vq.tolerance,
-        init=vq.init,
-        chunk_size=vq.chunk_size,
         feature_weights=weights,
+        **vq.kmeans_arguments(),
     )
     return quantizer, float(result.distortion[-1])
 
@@ -99,10 +96,7 @@ def fit_factored_quantizer(
             num_walls=settings.num_walls,
             max_states=vq.max_states,
             generator=generator,
-            max_iterations=vq.max_iterations,
-            tolerance=vq.tolerance,
-            init=vq.init,
-            chunk_size=vq.chunk_size,
+            **vq.kmeans_arguments(),
         )
 
 

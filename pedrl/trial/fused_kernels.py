@@ -131,8 +131,8 @@ def _run_process(
     scratch = act_scratch(num_agents)
     errors = np.empty(rooms * num_agents, np.float32)
     sets, next_sets = observed.sets, observed.next_sets
-    num_slots = sets.shape[2]
-    is_factored = factored.num_slots > 0
+    num_slots = sets.shape[2]  # factored.num_slots, as allocated
+    is_factored = num_slots > 0
     entries = rooms * num_agents * max(num_slots, 1)
     slots = 1
     while slots < 2 * entries:

@@ -78,6 +78,16 @@ class VQSettings:
                 "processes (set vq.per_process=false)"
             )
 
+    def kmeans_arguments(self) -> dict[str, Any]:
+        """The keyword arguments of :meth:`pedrl.vq.Quantizer.fit` these settings give: Lloyd's cap and stop, the
+        seeding and the block size."""
+        return {
+            "max_iterations": self.max_iterations,
+            "tolerance": self.tolerance,
+            "init": self.init,
+            "chunk_size": self.chunk_size,
+        }
+
     @property
     def factor_specs(self) -> tuple[FactorSpec, ...] | None:
         """The factors of a factored table, checked (None: one plain quantizer)."""
