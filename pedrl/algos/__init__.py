@@ -1,10 +1,12 @@
-"""The paper's trainers: VQQL, IT-VQQL and IN-VQQL, sharing :class:`pedrl.algos.base.Trainer`."""
+"""The paper's trainers, VQQL, IT-VQQL and IN-VQQL, sharing :class:`pedrl.algos.base.Trainer`; and DQN, the neural
+learner beside them (:mod:`pedrl.algos.dqn`)."""
 
 from pedrl.algos.base import Trainer
+from pedrl.algos.dqn import DQN
 from pedrl.algos.in_vqql import INVQQL, replicate_tables
 from pedrl.algos.it_vqql import ITVQQL
 from pedrl.algos.phase import Phase, TrainResult
 from pedrl.algos.vqql import VQQL
 from pedrl.vq.settings import VQSettings
 
-__all__ = ["INVQQL", "ITVQQL", "VQQL", "Phase", "TrainResult", "Trainer", "VQSettings", "replicate_tables"]
+__all__ = ["DQN", "INVQQL", "ITVQQL", "VQQL", "Phase", "TrainResult", "Trainer", "VQSettings", "replicate_tables"]

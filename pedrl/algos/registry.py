@@ -13,6 +13,7 @@ from typing import Any, Final
 from omegaconf import DictConfig, OmegaConf
 
 from pedrl.algos.base import Trainer, VQSettings
+from pedrl.algos.dqn import DQN
 from pedrl.algos.in_vqql import INVQQL
 from pedrl.algos.it_vqql import ITVQQL
 from pedrl.algos.vqql import VQQL
@@ -40,13 +41,15 @@ __all__ = [
     "vq_settings",
 ]
 
-TRAINER_CLASSES: Final[dict[str, type[Trainer]]] = {
+TRAINER_CLASSES: Final[dict[str, type[Trainer] | type[DQN]]] = {
     "pedrl.algos.VQQL": VQQL,
     "pedrl.algos.vqql.VQQL": VQQL,
     "pedrl.algos.ITVQQL": ITVQQL,
     "pedrl.algos.it_vqql.ITVQQL": ITVQQL,
     "pedrl.algos.INVQQL": INVQQL,
     "pedrl.algos.in_vqql.INVQQL": INVQQL,
+    "pedrl.algos.DQN": DQN,
+    "pedrl.algos.dqn.DQN": DQN,
 }
 """The class of each allowed value of ``algo._target_`` (the keys of :data:`pedrl.configs.ALGO_TARGETS`)."""
 assert set(TRAINER_CLASSES) == set(ALGO_TARGETS) and all(

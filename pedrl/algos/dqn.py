@@ -1,0 +1,344 @@
+"""DQN: the neural learner beside the tables, one Q-network per learning process shared by all its agents.
+
+``algo=dqn`` learns in the rooms, with the observations, actions, rewards, motion models and scenario mixes of the
+tabular trainers, and writes the same learning curve, TensorBoard scalars and checkpoints (one per iteration, and
+``last.safetensors`` to resume from). What it learns is a :class:`pedrl.rl.NeuralPolicy`, which ``pedrl-eval``,
+``pedrl-validate`` and ``pedrl-export`` (to safetensors or ONNX) read from its checkpoints.
+
+A run reads top to bottom as:
+
+1. record the states of a random walk (``gather_trials`` trials) for the standardisation of the network's inputs;
+2. learn for ``trials`` trials, split into ``iterations`` blocks each ending with a checkpoint, by double deep
+   Q-learning (:mod:`pedrl.algos.dqn_learning`), the agents acting epsilon-greedily (linear decay from
+   ``epsilon_start`` to ``epsilon_end`` over ``epsilon_decay_fraction`` of the trials).
+
+The physics and sensing of each decision run in the compiled kernels (:class:`pedrl.trial.stepped.CompiledRoom`)
+wherever the fused trial could run the room (``fused`` null or true), else in the torch step (``fused=false``, the
+reference); the network acts in torch between them, on the CPU or ``device=cuda``.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any, Final
+
+import torch
+from tqdm.auto import tqdm
+
+from pedrl.algos.dqn_learning import DeepQLearner, DoubleDQN, DQNSettings
+from pedrl.algos.mix import room_of_trial
+from pedrl.algos.phase import MAX_TRIALS, Phase, TrainResult
+from pedrl.algos.records import RunRecord, final_figures, interactive, report_phase
+from pedrl.common.checks import check_bool, check_device, check_integer, check_memory, check_number
+from pedrl.configs import TrainingRoom
+from pedrl.io.files import remove_temporaries_in
+from pedrl.rl import LinearSchedule
+from pedrl.rl.network import QNetwork, check_hidden
+from pedrl.rl.neural import NeuralPolicy
+from pedrl.rl.replay import ReplayBuffer
+from pedrl.sim import RoomEnv
+from pedrl.trial.loop import crowd_loop
+from pedrl.trial.rollout import gather
+from pedrl.trial.stepped import CompiledRoom, compiled_reason
+from pedrl.vq.encoder import EncoderSettings, StateEncoder
+from pedrl.vq.settings import VQSettings
+
+MAX_BATCH: Final = 1 << 20
+"""Largest ``batch_size`` (transitions per process and step)."""
+MIN_STD: Final = 1e-3
+"""A feature whose spread on the random walk is below this (a constant) is standardised by 1 instead."""
+
+
+class DQN:
+    """Double DQN with a target network and a replay memory per learning process (module docstring).
+
+    Args:
+        num_agents: learning agents per room.
+        trials: total learning trials.
+        iterations: blocks the trials are split into, each ending with a checkpoint ``iter_XXXX``.
+        gather_trials: random-walk trials whose states standardise the inputs.
+        hidden: widths of the hidden layers.
+        learning_rate: Adam's step size.
+        gamma: discount.
+        batch_size: transitions per process and gradient step.
+        buffer_size: transitions each process's replay memory holds.
+        learning_starts: transitions each memory holds before the first gradient step.
+        train_every: decisions between two rounds of gradient steps.
+        gradient_steps: gradient steps per round.
+        target_every: gradient steps between two copies of the online network into the target network.
+        reward_scale: rewards are multiplied by this before they are learned (Q-values in these units).
+        max_grad_norm: each process's gradient is clipped to this norm.
+        epsilon_start, epsilon_end, epsilon_decay_fraction: the exploration schedule over the run's trials.
+        env, mix, home, vq, processes, rooms_per_process, checkpoint_every, device, seed, run_dir, tensorboard,
+            progress, run_config, fused: as :class:`pedrl.algos.base.Trainer`'s (of ``vq`` only
+            ``distance_transform`` is read: the inputs are the states as the tables' quantizer sees them).
+    """
+
+    name = "dqn"
+
+    def __init__(
+        self,
+        *,
+        env: Callable[..., RoomEnv],
+        vq: VQSettings | Mapping[str, Any],
+        num_agents: int = 20,
+        trials: int = 200,
+        iterations: int = 1,
+        gather_trials: int = 2,
+        hidden: Sequence[int] = (256, 256),
+        learning_rate: float = 5e-4,
+        gamma: float = 0.91,
+        batch_size: int = 256,
+        buffer_size: int = 100_000,
+        learning_starts: int = 5_000,
+        train_every: int = 1,
+        gradient_steps: int = 1,
+        target_every: int = 500,
+        reward_scale: float = 0.1,
+        max_grad_norm: float = 10.0,
+        epsilon_start: float = 1.0,
+        epsilon_end: float = 0.05,
+        epsilon_decay_fraction: float = 0.5,
+        processes: int = 1,
+        rooms_per_process: int = 1,
+        checkpoint_every: int = 0,
+        device: str | torch.device = "cpu",
+        seed: int = 0,
+        run_dir: str | Path = ".",
+        tensorboard: bool = True,
+        progress: bool = True,
+        run_config: Mapping[str, Any] | None = None,
+        mix: Sequence[TrainingRoom] = (),
+        home: str = "room",
+        fused: bool | None = None,
+    ) -> None:
+        self.vq = vq if isinstance(vq, VQSettings) else VQSettings.from_config(vq)
+        check_integer("iterations", iterations, minimum=1, maximum=MAX_TRIALS)
+        check_integer("trials", trials, minimum=iterations, maximum=MAX_TRIALS)
+        check_integer("num_agents", num_agents, minimum=1)
+        check_integer("gather_trials", gather_trials, minimum=1)
+        self.hidden = check_hidden(hidden)
+        check_number("learning_rate", learning_rate, low=0.0, high=1.0, low_open=True)
+        check_number("gamma", gamma, low=0.0, high=1.0)
+        check_integer("batch_size", batch_size, minimum=1, maximum=MAX_BATCH)
+        check_integer("buffer_size", buffer_size, minimum=batch_size)
+        check_integer("learning_starts", learning_starts, minimum=0, maximum=buffer_size)
+        for key, value in (("train_every", train_every), ("gradient_steps", gradient_steps),
+                           ("target_every", target_every)):  # fmt: skip
+            check_integer(key, value, minimum=1)
+        check_number("reward_scale", reward_scale, low=0.0, low_open=True, high=1e6)
+        check_number("max_grad_norm", max_grad_norm, low=0.0, low_open=True, high=1e9)
+        for key, value in (("epsilon_start", epsilon_start), ("epsilon_end", epsilon_end)):
+            check_number(key, value, low=0.0, high=1.0)
+        check_number("epsilon_decay_fraction", epsilon_decay_fraction, low=0.0, high=1.0, low_open=True)
+        for key, value in (("processes", processes), ("rooms_per_process", rooms_per_process)):
+            check_integer(key, value, minimum=1)
+        check_integer("checkpoint_every", checkpoint_every, minimum=0)
+        check_bool("progress", progress)
+        check_bool("logger.tensorboard", tensorboard)
+        self.num_agents, self.trials, self.iterations, self.gather_trials = (
+            num_agents,
+            trials,
+            iterations,
+            gather_trials,
+        )
+        self.learning_rate, self.buffer_size = learning_rate, buffer_size
+        self.settings = DQNSettings(gamma, batch_size, learning_starts, train_every, gradient_steps, target_every,
+                                    reward_scale, max_grad_norm)  # fmt: skip
+        self.schedule = LinearSchedule(epsilon_start, epsilon_end, max(1, round(epsilon_decay_fraction * trials)))
+        self.processes, self.rooms_per_process, self.checkpoint_every = processes, rooms_per_process, checkpoint_every
+        self.device, self.seed, self.run_dir = check_device(device), seed, Path(run_dir)
+        self.tensorboard, self.progress, self.config = tensorboard, progress, dict(run_config or {})
+        self.generator = torch.Generator(device=self.device)
+        replicas = processes * rooms_per_process
+        self.env = env(num_replicas=replicas, num_agents=num_agents, device=self.device)
+        self.home, self.mix = home, list(mix)
+        self._mix_envs = [e.factory(num_replicas=replicas, num_agents=e.num_agents, device=self.device) for e in mix]
+        self.fused = fused
+        self.path, why_not = self.trial_path()  # fused=true refused before any compute
+        self.encoder_settings = EncoderSettings.for_room(
+            self.env, distance_transform=self.vq.distance_transform
+        ).spanning(self.mix)
+        self.width = self.encoder_settings.num_features + self.encoder_settings.num_neighbours
+        check_memory(
+            self.memory_needs(),
+            device=self.device,
+            advice="lower algo.buffer_size, algo.hidden, algo.batch_size, processes, rooms_per_process or the agents",
+        )
+
+    # ------------------------------------------------------------------ what a run is
+    def phases(self) -> list[Phase]:
+        """The iterations: equal blocks of the trials (the first ones a trial longer when they do not divide)."""
+        block, extra = divmod(self.trials, self.iterations)
+        return [
+            Phase(i + 1, self.num_agents, block + (1 if i < extra else 0), self.gather_trials, 1.0)
+            for i in range(self.iterations)
+        ]
+
+    def trial_path(self) -> tuple[str, str | None]:
+        """``("fused", None)``: the compiled kernels step every room; else ``("torch", why)``. One line for
+        ``fused=true`` where they cannot."""
+        if self.fused is not None and not isinstance(self.fused, bool):
+            raise ValueError(f"fused={self.fused!r} is invalid: must be true, false or null")
+        if self.fused is False:
+            return "torch", "fused=false"
+        for room in (self.env, *self._mix_envs):
+            reason = compiled_reason(room)
+            if reason is not None:
+                if self.fused:
+                    raise ValueError(f"fused=true is invalid: the compiled kernels cannot run {reason} (false or null)")
+                return "torch", f"the compiled kernels cannot run {reason}"
+        return "fused", None
+
+    def memory_needs(self) -> dict[str, float]:
+        """Estimated bytes of the largest allocations: the replay memory, the networks with Adam's moments (online,
+        target, two moments: four copies), a batch's activations, and a decision of the largest room."""
+        widths = (self.width, *self.hidden, 81)
+        weights = sum((a + 1) * b for a, b in zip(widths[:-1], widths[1:], strict=True)) * self.processes * 4
+        batch = self.settings.batch_size * self.processes * sum(widths) * 4 * 6  # forward, backward, targets
+        rooms = [self.env, *self._mix_envs]
+        return {
+            "replay memory": ReplayBuffer.bytes_needed(self.processes, self.buffer_size, self.width),
+            "networks and Adam": 4 * weights,
+            "batch": batch,
+            "room": max(room.step_memory(kernels=self.path == "fused") for room in rooms),
+        }
+
+    def rooms(self) -> list[tuple[str, RoomEnv]]:
+        """The labelled rooms the run trains in: its own, then the ``mix`` rooms (drawing from its generator)."""
+        for room in self._mix_envs:
+            room.generator = self.env.generator
+        return [(self.home, self.env), *((e.label, room) for e, room in zip(self.mix, self._mix_envs, strict=True))]
+
+    # ------------------------------------------------------------------ the run
+    def fit(self, *, resume_from: str | Path | None = None) -> TrainResult:
+        """Gather, then learn every iteration (or the rest of them, when resuming); returns the final figures."""
+        from pedrl.algos.dqn_restore import load_dqn_resume
+
+        phases = self.phases()
+        remove_temporaries_in(self.run_dir / "checkpoints")
+        resumed = load_dqn_resume(self, resume_from) if resume_from is not None else None
+        record = RunRecord(self.run_dir, tensorboard=self.tensorboard, config=self.config,
+                           wall_time_before=resumed.wall_time_s if resumed else 0.0)  # fmt: skip
+        if resumed is not None and resumed.done:
+            return TrainResult.finished(self.run_dir, record.checkpoint_path, resumed.wall_time_s, resumed.final, [])
+        start = resumed.global_trial if resumed is not None else 0
+        record.open(start, resumed=resumed is not None)
+        stats = None
+        try:
+            if resumed is None:
+                self._start(record)
+            else:
+                self.policy, self.update, self.buffer = resumed.policy, resumed.update, resumed.buffer
+                self.generator.set_state(resumed.rng_trainer)
+                self.env.generator.set_state(resumed.rng_env)
+            stats = self._learn(phases, start, record)
+        finally:
+            record.close()
+        final = final_figures(stats) if stats is not None else dict(resumed.final if resumed else {})
+        return TrainResult(final, self.run_dir, record.checkpoint_path, record.wall_time(), [self.summary])
+
+    def _start(self, record: RunRecord) -> None:
+        """A new run: seed, gather the random walk's states, standardise by them, build the network, the memory
+        and the update."""
+        self.generator.manual_seed(self.seed * 10_007 + 1)
+        self.env.reset(seed=self.seed * 10_007 + 2)
+        encoder = StateEncoder(self.encoder_settings)
+        gathered = [
+            gather(room, encoder, None, trials=self.gather_trials, epsilon=1.0, processes=self.processes,
+                   generator=self.generator)
+            for _, room in self.rooms()
+        ]  # fmt: skip
+        states = torch.cat([part.states for part in gathered])
+        mean, std = states.mean(0), states.std(0)
+        std = torch.where(std < MIN_STD, 1.0, std)
+        network = QNetwork(self.processes, self.width, self.hidden, self.env.num_actions, generator=self.generator,
+                           device=self.device)  # fmt: skip
+        self.policy = self.make_policy(network, mean.float().contiguous(), std.float().contiguous())
+        self.update = DoubleDQN(self.policy, self.settings, self.learning_rate)
+        self.buffer = ReplayBuffer(self.processes, self.buffer_size, self.width, device=self.device)
+        self.summary = {"gathered_states": int(states.shape[0]),
+                        "gather_success_rate": sum(p.success_rate for p in gathered) / len(gathered),
+                        "parameters": network.num_parameters}  # fmt: skip
+        record.logger.log_scalars(0, {f"dqn/{key}": value for key, value in self.summary.items()})
+
+    def make_policy(self, network: QNetwork, mean: torch.Tensor, std: torch.Tensor) -> NeuralPolicy:
+        """The run's policy over ``network`` (its rooms ``p E .. p E + E - 1`` act with process ``p``'s network)."""
+        return NeuralPolicy(StateEncoder(self.encoder_settings), network, mean, std,
+                            rooms_per_process=self.rooms_per_process)  # fmt: skip
+
+    def _learn(self, phases: list[Phase], start: int, record: RunRecord):
+        """The trials from global trial ``start`` on, each logged, with the checkpoints."""
+        stats, global_trial = None, 0
+        stepped = {id(room): CompiledRoom(room) if self.path == "fused" else room for _, room in self.rooms()}
+        rooms = self.rooms()
+        for phase in phases:
+            first = max(0, start - global_trial)
+            global_trial += first
+            if first >= phase.trials:
+                continue
+            description = f"dqn iteration {phase.index}/{len(phases)} ({phase.num_agents} agents)"
+            tic = time.perf_counter()
+            bar = tqdm(range(first, phase.trials), desc=description, disable=not (self.progress and interactive()),
+                       leave=False)  # fmt: skip
+            for trial in bar:
+                epsilon = self.schedule(global_trial)
+                label, room = rooms[room_of_trial(trial, phase.trials, len(rooms))]
+                trial_tic = time.perf_counter()
+                driver = DeepQLearner(self.policy, epsilon=epsilon, generator=self.generator, update=self.update,
+                                      buffer=self.buffer)  # fmt: skip
+                stats = crowd_loop(stepped[id(room)], driver).stats
+                self._check_finite(phase, trial, stats, driver.loss)
+                rate = stats.agent_decisions / (time.perf_counter() - trial_tic)
+                record.log_trial(phase, trial, global_trial, epsilon, stats, rate, room=label, agents=room.num_agents,
+                                 per_room=bool(self.mix))  # fmt: skip
+                record.logger.log_spread(global_trial, "losses/q_loss", driver.loss.double())
+                record.logger.log_scalars(global_trial, {"dqn/gradient_steps": self.update.updates,
+                                                         "dqn/replay_size": self.buffer.size})  # fmt: skip
+                global_trial += 1
+                bar.set_postfix(success=f"{stats.success_rate.mean():.2f}", eps=f"{epsilon:.3f}")
+                done = trial + 1 == phase.trials
+                if done or (self.checkpoint_every and (trial + 1) % self.checkpoint_every == 0):
+                    self._save(record, phase, trial + 1, global_trial, stats, iteration=done)
+            bar.close()
+            if self.progress and not interactive():
+                report_phase(description, phase.trials - first, tic, stats)
+            record.logger.flush()
+        return stats
+
+    @staticmethod
+    def _check_finite(phase: Phase, trial: int, stats, loss: torch.Tensor) -> None:
+        if not (bool(torch.isfinite(stats.episodic_return).all()) and bool(torch.isfinite(loss).all())):
+            raise ValueError(
+                f"iteration {phase.index}, trial {trial}: the returns or the loss turned inf or NaN: lower "
+                "algo.learning_rate or algo.reward_scale"
+            )
+
+    def _save(self, record: RunRecord, phase: Phase, trial: int, global_trial: int, stats, *, iteration: bool) -> None:
+        """Write the checkpoint after ``trial`` trials of ``phase`` (everything a resume needs, the memory included)."""
+        tensors = {
+            **self.policy.tensors(),
+            **self.update.tensors(),
+            **self.buffer.tensors(),
+            "rng/trainer": self.generator.get_state(),
+            "rng/env": self.env.generator.get_state(),
+        }
+        metadata = {
+            "algo": self.name,
+            "iteration": phase.index,
+            "trial": trial,
+            "phase_complete": trial >= phase.trials,
+            "agents": phase.num_agents,
+            "global_trial": global_trial,
+            "updates": self.update.updates,
+            "decisions": self.update.decisions,
+            "distortion": math.nan,
+            "summaries": [self.summary],
+            "encoder": self.encoder_settings.to_metadata(),
+            "final": final_figures(stats) if stats is not None else {},
+            "trial_path": self.path,
+        }
+        record.save(tensors, metadata, phase, iteration=iteration)

@@ -1,0 +1,144 @@
+"""The Q-network of the neural learner: one multilayer perceptron per learning process, its inputs, and its checks.
+
+Every agent of a process acts with its process's network (independent learners with shared parameters). The ``P``
+networks are one module with weights ``(P, in, out)``, so that every process's forward pass and update is one batched
+matrix product (``torch.baddbmm``): the processes stay independent (no weight is shared between them, and Adam's
+moments are per element), exactly as ``P`` separate networks.
+
+The input of agent ``i`` is its deictic state (the 28 features of the paper's room, ``3 + 3k + 2w``) as the tables'
+quantizers see it (:meth:`pedrl.vq.StateEncoder.prepare`: distances as ``log(1 + d)``, empty neighbour slots 0),
+standardised by the mean and spread of states recorded on a random walk, followed by ``k`` flags that say which
+neighbour slots hold a neighbour (``slot < num_sensed``): without them an empty slot would read as a neighbour at
+distance 0. The slots come sorted by distance, nearest first, a canonical order, so a plain perceptron sees the same
+neighbour in the same slot; a permutation-invariant encoder (Deep Sets) would buy nothing the order does not give,
+at a higher cost per decision.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from typing import Final
+
+import torch
+
+from pedrl.common.checks import check_integer
+
+MAX_WIDTH: Final = 1 << 16
+"""Widest hidden layer (units): wider is a typo (a 65,536-wide square layer holds 4 Gi weights)."""
+MAX_LAYERS: Final = 16
+"""Most hidden layers."""
+
+
+def check_hidden(hidden: object) -> tuple[int, ...]:
+    """``hidden`` as a tuple of layer widths; one line unless it is a non-empty list of integers in
+    ``[1, MAX_WIDTH]``."""
+    if isinstance(hidden, str | bytes) or not isinstance(hidden, Sequence) or not 1 <= len(hidden) <= MAX_LAYERS:
+        raise ValueError(
+            f"hidden={hidden!r} is invalid: must be a list of 1 to {MAX_LAYERS} layer widths, e.g. [256, 256]"
+        )
+    for width in hidden:
+        if isinstance(width, bool) or not isinstance(width, int) or not 1 <= width <= MAX_WIDTH:
+            raise ValueError(
+                f"hidden={list(hidden)!r} is invalid: each layer width must be an integer in [1, {MAX_WIDTH}]"
+            )
+    return tuple(hidden)
+
+
+class QNetwork(torch.nn.Module):
+    """``P`` perceptrons ``inputs -> hidden... -> actions`` (ReLU between layers), evaluated together.
+
+    Args:
+        processes: P, independent networks.
+        inputs: width of an input.
+        hidden: widths of the hidden layers.
+        actions: U, the Q-values an input gets.
+        generator: draws the initial weights (PyTorch's ``nn.Linear`` rule: uniform in ``+-1/sqrt(fan_in)``).
+    """
+
+    def __init__(
+        self,
+        processes: int,
+        inputs: int,
+        hidden: Sequence[int],
+        actions: int,
+        *,
+        generator: torch.Generator | None = None,
+        device: str | torch.device = "cpu",
+    ) -> None:
+        super().__init__()
+        check_integer("processes", processes, minimum=1)
+        check_integer("inputs", inputs, minimum=1)
+        check_integer("actions", actions, minimum=1)
+        self.widths = (inputs, *check_hidden(hidden), actions)
+        self.weights = torch.nn.ParameterList()
+        self.biases = torch.nn.ParameterList()
+        for fan_in, fan_out in zip(self.widths[:-1], self.widths[1:], strict=True):
+            bound = 1.0 / math.sqrt(fan_in)
+            weight = torch.rand(processes, fan_in, fan_out, generator=generator, device=device) * 2 - 1
+            bias = torch.rand(processes, 1, fan_out, generator=generator, device=device) * 2 - 1
+            self.weights.append(torch.nn.Parameter(weight * bound))
+            self.biases.append(torch.nn.Parameter(bias * bound))
+
+    @property
+    def processes(self) -> int:
+        return self.weights[0].shape[0]
+
+    @property
+    def num_parameters(self) -> int:
+        """Weights and biases of one process's network."""
+        return sum(p[0].numel() for p in self.parameters())
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """Q-values ``(P, B, U)`` of inputs ``(P, B, inputs)`` (row ``p`` through network ``p``)."""
+        last = len(self.weights) - 1
+        for layer, (weight, bias) in enumerate(zip(self.weights, self.biases, strict=True)):
+            x = torch.baddbmm(bias, x, weight)
+            if layer < last:
+                x = torch.relu(x)
+        return x
+
+    def tensors(self, prefix: str) -> dict[str, torch.Tensor]:
+        """The weights as named tensors, ``<prefix>/w<l>`` and ``<prefix>/b<l>`` for layer ``l``."""
+        named = {}
+        for layer, (weight, bias) in enumerate(zip(self.weights, self.biases, strict=True)):
+            named[f"{prefix}/w{layer}"] = weight.detach()
+            named[f"{prefix}/b{layer}"] = bias.detach()
+        return named
+
+    def load_tensors(self, tensors: Mapping[str, torch.Tensor], prefix: str) -> None:
+        """Copy the weights of :meth:`tensors` in; one line for a missing one or one of another shape or dtype."""
+        with torch.no_grad():
+            for name, param in zip(self._names(prefix), self.parameters(), strict=True):
+                tensor = tensors.get(name)
+                if tensor is None:
+                    raise ValueError(f"tensor {name} is missing")
+                if tensor.dtype != torch.float32 or tensor.shape != param.shape:
+                    raise ValueError(
+                        f"tensor {name} is {tensor.dtype} {tuple(tensor.shape)}: must be float32 {tuple(param.shape)}"
+                    )
+                if not bool(torch.isfinite(tensor).all()):
+                    raise ValueError(f"tensor {name} holds NaN or infinite values: must be finite")
+                param.copy_(tensor)
+
+    def _names(self, prefix: str) -> list[str]:
+        layers = range(len(self.weights))
+        return [f"{prefix}/w{layer}" for layer in layers] + [f"{prefix}/b{layer}" for layer in layers]
+
+
+def layer_widths(tensors: Mapping[str, torch.Tensor], prefix: str) -> tuple[int, tuple[int, ...]]:
+    """``(P, widths)`` of the network stored under ``prefix`` in ``tensors``, read from its weight shapes (one line if
+    they do not chain)."""
+    layers = 0
+    while f"{prefix}/w{layers}" in tensors:
+        layers += 1
+    if not 2 <= layers <= MAX_LAYERS + 1:
+        raise ValueError(f"tensors {prefix}/w0, w1, ... hold {layers} layers: must hold 2 to {MAX_LAYERS + 1}")
+    shapes = [tuple(tensors[f"{prefix}/w{layer}"].shape) for layer in range(layers)]
+    if any(len(shape) != 3 for shape in shapes):
+        raise ValueError(f"tensors {prefix}/w* are {shapes}: each must be (processes, inputs, outputs)")
+    processes = shapes[0][0]
+    for before, after in zip(shapes[:-1], shapes[1:], strict=True):
+        if after[0] != processes or after[1] != before[2]:
+            raise ValueError(f"tensors {prefix}/w* are {shapes}: their layers do not chain")
+    return processes, (shapes[0][1], *(shape[2] for shape in shapes))

@@ -1,0 +1,242 @@
+"""A learned Q-network you can carry: what ``algo=dqn`` learns and what evaluation and validation run.
+
+:class:`NeuralPolicy` is the neural twin of :class:`pedrl.rl.TabularPolicy`: the same ``act(obs, info, epsilon=,
+generator=)``, ``controller()``, ``save`` and ``metadata``; its state is the network of :mod:`pedrl.rl.network` and
+the standardisation of its inputs. Replica ``i`` of a room acts with process ``(i // E) mod P``'s network (the
+tables' rule, :class:`pedrl.rl.policy.TableLayout`, with one table per process).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, Final
+
+import torch
+
+from pedrl.common.checks import check_number
+from pedrl.io import CheckpointError, load_checkpoint, save_checkpoint
+from pedrl.rl.network import QNetwork, layer_widths
+from pedrl.rl.policy import FILE_KEYS, POLICY_KIND, POLICY_VERSION, TableLayout
+from pedrl.rl.qtable import NUM_ACTIONS
+from pedrl.vq.encoder import EncoderSettings, StateEncoder
+
+NETWORK_PREFIX: Final = "network"
+INPUT_KEYS: Final = ("inputs/mean", "inputs/std")
+"""The standardisation of the prepared features: ``(F,)`` float32 each."""
+NEURAL_LEARNER: Final = "neural"
+"""``learner`` of a neural policy file's metadata (a file of tables has none)."""
+
+
+class NeuralPolicy:
+    """Acts epsilon-greedily on ``network``'s Q-values of the agents' prepared, standardised observations.
+
+    Args:
+        encoder: prepares observations (:meth:`pedrl.vq.StateEncoder.prepare`; it holds no quantizer).
+        network: ``P`` Q-networks (:class:`pedrl.rl.network.QNetwork`).
+        mean, std: ``(F,)`` the standardisation of the prepared features.
+        rooms_per_process: E of the replica-to-process rule; 1 for a loaded policy.
+        metadata: plain values carried with the policy (the algorithm, the training config).
+    """
+
+    def __init__(
+        self,
+        encoder: StateEncoder,
+        network: QNetwork,
+        mean: torch.Tensor,
+        std: torch.Tensor,
+        *,
+        rooms_per_process: int = 1,
+        metadata: Mapping[str, Any] | None = None,
+    ) -> None:
+        self.encoder, self.network = encoder, network
+        self.mean, self.std = mean, std
+        self.metadata = dict(metadata or {})
+        self.layout = TableLayout(network.processes, 1, 1, rooms_per_process)
+        self._generator: torch.Generator | None = None
+        self._slots = torch.arange(encoder.settings.num_neighbours, device=mean.device)
+
+    @property
+    def num_processes(self) -> int:
+        return self.network.processes
+
+    num_tables = 1
+    """One network per process, shared by its agents (what evaluation reports as the tables per process)."""
+
+    @property
+    def num_actions(self) -> int:
+        return self.network.widths[-1]
+
+    @property
+    def num_inputs(self) -> int:
+        """Width of a network input: the prepared features and one presence flag per neighbour slot."""
+        return self.network.widths[0]
+
+    @property
+    def device(self) -> torch.device:
+        return self.mean.device
+
+    # ------------------------------------------------------------------ inputs and values
+    def inputs(self, obs: torch.Tensor, num_sensed: torch.Tensor, decision: int) -> torch.Tensor:
+        """Network inputs ``(B, F + k)`` of observations ``(B, F)`` with ``num_sensed (B,)`` neighbours (module
+        docstring of :mod:`pedrl.rl.network`)."""
+        prepared = self.encoder.prepare(obs, num_sensed, decision, None)
+        present = (self._slots < num_sensed.unsqueeze(-1)).to(prepared.dtype)
+        return torch.cat(((prepared - self.mean) / self.std, present), dim=-1)
+
+    def values(self, inputs: torch.Tensor, process: torch.Tensor, *, network: QNetwork | None = None) -> torch.Tensor:
+        """Q-values ``(B, U)`` of ``inputs (B, D)``, row ``b`` through process ``process[b]``'s network (of
+        ``network``, default this policy's)."""
+        network = self.network if network is None else network
+        processes = network.processes
+        if processes == 1:
+            return network(inputs.unsqueeze(0)).squeeze(0)
+        counts = torch.bincount(process, minlength=processes)
+        order = torch.argsort(process, stable=True)
+        owner = process.index_select(0, order)
+        start = torch.cumsum(counts, 0) - counts
+        slot = torch.arange(order.shape[0], device=inputs.device) - start.index_select(0, owner)
+        padded = inputs.new_zeros(processes, int(counts.max()), inputs.shape[1])
+        padded[owner, slot] = inputs.index_select(0, order)
+        values = network(padded)[owner, slot]
+        return torch.empty_like(values).index_copy_(0, order, values)
+
+    def choose(self, values: torch.Tensor, epsilon: float, generator: torch.Generator) -> torch.Tensor:
+        """Epsilon-greedy actions ``(B,)`` on Q-values ``(B, U)``: the best action, or with probability
+        ``epsilon`` a uniform one (drawn from ``generator``)."""
+        actions = values.argmax(dim=1)
+        if epsilon > 0:
+            batch = values.shape[0]
+            explore = torch.rand(batch, generator=generator, device=values.device) < epsilon
+            random = torch.randint(values.shape[1], (batch,), generator=generator, device=values.device)
+            actions = torch.where(explore, random, actions)
+        return actions
+
+    def act(
+        self,
+        obs: torch.Tensor,
+        info: Mapping[str, Any],
+        *,
+        epsilon: float = 0.0,
+        generator: torch.Generator | None = None,
+    ) -> torch.Tensor:
+        """Actions ``(R, N)`` int64 for observations ``obs (R, N, F)`` and ``info`` (as ``RoomEnv`` returns them), as
+        :meth:`pedrl.rl.TabularPolicy.act`: ``epsilon`` the share of random actions, drawn from ``generator``."""
+        check_number("epsilon", epsilon, low=0.0, high=1.0)
+        from pedrl.rl.policy import TabularPolicy
+
+        TabularPolicy.check_observations(self, obs, info)  # the same contract
+        if generator is None:
+            if self._generator is None:
+                self._generator = torch.Generator(device=self.device)
+                self._generator.seed()
+            generator = self._generator
+        replicas, agents = obs.shape[0], obs.shape[1]
+        process, _ = self.layout.of(replicas, agents, obs.device)
+        flat = self.inputs(obs.reshape(replicas * agents, -1), info["num_sensed"].reshape(-1), info["decision"])
+        with torch.no_grad():
+            values = self.values(flat, process)
+        return self.choose(values, epsilon, generator).view(replicas, agents)
+
+    def controller(self, epsilon: float = 0.0, generator: torch.Generator | None = None) -> NeuralController:
+        """This policy as a controller of the evaluation engine, with a fixed ``epsilon`` and ``generator``."""
+        return NeuralController(self, epsilon=epsilon, generator=generator)
+
+    # ------------------------------------------------------------------ checks and files
+    def check(self, num_actions: int | None = None) -> None:
+        """One-line ``ValueError`` unless the network reads the encoder's features and presence flags, gives
+        ``num_actions`` values (when given), and the standardisation is finite with a positive spread."""
+        settings = self.encoder.settings
+        width = settings.num_features + settings.num_neighbours
+        if self.num_inputs != width:
+            raise ValueError(
+                f"the network reads {self.num_inputs} inputs: must read {width} ({settings.num_features} features "
+                f"and {settings.num_neighbours} presence flags)"
+            )
+        if num_actions is not None and self.num_actions != num_actions:
+            raise ValueError(f"the network gives {self.num_actions} values: must give {num_actions}, one per action")
+        for name, tensor in zip(INPUT_KEYS, (self.mean, self.std), strict=True):
+            if tensor.dtype != torch.float32 or tuple(tensor.shape) != (settings.num_features,):
+                raise ValueError(
+                    f"tensor {name} is {tensor.dtype} {tuple(tensor.shape)}: must be float32 ({settings.num_features},)"
+                )
+            if not bool(torch.isfinite(tensor).all()):
+                raise ValueError(f"tensor {name} holds NaN or infinite values: must be finite")
+        if not bool((self.std > 0).all()):
+            raise ValueError("tensor inputs/std holds values <= 0: must be > 0")
+
+    def tensors(self) -> dict[str, torch.Tensor]:
+        """The network and the standardisation as named tensors (as files hold them)."""
+        return {**self.network.tensors(NETWORK_PREFIX), INPUT_KEYS[0]: self.mean, INPUT_KEYS[1]: self.std}
+
+    def save(self, path: str | Path) -> Path:
+        """Write the network and its standardisation, with their metadata, to ``path`` (atomically; safetensors)."""
+        tensors = {name: tensor.contiguous() for name, tensor in self.tensors().items()}
+        metadata = {
+            **{key: value for key, value in self.metadata.items() if key not in FILE_KEYS},
+            "kind": POLICY_KIND,
+            "policy_version": POLICY_VERSION,
+            "learner": NEURAL_LEARNER,
+            "encoder": self.encoder.settings.to_metadata(),
+        }
+        save_checkpoint(Path(path), tensors=tensors, metadata=metadata)
+        return Path(path)
+
+    @classmethod
+    def load(cls, path: str | Path, *, device: str | torch.device = "cpu") -> NeuralPolicy:
+        """Read a neural policy file written by :meth:`save`: nothing in it is executed, and every tensor is checked.
+
+        Raises:
+            CheckpointError: one line naming the file and what is wrong.
+        """
+        checkpoint = load_checkpoint(path, device=device)
+        meta = checkpoint.metadata
+        if meta.get("kind") != POLICY_KIND or meta.get("learner") != NEURAL_LEARNER:
+            raise CheckpointError(f"{str(path)!r} is not an exported neural policy: export one with pedrl-export")
+        try:
+            settings = EncoderSettings.from_metadata(meta.get("encoder") or {})
+            carried = {key: value for key, value in meta.items() if key not in (*FILE_KEYS, "learner")}
+            return neural_from_tensors(settings, checkpoint.tensors, num_actions=NUM_ACTIONS, metadata=carried)
+        except ValueError as err:
+            raise CheckpointError(f"policy {str(path)!r}: {err}") from None
+
+
+def neural_from_tensors(
+    settings: EncoderSettings,
+    tensors: Mapping[str, torch.Tensor],
+    *,
+    num_actions: int | None = None,
+    metadata: Mapping[str, Any] | None = None,
+) -> NeuralPolicy:
+    """A checked policy from a file's tensors (``network/...`` and ``inputs/...``) and its encoder settings; tensors
+    of other names are ignored (a training checkpoint's optimizer, replay memory and target network)."""
+    processes, widths = layer_widths(tensors, NETWORK_PREFIX)
+    device = tensors[f"{NETWORK_PREFIX}/w0"].device
+    network = QNetwork(processes, widths[0], widths[1:-1], widths[-1], device=device)
+    network.load_tensors(tensors, NETWORK_PREFIX)
+    network.requires_grad_(False)
+    for name in INPUT_KEYS:
+        if name not in tensors:
+            raise ValueError(f"tensor {name} is missing")
+    policy = NeuralPolicy(StateEncoder(settings), network, *(tensors[name] for name in INPUT_KEYS), metadata=metadata)
+    policy.check(num_actions)
+    return policy
+
+
+class NeuralController:
+    """A :class:`NeuralPolicy` with a fixed ``epsilon`` and ``generator``: the evaluation engine's controller
+    (``act(env, obs, info)``). It acts in torch between decisions that the compiled kernels step
+    (:class:`pedrl.trial.stepped.CompiledRoom`) wherever they can run the room."""
+
+    stepped = True
+    """Run by :func:`pedrl.trial.crowd.run_crowd` in a :class:`~pedrl.trial.stepped.CompiledRoom` where it can."""
+
+    def __init__(self, policy: NeuralPolicy, *, epsilon: float = 0.0, generator: torch.Generator | None = None) -> None:
+        check_number("epsilon", epsilon, low=0.0, high=1.0)
+        self.policy = policy
+        self.epsilon = float(epsilon)
+        self.generator = generator if generator is not None else torch.Generator(device=policy.device)
+
+    def act(self, env: Any, obs: torch.Tensor, info: Mapping[str, Any]) -> torch.Tensor:
+        """Actions ``(R, N)`` int64 for observations ``obs (R, N, F)``."""
+        return self.policy.act(obs, info, epsilon=self.epsilon, generator=self.generator)
