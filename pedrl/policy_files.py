@@ -45,6 +45,7 @@ from pedrl.configs import (
     stored_value,
 )
 from pedrl.io import Checkpoint, CheckpointError, load_checkpoint
+from pedrl.rl.neural import NeuralPolicy, neural_from_tensors
 from pedrl.rl.policy import POLICY_KIND, TabularPolicy, check_policy_file, from_tensors
 from pedrl.sim import RoomEnv
 from pedrl.vq.encoder import EncoderSettings, StateEncoder
@@ -52,7 +53,9 @@ from pedrl.vq.quantizer import ProcessQuantizers
 
 RNG_KEYS: Final = ("rng/trainer", "rng/env")
 """Generator states a training checkpoint holds (to resume mid-phase)."""
-_ROOMS: weakref.WeakKeyDictionary[TabularPolicy, Callable[..., RoomEnv]] = weakref.WeakKeyDictionary()
+LearnedPolicy = TabularPolicy | NeuralPolicy
+"""What :func:`load_policy` returns: tables over a quantizer, or a Q-network (``algo=dqn``)."""
+_ROOMS: weakref.WeakKeyDictionary[LearnedPolicy, Callable[..., RoomEnv]] = weakref.WeakKeyDictionary()
 """The room factory each loaded policy was checked against: :func:`room_factory` reuses it (building a stored room
 reads its WKT text with shapely, up to 10 MB)."""
 
@@ -67,7 +70,7 @@ def load_policy(
     device: str | torch.device = "cpu",
     kind: str | None = None,
     hint: str | None = None,
-) -> TabularPolicy:
+) -> LearnedPolicy:
     """Read the learned policy of a training checkpoint or of an exported policy file.
 
     Args:
@@ -77,7 +80,8 @@ def load_policy(
         hint: what the one-line refusal of the other kind advises (e.g. ``"pass it as policy="``).
 
     Returns:
-        The policy, with ``metadata["config"]`` (the training config) and ``metadata["algo"]``;
+        The policy (a :class:`~pedrl.rl.TabularPolicy`, or a :class:`~pedrl.rl.NeuralPolicy` of ``algo=dqn``), with
+        ``metadata["config"]`` (the training config) and ``metadata["algo"]``;
         :func:`room_factory` builds the room it learned in.
 
     Raises:
@@ -110,15 +114,24 @@ def load_policy(
     except (ValueError, KeyError, TypeError) as err:
         raise CheckpointError(f"{where} holds a config this pedrl refuses ({first_line(err)})") from None
     try:
-        if exported:
-            stored = check_policy_file(checkpoint.metadata, checkpoint.tensors)
-        else:
-            stored = _check_training_file(checkpoint, config)
+        algo = ALGO_TARGETS[config["algo"]["_target_"]]
+        metadata = {"algo": algo, "config": config, "source": str(path)}
         room = factory(num_replicas=1, num_agents=1, device=device)
-        settings = _encoder_settings(stored, config, room)
-        tensors = {k: v for k, v in checkpoint.tensors.items() if k not in RNG_KEYS}
-        metadata = {"algo": ALGO_TARGETS[config["algo"]["_target_"]], "config": config, "source": str(path)}
-        policy = from_tensors(settings, tensors, num_actions=room.num_actions, metadata=metadata)
+        if algo == "dqn":  # a network: its file is checked by what it must hold, the rest (optimizer, memory) ignored
+            if not exported:
+                check_run_metadata(checkpoint.metadata, config)
+            settings = _network_settings(
+                EncoderSettings.from_metadata(_stored_encoder(checkpoint.metadata)), config, room
+            )
+            policy = neural_from_tensors(settings, checkpoint.tensors, num_actions=room.num_actions, metadata=metadata)
+        else:
+            if exported:
+                stored = check_policy_file(checkpoint.metadata, checkpoint.tensors)
+            else:
+                stored = _check_training_file(checkpoint, config)
+            settings = _encoder_settings(stored, config, room)
+            tensors = {k: v for k, v in checkpoint.tensors.items() if k not in RNG_KEYS}
+            policy = from_tensors(settings, tensors, num_actions=room.num_actions, metadata=metadata)
     except ValueError as err:
         raise CheckpointError(f"{where}: {first_line(err)}") from None
     _ROOMS[policy] = factory
@@ -137,7 +150,12 @@ def export_policy(
         ValueError: one line, for ``processes`` outside ``1 .. P``.
     """
     policy = load_policy(checkpoint, device=device, kind="checkpoint", hint="it is exported already")
-    if processes is not None:
+    if processes is not None and isinstance(policy, NeuralPolicy):
+        check_integer("processes", processes, minimum=1, maximum=policy.num_processes)
+        tensors = {name: tensor[:processes].clone() for name, tensor in policy.network.tensors("network").items()}
+        tensors.update(zip(("inputs/mean", "inputs/std"), (policy.mean, policy.std), strict=True))
+        policy = neural_from_tensors(policy.encoder.settings, tensors, metadata=policy.metadata)
+    elif processes is not None:
         check_integer("processes", processes, minimum=1, maximum=policy.num_processes)
         quantizer = policy.encoder.quantizer
         if isinstance(quantizer, ProcessQuantizers):
@@ -165,7 +183,7 @@ def pretrained(name: str) -> Path:
 
 
 def room_factory(
-    policy: TabularPolicy,
+    policy: LearnedPolicy,
     scenario: Mapping[str, Any] | None = None,
     *,
     max_decisions: int | None = None,
@@ -177,11 +195,13 @@ def room_factory(
     ``factory.scenario`` is the :class:`~pedrl.scenarios.Scenario`.
 
     Raises:
-        TypeError: one line, for a ``policy`` that is not a :class:`~pedrl.rl.policy.TabularPolicy`.
+        TypeError: one line, for a ``policy`` that :func:`load_policy` did not return (a tables' or a network's).
         ValueError: one line, for a bad ``scenario`` or ``max_decisions``, or a policy without a training config.
     """
-    if not isinstance(policy, TabularPolicy):
-        raise TypeError(f"policy={shown(policy)} is invalid: must be a TabularPolicy, as pedrl.load_policy returns")
+    if not isinstance(policy, TabularPolicy | NeuralPolicy):
+        raise TypeError(
+            f"policy={shown(policy)} is invalid: must be a TabularPolicy or NeuralPolicy, as pedrl.load_policy returns"
+        )
     overrides = overridden(max_decisions=max_decisions, queue_weight=queue_weight)
     env = room_settings(policy) | overrides
     config = policy.metadata["config"]
@@ -197,7 +217,7 @@ def overridden(**settings: Any) -> dict[str, Any]:
     return {key: value for key, value in settings.items() if value is not None}
 
 
-def room_settings(policy: TabularPolicy) -> dict[str, Any]:
+def room_settings(policy: LearnedPolicy) -> dict[str, Any]:
     """The ``env`` settings (bodies, speeds, sensing, rewards) of the room ``policy`` learned in: its training
     config's, checked as a stored config is (:func:`pedrl.configs.checked_config`), a key added since the policy
     was trained taking the value of its time (:func:`pedrl.configs.stored_env`).
@@ -302,6 +322,24 @@ def _encoder_settings(stored: EncoderSettings | None, config: Mapping[str, Any],
     if stored is not None and stored != derived:
         raise ValueError(f"metadata encoder={stored.to_metadata()!r} disagrees with its config: must be {derived}")
     return derived
+
+
+def _network_settings(stored: EncoderSettings, config: Mapping[str, Any], room: RoomEnv) -> EncoderSettings:
+    """The input settings a network's file stores, which must be those its config and room give (the trainer's:
+    :class:`pedrl.algos.dqn.DQN`)."""
+    derived = EncoderSettings.for_room(room, distance_transform=stored_value(config, "vq.distance_transform"))
+    derived = derived.spanning(mix_rooms(stored_env(config), config.get("mix"), files=False))
+    if stored != derived:
+        raise ValueError(f"metadata encoder={stored.to_metadata()!r} disagrees with its config: must be {derived}")
+    return derived
+
+
+def _stored_encoder(meta: Mapping[str, Any]) -> Mapping[str, Any]:
+    """The encoder settings a network's file stores (every such file stores them)."""
+    stored = meta.get("encoder")
+    if not isinstance(stored, Mapping):
+        raise ValueError(f"metadata encoder={shown(stored)} is invalid: a network's file stores its encoder settings")
+    return stored
 
 
 def _is_int(value: Any) -> bool:

@@ -28,7 +28,7 @@ from typing import Any, Final
 import torch
 from tqdm.auto import tqdm
 
-from pedrl.algos.dqn_learning import DeepQLearner, DoubleDQN, DQNSettings
+from pedrl.algos.dqn_learning import DeepQLearner
 from pedrl.algos.mix import room_of_trial
 from pedrl.algos.phase import MAX_TRIALS, Phase, TrainResult
 from pedrl.algos.records import RunRecord, final_figures, interactive, report_phase
@@ -36,13 +36,13 @@ from pedrl.common.checks import check_bool, check_device, check_integer, check_m
 from pedrl.configs import TrainingRoom
 from pedrl.io.files import remove_temporaries_in
 from pedrl.rl import LinearSchedule
+from pedrl.rl.deep_q import DoubleDQN, DQNSettings
 from pedrl.rl.network import QNetwork, check_hidden
 from pedrl.rl.neural import NeuralPolicy
 from pedrl.rl.replay import ReplayBuffer
 from pedrl.sim import RoomEnv
-from pedrl.trial.loop import crowd_loop
+from pedrl.trial.crowd import choose_path, run_crowd
 from pedrl.trial.rollout import gather
-from pedrl.trial.stepped import CompiledRoom, compiled_reason
 from pedrl.vq.encoder import EncoderSettings, StateEncoder
 from pedrl.vq.settings import VQSettings
 
@@ -181,17 +181,7 @@ class DQN:
     def trial_path(self) -> tuple[str, str | None]:
         """``("fused", None)``: the compiled kernels step every room; else ``("torch", why)``. One line for
         ``fused=true`` where they cannot."""
-        if self.fused is not None and not isinstance(self.fused, bool):
-            raise ValueError(f"fused={self.fused!r} is invalid: must be true, false or null")
-        if self.fused is False:
-            return "torch", "fused=false"
-        for room in (self.env, *self._mix_envs):
-            reason = compiled_reason(room)
-            if reason is not None:
-                if self.fused:
-                    raise ValueError(f"fused=true is invalid: the compiled kernels cannot run {reason} (false or null)")
-                return "torch", f"the compiled kernels cannot run {reason}"
-        return "fused", None
+        return tuple(choose_path([self.env, *self._mix_envs], None, self.fused))
 
     def memory_needs(self) -> dict[str, float]:
         """Estimated bytes of the largest allocations: the replay memory, the networks with Adam's moments (online,
@@ -204,7 +194,7 @@ class DQN:
             "replay memory": ReplayBuffer.bytes_needed(self.processes, self.buffer_size, self.width),
             "networks and Adam": 4 * weights,
             "batch": batch,
-            "room": max(room.step_memory(kernels=self.path == "fused") for room in rooms),
+            "room": max(room.step_memory() for room in rooms),
         }
 
     def rooms(self) -> list[tuple[str, RoomEnv]]:
@@ -273,7 +263,6 @@ class DQN:
     def _learn(self, phases: list[Phase], start: int, record: RunRecord):
         """The trials from global trial ``start`` on, each logged, with the checkpoints."""
         stats, global_trial = None, 0
-        stepped = {id(room): CompiledRoom(room) if self.path == "fused" else room for _, room in self.rooms()}
         rooms = self.rooms()
         for phase in phases:
             first = max(0, start - global_trial)
@@ -290,7 +279,7 @@ class DQN:
                 trial_tic = time.perf_counter()
                 driver = DeepQLearner(self.policy, epsilon=epsilon, generator=self.generator, update=self.update,
                                       buffer=self.buffer)  # fmt: skip
-                stats = crowd_loop(stepped[id(room)], driver).stats
+                stats = run_crowd(room, driver, fused=self.fused).stats
                 self._check_finite(phase, trial, stats, driver.loss)
                 rate = stats.agent_decisions / (time.perf_counter() - trial_tic)
                 record.log_trial(phase, trial, global_trial, epsilon, stats, rate, room=label, agents=room.num_agents,

@@ -1,132 +1,22 @@
-"""Double deep Q-learning in the trial loop: the driver that acts with the Q-network and feeds the replay memory, and
-the update (van Hasselt, Guez & Silver 2016; the style of CleanRL's ``dqn.py``).
+"""The neural learner in the trial loop: the driver that acts with the Q-network, feeds the replay memory and calls
+the update (:mod:`pedrl.rl.deep_q`).
 
 At every decision the :class:`DeepQLearner` encodes the agents still in a room, acts epsilon-greedily on their
 process's network, stores each acting agent's transition in its process's ring, and every ``train_every`` decisions
-takes ``gradient_steps`` steps of :class:`DoubleDQN` on a batch of each ring:
-``y = r + gamma (1 - terminated) Q_target(s', argmax_a Q(s', a))``, a Huber loss on ``Q(s, a) - y``, Adam, the gradient
-of each process clipped to ``max_grad_norm`` on its own, and the target network copied from the online one every
-``target_every`` steps. A decision cut by the clock bootstraps (it is not terminal), as the tables' update does.
+takes ``gradient_steps`` steps of :class:`pedrl.rl.deep_q.DoubleDQN` on a batch of each ring.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
 from typing import Any
 
 import torch
 
-from pedrl.rl.network import QNetwork
+from pedrl.rl.deep_q import DoubleDQN
 from pedrl.rl.neural import NeuralPolicy
 from pedrl.rl.replay import Batch, ReplayBuffer
 from pedrl.trial.loop import Driver
-
-
-@dataclass(frozen=True)
-class DQNSettings:
-    """The hyper-parameters of an update (each is an ``algo`` key of ``algo=dqn``)."""
-
-    gamma: float
-    batch_size: int
-    learning_starts: int
-    train_every: int
-    gradient_steps: int
-    target_every: int
-    reward_scale: float
-    max_grad_norm: float
-
-
-class DoubleDQN:
-    """The online network's optimizer, its target network and the update (module docstring).
-
-    Counters: ``updates`` (gradient steps taken) and ``decisions`` (decisions seen); ``loss_sum`` and ``td_sum``
-    ``(P,)`` and ``steps_summed`` accumulate since the last :meth:`take_sums`."""
-
-    def __init__(self, policy: NeuralPolicy, settings: DQNSettings, learning_rate: float) -> None:
-        self.policy, self.settings = policy, settings
-        network = policy.network
-        self.target = QNetwork(network.processes, network.widths[0], network.widths[1:-1], network.widths[-1],
-                               device=policy.device)  # fmt: skip
-        self.target.load_state_dict(network.state_dict())
-        self.target.requires_grad_(False)
-        self.optimizer = torch.optim.Adam(network.parameters(), lr=learning_rate)
-        self.updates = self.decisions = 0
-        self._sums = torch.zeros(2, network.processes)
-        self._summed = 0
-
-    def learn(self, buffer: ReplayBuffer, generator: torch.Generator) -> None:
-        """After a decision: the update's steps, when due and the rings hold ``learning_starts`` transitions each."""
-        settings = self.settings
-        self.decisions += 1
-        if buffer.size < settings.learning_starts or self.decisions % settings.train_every:
-            return
-        for _ in range(settings.gradient_steps):
-            self.step(buffer.sample(settings.batch_size, generator))
-
-    def step(self, batch: Batch) -> None:
-        """One gradient step of every process on ``batch`` ``(P, B, ...)``."""
-        network, settings = self.policy.network, self.settings
-        with torch.no_grad():
-            best = network(batch.next_inputs).argmax(dim=2, keepdim=True)
-            following = self.target(batch.next_inputs).gather(2, best).squeeze(2)
-            targets = batch.rewards + settings.gamma * torch.where(batch.terminated, 0.0, following)
-        values = network(batch.inputs).gather(2, batch.actions.unsqueeze(2)).squeeze(2)
-        losses = torch.nn.functional.smooth_l1_loss(values, targets, reduction="none").mean(dim=1)  # (P,)
-        self.optimizer.zero_grad(set_to_none=True)
-        losses.sum().backward()  # the processes share no weight: each gets its own gradient
-        self._clip(network)
-        self.optimizer.step()
-        self.updates += 1
-        if self.updates % settings.target_every == 0:
-            self.target.load_state_dict(network.state_dict())
-        self._sums += torch.stack((losses.detach(), (values.detach() - targets).abs().mean(dim=1)))
-        self._summed += 1
-
-    def _clip(self, network: QNetwork) -> None:
-        """Scale each process's gradient to a norm of at most ``max_grad_norm``."""
-        grads = [param.grad for param in network.parameters()]
-        norms = torch.sqrt(sum(grad.pow(2).flatten(1).sum(1) for grad in grads))
-        scale = (self.settings.max_grad_norm / (norms + 1e-6)).clamp_max(1.0)
-        for grad in grads:
-            grad.mul_(scale.view(-1, *([1] * (grad.ndim - 1))))
-
-    def take_sums(self) -> tuple[torch.Tensor, torch.Tensor]:
-        """``(loss, |TD error|)`` ``(P,)`` each, means over the steps since the last call (0 without a step)."""
-        means = self._sums / max(self._summed, 1)
-        self._sums.zero_()
-        self._summed = 0
-        return means[0], means[1]
-
-    # ------------------------------------------------------------------ files
-    def tensors(self) -> dict[str, torch.Tensor]:
-        """The target network and Adam's state as named tensors (``target/...``, ``optimizer/<i>.<key>``)."""
-        named = dict(self.target.tensors("target"))
-        for index, state in self.optimizer.state_dict()["state"].items():
-            for key, value in state.items():
-                named[f"optimizer/{index}.{key}"] = value.detach().reshape(value.shape)
-        return named
-
-    def load_tensors(self, tensors: Mapping[str, torch.Tensor]) -> None:
-        """Take the target network and Adam's state of :meth:`tensors` (one line for a missing or misshapen one)."""
-        self.target.load_tensors(tensors, "target")
-        params = list(self.policy.network.parameters())
-        state: dict[int, dict[str, Any]] = {}
-        for index, param in enumerate(params):
-            entry = {}
-            for key, shape in (("step", ()), ("exp_avg", param.shape), ("exp_avg_sq", param.shape)):
-                name = f"optimizer/{index}.{key}"
-                tensor = tensors.get(name)
-                if tensor is None:
-                    raise ValueError(f"tensor {name} is missing")
-                if tensor.dtype != torch.float32 or tuple(tensor.shape) != tuple(shape):
-                    raise ValueError(
-                        f"tensor {name} is {tensor.dtype} {tuple(tensor.shape)}: must be float32 {tuple(shape)}"
-                    )
-                entry[key] = tensor.clone()
-            state[index] = entry
-        saved = self.optimizer.state_dict()
-        self.optimizer.load_state_dict({"state": state, "param_groups": saved["param_groups"]})
 
 
 class DeepQLearner(Driver):
@@ -134,6 +24,7 @@ class DeepQLearner(Driver):
     ``update`` is given, stores transitions in ``buffer`` and learns."""
 
     sync_free = True
+    stepped = True
 
     def __init__(
         self,

@@ -10,11 +10,11 @@ from typing import TYPE_CHECKING, Any
 
 import torch
 
-from pedrl.algos.dqn_learning import DoubleDQN
 from pedrl.algos.restore import config_mismatch
 from pedrl.configs import check_stored_config, current_form
 from pedrl.io import CheckpointError, load_checkpoint
 from pedrl.policy_files import RNG_KEYS, check_rng_state
+from pedrl.rl.deep_q import DoubleDQN
 from pedrl.rl.neural import NeuralPolicy, neural_from_tensors
 from pedrl.rl.replay import ReplayBuffer
 

@@ -12,7 +12,10 @@ run a trial with; :func:`choose_path` is the one place that chooses its path, an
 
 Where the fused trial runs is an allow-list: the room's own (:meth:`pedrl.sim.RoomEnv.fast_path_reason`, from the
 declarations of :class:`pedrl.sim.params.RoomParams`), numba, and the controller: a learned policy (the tables and
-quantizer of every kind: shared, per process and IN-VQQL's union, on the CPU) or the greedy walker. The two paths
+quantizer of every kind: shared, per process and IN-VQQL's union, on the CPU) or the greedy walker. A network's
+controller (``stepped``: :class:`pedrl.rl.neural.NeuralController`, the DQN's learner) takes the same allow-list: on
+the fused path the compiled kernels step each decision (:class:`pedrl.trial.stepped.CompiledRoom`) and the network
+acts in torch between them. The two paths
 agree within the tolerances of :mod:`pedrl.trial.twins`, not to the bit: their random streams differ.
 """
 
@@ -31,6 +34,7 @@ from pedrl.sim.controllers import GreedyDoorController
 from pedrl.trial.fused import FusedRecord, Progress, record_trial_fused, run_trial_fused
 from pedrl.trial.loop import CrowdRun, Learner, TrialRecord, crowd_loop
 from pedrl.trial.stats import TOTALS, TrialStats
+from pedrl.trial.stepped import CompiledRoom
 
 
 class TrialPath(NamedTuple):
@@ -102,6 +106,8 @@ def run_crowd(
         return crowd_loop(env, controller, record=record, start=start, progress=progress)
     if isinstance(controller, Learner):
         return CrowdRun(run_trial_fused(env, controller), None)
+    if getattr(controller, "stepped", False):  # a network: the kernels step each decision, it acts in torch between
+        return crowd_loop(CompiledRoom(env), controller, record=record, progress=progress)
     trace = record_trial_fused(env, controller, reset=start is None, progress=progress)
     return CrowdRun(_fused_stats(env, trace), _fused_record(trace) if record else None)
 
@@ -119,6 +125,8 @@ def _reason(env: RoomEnv, controller: Any, *, record: bool, placed: bool) -> str
         return _policy_reason(env, controller.policy)
     if type(controller) is GreedyDoorController:
         return _room_reason(env)
+    if getattr(controller, "stepped", False):
+        return "a network's trial from placed agents" if placed else _room_reason(env)
     return f"with a {type(controller).__name__} (it runs learned policies and the greedy walker)"
 
 

@@ -21,14 +21,14 @@ import numpy as np
 import torch
 from numba import prange
 
-from pedrl._numba import cached_njit, numba_available
+from pedrl._numba import cached_njit
 from pedrl.sim import RoomEnv
 from pedrl.sim.sensing_kernel import sense_room
 from pedrl.sim.state import KernelState, RoomState
 from pedrl.sim.step_kernel import Events, Work, act_room, act_scratch
 from pedrl.sim.streams import next_uniform, seed_streams
 
-__all__ = ["CompiledRoom", "compiled_reason", "step_rooms"]
+__all__ = ["CompiledRoom", "step_rooms"]
 
 
 @cached_njit(nogil=True, parallel=True)
@@ -52,27 +52,16 @@ def step_rooms(first, state, actions, room, walls, exits, routes, work, events, 
                    distances, indices)  # fmt: skip
 
 
-def compiled_reason(env: RoomEnv) -> str | None:
-    """Why the compiled kernels cannot step ``env`` (one phrase), or None when they can: the fused trial's own
-    allow-list (:meth:`pedrl.sim.RoomEnv.fast_path_reason`) and numba."""
-    if not numba_available():
-        return "without numba (PEDRL_NO_NUMBA is set, or numba is missing)"
-    return env.fast_path_reason()
-
-
 class CompiledRoom:
     """``env``'s rooms with :meth:`reset` and :meth:`step` run by the compiled kernels (module docstring); every other
     attribute is the room's own (``num_replicas``, ``num_agents``, ``positions``, ``active``, ...), kept current: after
     each decision the room takes a copy of the kernels' state (new tensors, as its torch step makes).
 
-    Raises:
-        ValueError: one line, for a room the kernels cannot step (:func:`compiled_reason`).
+    :func:`pedrl.trial.crowd.run_crowd` builds one where :func:`pedrl.trial.crowd.choose_path` found that the fused
+    path runs the room (the kernels' allow-list).
     """
 
     def __init__(self, env: RoomEnv) -> None:
-        reason = compiled_reason(env)
-        if reason is not None:
-            raise ValueError(f"the compiled kernels cannot step this room: they cannot run {reason}")
         from pedrl.trial.fused import room_inputs, set_kernel_threads
 
         set_kernel_threads(torch.get_num_threads())

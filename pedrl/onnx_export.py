@@ -1,0 +1,130 @@
+"""A learned Q-network as an ONNX model, with its observation and action contract beside it.
+
+``pedrl-export checkpoint=<a dqn checkpoint> out=policy.onnx`` writes ``policy.onnx`` and ``policy.onnx.json``. The
+model takes what :class:`pedrl.sim.RoomEnv` gives, nothing prepared: ``obs`` ``(B, F)`` float32 (an agent's deictic
+state, the features in the order ``contract["observation"]["features"]`` names) and ``num_sensed`` ``(B,)`` int64
+(the neighbours sensed), and returns ``q_values`` ``(B, 81)`` float32 and ``action`` ``(B,)`` int64 (the best one).
+The distance transform, the standardisation and the neighbour presence flags are inside the graph. The JSON file
+states the contract: the inputs and outputs, the features, the action codec (the action frame, the speed and turn of
+each action), the decision length, and the room settings the network learned in. onnxruntime runs it without torch
+or pedrl (``tests/test_onnx_export.py`` checks a round trip against :meth:`pedrl.rl.NeuralPolicy.act`).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any, Final
+
+import torch
+
+from pedrl.common.checks import check_integer
+from pedrl.io.files import replace_atomically
+from pedrl.rl.neural import NeuralPolicy
+from pedrl.sim.sensing import distance_indices, feature_names
+
+OPSET: Final = 18
+CONTRACT_VERSION: Final = 1
+
+
+class _Exported(torch.nn.Module):
+    """Process ``process``'s network of ``policy`` with its input preparation, as one graph."""
+
+    def __init__(self, policy: NeuralPolicy, process: int) -> None:
+        super().__init__()
+        settings = policy.encoder.settings
+        mask = torch.zeros(settings.num_features, dtype=torch.bool)
+        if settings.distance_transform == "log":
+            mask[distance_indices(settings.num_neighbours, settings.num_walls)] = True
+        self.register_buffer("log_mask", mask)
+        self.register_buffer("mean", policy.mean.detach().cpu().clone())
+        self.register_buffer("std", policy.std.detach().cpu().clone())
+        self.register_buffer("slots", torch.arange(settings.num_neighbours))
+        network = policy.network
+        self.weights = [w[process].detach().cpu().clone() for w in network.weights]
+        self.biases = [b[process, 0].detach().cpu().clone() for b in network.biases]
+        for layer, (weight, bias) in enumerate(zip(self.weights, self.biases, strict=True)):
+            self.register_buffer(f"w{layer}", weight)
+            self.register_buffer(f"b{layer}", bias)
+
+    def forward(self, obs: torch.Tensor, num_sensed: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        prepared = torch.where(self.log_mask, torch.log1p(torch.clamp(obs, min=0.0)), obs)
+        present = (self.slots.unsqueeze(0) < num_sensed.unsqueeze(1)).to(obs.dtype)
+        x = torch.cat(((prepared - self.mean) / self.std, present), dim=1)
+        last = len(self.weights) - 1
+        for layer in range(last + 1):
+            x = x @ getattr(self, f"w{layer}") + getattr(self, f"b{layer}")
+            if layer < last:
+                x = torch.relu(x)
+        return x, x.argmax(dim=1)
+
+
+def contract(policy: NeuralPolicy, room: Any, process: int) -> dict[str, Any]:
+    """The observation and action contract of the exported model (module docstring), as plain JSON values."""
+    settings = policy.encoder.settings
+    config = policy.metadata.get("config", {})
+    speeds = [float(v) for v in room.speed_changes.tolist()]
+    turns = [float(v) for v in room.turn_changes.tolist()]
+    return {
+        "contract_version": CONTRACT_VERSION,
+        "producer": "pedrl-export",
+        "algo": policy.metadata.get("algo", "dqn"),
+        "process": process,
+        "inputs": {
+            "obs": {"dtype": "float32", "shape": ["batch", settings.num_features]},
+            "num_sensed": {"dtype": "int64", "shape": ["batch"], "range": [0, settings.num_neighbours]},
+        },
+        "outputs": {
+            "q_values": {"dtype": "float32", "shape": ["batch", len(speeds) * len(turns)]},
+            "action": {"dtype": "int64", "shape": ["batch"], "meaning": "argmax of q_values"},
+        },
+        "observation": {
+            "features": feature_names(settings.num_neighbours, settings.num_walls),
+            "units": "metres, metres per second and radians, as pedrl.sim.RoomEnv observes them; empty slots 0",
+            "num_neighbours": settings.num_neighbours,
+            "num_walls": settings.num_walls,
+            "prepared_inside": "log(1 + d) of every distance (distance_transform=log), standardised, presence flags",
+            "distance_transform": settings.distance_transform,
+        },
+        "actions": {
+            "count": len(speeds) * len(turns),
+            "index": "speed_index * 9 + turn_index",
+            "frame": room.action_frame,
+            "speed": speeds,
+            "turn": turns,
+            "speed_meaning": "the new speed (m/s)" if room.action_frame == "goal" else "the change of speed (m/s)",
+            "turn_meaning": "the heading's offset from the line to the goal (rad)"
+            if room.action_frame == "goal"
+            else "the change of heading (rad)",
+            "max_speed": float(room.max_speed),
+            "decision_length_s": float(room.decision_length),
+        },
+        "room": config.get("env", {}),
+        "scenario": config.get("scenario", {}),
+    }
+
+
+def export_onnx(policy: NeuralPolicy, room: Any, out: str | Path, *, process: int = 0) -> Path:
+    """Write process ``process``'s network of ``policy`` to ``out`` (``.onnx``) and its contract to ``out.json``, each
+    atomically; ``room`` is a room of the policy's training config (its action codec)."""
+    check_integer("process", process, minimum=0, maximum=policy.num_processes - 1)
+    module = _Exported(policy, process).eval()
+    settings = policy.encoder.settings
+    example = (torch.zeros(2, settings.num_features), torch.zeros(2, dtype=torch.int64))
+
+    def write(path: Path) -> None:
+        torch.onnx.export(
+            module,
+            example,
+            str(path),
+            input_names=["obs", "num_sensed"],
+            output_names=["q_values", "action"],
+            dynamic_axes={name: {0: "batch"} for name in ("obs", "num_sensed", "q_values", "action")},
+            opset_version=OPSET,
+            dynamo=False,
+        )
+
+    out = replace_atomically(out, write)
+    text = json.dumps(contract(policy, room, process), indent=2)
+    replace_atomically(out.with_name(out.name + ".json"), lambda path: path.write_text(text))
+    return out

@@ -1,0 +1,108 @@
+"""algo=dqn, the neural learner: it learns, it is reproducible, it resumes exactly, and bad settings are refused in one
+line before any compute."""
+
+import pytest
+import torch
+
+from pedrl.algos.registry import build_trainer
+from pedrl.io import load_checkpoint, read_csv
+from pedrl.policy_files import load_policy, room_factory
+from pedrl.rl.network import QNetwork
+from pedrl.rl.neural import NeuralPolicy
+from pedrl.train import train
+from pedrl.trial.crowd import run_crowd
+from tests.algos.resuming import assert_resume_equals_uninterrupted
+
+# a 10 m room, 4 agents for 40 decisions, a small network that learns from the 100th transition on
+DQN = ("algo=dqn", "algo.num_agents=4", "env.max_decisions=40", "threads=1", "logger=none")
+
+
+def _greedy_return(policy: NeuralPolicy, factory, seed: int = 11) -> float:
+    """The mean return of ``policy`` at epsilon 0 over 16 scenes of ``seed`` (the compiled kernels step them)."""
+    room = factory(num_replicas=16, num_agents=4)
+    room.reset(seed=seed)
+    controller = policy.controller(0.0, torch.Generator().manual_seed(0))
+    return float(run_crowd(room, controller, fused=None).stats.episodic_return.mean())
+
+
+def test_dqn_learns_to_walk_better_than_its_untrained_network(train_config, tmp_path):
+    train(train_config(*DQN, "algo.trials=60"), run_dir=tmp_path)
+    learned = load_policy(tmp_path / "checkpoints" / "last.safetensors")
+    factory = room_factory(learned)
+    untrained = NeuralPolicy(
+        learned.encoder,
+        QNetwork(1, learned.num_inputs, [32, 32], 81, generator=torch.Generator().manual_seed(0)),
+        learned.mean,
+        learned.std,
+    )
+    before, after = _greedy_return(untrained, factory), _greedy_return(learned, factory)
+    assert after > before + 30.0, (before, after)  # measured: -56 before, -6 after
+
+
+def test_dqn_writes_a_checkpoint_per_iteration_and_the_tables_curve(train_config, tmp_path):
+    train(train_config(*DQN), run_dir=tmp_path)
+    names = sorted(path.name for path in (tmp_path / "checkpoints").iterdir())
+    assert names == ["iter_0001.safetensors", "iter_0002.safetensors", "last.safetensors"]
+    rows = read_csv(tmp_path / "learning_curve.csv")
+    assert len(rows) == 20 and [int(r["phase"]) for r in rows] == [1] * 10 + [2] * 10
+    meta = load_checkpoint(tmp_path / "checkpoints" / "last.safetensors").metadata
+    assert meta["algo"] == "dqn" and meta["updates"] > 0 and meta["trial_path"] == "fused"
+    assert float(rows[-1]["td_error_mean"]) > 0  # learning happened: the TD error of its gradient steps
+
+
+def test_dqn_same_seed_same_numbers(train_config, tmp_path):
+    for run in ("a", "b"):
+        train(train_config(*DQN, "algo.trials=8", "algo.iterations=1"), run_dir=tmp_path / run)
+    a, b = (load_checkpoint(tmp_path / run / "checkpoints" / "last.safetensors").tensors for run in ("a", "b"))
+    assert a.keys() == b.keys() and all(torch.equal(a[name], b[name]) for name in a)
+    strip = lambda rows: [{k: v for k, v in r.items() if k != "decisions_per_s"} for r in rows]  # noqa: E731
+    assert strip(read_csv(tmp_path / "a" / "learning_curve.csv")) == strip(
+        read_csv(tmp_path / "b" / "learning_curve.csv")
+    )
+
+
+def test_dqn_other_seed_other_numbers(train_config, tmp_path):
+    for seed in (0, 1):
+        train(train_config(*DQN, "algo.trials=4", "algo.iterations=1", f"seed={seed}"), run_dir=tmp_path / str(seed))
+    a, b = (load_checkpoint(tmp_path / s / "checkpoints" / "last.safetensors").tensors for s in ("0", "1"))
+    assert not torch.equal(a["network/w0"], b["network/w0"])
+
+
+def test_dqn_killed_mid_run_resumes_to_the_same_network_memory_and_curve(train_config, tmp_path, monkeypatch):
+    overrides = (*DQN, "checkpoint_every=3", "algo.trials=14")
+    assert_resume_equals_uninterrupted(train_config, overrides, tmp_path, monkeypatch, stop_after=9, tensors="all")
+
+
+def test_dqn_resume_refuses_another_network(train_config, tmp_path):
+    train(train_config(*DQN, "algo.trials=4", "algo.iterations=1"), run_dir=tmp_path)
+    with pytest.raises(Exception, match="algo.hidden was"):
+        train(train_config(*DQN, "algo.trials=4", "algo.iterations=1", "algo.hidden=[16]", "resume=true"),
+              run_dir=tmp_path)  # fmt: skip
+
+
+def test_dqn_torch_path_learns_on_the_reference_step(train_config, tmp_path):
+    train(train_config(*DQN, "algo.trials=4", "algo.iterations=1", "fused=false"), run_dir=tmp_path)
+    assert load_checkpoint(tmp_path / "checkpoints" / "last.safetensors").metadata["trial_path"] == "torch"
+
+
+@pytest.mark.parametrize(
+    ("override", "message"),
+    [
+        ("algo.hidden=[0]", "hidden=[0] is invalid: each layer width must be an integer in [1, 65536]"),
+        ("algo.hidden=[]", "hidden=[] is invalid: must be a list of 1 to 16 layer widths"),
+        ("algo.learning_rate=nan", "learning_rate=nan is invalid"),
+        ("algo.learning_rate=0", "learning_rate=0"),
+        ("algo.batch_size=4000", "buffer_size=2000 is invalid"),
+        ("algo.buffer_size=10000000000000", "this run needs about"),
+        ("algo.learning_starts=5000", "learning_starts=5000 is invalid"),
+        ("algo.gradient_steps=0", "gradient_steps=0 is invalid"),
+        ("algo.reward_scale=-1", "reward_scale=-1"),
+        ("+algo.value_transfer=true", "algo.value_transfer is not a setting of pedrl.algos.DQN"),
+    ],
+)
+def test_dqn_bad_settings_are_one_line_before_any_compute(train_config, tmp_path, override, message):
+    cfg = train_config(*DQN, override)
+    with pytest.raises(ValueError, match=message.replace("[", r"\[").replace("]", r"\]")) as err:
+        build_trainer(cfg, tmp_path)
+    assert "\n" not in str(err.value)
+    assert not (tmp_path / "checkpoints").exists()
