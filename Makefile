@@ -15,10 +15,10 @@ $(STAMP): pyproject.toml
 	@test -x $(PY) || python3 -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q $(TORCH_PIN)
-	$(PY) -m pip install -q -e '.[dev,analysis,launchers,pettingzoo,jupedsim]'
+	$(PY) -m pip install -q -e '.[dev,analysis,launchers,pettingzoo,jupedsim,onnx]'
 	@touch $(STAMP)
 
-setup: $(STAMP) ## create .venv with torch==2.13.0 (CPU) and pedrl[dev,analysis,launchers,pettingzoo,jupedsim]; does nothing when done
+setup: $(STAMP) ## create .venv with torch==2.13.0 (CPU) and pedrl[dev,analysis,launchers,pettingzoo,jupedsim,onnx]; does nothing when done
 
 RUN_DIR ?= outputs/main/$(shell date +%Y-%m-%d_%H-%M-%S)
 

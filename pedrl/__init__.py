@@ -13,12 +13,13 @@ from typing import Any
 
 from pedrl.version import __version__
 
-__all__ = ["TabularPolicy", "__version__", "export_policy", "load_policy", "pretrained", "room_factory"]
+__all__ = ["NeuralPolicy", "TabularPolicy", "__version__", "export_policy", "load_policy", "pretrained", "room_factory"]
 
 
 def __getattr__(name: str) -> Any:
     """``load_policy``, ``export_policy``, ``room_factory``, ``pretrained`` (:mod:`pedrl.policy_files`) and
-    ``TabularPolicy``, imported on first use: ``import pedrl`` stays light (the entry points import what they need)."""
+    ``TabularPolicy`` and ``NeuralPolicy``, imported on first use: ``import pedrl`` stays light (the entry points
+    import what they need)."""
     if name in ("load_policy", "export_policy", "room_factory", "pretrained"):
         import pedrl.policy_files
 
@@ -27,4 +28,8 @@ def __getattr__(name: str) -> Any:
         from pedrl.rl.policy import TabularPolicy
 
         return TabularPolicy
+    if name == "NeuralPolicy":
+        from pedrl.rl.neural import NeuralPolicy
+
+        return NeuralPolicy
     raise AttributeError(f"module 'pedrl' has no attribute {name!r}")

@@ -13,6 +13,8 @@ or pedrl (``tests/test_onnx_export.py`` checks a round trip against :meth:`pedrl
 from __future__ import annotations
 
 import json
+import logging
+import warnings
 from pathlib import Path
 from typing import Any, Final
 
@@ -112,17 +114,29 @@ def export_onnx(policy: NeuralPolicy, room: Any, out: str | Path, *, process: in
     settings = policy.encoder.settings
     example = (torch.zeros(2, settings.num_features), torch.zeros(2, dtype=torch.int64))
 
+    batch = torch.export.Dim("batch")
+
     def write(path: Path) -> None:
-        torch.onnx.export(
-            module,
-            example,
-            str(path),
-            input_names=["obs", "num_sensed"],
-            output_names=["q_values", "action"],
-            dynamic_axes={name: {0: "batch"} for name in ("obs", "num_sensed", "q_values", "action")},
-            opset_version=OPSET,
-            dynamo=False,
-        )
+        quiet = logging.getLogger("torch.onnx")  # its registry logs every torchvision operator it cannot find
+        level = quiet.level
+        quiet.setLevel(logging.ERROR)
+        with warnings.catch_warnings():  # the exporter's notes on its own internals (the batch axes are one, ...)
+            warnings.simplefilter("ignore", UserWarning)
+            warnings.simplefilter("ignore", FutureWarning)
+            torch.onnx.export(
+                module,
+                example,
+                str(path),
+                input_names=["obs", "num_sensed"],
+                output_names=["q_values", "action"],
+                dynamic_shapes=({0: batch}, {0: batch}),
+                opset_version=OPSET,
+                dynamo=True,
+                verbose=False,
+                optimize=True,
+                external_data=False,  # one file: the weights inside it
+            )
+        quiet.setLevel(level)
 
     out = replace_atomically(out, write)
     text = json.dumps(contract(policy, room, process), indent=2)

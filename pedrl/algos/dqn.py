@@ -220,7 +220,8 @@ class DQN:
         stats = None
         try:
             if resumed is None:
-                self._start(record)
+                self.start()
+                record.logger.log_scalars(0, {f"dqn/{key}": value for key, value in self.summary.items()})
             else:
                 self.policy, self.update, self.buffer = resumed.policy, resumed.update, resumed.buffer
                 self.generator.set_state(resumed.rng_trainer)
@@ -231,7 +232,7 @@ class DQN:
         final = final_figures(stats) if stats is not None else dict(resumed.final if resumed else {})
         return TrainResult(final, self.run_dir, record.checkpoint_path, record.wall_time(), [self.summary])
 
-    def _start(self, record: RunRecord) -> None:
+    def start(self) -> None:
         """A new run: seed, gather the random walk's states, standardise by them, build the network, the memory
         and the update."""
         self.generator.manual_seed(self.seed * 10_007 + 1)
@@ -253,7 +254,6 @@ class DQN:
         self.summary = {"gathered_states": int(states.shape[0]),
                         "gather_success_rate": sum(p.success_rate for p in gathered) / len(gathered),
                         "parameters": network.num_parameters}  # fmt: skip
-        record.logger.log_scalars(0, {f"dqn/{key}": value for key, value in self.summary.items()})
 
     def make_policy(self, network: QNetwork, mean: torch.Tensor, std: torch.Tensor) -> NeuralPolicy:
         """The run's policy over ``network`` (its rooms ``p E .. p E + E - 1`` act with process ``p``'s network)."""

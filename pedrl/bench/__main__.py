@@ -11,6 +11,8 @@ Sections:
               second busy torch process (--contention) and beside the code of another commit (--baseline)
     factored  the fused learning trial of the main job's room (80 agents, 8 x 8 rooms) with one plain quantizer
               (K = 2048) and with experiment=main_factored's factored table: agent-decisions/s and their ratio
+    dqn       beside the fused tabular trial of that room, a learning and an acting trial of experiment=main_dqn's
+              network (one process of 8 rooms of 80 agents, the kernels stepping each decision): agent-decisions/s
     eval      pedrl-eval's recording of a batch (the greedy walker, 80 rooms of 100 and of 20 agents) through the fused
               trial's kernels against the torch loop, in agent-decisions/s and their ratio (target 3x at 100 agents)
     literal   the literal presets' nearest-prototype search at one thread, K = 4096: us/state of the scan against the
@@ -31,7 +33,7 @@ from pathlib import Path
 
 import torch
 
-SECTIONS = ("sim", "kmeans", "e2e", "eval", "literal", "walk", "factored")
+SECTIONS = ("sim", "kmeans", "e2e", "eval", "literal", "walk", "factored", "dqn")
 PERFORMANCE_PAGE = "docs/performance.md"
 
 
@@ -151,6 +153,11 @@ def main(argv: list[str] | None = None) -> dict:
 
         print("factored table ...", flush=True)
         report.update(run_factored(quick=args.quick, trials=args.trials))
+    if "dqn" in sections:
+        from pedrl.bench.dqn import run as run_dqn
+
+        print("neural learner ...", flush=True)
+        report.update(run_dqn(quick=args.quick, trials=args.trials))
     if "eval" in sections:
         from pedrl.bench.evaluation import run as run_eval
 

@@ -40,14 +40,17 @@ ROOM: dict[str, Any] = {
 """experiment=main's room settings."""
 
 
-def measure(*, quick: bool, trials: int) -> list[dict]:
-    """Agent-decisions per second of the fused learning trial with each table (module docstring)."""
+def measure(*, quick: bool, trials: int, tables: tuple[str, ...] = ("plain", "factored")) -> list[dict]:
+    """Agent-decisions per second of the fused learning trial with each of ``tables`` (module docstring)."""
     from pedrl.algos import ITVQQL
     from pedrl.configs import env_factory
 
     agents, processes, rooms = (20, 2, 2) if quick else (80, 8, 8)
     rows = []
-    for table, vq in (("plain", PLAIN), ("factored", {**PLAIN, "factors": FACTORS})):
+    chosen = [
+        (name, vq) for name, vq in (("plain", PLAIN), ("factored", {**PLAIN, "factors": FACTORS})) if name in tables
+    ]
+    for table, vq in chosen:
         trainer = ITVQQL(
             env=env_factory(ROOM, {"name": "paper_room"}),
             vq=vq,

@@ -35,7 +35,7 @@ from typing import Final
 import torch
 
 from pedrl.common.checks import check_integer, check_number
-from pedrl.evaluation.resolution import distinct_counts, policy_room, process_ids
+from pedrl.evaluation.resolution import distinct_counts, policy_room, process_ids, tables_only
 from pedrl.policy_files import load_policy
 from pedrl.rl.policy import TabularPolicy
 from pedrl.sim.geometry import X, Y
@@ -337,7 +337,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             crowd_size=args.crowd_size,
             seed=args.seed,
         )
-        policies = [load_policy(path) for path in args.checkpoints]
+        policies = [tables_only(load_policy(path)) for path in args.checkpoints]
     except (ValueError, TypeError) as err:
         fail(PROGRAM, str(err))
     print("| checkpoint | speed | K | " + " | ".join(MEASURES) + " | sees neighbours |")

@@ -23,11 +23,13 @@ import math
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import torch
 
 from pedrl.common.checks import MAX_SEED, check_integer, check_number
 from pedrl.policy_files import load_policy, room_factory
+from pedrl.rl.neural import NeuralPolicy
 from pedrl.rl.policy import TabularPolicy
 from pedrl.sim.sensing import observe
 from pedrl.vq.encoder import StateEncoder
@@ -132,12 +134,26 @@ def process_ids(
     return ids
 
 
+def tables_only(policy: Any) -> TabularPolicy:
+    """``policy``, a :class:`~pedrl.rl.TabularPolicy`; one line otherwise: a ``ValueError`` for a network of
+    ``algo=dqn`` (these tools count the states of a quantizer, and a network has none), a ``TypeError`` for anything
+    else (a trainer, a path)."""
+    if isinstance(policy, NeuralPolicy):
+        source = policy.metadata.get("source", "the policy")
+        raise ValueError(
+            f"{source} is a network (algo=dqn): this tool counts the states of a quantizer, which a network has none "
+            "of; judge a network by pedrl-eval and pedrl-validate"
+        )
+    if not isinstance(policy, TabularPolicy):
+        raise TypeError(f"policy is a {type(policy).__name__}: must be a TabularPolicy, as pedrl.load_policy returns")
+    return policy
+
+
 def policy_room(policy: TabularPolicy, *, num_replicas: int, num_agents: int):
     """A room of ``policy``'s training config (:func:`pedrl.room_factory`) on its device; a one-line ``TypeError`` for
     a ``policy`` that is not a :class:`~pedrl.rl.TabularPolicy` (a trainer, a path), a ``ValueError`` for a crowd the
     room refuses (its density, its memory)."""
-    if not isinstance(policy, TabularPolicy):
-        raise TypeError(f"policy is a {type(policy).__name__}: must be a TabularPolicy, as pedrl.load_policy returns")
+    tables_only(policy)
     return room_factory(policy)(num_replicas=num_replicas, num_agents=num_agents, device=policy.device)
 
 
@@ -219,7 +235,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     args = _parser().parse_args(argv)
     try:  # every argument and every room checked before the first turn
-        policies = [load_policy(path) for path in args.checkpoints]
+        policies = [tables_only(load_policy(path)) for path in args.checkpoints]
         for policy in policies:
             for agents in args.agents:  # the room's own checks: the bodies fit, the memory suffices
                 policy_room(policy, num_replicas=args.positions, num_agents=agents)

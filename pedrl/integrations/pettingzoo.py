@@ -39,6 +39,7 @@ except ImportError as error:  # one line naming the fix, the cause chained
     ) from error
 
 from pedrl.common.checks import check_integer, check_number
+from pedrl.rl.neural import NeuralPolicy
 from pedrl.rl.policy import TabularPolicy
 from pedrl.sim import NOOP_ACTION, RoomEnv
 
@@ -113,11 +114,11 @@ class PedestrianParallelEnv(ParallelEnv):
     (m/s), as ``RoomEnv.reset`` takes them (a leading replica axis of 1 is accepted too). Other option keys are
     ignored with a warning (PettingZoo's API test passes arbitrary ones).
 
-    A learned crowd (``crowd``, a :class:`pedrl.rl.TabularPolicy`, e.g. ``pedrl.load_policy(path)``) drives every
-    agent but the first ``learners``: only ``pedestrian_0 .. pedestrian_{learners-1}`` are PettingZoo agents, and the
-    others act with ``crowd.act`` (exploration ``crowd_epsilon``, drawn from a generator that ``reset(seed)``
-    reseeds), so that a user's own learner trains among a learned crowd. The episode ends for the caller when
-    none of its agents is left, even if crowd agents still walk.
+    A learned crowd (``crowd``, a :class:`pedrl.rl.TabularPolicy` or a network's :class:`pedrl.rl.NeuralPolicy`, e.g.
+    ``pedrl.load_policy(path)``) drives every agent but the first ``learners``: only ``pedestrian_0 ..
+    pedestrian_{learners-1}`` are PettingZoo agents, and the others act with ``crowd.act`` (exploration
+    ``crowd_epsilon``, drawn from a generator that ``reset(seed)`` reseeds), so that a user's own learner trains among
+    a learned crowd. The episode ends for the caller when none of its agents is left, even if crowd agents still walk.
 
     ``state()`` is the global state for centralised training: the positions (m) then the velocities (m/s) of all
     ``N`` agents, ``(4 N,)`` float32 as ``[x0, y0, x1, y1, ..., vx0, vy0, ...]``, zero for agents not in ``agents``.
@@ -158,9 +159,10 @@ class PedestrianParallelEnv(ParallelEnv):
         learners = (1 if crowd is not None else env.num_agents) if learners is None else learners
         check_integer("learners", learners, minimum=1, maximum=env.num_agents)
         check_number("crowd_epsilon", crowd_epsilon, low=0.0, high=1.0)
-        if crowd is not None and not isinstance(crowd, TabularPolicy):
+        if crowd is not None and not isinstance(crowd, TabularPolicy | NeuralPolicy):
             raise ValueError(
-                f"crowd of type {type(crowd).__name__} is invalid: must be a pedrl.TabularPolicy (pedrl.load_policy)"
+                f"crowd of type {type(crowd).__name__} is invalid: must be a pedrl.TabularPolicy or NeuralPolicy "
+                "(pedrl.load_policy)"
             )
         if crowd is not None and crowd.device != env.device:
             raise ValueError(
@@ -366,7 +368,7 @@ def parallel_env(
     from pedrl.policy_files import room_factory
     from pedrl.scenarios import Scenario, build_scenario
 
-    trained_in = isinstance(crowd, TabularPolicy) and crowd.metadata.get("config") is not None
+    trained_in = isinstance(crowd, TabularPolicy | NeuralPolicy) and crowd.metadata.get("config") is not None
     if trained_in and scenario is None and set(room_kwargs) <= set(RUN_KEYWORDS):
         factory = room_factory(crowd, max_decisions=room_kwargs.get("max_decisions"))
         agents = room_kwargs.get("num_agents", inspect.signature(Scenario.room).parameters["num_agents"].default)

@@ -1,0 +1,78 @@
+"""pedrl-export out=<name>.onnx: a network of algo=dqn that onnxruntime runs as pedrl does, with its contract."""
+
+import json
+
+import pytest
+import torch
+
+from pedrl.export import export
+from pedrl.policy_files import load_policy, room_factory
+from pedrl.train import train
+from tests.conftest import compose_config
+
+onnxruntime = pytest.importorskip("onnxruntime")
+
+
+@pytest.fixture(scope="module")
+def dqn_checkpoint(tmp_path_factory):
+    run = tmp_path_factory.mktemp("dqn")
+    cfg = compose_config("train", ["debug=default", "algo=dqn", "algo.trials=4", "algo.iterations=1", "logger=none",
+                                   "threads=1", "progress=false"])  # fmt: skip
+    train(cfg, run_dir=run)
+    return run / "checkpoints" / "last.safetensors"
+
+
+def _export(checkpoint, out, *overrides):
+    return export(compose_config("export", [f"checkpoint={checkpoint}", f"out={out}", *overrides]))
+
+
+def test_onnx_round_trip_gives_pedrls_values_and_actions(dqn_checkpoint, tmp_path):
+    path = _export(dqn_checkpoint, tmp_path / "policy.onnx", "process=1")
+    policy = load_policy(dqn_checkpoint)
+    room = room_factory(policy)(num_replicas=3, num_agents=20)
+    obs, info = room.reset(seed=4)
+    for _ in range(3):  # a crowd in motion, some slots empty
+        obs, _, _, _, info = room.step(policy.act(obs, info, generator=torch.Generator().manual_seed(0)))
+    flat, sensed = obs.reshape(-1, obs.shape[-1]), info["num_sensed"].reshape(-1)
+    session = onnxruntime.InferenceSession(str(path))
+    q_values, action = session.run(None, {"obs": flat.numpy(), "num_sensed": sensed.numpy()})
+    expected = policy.values(policy.inputs(flat, sensed, 0), torch.ones(flat.shape[0], dtype=torch.int64))
+    inside = room.active.reshape(-1)
+    torch.testing.assert_close(torch.from_numpy(q_values)[inside], expected[inside], atol=1e-4, rtol=1e-4)
+    assert (torch.from_numpy(action)[inside] == expected[inside].argmax(1)).float().mean() > 0.99
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["policy.onnx", "policy.onnx.json"]  # the weights inside
+    contract = json.loads((tmp_path / "policy.onnx.json").read_text())
+    assert contract["inputs"]["obs"]["shape"] == ["batch", room.num_features] and contract["process"] == 1
+    assert contract["observation"]["features"][0] == room.feature_names[0]
+    assert len(contract["actions"]["speed"]) * len(contract["actions"]["turn"]) == contract["actions"]["count"] == 81
+
+
+def test_a_tables_checkpoint_is_refused_for_onnx_in_one_line(tmp_path):
+    cfg = compose_config("train", ["debug=default", "algo=vqql", "algo.trials=2", "algo.iterations=1",
+                                   "logger=none", "threads=1", "progress=false"])  # fmt: skip
+    train(cfg, run_dir=tmp_path)
+    with pytest.raises(ValueError, match="ONNX export writes a network \\(algo=dqn\\)") as err:
+        _export(tmp_path / "checkpoints" / "last.safetensors", tmp_path / "p.onnx")
+    assert "\n" not in str(err.value) and not (tmp_path / "p.onnx").exists()
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        (["process=5"], "process=5 is invalid: must be an integer in \\[0, 1\\]"),
+        (["processes=1"], "processes=1 is invalid with out=<name>.onnx: pass process=<index>"),
+    ],
+)
+def test_bad_onnx_settings_are_one_line_and_write_nothing(dqn_checkpoint, tmp_path, overrides, message):
+    with pytest.raises(ValueError, match=message):
+        _export(dqn_checkpoint, tmp_path / "p.onnx", *overrides)
+    assert not (tmp_path / "p.onnx").exists()
+
+
+def test_a_network_exports_to_a_policy_file_that_acts_as_the_checkpoint(dqn_checkpoint, tmp_path):
+    path = _export(dqn_checkpoint, tmp_path / "policy.safetensors", "processes=1")
+    exported, original = load_policy(path), load_policy(dqn_checkpoint)
+    assert exported.num_processes == 1 and exported.metadata["algo"] == "dqn"
+    room = room_factory(exported)(num_replicas=1, num_agents=10)
+    obs, info = room.reset(seed=1)
+    assert torch.equal(exported.act(obs, info), original.act(obs, info))  # replica 0 acts with process 0 in both
