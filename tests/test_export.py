@@ -127,7 +127,7 @@ def test_load_policy_blames_its_argument_not_the_file(trained, kwargs, message):
         (lambda: pedrl.load_policy(123), r"^path=123 is invalid: must be a str or os.PathLike naming a \.safetensors"),
         (
             lambda: pedrl.room_factory("nope"),
-            r"^policy='nope' is invalid: must be a TabularPolicy, as pedrl.load_policy",
+            r"^policy='nope' is invalid: must be a TabularPolicy or NeuralPolicy, as pedrl.load_policy",
         ),
         (lambda: pedrl.room_factory(None), r"^policy=None is invalid: must be a TabularPolicy"),
     ],

@@ -116,36 +116,14 @@ class DQN:
         fused: bool | None = None,
     ) -> None:
         self.vq = vq if isinstance(vq, VQSettings) else VQSettings.from_config(vq)
-        check_integer("iterations", iterations, minimum=1, maximum=MAX_TRIALS)
-        check_integer("trials", trials, minimum=iterations, maximum=MAX_TRIALS)
-        check_integer("num_agents", num_agents, minimum=1)
-        check_integer("gather_trials", gather_trials, minimum=1)
-        self.hidden = check_hidden(hidden)
-        check_number("learning_rate", learning_rate, low=0.0, high=1.0, low_open=True)
-        check_number("gamma", gamma, low=0.0, high=1.0)
-        check_integer("batch_size", batch_size, minimum=1, maximum=MAX_BATCH)
-        check_integer("buffer_size", buffer_size, minimum=batch_size)
-        check_integer("learning_starts", learning_starts, minimum=0, maximum=buffer_size)
-        for key, value in (("train_every", train_every), ("gradient_steps", gradient_steps),
-                           ("target_every", target_every)):  # fmt: skip
-            check_integer(key, value, minimum=1)
-        check_number("reward_scale", reward_scale, low=0.0, low_open=True, high=1e6)
-        check_number("max_grad_norm", max_grad_norm, low=0.0, low_open=True, high=1e9)
-        for key, value in (("epsilon_start", epsilon_start), ("epsilon_end", epsilon_end)):
-            check_number(key, value, low=0.0, high=1.0)
-        check_number("epsilon_decay_fraction", epsilon_decay_fraction, low=0.0, high=1.0, low_open=True)
-        for key, value in (("processes", processes), ("rooms_per_process", rooms_per_process)):
-            check_integer(key, value, minimum=1)
-        check_integer("checkpoint_every", checkpoint_every, minimum=0)
-        check_bool("progress", progress)
-        check_bool("logger.tensorboard", tensorboard)
+        _check_settings(locals())
         self.num_agents, self.trials, self.iterations, self.gather_trials = (
             num_agents,
             trials,
             iterations,
             gather_trials,
         )
-        self.learning_rate, self.buffer_size = learning_rate, buffer_size
+        self.learning_rate, self.buffer_size, self.hidden = learning_rate, buffer_size, tuple(hidden)
         self.settings = DQNSettings(gamma, batch_size, learning_starts, train_every, gradient_steps, target_every,
                                     reward_scale, max_grad_norm)  # fmt: skip
         self.schedule = LinearSchedule(epsilon_start, epsilon_end, max(1, round(epsilon_decay_fraction * trials)))
@@ -331,3 +309,26 @@ class DQN:
             "trial_path": self.path,
         }
         record.save(tensors, metadata, phase, iteration=iteration)
+
+
+def _check_settings(settings: Mapping[str, Any]) -> None:
+    """One line for the first of a DQN's ``settings`` (its constructor's arguments) that is out of range."""
+    check_integer("iterations", settings["iterations"], minimum=1, maximum=MAX_TRIALS)
+    check_integer("trials", settings["trials"], minimum=settings["iterations"], maximum=MAX_TRIALS)
+    for key in ("num_agents", "gather_trials", "train_every", "gradient_steps", "target_every", "processes",
+                "rooms_per_process"):  # fmt: skip
+        check_integer(key, settings[key], minimum=1)
+    check_hidden(settings["hidden"])
+    check_number("learning_rate", settings["learning_rate"], low=0.0, high=1.0, low_open=True)
+    check_number("gamma", settings["gamma"], low=0.0, high=1.0)
+    check_integer("batch_size", settings["batch_size"], minimum=1, maximum=MAX_BATCH)
+    check_integer("buffer_size", settings["buffer_size"], minimum=settings["batch_size"])
+    check_integer("learning_starts", settings["learning_starts"], minimum=0, maximum=settings["buffer_size"])
+    check_number("reward_scale", settings["reward_scale"], low=0.0, low_open=True, high=1e6)
+    check_number("max_grad_norm", settings["max_grad_norm"], low=0.0, low_open=True, high=1e9)
+    for key in ("epsilon_start", "epsilon_end"):
+        check_number(key, settings[key], low=0.0, high=1.0)
+    check_number("epsilon_decay_fraction", settings["epsilon_decay_fraction"], low=0.0, high=1.0, low_open=True)
+    check_integer("checkpoint_every", settings["checkpoint_every"], minimum=0)
+    check_bool("progress", settings["progress"])
+    check_bool("logger.tensorboard", settings["tensorboard"])

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import torch
 
@@ -17,9 +17,6 @@ from pedrl.policy_files import RNG_KEYS, check_rng_state
 from pedrl.rl.deep_q import DoubleDQN
 from pedrl.rl.neural import NeuralPolicy, neural_from_tensors
 from pedrl.rl.replay import ReplayBuffer
-
-if TYPE_CHECKING:
-    from pedrl.algos.dqn import DQN
 
 
 @dataclass
@@ -37,8 +34,8 @@ class ResumedDQN:
     final: dict[str, float] = field(default_factory=dict)
 
 
-def load_dqn_resume(trainer: DQN, path: str | Path) -> ResumedDQN:
-    """Read and check the checkpoint ``trainer`` continues from.
+def load_dqn_resume(trainer: Any, path: str | Path) -> ResumedDQN:
+    """Read and check the checkpoint ``trainer`` (a :class:`pedrl.algos.DQN`) continues from.
 
     Raises:
         CheckpointError: one line naming the file and what is wrong.
@@ -81,7 +78,7 @@ def load_dqn_resume(trainer: DQN, path: str | Path) -> ResumedDQN:
                       {k: float(v) for k, v in (meta.get("final") or {}).items()})  # fmt: skip
 
 
-def _progress(trainer: DQN, meta: dict[str, Any]) -> tuple[int, bool]:
+def _progress(trainer: Any, meta: dict[str, Any]) -> tuple[int, bool]:
     """The checkpoint's global trial (checked against its iteration and trial) and whether the run is done."""
     phases = trainer.phases()
     iteration, trial = meta.get("iteration"), meta.get("trial")
