@@ -106,3 +106,31 @@ def test_dqn_bad_settings_are_one_line_before_any_compute(train_config, tmp_path
         build_trainer(cfg, tmp_path)
     assert "\n" not in str(err.value)
     assert not (tmp_path / "checkpoints").exists()
+
+
+def test_pedrl_eval_runs_a_network_on_the_kernels_as_on_the_torch_step_and_from_its_policy_file(tmp_path):
+    """pedrl-eval of a network: its exported file gives the checkpoint's numbers to the digit, and the compiled
+    kernels' trial (fused=null) the torch step's within the trials' noise (the order of the movers is drawn from
+    other streams)."""
+    import csv
+
+    from pedrl.evaluation import evaluate
+    from pedrl.policy_files import export_policy
+    from tests.conftest import compose_config
+
+    cfg = compose_config("train", ["debug=default", *DQN, "algo.trials=30", "algo.iterations=1", "progress=false"])
+    train(cfg, run_dir=tmp_path / "run")
+    checkpoint = tmp_path / "run" / "checkpoints" / "last.safetensors"
+    exported = export_policy(checkpoint, tmp_path / "policy.safetensors")
+    rows = {}
+    for name, source, fused in (("checkpoint", f"checkpoint={checkpoint}", "null"), ("file", f"policy={exported}",
+                                "null"), ("torch", f"checkpoint={checkpoint}", "false")):  # fmt: skip
+        eval_cfg = compose_config("eval", [source, "agents=[4]", "trials=40", "trials_per_batch=40", "seed=3",
+                                           "animation.enabled=false", "export.trials=0", f"fused={fused}"])  # fmt: skip
+        evaluate(eval_cfg, run_dir=tmp_path / name)
+        with open(tmp_path / name / "scaling.csv") as file:
+            rows[name] = {row["controller"]: row for row in csv.DictReader(file)}
+    assert rows["checkpoint"] == rows["file"] and set(rows["file"]) == {"learned", "greedy"}
+    kernels, reference = rows["checkpoint"]["learned"], rows["torch"]["learned"]
+    assert abs(float(kernels["fails_pct"]) - float(reference["fails_pct"])) <= 15.0
+    assert abs(float(kernels["mean_speed"]) - float(reference["mean_speed"])) <= 0.15 * float(reference["mean_speed"])
