@@ -35,8 +35,8 @@ class DQNSettings:
 class DoubleDQN:
     """The online network's optimizer, its target network and the update (module docstring).
 
-    Counters: ``updates`` (gradient steps taken) and ``decisions`` (decisions seen); ``loss_sum`` and ``td_sum``
-    ``(P,)`` and ``steps_summed`` accumulate since the last :meth:`take_sums`."""
+    Counters: ``updates`` (gradient steps taken) and ``decisions`` (decisions seen); the sums of each process's loss
+    and mean |TD error| over the steps since the last :meth:`take_sums`."""
 
     def __init__(self, policy: NeuralPolicy, settings: DQNSettings, learning_rate: float) -> None:
         self.policy, self.settings = policy, settings
@@ -47,7 +47,7 @@ class DoubleDQN:
         self.target.requires_grad_(False)
         self.optimizer = torch.optim.Adam(network.parameters(), lr=learning_rate)
         self.updates = self.decisions = 0
-        self._sums = torch.zeros(2, network.processes)
+        self._sums = torch.zeros(2, network.processes, device=policy.device)
         self._summed = 0
 
     def learn(self, buffer: ReplayBuffer, generator: torch.Generator) -> None:
