@@ -268,7 +268,10 @@ def check_against_room(cfg: DictConfig, geometry: Geometry, envs: dict[int, Room
     tile_size = float(cfg.density_map.tile_size)
     tiles = math.ceil(geometry.width / tile_size) * math.ceil(geometry.length / tile_size)
     # a batch the fused trial records keeps a frame every few decisions and builds the quantizer's search lists
-    thinned = {agents: _recording_path(env, controller, cfg.get("fused")) == "fused" for agents, env in envs.items()}
+    # (a network's fused path records through the trial loop, every decision: not thinned, no search lists)
+    network = getattr(controller, "stepped", False)
+    thinned = {agents: _recording_path(env, controller, cfg.get("fused")) == "fused" and not network
+               for agents, env in envs.items()}  # fmt: skip
     frames = max(_kept_frames(env, thinned=thinned[agents]) for agents, env in envs.items())  # of one batch
     needs = {
         f"density map (density_map.tile_size={cfg.density_map.tile_size!r}: {tiles:.3g} tiles)": (
@@ -277,7 +280,7 @@ def check_against_room(cfg: DictConfig, geometry: Geometry, envs: dict[int, Room
         "recorded trials": RECORD_BYTES_PER_AGENT_FRAME * frames,
         "room": max(env.step_memory() for env in envs.values()),
     }
-    if any(thinned.values()) and isinstance(controller, PolicyController):
+    if any(thinned.values()) and isinstance(controller, PolicyController) and not network:
         from pedrl.vq.encode_kernel import packed_sets  # numba's module, loaded where the fused trial runs
 
         sets, size = packed_sets(controller.policy.encoder.quantizer)

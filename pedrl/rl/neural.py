@@ -17,7 +17,7 @@ import torch
 from pedrl.common.checks import check_number
 from pedrl.io import CheckpointError, load_checkpoint, save_checkpoint
 from pedrl.rl.network import QNetwork, layer_widths
-from pedrl.rl.policy import FILE_KEYS, POLICY_KIND, POLICY_VERSION, TableLayout
+from pedrl.rl.policy import FILE_KEYS, POLICY_KIND, POLICY_VERSION, PolicyController, TableLayout, check_observations
 from pedrl.rl.qtable import NUM_ACTIONS
 from pedrl.vq.encoder import EncoderSettings, StateEncoder
 
@@ -123,9 +123,7 @@ class NeuralPolicy:
         """Actions ``(R, N)`` int64 for observations ``obs (R, N, F)`` and ``info`` (as ``RoomEnv`` returns them), as
         :meth:`pedrl.rl.TabularPolicy.act`: ``epsilon`` the share of random actions, drawn from ``generator``."""
         check_number("epsilon", epsilon, low=0.0, high=1.0)
-        from pedrl.rl.policy import TabularPolicy
-
-        TabularPolicy.check_observations(self, obs, info)  # the same contract
+        check_observations(obs, info, self.encoder.settings, self.device)  # the tables' contract
         if generator is None:
             if self._generator is None:
                 self._generator = torch.Generator(device=self.device)
@@ -223,20 +221,10 @@ def neural_from_tensors(
     return policy
 
 
-class NeuralController:
+class NeuralController(PolicyController):
     """A :class:`NeuralPolicy` with a fixed ``epsilon`` and ``generator``: the evaluation engine's controller
     (``act(env, obs, info)``). It acts in torch between decisions that the compiled kernels step
     (:class:`pedrl.trial.stepped.CompiledRoom`) wherever they can run the room."""
 
     stepped = True
     """Run by :func:`pedrl.trial.crowd.run_crowd` in a :class:`~pedrl.trial.stepped.CompiledRoom` where it can."""
-
-    def __init__(self, policy: NeuralPolicy, *, epsilon: float = 0.0, generator: torch.Generator | None = None) -> None:
-        check_number("epsilon", epsilon, low=0.0, high=1.0)
-        self.policy = policy
-        self.epsilon = float(epsilon)
-        self.generator = generator if generator is not None else torch.Generator(device=policy.device)
-
-    def act(self, env: Any, obs: torch.Tensor, info: Mapping[str, Any]) -> torch.Tensor:
-        """Actions ``(R, N)`` int64 for observations ``obs (R, N, F)``."""
-        return self.policy.act(obs, info, epsilon=self.epsilon, generator=self.generator)

@@ -173,27 +173,8 @@ class TabularPolicy:
         return epsilon_greedy(self.q_values, rows, epsilon, generator).view(obs.shape[0], obs.shape[1])
 
     def check_observations(self, obs: Any, info: Any) -> None:
-        """One-line ``TypeError``/``ValueError`` unless ``obs`` is a float tensor ``(R, N, F)`` on the tables' device,
-        of the encoder's width, and ``info`` the mapping ``RoomEnv`` returns (``num_sensed`` ``(R, N)`` and
-        ``decision``, which a :class:`~pedrl.vq.StateEncoder` reads)."""
-        if not isinstance(obs, torch.Tensor):
-            raise TypeError(f"obs is a {type(obs).__name__}: must be a torch.Tensor (R, N, F) as RoomEnv returns")
-        settings = getattr(self.encoder, "settings", None)
-        width = settings.num_features if settings is not None else obs.shape[-1]
-        if obs.dim() != 3 or obs.shape[-1] != width or not obs.is_floating_point():
-            raise ValueError(
-                f"obs is {obs.dtype} {tuple(obs.shape)}: must be float (R, N, {width}), the observations of the room "
-                "the policy learned in"
-            )
-        if obs.device != self.device:
-            raise ValueError(f"obs is on {obs.device}: must be on the tables' device, {self.device}")
-        if not isinstance(info, Mapping):
-            raise TypeError(f"info is a {type(info).__name__}: must be the mapping RoomEnv returns")
-        if settings is not None and ("num_sensed" not in info or "decision" not in info):
-            raise ValueError("info must be the mapping RoomEnv returns (with num_sensed and decision)")
-        if "num_sensed" in info and tuple(info["num_sensed"].shape) != tuple(obs.shape[:2]):
-            shape, wanted = tuple(info["num_sensed"].shape), tuple(obs.shape[:2])
-            raise ValueError(f"info['num_sensed'] is {shape}: must be {wanted}, one per agent")
+        """:func:`check_observations` against this policy's encoder and device."""
+        check_observations(obs, info, getattr(self.encoder, "settings", None), self.device)
 
     def controller(self, epsilon: float = 0.0, generator: torch.Generator | None = None) -> PolicyController:
         """This policy as a controller of the evaluation engine, with a fixed ``epsilon`` and ``generator``."""
@@ -277,6 +258,29 @@ def check_policy_file(meta: Mapping[str, Any], tensors: Mapping[str, torch.Tenso
         if not name.startswith(QUANTIZER_PREFIX + "/"):
             raise ValueError(f"tensor {name} is unknown: allowed: q_values, quantizer/...")
     return settings
+
+
+def check_observations(obs: Any, info: Any, settings: EncoderSettings | None, device: torch.device) -> None:
+    """One-line ``TypeError``/``ValueError`` unless ``obs`` is a float tensor ``(R, N, F)`` on ``device``, of the
+    width of ``settings`` (an encoder's; None: any width), and ``info`` the mapping ``RoomEnv`` returns
+    (``num_sensed`` ``(R, N)`` and ``decision``, which an encoder reads)."""
+    if not isinstance(obs, torch.Tensor):
+        raise TypeError(f"obs is a {type(obs).__name__}: must be a torch.Tensor (R, N, F) as RoomEnv returns")
+    width = settings.num_features if settings is not None else obs.shape[-1]
+    if obs.dim() != 3 or obs.shape[-1] != width or not obs.is_floating_point():
+        raise ValueError(
+            f"obs is {obs.dtype} {tuple(obs.shape)}: must be float (R, N, {width}), the observations of the room "
+            "the policy learned in"
+        )
+    if obs.device != device:
+        raise ValueError(f"obs is on {obs.device}: must be on the policy's device, {device}")
+    if not isinstance(info, Mapping):
+        raise TypeError(f"info is a {type(info).__name__}: must be the mapping RoomEnv returns")
+    if settings is not None and ("num_sensed" not in info or "decision" not in info):
+        raise ValueError("info must be the mapping RoomEnv returns (with num_sensed and decision)")
+    if "num_sensed" in info and tuple(info["num_sensed"].shape) != tuple(obs.shape[:2]):
+        shape, wanted = tuple(info["num_sensed"].shape), tuple(obs.shape[:2])
+        raise ValueError(f"info['num_sensed'] is {shape}: must be {wanted}, one per agent")
 
 
 def offset_ids(base_rows: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:

@@ -121,12 +121,12 @@ def _reason(env: RoomEnv, controller: Any, *, record: bool, placed: bool) -> str
         if record or placed:
             return "a learning trial recorded or from placed agents"
         return _policy_reason(env, controller.policy)
+    if getattr(controller, "stepped", False):
+        return "a network's trial from placed agents" if placed else _room_reason(env)
     if isinstance(controller, PolicyController):
         return _policy_reason(env, controller.policy)
     if type(controller) is GreedyDoorController:
         return _room_reason(env)
-    if getattr(controller, "stepped", False):
-        return "a network's trial from placed agents" if placed else _room_reason(env)
     return f"with a {type(controller).__name__} (it runs learned policies and the greedy walker)"
 
 
