@@ -29,6 +29,7 @@ import torch
 from tqdm.auto import tqdm
 
 from pedrl.algos.dqn_learning import DeepQLearner
+from pedrl.algos.dqn_restore import load_dqn_resume
 from pedrl.algos.mix import room_of_trial
 from pedrl.algos.phase import MAX_TRIALS, Phase, TrainResult
 from pedrl.algos.records import RunRecord, final_figures, interactive, report_phase
@@ -164,7 +165,7 @@ class DQN:
     def memory_needs(self) -> dict[str, float]:
         """Estimated bytes of the largest allocations: the replay memory, the networks with Adam's moments (online,
         target, two moments: four copies), a batch's activations, and a decision of the largest room."""
-        widths = (self.width, *self.hidden, 81)
+        widths = (self.width, *self.hidden, self.env.num_actions)
         weights = sum((a + 1) * b for a, b in zip(widths[:-1], widths[1:], strict=True)) * self.processes * 4
         batch = self.settings.batch_size * self.processes * sum(widths) * 4 * 6  # forward, backward, targets
         rooms = [self.env, *self._mix_envs]
@@ -184,8 +185,6 @@ class DQN:
     # ------------------------------------------------------------------ the run
     def fit(self, *, resume_from: str | Path | None = None) -> TrainResult:
         """Gather, then learn every iteration (or the rest of them, when resuming); returns the final figures."""
-        from pedrl.algos.dqn_restore import load_dqn_resume
-
         phases = self.phases()
         remove_temporaries_in(self.run_dir / "checkpoints")
         resumed = load_dqn_resume(self, resume_from) if resume_from is not None else None
