@@ -264,9 +264,9 @@ class RoomParams:
 
     @property
     def rewards(self) -> RewardTable:
-        """The rewards of Table 2 (``reward_goal``, ``reward_crash_wall``, ``reward_crash_agent``,
-        ``reward_default``)."""
-        return RewardTable(self.reward_goal, self.reward_crash_wall, self.reward_crash_agent, self.reward_default)
+        """The rewards (``reward_goal``, ``reward_crash_wall``, ``reward_crash_agent``, ``reward_default``,
+        ``reward_progress``) as their table."""
+        return RewardTable.of(self)
 
     def kernel_room(self, room: Any) -> KernelRoom:
         """The constants the kernels read (:data:`KernelRoom`), each from its field's packing declaration; ``room``

@@ -12,6 +12,7 @@ from pedrl._numba import cached_njit
 from pedrl.sim.motion.common import HEADWAY, PAIR_MARGIN, STOP, YIELD
 from pedrl.sim.motion.sequential_kernel import sequential_room
 from pedrl.sim.motion.sliding_kernel import sliding_room
+from pedrl.sim.rewards import reward_kernel
 from pedrl.sim.sensing_kernel import wrap
 
 __all__ = ["ActScratch", "Events", "Work", "act_room", "act_scratch"]
@@ -189,19 +190,10 @@ def act_room(r, state, actions, room, walls, exits, routes, work, events, scratc
                     nearest, best = e, gap
             own = nearest == exit_index[r, i]
         goal[r, i] = reached[r, i] and own
-        value = room.reward_default
-        if crashed_agent[r, i]:
-            value = room.reward_crash_agent
-        if crashed_wall[r, i]:
-            value = room.reward_crash_wall
-        if goal[r, i]:
-            value = room.reward_goal
-        if acting[r, i]:
-            before = np.hypot(old_x[i] - targets[r, i, 0], old_y[i] - targets[r, i, 1])
-            after = np.hypot(new_x - targets[r, i, 0], new_y - targets[r, i, 1])
-            reward[r, i] = value + room.reward_progress * (before - after)
-        else:
-            reward[r, i] = zero
+        reward[r, i] = reward_kernel(
+            room, acting[r, i], goal[r, i], crashed_wall[r, i], crashed_agent[r, i], (old_x[i], old_y[i]),
+            (new_x, new_y), (targets[r, i, 0], targets[r, i, 1]),
+        )  # fmt: skip
         positions[r, i, 0], positions[r, i, 1] = new_x, new_y
         if routes.waypoints.shape[2] > 0:
             _advance(r, i, positions, state.stage, exit_index, targets, routes, exits.goals)
