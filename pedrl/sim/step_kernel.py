@@ -9,11 +9,11 @@ from typing import NamedTuple
 import numpy as np
 
 from pedrl._numba import cached_njit
+from pedrl.sim.actions import apply_action_kernel, velocity_kernel
 from pedrl.sim.motion.common import HEADWAY, PAIR_MARGIN, STOP, YIELD
 from pedrl.sim.motion.sequential_kernel import sequential_room
 from pedrl.sim.motion.sliding_kernel import sliding_room
 from pedrl.sim.rewards import reward_kernel
-from pedrl.sim.sensing_kernel import wrap
 
 __all__ = ["ActScratch", "Events", "Work", "act_room", "act_scratch"]
 
@@ -109,7 +109,7 @@ def act_room(r, state, actions, room, walls, exits, routes, work, events, scratc
     """
     positions, velocities, headings, speeds = state.positions, state.velocities, state.headings, state.speeds
     active, exit_index, targets, decisions = state.active, state.exit_index, state.targets, state.decisions
-    speed_changes, turn_changes, max_speed = room.speed_changes, room.turn_changes, room.max_speed
+    max_speed = room.max_speed
     length, substeps, radius, contact = room.decision_length, room.num_substeps, room.agent_radius, room.contact
     moved_to, step, going, present, order = work.moved_to, work.step, work.going, work.present, work.order
     depth, blocked, cut_wall, cut_body, reached = work.depth, work.blocked, work.cut_wall, work.cut_body, work.reached
@@ -122,15 +122,11 @@ def act_room(r, state, actions, room, walls, exits, routes, work, events, scratc
     num_agents = positions.shape[1]
     for i in range(num_agents):
         acting[r, i] = active[r, i]
-        if active[r, i] and room.goal_frame:  # pedrl.sim.actions.apply_actions with bearings
-            bearing = np.arctan2(targets[r, i, 1] - positions[r, i, 1], targets[r, i, 0] - positions[r, i, 0])
-            speeds[r, i] = min(max(speed_changes[actions[r, i] // 9], zero), max_speed)
-            headings[r, i] = wrap(bearing + turn_changes[actions[r, i] % 9])
-        elif active[r, i]:
-            speeds[r, i] = min(max(speeds[r, i] + speed_changes[actions[r, i] // 9], zero), max_speed)
-            headings[r, i] = wrap(headings[r, i] + turn_changes[actions[r, i] % 9])
-        velocities[r, i, 0] = speeds[r, i] * np.cos(headings[r, i])
-        velocities[r, i, 1] = speeds[r, i] * np.sin(headings[r, i])
+        speeds[r, i], headings[r, i] = apply_action_kernel(
+            room, active[r, i], speeds[r, i], headings[r, i], actions[r, i], (positions[r, i, 0], positions[r, i, 1]),
+            (targets[r, i, 0], targets[r, i, 1]),
+        )  # fmt: skip
+        velocities[r, i, 0], velocities[r, i, 1] = velocity_kernel(speeds[r, i], headings[r, i])
         old_x[i], old_y[i] = positions[r, i, 0], positions[r, i, 1]
         priority[i] = work.draws[r, i]
         if room.door_first:  # metres dominate, the uniform draw breaks ties
@@ -171,8 +167,7 @@ def act_room(r, state, actions, room, walls, exits, routes, work, events, scratc
             if acting[r, i]:
                 walked = np.sqrt((new_x - old_x[i]) ** 2 + (new_y - old_y[i]) ** 2) / np.float32(length)
                 speeds[r, i] = min(walked, max_speed)
-            velocities[r, i, 0] = speeds[r, i] * np.cos(headings[r, i])
-            velocities[r, i, 1] = speeds[r, i] * np.sin(headings[r, i])
+            velocities[r, i, 0], velocities[r, i, 1] = velocity_kernel(speeds[r, i], headings[r, i])
         elif blocked[r, i]:
             speeds[r, i] = zero
             velocities[r, i, 0] = velocities[r, i, 1] = zero
