@@ -10,9 +10,9 @@ import numpy as np
 
 from pedrl._numba import cached_njit
 from pedrl.sim.actions import apply_action_kernel, velocity_kernel
-from pedrl.sim.motion.common import HEADWAY, PAIR_MARGIN, STOP, YIELD
-from pedrl.sim.motion.sequential_kernel import sequential_room
-from pedrl.sim.motion.sliding_kernel import sliding_room
+from pedrl.sim.motion.common import PAIR_MARGIN, STOP, KernelMoves
+from pedrl.sim.motion.sequential_kernel import sequential_constants, sequential_room
+from pedrl.sim.motion.sliding_kernel import sliding_constants, sliding_room
 from pedrl.sim.rewards import reward_kernel
 
 __all__ = ["ActScratch", "Events", "Work", "act_room", "act_scratch"]
@@ -83,7 +83,8 @@ class ActScratch(NamedTuple):
     old_x: np.ndarray
     old_y: np.ndarray
     moved: np.ndarray
-    flags: np.ndarray
+    acted_moved: np.ndarray
+    passed: np.ndarray
     current: np.ndarray
     rank_of: np.ndarray
 
@@ -93,7 +94,8 @@ def act_scratch(num_agents):
     """The per-agent scratch of :func:`act_room` (:class:`ActScratch`), one per thread."""
     return ActScratch(np.empty(num_agents, np.float32), np.empty(num_agents, np.float32),
                       np.empty(num_agents, np.float32), np.empty(num_agents, np.float32),
-                      np.empty((2, num_agents), np.bool_), np.empty((num_agents, 2), np.float32),
+                      np.empty(num_agents, np.bool_), np.empty(num_agents, np.bool_),
+                      np.empty((num_agents, 2), np.float32),
                       np.empty(num_agents, np.int64))  # fmt: skip
 
 
@@ -110,14 +112,13 @@ def act_room(r, state, actions, room, walls, exits, routes, work, events, scratc
     positions, velocities, headings, speeds = state.positions, state.velocities, state.headings, state.speeds
     active, exit_index, targets, decisions = state.active, state.exit_index, state.targets, state.decisions
     max_speed = room.max_speed
-    length, substeps, radius, contact = room.decision_length, room.num_substeps, room.agent_radius, room.contact
+    length, substeps, contact = room.decision_length, room.num_substeps, room.contact
     moved_to, step, going, present, order = work.moved_to, work.step, work.going, work.present, work.order
     depth, blocked, cut_wall, cut_body, reached = work.depth, work.blocked, work.cut_wall, work.cut_body, work.reached
     reward, left, goal, acting, in_room = events.reward, events.left, events.goal, events.acting, events.in_room
     crashed_wall, crashed_agent = events.crashed_wall, events.crashed_agent
     priority, old_x, old_y = scratch.priority, scratch.old_x, scratch.old_y
     moved, current = scratch.moved, scratch.current
-    exit_start, exit_normal, exit_tangent, exit_span = exits.start, exits.normal, exits.tangent, exits.span
     zero = np.float32(0.0)
     num_agents = positions.shape[1]
     for i in range(num_agents):
@@ -143,22 +144,19 @@ def act_room(r, state, actions, room, walls, exits, routes, work, events, scratc
             going[r, i] = active[r, i] and (step[r, i, 0] != zero or step[r, i, 1] != zero)
             depth[r, i] = np.sqrt(step[r, i, 0] * step[r, i, 0] + step[r, i, 1] * step[r, i, 1]) + _MARGIN
         sequential_room(
-            r, positions, step, going, present, depth, work.no_walls, walls.low, walls.high,
-            np.float32(radius * radius), exit_start, exit_normal, exit_tangent, exit_span, order,
-            np.float32(4.0 * radius * radius), room.search, moved_to, blocked, cut_wall, reached, moved,
-            scratch.flags[0], scratch.flags[1], current,
+            r, positions, step, going, present, depth, work.no_walls, walls.low, walls.high, exits, order,
+            sequential_constants(room), KernelMoves(moved_to, blocked, cut_wall, cut_body, reached), moved,
+            scratch.acted_moved, scratch.passed, current,
         )  # fmt: skip
         for i in range(num_agents):
             cut_body[r, i] = blocked[r, i] and not cut_wall[r, i]
     else:
         for i in range(num_agents):
             going[r, i] = active[r, i] and (velocities[r, i, 0] != zero or velocities[r, i, 1] != zero)
+        moves = KernelMoves(moved_to, blocked, cut_wall, cut_body, reached)
         sliding_room(
-            r, positions, velocities, going, present, order, walls.starts, walls.directions, walls.inverse, exit_start,
-            exit_normal, exit_tangent, exit_span, np.float32(radius * radius), np.float32(4.0 * radius * radius),
-            np.float32(length / substeps), substeps, contact >= HEADWAY, contact == YIELD, np.float32(room.time_gap),
-            np.float32(2.0 * radius), _MARGIN, room.continuous, room.steering, room.search, moved_to, blocked, cut_wall,
-            cut_body, reached, step[r], current, moved, scratch.rank_of,
+            r, positions, velocities, going, present, order, walls, exits, sliding_constants(room), moves, step[r],
+            current, moved, scratch.rank_of,
         )  # fmt: skip
     decisions[r] += 1
     for i in range(num_agents):
