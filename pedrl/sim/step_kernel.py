@@ -174,15 +174,7 @@ def act_room(r, state, actions, room, walls, exits, routes, work, events, scratc
         left[r, i] = reached[r, i]
         in_room[r, i] = acting[r, i] and not reached[r, i]
         active[r, i] = in_room[r, i] and decisions[r] < room.max_decisions
-        own = routes.assigned[r, i] < 0
-        if reached[r, i] and not own:  # the exit passed: the one whose goal point is nearest
-            nearest, best = 0, np.float32(np.inf)
-            for e in range(exits.goals.shape[0]):
-                gap = (new_x - exits.goals[e, 0]) ** 2 + (new_y - exits.goals[e, 1]) ** 2
-                if gap < best:
-                    nearest, best = e, gap
-            own = nearest == exit_index[r, i]
-        goal[r, i] = reached[r, i] and own
+        goal[r, i] = reached[r, i] and _own_exit(r, i, new_x, new_y, exit_index, routes, exits.goals)
         reward[r, i] = reward_kernel(
             room, acting[r, i], goal[r, i], crashed_wall[r, i], crashed_agent[r, i], (old_x[i], old_y[i]),
             (new_x, new_y), (targets[r, i, 0], targets[r, i, 1]),
@@ -190,6 +182,21 @@ def act_room(r, state, actions, room, walls, exits, routes, work, events, scratc
         positions[r, i, 0], positions[r, i, 1] = new_x, new_y
         if routes.waypoints.shape[2] > 0:
             _advance(r, i, positions, state.stage, exit_index, targets, routes, exits.goals)
+
+
+@cached_njit(nogil=True, inline="always")
+def _own_exit(r, i, x, y, exit_index, routes, exit_goals):
+    """``Spawns.own_exit`` of agent ``i`` of room ``r``, which left at ``(x, y)``: an agent without an assigned exit
+    reaches its goal through any exit, one with an assigned exit through its own, the exit whose goal point is
+    nearest to where it left."""
+    if routes.assigned[r, i] < 0:
+        return True
+    nearest, best = 0, np.float32(np.inf)
+    for e in range(exit_goals.shape[0]):
+        gap = (x - exit_goals[e, 0]) ** 2 + (y - exit_goals[e, 1]) ** 2
+        if gap < best:
+            nearest, best = e, gap
+    return nearest == exit_index[r, i]
 
 
 @cached_njit(nogil=True, inline="always")
