@@ -1,5 +1,7 @@
 """The action codec: an action ``a`` in ``[0, 81)`` is ``speed_index * 9 + turn_index``, and what it does to a
 body's speed and heading in each action frame (``ACTION_FRAMES``); velocities and the sub-step count of a decision.
+Each torch function with a kernel has its numba twin beside it, one agent at a time: :func:`apply_actions` and
+:func:`apply_action_kernel` (the fused step's ``act_room``), :func:`velocities_from` and :func:`velocity_kernel`.
 
 In the paper's ``heading`` frame index 4 of each axis is the no-op, so ``NOOP_ACTION = 40`` keeps speed and heading;
 in the ``goal`` frame an action sets the speed and the heading relative to the bearing of the goal point.
@@ -10,9 +12,12 @@ from __future__ import annotations
 import math
 from typing import Final
 
+import numpy as np
 import torch
 
+from pedrl._numba import cached_njit
 from pedrl.sim.geometry import wrap_angle
+from pedrl.sim.sensing_kernel import wrap
 
 NUM_SPEED_CHANGES: Final = 9
 NUM_TURNS: Final = 9
@@ -102,6 +107,21 @@ def apply_actions(
     return torch.where(active, new_speeds, speeds), torch.where(active, new_headings, headings)
 
 
+@cached_njit(nogil=True, inline="always")
+def apply_action_kernel(room, active, speed, heading, action, position, target):
+    """:func:`apply_actions` of one agent, float32: ``room`` is :class:`pedrl.sim.params.KernelRoom` (its
+    ``speed_changes``, ``turn_changes``, ``max_speed`` and ``goal_frame``), ``position`` and ``target`` the agent's
+    centre and goal point ``(x, y)`` (m; the ``goal`` frame's bearing). Returns the new ``(speed, heading)``; an
+    inactive agent keeps its own."""
+    if not active:
+        return speed, heading
+    speed_change, turn_change = room.speed_changes[action // NUM_TURNS], room.turn_changes[action % NUM_TURNS]
+    if room.goal_frame:
+        bearing = np.arctan2(target[1] - position[1], target[0] - position[0])
+        return min(max(speed_change, np.float32(0.0)), room.max_speed), wrap(bearing + turn_change)
+    return min(max(speed + speed_change, np.float32(0.0)), room.max_speed), wrap(heading + turn_change)
+
+
 def velocities_from(*, speeds: torch.Tensor, headings: torch.Tensor) -> torch.Tensor:
     """Velocity vectors ``s * (cos theta, sin theta)``.
 
@@ -114,6 +134,12 @@ def velocities_from(*, speeds: torch.Tensor, headings: torch.Tensor) -> torch.Te
     """
     # one op (no parallel region for small tensors, unlike cos and sin); equal to s * (cos, sin) to 1 ulp
     return torch.view_as_real(torch.polar(speeds, headings))
+
+
+@cached_njit(nogil=True, inline="always")
+def velocity_kernel(speed, heading):
+    """:func:`velocities_from` of one agent: ``(s cos theta, s sin theta)`` (m/s)."""
+    return speed * np.cos(heading), speed * np.sin(heading)
 
 
 def count_substeps(*, max_speed: float, decision_length: float, substep_length: float) -> int:

@@ -394,9 +394,8 @@ class RoomEnv:
             crashed_wall=movement.crashed_wall,
             crashed_agent=movement.crashed_agent,
             acting=acting,
+            progress=progress,
         )
-        if self.reward_progress:
-            reward = reward + torch.where(acting, self.reward_progress * progress, 0.0)
         observation = self._observe(observers=in_room, sensed=in_room)
         info = self._info(
             observation,

@@ -26,7 +26,7 @@ import torch
 
 from pedrl.sim.actions import DEFAULT_SPEED_RATIOS, DEFAULT_TURN_RATIOS
 from pedrl.sim.motion import CONTACT_MODELS, Continuous, Headway, MotionModel, Slide, Stop, Yield
-from pedrl.sim.motion.common import search_array, steering_array
+from pedrl.sim.motion.common import STEERING_NAMES, neighbour_search, steering_constant
 from pedrl.sim.rewards import RewardTable
 from pedrl.sim.room_checks import check_substeps, check_time_steps, checked_settings
 
@@ -224,8 +224,13 @@ class RoomParams:
             door_first=lambda motion: motion.order == "door_first",
             time_gap=lambda motion: float(1.0 if motion.time_gap is None else motion.time_gap),  # headway rules only
             continuous=lambda motion: motion.steering is not None,
-            steering=lambda motion: steering_array(motion.steering),
-            search=lambda motion: search_array(),  # the neighbour search (grids from GRID_MIN_AGENTS agents)
+            **{
+                f"steering_{name}": lambda motion, name=name: steering_constant(motion.steering, name)
+                for name in STEERING_NAMES
+            },
+            # the neighbour search (grids from GRID_MIN_AGENTS agents, exact reaches)
+            grid_min_agents=lambda motion: neighbour_search().min_agents,
+            grid_reach_scale=lambda motion: neighbour_search().reach_scale,
         ),
         Stop(),
     )
@@ -264,9 +269,9 @@ class RoomParams:
 
     @property
     def rewards(self) -> RewardTable:
-        """The rewards of Table 2 (``reward_goal``, ``reward_crash_wall``, ``reward_crash_agent``,
-        ``reward_default``)."""
-        return RewardTable(self.reward_goal, self.reward_crash_wall, self.reward_crash_agent, self.reward_default)
+        """The rewards (``reward_goal``, ``reward_crash_wall``, ``reward_crash_agent``, ``reward_default``,
+        ``reward_progress``) as their table."""
+        return RewardTable.of(self)
 
     def kernel_room(self, room: Any) -> KernelRoom:
         """The constants the kernels read (:data:`KernelRoom`), each from its field's packing declaration; ``room``

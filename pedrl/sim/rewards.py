@@ -1,21 +1,44 @@
-"""Immediate rewards per decision (paper Table 2)."""
+"""Immediate rewards per decision (paper Table 2, and the progress toward the goal point): the one home of a reward.
+
+:class:`RewardTable` is the record (each value checked when it is made), :func:`compute_rewards` the torch function
+(``RoomEnv.step``'s, the specification) and :func:`reward_kernel` its numba twin (``act_room``'s, one agent at a
+time), side by side. A reward is a field of the table, the setting ``reward_<field>`` of
+:class:`~pedrl.sim.params.RoomParams` (the kernels read it from ``KernelRoom`` by that name), a term in each of the two
+functions and its default in ``conf/env/room.yaml``; ``tests/sim/test_rewards.py`` holds the list of files that name a
+reward to that.
+"""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Final
+from dataclasses import dataclass, field, fields
+from typing import Any, Final
 
+import numpy as np
 import torch
+
+from pedrl._numba import cached_njit
+from pedrl.common.checks import check_number
+
+__all__ = ["MAX_REWARD", "SETTING_PREFIX", "RewardTable", "compute_rewards", "reward_kernel"]
 
 MAX_REWARD: Final = 1e6
 """Largest ``|reward|`` (and ``reward_progress``, per m) accepted. Q values and returns are float32 sums of rewards
 over up to ``max_decisions`` decisions (bounded by ``max|r| / (1 - gamma)`` and ``max|r| * max_decisions``); this
 keeps them about 20 orders of magnitude below float32's 3.4e38 (``reward_goal=1e38`` learned inf and NaN tables)."""
+SETTING_PREFIX: Final = "reward_"
+"""A reward ``x`` of the table is the room's setting ``reward_x``."""
+
+
+def _reward(default: float, *, low: float = -MAX_REWARD) -> Any:
+    """A reward of the table: its ``default`` and the lowest value it accepts (the highest is ``MAX_REWARD``)."""
+    return field(default=default, metadata={"low": low})
 
 
 @dataclass(frozen=True)
 class RewardTable:
-    """Reward values of one decision (paper Table 2 defaults).
+    """Reward values of one decision (paper Table 2 defaults), each checked when the table is made (a one-line
+    ``ValueError`` naming the setting ``reward_<name>``): a number in ``[-MAX_REWARD, MAX_REWARD]``, ``progress`` in
+    ``[0, MAX_REWARD]``.
 
     Attributes:
         goal: Reaching the door.
@@ -23,12 +46,30 @@ class RewardTable:
             contact model, deflected or stopped it under ``slide`` and ``headway``; see ``RoomEnv``'s ``contact``).
         crash_agent: A body contact (and no wall contact) during the decision: another body cut the agent's move.
         default: Anything else.
+        progress: Per metre by which the decision brought the agent closer to its goal point (added to the above;
+            0 in the paper).
     """
 
-    goal: float = 100.0
-    crash_wall: float = -15.0
-    crash_agent: float = -4.0
-    default: float = 0.0
+    goal: float = _reward(100.0)
+    crash_wall: float = _reward(-15.0)
+    crash_agent: float = _reward(-4.0)
+    default: float = _reward(0.0)
+    progress: float = _reward(0.0, low=0.0)
+
+    def __post_init__(self) -> None:
+        for item in fields(self):
+            name = SETTING_PREFIX + item.name
+            value = check_number(name, getattr(self, item.name), low=item.metadata["low"], high=MAX_REWARD)
+            object.__setattr__(self, item.name, value)
+
+    @classmethod
+    def of(cls, settings: Any) -> RewardTable:
+        """The table of the settings ``settings.reward_<name>`` (a :class:`~pedrl.sim.params.RoomParams`), checked."""
+        return cls(**{item.name: getattr(settings, SETTING_PREFIX + item.name) for item in fields(cls)})
+
+    def settings(self) -> dict[str, float]:
+        """The table as the room's settings, ``{"reward_<name>": value}``."""
+        return {SETTING_PREFIX + item.name: getattr(self, item.name) for item in fields(self)}
 
 
 def compute_rewards(
@@ -38,18 +79,22 @@ def compute_rewards(
     crashed_wall: torch.Tensor,
     crashed_agent: torch.Tensor,
     acting: torch.Tensor,
+    progress: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Reward of each agent for one decision.
 
     ``goal`` if it reached the door, else ``crash_wall`` if it hit a wall, else ``crash_agent`` if it hit an
-    agent, else ``default``; 0 for agents that did not act (inactive at the start of the decision).
+    agent, else ``default``; plus ``table.progress * progress``; 0 for agents that did not act (inactive at the start
+    of the decision).
 
     Args:
         table: The reward values.
-        reached: Agents that reached the door ``(R, N)`` bool.
+        reached: Agents that reached the door (their own exit) ``(R, N)`` bool.
         crashed_wall: Agents whose move a wall cut ``(R, N)`` bool.
         crashed_agent: Agents whose move another body cut, and no wall ``(R, N)`` bool.
         acting: Agents active during the decision ``(R, N)`` bool.
+        progress: How much closer to its goal point the decision brought each agent ``(R, N)`` (m); None: no
+            progress term.
 
     Returns:
         Rewards ``(R, N)`` float32.
@@ -57,4 +102,26 @@ def compute_rewards(
     reward = torch.where(crashed_agent, table.crash_agent, table.default)
     reward = torch.where(crashed_wall, table.crash_wall, reward)
     reward = torch.where(reached, table.goal, reward)
-    return torch.where(acting, reward, 0.0).to(torch.float32)
+    reward = torch.where(acting, reward, 0.0).to(torch.float32)
+    if table.progress and progress is not None:
+        reward = reward + torch.where(acting, table.progress * progress, 0.0)
+    return reward
+
+
+@cached_njit(nogil=True, inline="always")
+def reward_kernel(room, acting, reached, crashed_wall, crashed_agent, start, end, target):
+    """:func:`compute_rewards` of one agent, float32: ``room`` is :class:`pedrl.sim.params.KernelRoom` (its
+    ``reward_<name>`` entries), the flags bools, ``start`` and ``end`` the agent's centre before and after the decision
+    and ``target`` its goal point, each ``(x, y)`` (m)."""
+    if not acting:
+        return np.float32(0.0)
+    value = room.reward_default
+    if crashed_agent:
+        value = room.reward_crash_agent
+    if crashed_wall:
+        value = room.reward_crash_wall
+    if reached:
+        value = room.reward_goal
+    before = np.hypot(start[0] - target[0], start[1] - target[1])
+    after = np.hypot(end[0] - target[0], end[1] - target[1])
+    return value + room.reward_progress * (before - after)

@@ -14,7 +14,7 @@ from pedrl.common.checks import check_bool, check_choice, check_integer, check_n
 from pedrl.sim.actions import ACTION_FRAMES, NOOP_INDEX, NUM_SPEED_CHANGES, count_substeps
 from pedrl.sim.geometry import Geometry, extent
 from pedrl.sim.motion import MOTION_MODELS, MotionModel
-from pedrl.sim.rewards import MAX_REWARD, RewardTable
+from pedrl.sim.rewards import RewardTable
 from pedrl.sim.routing import MAX_QUEUE_WEIGHT
 
 OPTION_KEYS: Final = ("positions", "headings", "speeds", "replicas")
@@ -113,17 +113,6 @@ def check_action_set(
     return speeds, turns
 
 
-def check_rewards(goal: Any, crash_wall: Any, crash_agent: Any, default: Any) -> RewardTable:
-    """The rewards of Table 2 (``reward_goal``, ``reward_crash_wall``, ``reward_crash_agent``, ``reward_default``),
-    each within ``[-MAX_REWARD, MAX_REWARD]``."""
-    return RewardTable(
-        goal=check_number("reward_goal", goal, low=-MAX_REWARD, high=MAX_REWARD),
-        crash_wall=check_number("reward_crash_wall", crash_wall, low=-MAX_REWARD, high=MAX_REWARD),
-        crash_agent=check_number("reward_crash_agent", crash_agent, low=-MAX_REWARD, high=MAX_REWARD),
-        default=check_number("reward_default", default, low=-MAX_REWARD, high=MAX_REWARD),
-    )
-
-
 def check_substep_length(substep_length: Any, agent_radius: Any) -> float:
     """``substep_length`` in ``(0, agent_radius]`` (``agent_radius``, already checked, if ``None``)."""
     if substep_length is None:
@@ -216,20 +205,11 @@ def checked_settings(params: Any) -> dict[str, Any]:
     checked["speed_ratios"], checked["turn_ratios"] = check_action_set(
         params.speed_ratios, params.turn_ratios, goal_frame=goal_frame
     )
-    rewards = check_rewards(
-        params.reward_goal, params.reward_crash_wall, params.reward_crash_agent, params.reward_default
-    )
-    checked |= {
-        "reward_goal": rewards.goal,
-        "reward_crash_wall": rewards.crash_wall,
-        "reward_crash_agent": rewards.crash_agent,
-        "reward_default": rewards.default,
-    }
+    checked |= RewardTable.of(params).settings()  # each reward checked by the table
     substep = check_substep_length(params.substep_length, radius)
     checked["substep_length"] = None if params.substep_length is None else substep
     checked["motion"] = check_motion(params.motion)
     checked["goal_depth"] = check_goal_depth(params.goal_depth)
-    checked["reward_progress"] = check_number("reward_progress", params.reward_progress, low=0.0, high=MAX_REWARD)
     checked["compile_sensing"] = check_bool("compile_sensing", params.compile_sensing)
     checked["queue_weight"] = check_number("queue_weight", params.queue_weight, low=0.0, high=MAX_QUEUE_WEIGHT)
     decision_length = 1.0 / checked["decisions_per_second"]

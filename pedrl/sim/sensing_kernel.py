@@ -5,8 +5,8 @@ relative (``tests/trial/test_twins.py`` states and checks the tolerances).
 
 The ``k`` nearest others and the ``w`` nearest walls are chosen by squared distance, as the scan over every agent
 (every wall) in index order chooses them: the least by the key ``(squared distance, index)``, nearest first
-(:func:`_insert`: a later equal value goes after). In a room of at least ``search[0]`` agents
-(:func:`pedrl.sim.motion.common.search_array`) a uniform grid of cells (:mod:`pedrl.sim.grid_kernel`) replaces the
+(:func:`_insert`: a later equal value goes after). In a room of at least ``search.min_agents`` agents
+(:func:`pedrl.sim.motion.common.neighbour_search`) a uniform grid of cells (:mod:`pedrl.sim.grid_kernel`) replaces the
 scan over the agents, and, where there are at least :data:`_WALL_GRID_MIN` segments, a second grid the scan over the
 walls: linear time in the crowd instead of quadratic. A query visits the cells ring by ring (Chebyshev distance
 ``rho`` from its own cell), keeps the best by the same key (:func:`_insert`, whatever order the candidates come in),
@@ -25,7 +25,7 @@ bound on the distance to everything in the unvisited cells. The result is the sc
   segments not wholly inside the crowd's box widened by its larger side (the padding points far away) are left out
   of the grid and measured by every query.
 
-``search[1]`` (``reach_scale``, 1) is the tests' control: below 1 the bound trusts part of the next ring, at 0 one
+``search.reach_scale`` (1) is the tests' control: below 1 the bound trusts part of the next ring, at 0 one
 whole ring, so the search stops a ring early and misses neighbours.
 """
 
@@ -35,6 +35,7 @@ import numpy as np
 
 from pedrl._numba import cached_njit
 from pedrl.sim.grid_kernel import RELATIVE_SLACK, SLACK, bin_points, bin_segments, cell_range, make_cells
+from pedrl.sim.motion.common import Search
 
 __all__ = ["sense_room", "wrap", "wrap_difference"]
 
@@ -337,22 +338,32 @@ def _sense_grid(r, state, present, walls, slots, w, first, scale, features, num_
         _wall_features(r, i, state, walls, phi, count, wall_s, first, features)
 
 
+@cached_njit(nogil=True, inline="always")
+def room_search(room):
+    """The neighbour search (:class:`pedrl.sim.motion.common.Search`) of a room whose kernel constants are ``room``
+    (:class:`pedrl.sim.params.KernelRoom`: ``grid_min_agents``, ``grid_reach_scale``)."""
+    return Search(room.grid_min_agents, room.grid_reach_scale)
+
+
 @cached_njit(nogil=True)
 def sense_room(r, state, present, walls, k, w, search, features, num_sensed, distances, indices):
     """The deictic states of room ``r``'s ``present`` agents (:func:`pedrl.sim.sensing.observe` with observers and
     sensed both ``present``) into ``features[r]`` and ``num_sensed[r]``; the others get 0.
 
     ``walls`` is :class:`pedrl.sim.geometry.Walls`, ``state`` :class:`pedrl.sim.state.KernelState`; ``k`` and ``w``
-    the neighbour and wall slots; ``search`` the neighbour search (``KernelRoom.search``: grids from ``search[0]``
-    agents, :func:`_sense_grid`). ``distances`` float32 and ``indices`` int64 ``(2, max(N, S))`` are scratch.
+    the neighbour and wall slots; ``search`` the neighbour search (:class:`pedrl.sim.motion.common.Search`, the room's
+    :func:`room_search`: grids from ``search.min_agents`` agents, :func:`_sense_grid`). ``distances`` float32 and
+    ``indices`` int64 ``(2, max(N, S))`` are scratch.
     """
     positions = state.positions
     num_agents = positions.shape[1]
     slots = min(k, num_agents - 1)
     features[r] = np.float32(0.0)
     num_sensed[r] = 0
-    if num_agents >= search[0]:
-        _sense_grid(r, state, present, walls, slots, w, 3 + 3 * k, search[1], features, num_sensed, distances, indices)
+    if num_agents >= search.min_agents:
+        _sense_grid(
+            r, state, present, walls, slots, w, 3 + 3 * k, search.reach_scale, features, num_sensed, distances, indices
+        )
         return
     near_d, wall_d, near_j, wall_s = distances[0], distances[1], indices[0], indices[1]
     for i in range(num_agents):

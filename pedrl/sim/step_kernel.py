@@ -9,10 +9,11 @@ from typing import NamedTuple
 import numpy as np
 
 from pedrl._numba import cached_njit
-from pedrl.sim.motion.common import HEADWAY, PAIR_MARGIN, STOP, YIELD
-from pedrl.sim.motion.sequential_kernel import sequential_room
-from pedrl.sim.motion.sliding_kernel import sliding_room
-from pedrl.sim.sensing_kernel import wrap
+from pedrl.sim.actions import apply_action_kernel, velocity_kernel
+from pedrl.sim.motion.common import PAIR_MARGIN, STOP, KernelMoves
+from pedrl.sim.motion.sequential_kernel import sequential_constants, sequential_room
+from pedrl.sim.motion.sliding_kernel import sliding_constants, sliding_room
+from pedrl.sim.rewards import reward_kernel
 
 __all__ = ["ActScratch", "Events", "Work", "act_room", "act_scratch"]
 
@@ -82,7 +83,8 @@ class ActScratch(NamedTuple):
     old_x: np.ndarray
     old_y: np.ndarray
     moved: np.ndarray
-    flags: np.ndarray
+    acted_moved: np.ndarray
+    passed: np.ndarray
     current: np.ndarray
     rank_of: np.ndarray
 
@@ -92,7 +94,8 @@ def act_scratch(num_agents):
     """The per-agent scratch of :func:`act_room` (:class:`ActScratch`), one per thread."""
     return ActScratch(np.empty(num_agents, np.float32), np.empty(num_agents, np.float32),
                       np.empty(num_agents, np.float32), np.empty(num_agents, np.float32),
-                      np.empty((2, num_agents), np.bool_), np.empty((num_agents, 2), np.float32),
+                      np.empty(num_agents, np.bool_), np.empty(num_agents, np.bool_),
+                      np.empty((num_agents, 2), np.float32),
                       np.empty(num_agents, np.int64))  # fmt: skip
 
 
@@ -108,28 +111,23 @@ def act_room(r, state, actions, room, walls, exits, routes, work, events, scratc
     """
     positions, velocities, headings, speeds = state.positions, state.velocities, state.headings, state.speeds
     active, exit_index, targets, decisions = state.active, state.exit_index, state.targets, state.decisions
-    speed_changes, turn_changes, max_speed = room.speed_changes, room.turn_changes, room.max_speed
-    length, substeps, radius, contact = room.decision_length, room.num_substeps, room.agent_radius, room.contact
+    max_speed = room.max_speed
+    length, substeps, contact = room.decision_length, room.num_substeps, room.contact
     moved_to, step, going, present, order = work.moved_to, work.step, work.going, work.present, work.order
     depth, blocked, cut_wall, cut_body, reached = work.depth, work.blocked, work.cut_wall, work.cut_body, work.reached
     reward, left, goal, acting, in_room = events.reward, events.left, events.goal, events.acting, events.in_room
     crashed_wall, crashed_agent = events.crashed_wall, events.crashed_agent
     priority, old_x, old_y = scratch.priority, scratch.old_x, scratch.old_y
     moved, current = scratch.moved, scratch.current
-    exit_start, exit_normal, exit_tangent, exit_span = exits.start, exits.normal, exits.tangent, exits.span
     zero = np.float32(0.0)
     num_agents = positions.shape[1]
     for i in range(num_agents):
         acting[r, i] = active[r, i]
-        if active[r, i] and room.goal_frame:  # pedrl.sim.actions.apply_actions with bearings
-            bearing = np.arctan2(targets[r, i, 1] - positions[r, i, 1], targets[r, i, 0] - positions[r, i, 0])
-            speeds[r, i] = min(max(speed_changes[actions[r, i] // 9], zero), max_speed)
-            headings[r, i] = wrap(bearing + turn_changes[actions[r, i] % 9])
-        elif active[r, i]:
-            speeds[r, i] = min(max(speeds[r, i] + speed_changes[actions[r, i] // 9], zero), max_speed)
-            headings[r, i] = wrap(headings[r, i] + turn_changes[actions[r, i] % 9])
-        velocities[r, i, 0] = speeds[r, i] * np.cos(headings[r, i])
-        velocities[r, i, 1] = speeds[r, i] * np.sin(headings[r, i])
+        speeds[r, i], headings[r, i] = apply_action_kernel(
+            room, active[r, i], speeds[r, i], headings[r, i], actions[r, i], (positions[r, i, 0], positions[r, i, 1]),
+            (targets[r, i, 0], targets[r, i, 1]),
+        )  # fmt: skip
+        velocities[r, i, 0], velocities[r, i, 1] = velocity_kernel(speeds[r, i], headings[r, i])
         old_x[i], old_y[i] = positions[r, i, 0], positions[r, i, 1]
         priority[i] = work.draws[r, i]
         if room.door_first:  # metres dominate, the uniform draw breaks ties
@@ -146,22 +144,19 @@ def act_room(r, state, actions, room, walls, exits, routes, work, events, scratc
             going[r, i] = active[r, i] and (step[r, i, 0] != zero or step[r, i, 1] != zero)
             depth[r, i] = np.sqrt(step[r, i, 0] * step[r, i, 0] + step[r, i, 1] * step[r, i, 1]) + _MARGIN
         sequential_room(
-            r, positions, step, going, present, depth, work.no_walls, walls.low, walls.high,
-            np.float32(radius * radius), exit_start, exit_normal, exit_tangent, exit_span, order,
-            np.float32(4.0 * radius * radius), room.search, moved_to, blocked, cut_wall, reached, moved,
-            scratch.flags[0], scratch.flags[1], current,
+            r, positions, step, going, present, depth, work.no_walls, walls.low, walls.high, exits, order,
+            sequential_constants(room), KernelMoves(moved_to, blocked, cut_wall, cut_body, reached), moved,
+            scratch.acted_moved, scratch.passed, current,
         )  # fmt: skip
         for i in range(num_agents):
             cut_body[r, i] = blocked[r, i] and not cut_wall[r, i]
     else:
         for i in range(num_agents):
             going[r, i] = active[r, i] and (velocities[r, i, 0] != zero or velocities[r, i, 1] != zero)
+        moves = KernelMoves(moved_to, blocked, cut_wall, cut_body, reached)
         sliding_room(
-            r, positions, velocities, going, present, order, walls.starts, walls.directions, walls.inverse, exit_start,
-            exit_normal, exit_tangent, exit_span, np.float32(radius * radius), np.float32(4.0 * radius * radius),
-            np.float32(length / substeps), substeps, contact >= HEADWAY, contact == YIELD, np.float32(room.time_gap),
-            np.float32(2.0 * radius), _MARGIN, room.continuous, room.steering, room.search, moved_to, blocked, cut_wall,
-            cut_body, reached, step[r], current, moved, scratch.rank_of,
+            r, positions, velocities, going, present, order, walls, exits, sliding_constants(room), moves, step[r],
+            current, moved, scratch.rank_of,
         )  # fmt: skip
     decisions[r] += 1
     for i in range(num_agents):
@@ -170,8 +165,7 @@ def act_room(r, state, actions, room, walls, exits, routes, work, events, scratc
             if acting[r, i]:
                 walked = np.sqrt((new_x - old_x[i]) ** 2 + (new_y - old_y[i]) ** 2) / np.float32(length)
                 speeds[r, i] = min(walked, max_speed)
-            velocities[r, i, 0] = speeds[r, i] * np.cos(headings[r, i])
-            velocities[r, i, 1] = speeds[r, i] * np.sin(headings[r, i])
+            velocities[r, i, 0], velocities[r, i, 1] = velocity_kernel(speeds[r, i], headings[r, i])
         elif blocked[r, i]:
             speeds[r, i] = zero
             velocities[r, i, 0] = velocities[r, i, 1] = zero
@@ -180,31 +174,29 @@ def act_room(r, state, actions, room, walls, exits, routes, work, events, scratc
         left[r, i] = reached[r, i]
         in_room[r, i] = acting[r, i] and not reached[r, i]
         active[r, i] = in_room[r, i] and decisions[r] < room.max_decisions
-        own = routes.assigned[r, i] < 0
-        if reached[r, i] and not own:  # the exit passed: the one whose goal point is nearest
-            nearest, best = 0, np.float32(np.inf)
-            for e in range(exits.goals.shape[0]):
-                gap = (new_x - exits.goals[e, 0]) ** 2 + (new_y - exits.goals[e, 1]) ** 2
-                if gap < best:
-                    nearest, best = e, gap
-            own = nearest == exit_index[r, i]
-        goal[r, i] = reached[r, i] and own
-        value = room.reward_default
-        if crashed_agent[r, i]:
-            value = room.reward_crash_agent
-        if crashed_wall[r, i]:
-            value = room.reward_crash_wall
-        if goal[r, i]:
-            value = room.reward_goal
-        if acting[r, i]:
-            before = np.hypot(old_x[i] - targets[r, i, 0], old_y[i] - targets[r, i, 1])
-            after = np.hypot(new_x - targets[r, i, 0], new_y - targets[r, i, 1])
-            reward[r, i] = value + room.reward_progress * (before - after)
-        else:
-            reward[r, i] = zero
+        goal[r, i] = reached[r, i] and _own_exit(r, i, new_x, new_y, exit_index, routes, exits.goals)
+        reward[r, i] = reward_kernel(
+            room, acting[r, i], goal[r, i], crashed_wall[r, i], crashed_agent[r, i], (old_x[i], old_y[i]),
+            (new_x, new_y), (targets[r, i, 0], targets[r, i, 1]),
+        )  # fmt: skip
         positions[r, i, 0], positions[r, i, 1] = new_x, new_y
         if routes.waypoints.shape[2] > 0:
             _advance(r, i, positions, state.stage, exit_index, targets, routes, exits.goals)
+
+
+@cached_njit(nogil=True, inline="always")
+def _own_exit(r, i, x, y, exit_index, routes, exit_goals):
+    """``Spawns.own_exit`` of agent ``i`` of room ``r``, which left at ``(x, y)``: an agent without an assigned exit
+    reaches its goal through any exit, one with an assigned exit through its own, the exit whose goal point is
+    nearest to where it left."""
+    if routes.assigned[r, i] < 0:
+        return True
+    nearest, best = 0, np.float32(np.inf)
+    for e in range(exit_goals.shape[0]):
+        gap = (x - exit_goals[e, 0]) ** 2 + (y - exit_goals[e, 1]) ** 2
+        if gap < best:
+            nearest, best = e, gap
+    return nearest == exit_index[r, i]
 
 
 @cached_njit(nogil=True, inline="always")

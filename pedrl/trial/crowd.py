@@ -33,7 +33,7 @@ from pedrl.sim import RoomEnv
 from pedrl.sim.controllers import GreedyDoorController
 from pedrl.trial.fused import FusedRecord, Progress, record_trial_fused, run_trial_fused
 from pedrl.trial.loop import CrowdRun, Learner, TrialRecord, crowd_loop
-from pedrl.trial.stats import TOTALS, TrialStats
+from pedrl.trial.stats import TOTALS, Totals, TrialStats
 from pedrl.trial.stepped import CompiledRoom
 
 
@@ -159,16 +159,16 @@ def _room_reason(env: RoomEnv) -> str | None:
 # ---------------------------------------------------------------------- the fused trial's recording
 def _fused_record(trace: FusedRecord) -> TrialRecord:
     """The fused trial's trace as the torch loop records a trial (speeds from the recorded velocities)."""
-    _, crashes, wall_crashes, goal, _, decisions = trace.totals
+    totals = Totals(*trace.totals)
     taken = trace.active[:, 1:]
     speed_sq = np.where(taken, (trace.velocities[:, 1:].astype(np.float64) ** 2).sum(-1), 0.0)
     return TrialRecord(
         positions=trace.positions,
         velocities=trace.velocities,
         in_room=trace.in_room(),
-        left_at=np.where(goal > 0, decisions, -1).astype(np.int64),
-        crashes=crashes.astype(np.int64),
-        wall_crashes=wall_crashes.astype(np.int64),
+        left_at=np.where(totals.reached > 0, totals.decisions, -1).astype(np.int64),
+        crashes=totals.crashes_agent.astype(np.int64),
+        wall_crashes=totals.crashes_wall.astype(np.int64),
         speed_sum=np.sqrt(speed_sq).sum((1, 2)),
         speed_sq_sum=speed_sq.sum((1, 2)),
         speed_count=taken.sum((1, 2)).astype(np.int64),

@@ -28,7 +28,7 @@ from pedrl.sim.params import KernelRoom
 from pedrl.sim.spawning import Routes
 from pedrl.sim.state import KernelState, RoomState
 from pedrl.trial.loop import Learner
-from pedrl.trial.stats import TOTALS, TrialStats
+from pedrl.trial.stats import TOTALS, Totals, TrialStats
 from pedrl.vq.encoder import EncoderSettings, StateEncoder
 from pedrl.vq.quantizer import Quantizer
 
@@ -176,7 +176,7 @@ def _launch(env, policy, epsilon, generator, learn, alpha, gamma, *, record, gre
     state = env.state.arrays()
     streams = np.empty(rooms, np.uint64)
     seed_streams(np.uint64(int(torch.randint(0, 2**62, (1,), generator=generator))), streams)
-    totals = np.zeros((len(TOTALS), rooms, agents))
+    totals = np.zeros((len(TOTALS), rooms, agents))  # the rows of the Totals the kernels add to, by name
     td_sums = np.zeros((rooms // group, 2))
     steps = np.zeros(rooms // group, np.int64)
     settings = policy.encoder.settings
@@ -200,7 +200,7 @@ def _launch(env, policy, epsilon, generator, learn, alpha, gamma, *, record, gre
     room_of = process.view(rooms, agents)[:, 0].contiguous().numpy()
     while True:  # one call, or parts of one trial (the same numbers)
         fused_trial(group, state, inputs.room, inputs.walls, inputs.exits, inputs.routes, *arrays, learning, table,
-                    rows, room_of, streams, *scratch, totals, td_sums, steps, trace)  # fmt: skip
+                    rows, room_of, streams, *scratch, Totals(*totals), td_sums, steps, trace)  # fmt: skip
         if progress is None or not state.active.any():
             break
         progress(int(steps.max()), int(state.active.sum()))

@@ -25,7 +25,7 @@ from numba import prange
 from pedrl._numba import cached_njit
 from pedrl.rl.kernels import epsilon_greedy_row, epsilon_greedy_set, td_batch, td_set_batch
 from pedrl.sim.greedy_kernel import greedy_action
-from pedrl.sim.sensing_kernel import sense_room
+from pedrl.sim.sensing_kernel import room_search, sense_room
 from pedrl.sim.step_kernel import act_room, act_scratch
 from pedrl.sim.streams import next_uniform
 from pedrl.vq.encode_kernel import draw_void, encode_buffers, encode_room
@@ -116,7 +116,7 @@ def _run_process(
     (:class:`pedrl.vq.factored_kernel.FactoredArrays`) of any slots: the table is factored, and the agents act on
     and learn into row sets."""
     positions, speeds, active = state.positions, state.speeds, state.active
-    k, w = room.num_neighbours, room.num_walls
+    k, w, search = room.num_neighbours, room.num_walls, room_search(room)
     random_void, epsilon, greedy = settings.random_void, learning.epsilon, learning.greedy
     speed_changes, turn_changes, goal_frame = room.speed_changes, room.turn_changes, room.goal_frame
     record = trace.present.shape[1] > 1  # frame 0 the reset, frame t after decision t * every
@@ -146,7 +146,7 @@ def _run_process(
             _record(r, 0, state, active, trace)
         if random_void:
             draw_void(r, void, streams)
-        sense_room(r, state, active, walls, k, w, room.search, features, num_sensed, distances, indices)
+        sense_room(r, state, active, walls, k, w, search, features, num_sensed, distances, indices)
         if is_factored:
             encode_factored_room(r, active, base_rows, sets, features, num_sensed, settings, factored, x)
         elif not greedy:
@@ -167,7 +167,7 @@ def _run_process(
                 _record(r, (steps + trace.every) // trace.every, state, acting, trace)
             if random_void and learning.void_each_decision:
                 draw_void(r, void, streams)
-            sense_room(r, state, events.in_room, walls, k, w, room.search, features, num_sensed, distances, indices)
+            sense_room(r, state, events.in_room, walls, k, w, search, features, num_sensed, distances, indices)
             if is_factored:
                 encode_factored_room(r, events.in_room, base_rows, next_sets, features, num_sensed, settings, factored,
                                      x)  # fmt: skip
@@ -197,12 +197,12 @@ def _run_process(
         for r in range(first, first + rooms):
             for i in range(num_agents):
                 if acting[r, i]:
-                    totals[0, r, i] += reward[r, i]
-                    totals[1, r, i] += events.crashed_agent[r, i]
-                    totals[2, r, i] += events.crashed_wall[r, i]
-                    totals[3, r, i] += events.goal[r, i]
-                    totals[4, r, i] += speeds[r, i]
-                    totals[5, r, i] += 1.0
+                    totals.returns[r, i] += reward[r, i]
+                    totals.crashes_agent[r, i] += events.crashed_agent[r, i]
+                    totals.crashes_wall[r, i] += events.crashed_wall[r, i]
+                    totals.reached[r, i] += events.goal[r, i]
+                    totals.speed_sum[r, i] += speeds[r, i]
+                    totals.decisions[r, i] += 1.0
                 rows[r, i] = next_rows[r, i]
                 for m in range(num_slots):
                     sets[r, i, m] = next_sets[r, i, m]
@@ -234,9 +234,10 @@ def fused_trial(
     gets them after.
 
     ``state`` (:class:`pedrl.sim.state.KernelState`) is updated in place; ``learning`` is :class:`Learning`;
-    ``totals`` ``(6, R, N)`` float64 gets each agent's return, body contacts, wall contacts, goal, speed sum and
-    decisions; ``td_sums`` ``(P, 2)`` float64 the sum of ``|TD error|`` and the updates; ``trace`` (:class:`Trace`)
-    gets a frame every ``trace.every`` decisions when it has more than one. ``room``, ``walls``, ``exits``,
+    ``totals`` (:class:`pedrl.trial.stats.Totals` of ``(R, N)`` float64 arrays) gets each agent's return, body
+    contacts, wall contacts, goal, speed sum and decisions; ``td_sums`` ``(P, 2)`` float64 the sum of ``|TD error|``
+    and the updates; ``trace`` (:class:`Trace`) gets a frame every ``trace.every`` decisions when it has more than
+    one. ``room``, ``walls``, ``exits``,
     ``routes``, ``work`` and ``events`` are :func:`pedrl.sim.step_kernel.act_room`'s; ``encoder``, ``tree``,
     ``pruned`` and ``settings`` :func:`pedrl.vq.encode_kernel.encode_room`'s, ``factored``
     :func:`pedrl.vq.factored_kernel.encode_factored_room`'s (a stub of no slots for a plain table).

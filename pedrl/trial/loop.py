@@ -21,7 +21,7 @@ import torch
 from pedrl.rl import epsilon_greedy, td_update
 from pedrl.rl.policy import TabularPolicy
 from pedrl.sim import RoomEnv
-from pedrl.trial.stats import TOTALS, TrialStats
+from pedrl.trial.stats import TOTALS, Totals, TrialStats
 
 DEVICE_CHECK_EVERY: Final = 8
 """Decisions between two reads of "is any room still occupied" by an unrecorded trial on a GPU (each read waits)."""
@@ -246,9 +246,15 @@ def crowd_loop(
         reward, terminated = reward.reshape(-1), terminated.reshape(-1)
         driver.observe(obs, info, reward, terminated, valid)
         validf = valid.float()
-        events = (info["crashed_agent"], info["crashed_wall"], info["reached"])
         totals += torch.stack(
-            (reward, *(event.reshape(-1) for event in events), info["speed"].reshape(-1) * validf, validf)
+            Totals(
+                returns=reward,
+                crashes_agent=info["crashed_agent"].reshape(-1),
+                crashes_wall=info["crashed_wall"].reshape(-1),
+                reached=info["reached"].reshape(-1),
+                speed_sum=info["speed"].reshape(-1) * validf,
+                decisions=validf,
+            )
         )
         decisions += valid.any()
         if frames is not None:

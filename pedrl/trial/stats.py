@@ -3,13 +3,31 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Final
+from typing import Any, Final, NamedTuple
 
 import torch
 
-TOTALS: Final = ("return", "crashes_agent", "crashes_wall", "reached", "speed_sum", "decisions")
-"""Per-agent totals a trial accumulates, in the order of the rows of the accumulator of
-:func:`pedrl.trial.loop.crowd_loop`."""
+
+class Totals(NamedTuple):
+    """Per-agent totals a trial accumulates, read by name: the rows of the torch loop's accumulator
+    (:func:`pedrl.trial.loop.crowd_loop`, ``(len(TOTALS), R * N)``) and the fused trial's ``(R, N)`` float64 arrays."""
+
+    returns: Any
+    """The sum of the agent's rewards."""
+    crashes_agent: Any
+    """Decisions in which another body cut its move."""
+    crashes_wall: Any
+    """Decisions in which a wall cut its move."""
+    reached: Any
+    """1 if it left through its own exit (its goal), else 0."""
+    speed_sum: Any
+    """The sum of its speeds after each decision it took (m/s)."""
+    decisions: Any
+    """The decisions it took."""
+
+
+TOTALS: Final = Totals._fields
+"""The names of the :class:`Totals`, in the order of their rows."""
 
 
 @dataclass
@@ -51,7 +69,8 @@ class TrialStats:
         decision at which it left.
         """
         totals = totals.float().cpu()
-        returns, crashes_agent, crashes_wall, reached, speed_sum, moves = totals.view(len(TOTALS), processes, -1)
+        rows = Totals(*totals.view(len(TOTALS), processes, -1))
+        reached, moves = rows.reached, rows.decisions
         # per room (P, E, N): the times at which its agents left
         left = reached.view(processes, -1, num_agents) > 0
         times = moves.view(processes, -1, num_agents) * decision_length
@@ -63,10 +82,10 @@ class TrialStats:
         flow = torch.where(measured, (count - 1) / torch.where(measured, last_exit - first, 1.0), torch.nan)
         return cls(
             success_rate=reached.mean(1),
-            episodic_return=returns.mean(1),
-            crashes_agent=crashes_agent.mean(1),
-            crashes_wall=crashes_wall.mean(1),
-            mean_speed=speed_sum.sum(1) / moves.sum(1).clamp_min(1),
+            episodic_return=rows.returns.mean(1),
+            crashes_agent=rows.crashes_agent.mean(1),
+            crashes_wall=rows.crashes_wall.mean(1),
+            mean_speed=rows.speed_sum.sum(1) / moves.sum(1).clamp_min(1),
             td_error=td_error.float().cpu(),
             evacuation_time=last.mean(1),
             door_flow=flow.nanmean(1),

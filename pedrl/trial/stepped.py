@@ -23,7 +23,7 @@ from numba import prange
 
 from pedrl._numba import cached_njit
 from pedrl.sim import RoomEnv
-from pedrl.sim.sensing_kernel import sense_room
+from pedrl.sim.sensing_kernel import room_search, sense_room
 from pedrl.sim.state import KernelState, RoomState
 from pedrl.sim.step_kernel import Events, Work, act_room, act_scratch
 from pedrl.sim.streams import next_uniform, seed_streams
@@ -48,8 +48,8 @@ def step_rooms(first, state, actions, room, walls, exits, routes, work, events, 
                 work.draws[r, i] = next_uniform(streams, r)  # the order of the movers
             act_room(r, state, actions, room, walls, exits, routes, work, events, scratch)
             present = events.in_room
-        sense_room(r, state, present, walls, room.num_neighbours, room.num_walls, room.search, features, num_sensed,
-                   distances, indices)  # fmt: skip
+        sense_room(r, state, present, walls, room.num_neighbours, room.num_walls, room_search(room), features,
+                   num_sensed, distances, indices)  # fmt: skip
 
 
 class CompiledRoom:

@@ -115,7 +115,7 @@ def check_twins(
     ``policy``'s tables are updated by the torch path (a copy by the kernel path, compared after each update). The
     report's :meth:`~TwinReport.failures` lists what exceeds ``tolerances``."""
     from pedrl.rl.kernels import td_batch, td_scratch, td_set_batch
-    from pedrl.sim.sensing_kernel import sense_room
+    from pedrl.sim.sensing_kernel import room_search, sense_room
     from pedrl.sim.step_kernel import Events, Work, act_room, act_scratch
     from pedrl.vq.encode_kernel import pack_encoder
     from pedrl.vq.factored_kernel import pack_factored
@@ -151,7 +151,7 @@ def check_twins(
         mine = env.state.arrays()
         in_room = (acting & ~terminated).numpy()  # terminated: passed any exit
         for r in range(rooms):
-            sense_room(r, mine, in_room, inputs.walls, env.num_neighbours, env.num_walls, inputs.room.search,
+            sense_room(r, mine, in_room, inputs.walls, env.num_neighbours, env.num_walls, room_search(inputs.room),
                        features, num_sensed, np.empty((2, size), np.float32),
                        np.empty((2, size), np.int64))  # fmt: skip
         if not np.array_equal(num_sensed, info["num_sensed"].numpy()):

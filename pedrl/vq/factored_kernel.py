@@ -25,6 +25,9 @@ from pedrl.vq.factored import FACTORS, FactoredQuantizer
 
 __all__ = ["FactoredArrays", "encode_factored_room", "pack_factored"]
 
+_OWN, _NEIGHBOUR, _WALL = (FACTORS.index(name) for name in ("own", "neighbour", "wall"))
+"""Each factor's row in the :class:`FactoredArrays` (their order in ``FACTORS``)."""
+
 _WIDTH = max(NUM_OWN_FEATURES, FEATURES_PER_NEIGHBOUR, FEATURES_PER_WALL)
 _PACKED: weakref.WeakKeyDictionary[Any, FactoredArrays] = weakref.WeakKeyDictionary()
 
@@ -124,18 +127,18 @@ def encode_factored_room(r, present, base_rows, slots, features, num_sensed, set
             for d in arrays.distance_index:
                 x[d] = np.log1p(x[d])
         base = base_rows[r, i]
-        slots[r, i, 0] = base + _nearest(x, 0, NUM_OWN_FEATURES, 0, arrays)
+        slots[r, i, 0] = base + _nearest(x, 0, NUM_OWN_FEATURES, _OWN, arrays)
         m = 1
-        if arrays.sizes[1] > 0:
+        if arrays.sizes[_NEIGHBOUR] > 0:
             for j in range(k):
                 first = NUM_OWN_FEATURES + FEATURES_PER_NEIGHBOUR * j
                 read = j < num_sensed[r, i]
-                slots[r, i, m] = base + _nearest(x, first, FEATURES_PER_NEIGHBOUR, 1, arrays) if read else -1
+                slots[r, i, m] = base + _nearest(x, first, FEATURES_PER_NEIGHBOUR, _NEIGHBOUR, arrays) if read else -1
                 m += 1
-        if arrays.sizes[2] > 0:
+        if arrays.sizes[_WALL] > 0:
             for j in range(w):
                 first = NUM_OWN_FEATURES + FEATURES_PER_NEIGHBOUR * k + FEATURES_PER_WALL * j
-                slots[r, i, m] = base + _nearest(x, first, FEATURES_PER_WALL, 2, arrays)
+                slots[r, i, m] = base + _nearest(x, first, FEATURES_PER_WALL, _WALL, arrays)
                 m += 1
 
 

@@ -2,11 +2,22 @@
 
 import math
 
+import numpy as np
 import pytest
 import torch
 
+from pedrl._numba import numba_available
 from pedrl.scenarios import paper_room
 from pedrl.sim import COARSE_TURN_RATIOS, DEFAULT_TURN_RATIOS
+from pedrl.sim.actions import (
+    GOAL_SPEED_RATIOS,
+    GOAL_TURN_RATIOS,
+    NUM_ACTIONS,
+    apply_action_kernel,
+    apply_actions,
+    velocities_from,
+    velocity_kernel,
+)
 from pedrl.sim.controllers import GreedyDoorController
 from pedrl.sim.motion import Slide
 
@@ -51,3 +62,43 @@ def test_lone_walkers_line_up_with_a_narrow_door(turns, low, high):
     """With 5 cm to spare either side, walkers aiming straight at the door get through with the fine turns; with
     the coarse ones (smallest turn 18 degrees) about one in seven stays pinned against a door post."""
     assert low <= lone_walkers_out(turns) <= high
+
+
+@pytest.mark.skipif(not numba_available(), reason="numba")
+@pytest.mark.parametrize("frame", ["heading", "goal"])
+def test_the_codec_kernel_is_the_torch_codec_of_one_agent(frame):
+    """apply_action_kernel and velocity_kernel (the fused step's) against apply_actions and velocities_from, every
+    action, active or not, both frames."""
+    ratios = {"speed_ratios": GOAL_SPEED_RATIOS, "turn_ratios": GOAL_TURN_RATIOS} if frame == "goal" else {}
+    env = paper_room(width=10.0, length=12.0).room(num_agents=2, action_frame=frame, **ratios)
+    room = env.params.kernel_room(env)
+    generator = torch.Generator().manual_seed(1)
+    shape = (1, 2 * NUM_ACTIONS)
+    actions = torch.arange(NUM_ACTIONS).repeat(2).reshape(shape)
+    active = (torch.arange(shape[1]) < NUM_ACTIONS).reshape(shape)
+    speeds = torch.rand(shape, generator=generator) * env.max_speed
+    headings = (torch.rand(shape, generator=generator) * 2 - 1) * math.pi
+    positions, targets = (torch.rand(*shape, 2, generator=generator) * 10 for _ in range(2))
+    to_goal = targets - positions
+    bearings = torch.atan2(to_goal[..., 1], to_goal[..., 0]) if frame == "goal" else None
+    want_speeds, want_headings = apply_actions(
+        speeds=speeds,
+        headings=headings,
+        actions=actions,
+        speed_changes=env.speed_changes,
+        turn_changes=env.turn_changes,
+        max_speed=env.max_speed,
+        active=active,
+        bearings=bearings,
+    )
+    want_velocities = velocities_from(speeds=want_speeds, headings=want_headings)[0].numpy()
+    for i in range(shape[1]):
+        position = (np.float32(positions[0, i, 0]), np.float32(positions[0, i, 1]))
+        target = (np.float32(targets[0, i, 0]), np.float32(targets[0, i, 1]))
+        speed, heading = apply_action_kernel(
+            room, bool(active[0, i]), np.float32(speeds[0, i]), np.float32(headings[0, i]), int(actions[0, i]),
+            position, target,
+        )  # fmt: skip
+        assert speed == want_speeds[0, i].item()
+        assert heading == pytest.approx(want_headings[0, i].item(), abs=1e-6)  # libm's atan2 against torch's
+        np.testing.assert_allclose(velocity_kernel(speed, heading), want_velocities[i], rtol=1e-6, atol=1e-6)

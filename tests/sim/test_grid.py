@@ -11,13 +11,13 @@ import torch
 
 from pedrl._numba import numba_available
 from pedrl.scenarios import bottleneck, corridor, custom, four_exits, paper_room
-from pedrl.sim.motion.common import Movement, Steering, search_array
+from pedrl.sim.motion.common import Movement, Search, Steering, neighbour_search
 
 pytestmark = pytest.mark.skipif(not numba_available(), reason="the grids are the numba kernels'")
 
-PAIRS = search_array(min_agents=2**30)
-GRID = search_array(min_agents=0)
-SHRUNK = search_array(min_agents=0, reach_scale=0.5)
+PAIRS = neighbour_search(min_agents=2**30)
+GRID = neighbour_search(min_agents=0)
+SHRUNK = neighbour_search(min_agents=0, reach_scale=0.5)
 RULES = ("stop", "slide", "headway", "yield", "continuous")
 
 
@@ -39,7 +39,7 @@ ROOMS = {
 }
 
 
-def walk(room: str, rule: str, search: np.ndarray, decisions: int = 12, seed: int = 0) -> list[torch.Tensor]:
+def walk(room: str, rule: str, search: Search, decisions: int = 12, seed: int = 0) -> list[torch.Tensor]:
     """The positions and flags after each decision of a crowd walked towards its goals (speeds drawn per decision)
     by ``sliding_substeps`` with the neighbour ``search``."""
     from pedrl.sim.motion.sliding_kernel import sliding_substeps

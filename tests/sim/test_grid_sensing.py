@@ -10,15 +10,15 @@ import pytest
 
 from pedrl._numba import numba_available
 from pedrl.scenarios import bottleneck, corridor, custom, four_exits, paper_room
-from pedrl.sim.motion.common import search_array
+from pedrl.sim.motion.common import Search, neighbour_search
 from pedrl.sim.state import KernelState
 from tests.sim.test_grid import _ring_room
 
 pytestmark = pytest.mark.skipif(not numba_available(), reason="the grids are the numba kernels'")
 
-PAIRS = search_array(min_agents=2**30)
-GRID = search_array(min_agents=0)
-EARLY = search_array(min_agents=0, reach_scale=0.0)
+PAIRS = neighbour_search(min_agents=2**30)
+GRID = neighbour_search(min_agents=0)
+EARLY = neighbour_search(min_agents=0, reach_scale=0.0)
 """The control: the ring search trusts one ring more than it visited, so it stops a ring early."""
 
 
@@ -46,7 +46,7 @@ MANY_WALLS = ("ring", "comb")
 """The rooms with enough walls for a grid of walls (``sensing_kernel._WALL_GRID_MIN``)."""
 
 
-def sense(state: KernelState, present: np.ndarray, walls, k: int, w: int, search: np.ndarray):
+def sense(state: KernelState, present: np.ndarray, walls, k: int, w: int, search: Search):
     """``sense_room`` of every room: the features and the numbers sensed."""
     from pedrl.sim.sensing_kernel import sense_room
 

@@ -11,9 +11,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from pedrl._numba import numba_available
 from pedrl.scenarios import paper_room
 from pedrl.sim import DEFAULT_SPEED_RATIOS, RoomEnv
-from pedrl.sim.motion import CONTACT_MODELS, Continuous, Headway, Simultaneous, Yield
+from pedrl.sim.motion import CONTACT_MODELS, Continuous, Headway, Simultaneous, Slide, Yield
 from pedrl.sim.params import (
     ANY,
     KernelRoom,
@@ -196,3 +197,25 @@ def test_only_lists_the_allowed_values():
     # a class stands for its instances, whatever their parameters, and for no subclass's
     assert only(Headway).reason("motion", Headway(time_gap=0.3)) is None
     assert only(Headway).reason("motion", Yield()) == "with motion=yield (it runs motion=headway)"
+
+
+@pytest.mark.skipif(not numba_available(), reason="numba")
+@pytest.mark.parametrize(
+    "motion", [Slide(), Headway(time_gap=0.7), Yield(order="door_first"), Continuous(contact="yield")]
+)
+def test_a_sliding_model_s_kernel_constants_are_one_record_from_either_side(motion):
+    """The fused step builds the sliding kernel's constants from the room's kernel constants, the torch room's
+    dispatcher from its decision's arguments: one record, equal field by field."""
+    from pedrl.sim.motion.sliding_kernel import constants_of, sliding_constants
+
+    env = paper_room(width=10.0, length=12.0).room(num_agents=3, motion=motion)
+    decision = env.motion_constants
+    expected = constants_of(
+        agent_radius=decision.agent_radius,
+        substep_length=decision.decision_length / decision.num_substeps,
+        num_substeps=decision.num_substeps,
+        time_gap=decision.time_gap,
+        yield_to_earlier=decision.yield_to_earlier,
+        steering=decision.steering,
+    )
+    assert sliding_constants(env.params.kernel_room(env)) == expected

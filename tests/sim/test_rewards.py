@@ -1,8 +1,19 @@
 """Rewards per decision (paper Table 2)."""
 
+import dataclasses
+import inspect
+import itertools
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
 import torch
 
-from pedrl.sim.rewards import RewardTable, compute_rewards
+from pedrl._numba import numba_available
+from pedrl.scenarios import paper_room
+from pedrl.sim.params import RoomParams
+from pedrl.sim.rewards import RewardTable, compute_rewards, reward_kernel
 
 
 def test_reward_priority_goal_then_wall_then_agent_then_default():
@@ -30,3 +41,81 @@ def test_reward_values_come_from_the_table():
     )
     assert reward.tolist() == [[1.0, -2.0, -3.0, -0.5]]
     assert RewardTable() == RewardTable(goal=100.0, crash_wall=-15.0, crash_agent=-4.0, default=0.0)
+
+
+def test_the_table_checks_each_reward_and_names_its_setting():
+    assert RewardTable(goal=3).goal == 3.0 and isinstance(RewardTable(goal=3).goal, float)
+    with pytest.raises(ValueError, match=r"^reward_crash_wall=-1e\+38 is invalid: must be a number in \[-1e\+06"):
+        RewardTable(crash_wall=-1e38)
+    with pytest.raises(ValueError, match=r"^reward_progress=-1 is invalid: must be a number in \[0, 1e\+06\]"):
+        RewardTable(progress=-1)
+    with pytest.raises(ValueError, match="reward_goal=True"):
+        RewardTable(goal=True)
+    params = RoomParams(reward_goal=7.0, reward_progress=2.0)
+    assert params.rewards == RewardTable(goal=7.0, crash_wall=-15.0, crash_agent=-4.0, default=-1.0, progress=2.0)
+    assert RewardTable.of(params).settings() == {name: getattr(params, name) for name in params.rewards.settings()}
+
+
+def test_the_progress_term_is_paid_per_metre_to_acting_agents_only():
+    acting = torch.tensor([[True, True, False]])
+    none = torch.zeros(1, 3, dtype=torch.bool)
+    progress = torch.tensor([[2.0, -0.5, 3.0]])
+    table = RewardTable(default=-1.0, progress=3.0)
+    reward = compute_rewards(
+        table=table, reached=none, crashed_wall=none, crashed_agent=none, acting=acting, progress=progress
+    )
+    assert reward.dtype == torch.float32 and reward.tolist() == [[5.0, -2.5, 0.0]]
+
+
+@pytest.mark.skipif(not numba_available(), reason="numba")
+def test_the_kernel_is_the_torch_function_of_one_agent():
+    """The twins agree to the bit on every combination of flags, with and without progress."""
+    env = paper_room(width=10.0, length=12.0).room(
+        num_agents=2, reward_goal=100.0, reward_crash_wall=-15.5, reward_crash_agent=-4.25, reward_progress=1.5
+    )
+    room = env.params.kernel_room(env)
+    flags = torch.tensor(list(itertools.product([False, True], repeat=4))).T.reshape(4, 1, 16)
+    acting, reached, crashed_wall, crashed_agent = flags
+    generator = torch.Generator().manual_seed(0)
+    start, end, target = (torch.rand(1, 16, 2, generator=generator) * 10 for _ in range(3))
+    progress = torch.hypot(*(start - target).unbind(-1)) - torch.hypot(*(end - target).unbind(-1))
+    expected = compute_rewards(
+        table=env.rewards,
+        reached=reached,
+        crashed_wall=crashed_wall,
+        crashed_agent=crashed_agent,
+        acting=acting,
+        progress=progress,
+    )
+    point = lambda values, i: (np.float32(values[0, i, 0]), np.float32(values[0, i, 1]))  # noqa: E731
+    got = [
+        reward_kernel(
+            room, acting[0, i].item(), reached[0, i].item(), crashed_wall[0, i].item(), crashed_agent[0, i].item(),
+            point(start, i), point(end, i), point(target, i),
+        )
+        for i in range(16)
+    ]  # fmt: skip
+    np.testing.assert_allclose(got, expected[0].numpy(), rtol=0, atol=1e-5)
+    assert all(value == 0 for value, on in zip(got, acting[0].tolist(), strict=True) if not on)
+
+
+def test_a_reward_lives_in_its_record_its_setting_and_its_default():
+    """The worked example of a new reward: a field of RewardTable (rewards.py: the record, its term in the torch
+    function and in the kernel), the setting reward_<name> of RoomParams (params.py; the kernels read it from
+    KernelRoom by that name), its row in docs/configuration.md and its default in conf/env/room.yaml. No other module
+    of the package names it: the step, its kernel and the room's checks call the reward's functions by name."""
+    root = Path(__file__).resolve().parents[2]
+    kernel_source = inspect.getsource(getattr(reward_kernel, "py_func", reward_kernel))
+    torch_source = inspect.getsource(compute_rewards)
+    manual = (root / "docs/configuration.md").read_text()
+    for item in dataclasses.fields(RewardTable):
+        setting = f"reward_{item.name}"
+        naming = {
+            str(path.relative_to(root))
+            for path in (root / "pedrl").rglob("*.py")
+            if re.search(rf"\b{setting}\b", path.read_text())
+        }
+        assert naming == {"pedrl/sim/rewards.py", "pedrl/sim/params.py"}, (setting, naming)
+        assert setting in RoomParams.__dataclass_fields__ and f"| `{setting}` |" in manual, setting
+        assert re.search(rf"^{setting}:", (root / "conf/env/room.yaml").read_text(), re.MULTILINE), setting
+        assert f"room.{setting}" in kernel_source and f"table.{item.name}" in torch_source, setting

@@ -27,6 +27,7 @@ from pedrl.scenarios import paper_room
 from pedrl.sim import RoomEnv
 from pedrl.sim.actions import GOAL_SPEED_RATIOS, GOAL_TURN_RATIOS
 from pedrl.sim.motion import Simultaneous, Yield
+from pedrl.sim.motion.common import neighbour_search
 from pedrl.sim.sensing import observe
 from pedrl.train import train as train_run
 from pedrl.trial import fused
@@ -70,7 +71,7 @@ def fused_features(env: RoomEnv, present: torch.Tensor) -> tuple[np.ndarray, np.
     features = np.zeros((rooms, agents, env.num_features), np.float32)
     num_sensed = np.zeros((rooms, agents), np.int64)
     size = max(agents, env.geometry.num_walls)
-    state, search = env.state.arrays(), env.params.kernel_room(env).search
+    state, search = env.state.arrays(), neighbour_search()
     for r in range(rooms):
         sense_room(r, state, present.numpy(), env.geometry.kernel_walls(), env.num_neighbours, env.num_walls, search,
                    features, num_sensed, np.empty((2, size), np.float32), np.empty((2, size), np.int64))  # fmt: skip

@@ -15,7 +15,7 @@ from pedrl.algos.registry import env_factory
 from pedrl.scenarios import SCENARIOS
 from pedrl.sim.actions import NUM_ACTIONS
 from pedrl.sim.motion import CONTACT_MODELS
-from pedrl.sim.motion.common import search_array
+from pedrl.sim.motion.common import neighbour_search
 from pedrl.sim.state import RoomState
 from pedrl.trial import fused
 from pedrl.trial.twins import TOLERANCES, check_twins
@@ -142,12 +142,13 @@ def test_a_kernel_that_walks_too_fast_fails_the_harness(monkeypatch):
 
 
 def _search(monkeypatch, **search):
-    """The kernel path's neighbour search set to ``search_array(**search)`` (its grids forced, or shrunk)."""
+    """The kernel path's neighbour search set to ``neighbour_search(**search)`` (its grids forced, or shrunk)."""
     original = fused.room_inputs
 
     def searching(env):
         inputs = original(env)
-        return inputs._replace(room=inputs.room._replace(search=search_array(**search)))
+        grids = {f"grid_{name}": value for name, value in neighbour_search(**search)._asdict().items()}
+        return inputs._replace(room=inputs.room._replace(**grids))
 
     monkeypatch.setattr(fused, "room_inputs", searching)
 

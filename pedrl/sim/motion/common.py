@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, fields, is_dataclass
 from functools import lru_cache
-from typing import Any, ClassVar, Final
+from typing import Any, ClassVar, Final, NamedTuple
 
 import numpy as np
 import torch
@@ -187,10 +187,32 @@ decision), the grid took 1.15-1.2x the pairs' time at 40 agents, 0.9-1.1x at 60 
 (``docs/performance.md``)."""
 
 
-def search_array(min_agents: int = GRID_MIN_AGENTS, reach_scale: float = 1.0) -> np.ndarray:
-    """The kernels' neighbour search ``(min_agents, reach_scale)`` float32: rooms of at least ``min_agents`` agents
-    search grids whose reaches are scaled by ``reach_scale`` (1: exact; the tests' control shrinks it)."""
-    return np.array([min_agents, reach_scale], np.float32)
+class KernelMoves(NamedTuple):
+    """What a motion model's kernel writes for room ``r`` (``sequential_room``, ``sliding_room``): ``moved_to``
+    ``(R, N, 2)`` float32 (m) and the flags ``(R, N)`` bool of :class:`Movement` (``cut_wall``: a wall cut the move,
+    ``cut_body``: a body did; the sequential rule leaves ``cut_body`` to its caller)."""
+
+    moved_to: np.ndarray
+    blocked: np.ndarray
+    cut_wall: np.ndarray
+    cut_body: np.ndarray
+    reached: np.ndarray
+
+
+class Search(NamedTuple):
+    """The kernels' neighbour search, read by name (:func:`neighbour_search`; the room's kernel constants hold it as
+    ``KernelRoom.grid_min_agents`` and ``grid_reach_scale``)."""
+
+    min_agents: int
+    """Rooms of at least this many agents search grids of cells, the others every pair."""
+    reach_scale: np.float32
+    """The grids' reaches are scaled by it: 1 is exact; the tests' control shrinks it."""
+
+
+def neighbour_search(min_agents: int = GRID_MIN_AGENTS, reach_scale: float = 1.0) -> Search:
+    """The kernels' neighbour search (:class:`Search`): grids from ``min_agents`` agents, reaches times
+    ``reach_scale``."""
+    return Search(int(min_agents), np.float32(reach_scale))
 
 
 MAX_STRENGTH: Final = 1e6
@@ -231,9 +253,12 @@ class Steering:
             object.__setattr__(self, item.name, checked)
 
 
-def steering_array(steering: Steering | None) -> np.ndarray:
-    """The kernels' ``steering``: ``(a, D, b, B)`` float32 (ones when None, unused then)."""
-    if steering is None:
-        return np.ones(4, np.float32)
-    values = (steering.neighbour_strength, steering.neighbour_range, steering.wall_strength, steering.wall_range)
-    return np.array(values, np.float32)
+STEERING_NAMES: Final = tuple(item.name for item in fields(Steering))
+"""The direction rule's parameters, the names the kernels read them by (``KernelRoom.steering_<name>``,
+``SlidingConstants.<name>``)."""
+
+
+def steering_constant(steering: Steering | None, name: str) -> np.float32:
+    """The kernels' value of the direction rule's parameter ``name`` (a field of :class:`Steering`), float32; 1 when
+    there is no rule (unused then)."""
+    return np.float32(1.0 if steering is None else getattr(steering, name))

@@ -6,18 +6,45 @@ agent-by-agent loop :func:`pedrl.sim.reference.move_agents_sequential_literal`: 
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 import torch
 
 from pedrl._numba import cached_njit
 from pedrl.sim.geometry import Geometry
 from pedrl.sim.grid_kernel import RELATIVE_SLACK, SLACK, bin_points, bin_segments, cell_range, make_cells
-from pedrl.sim.motion.common import search_array
+from pedrl.sim.motion.common import KernelMoves, Search, neighbour_search
+from pedrl.sim.sensing_kernel import room_search
 
-__all__ = ["sequential_room", "sequential_substeps"]
+__all__ = ["SequentialConstants", "sequential_constants", "sequential_room", "sequential_substeps"]
 
-SEARCH = search_array()
-"""The default neighbour search (:func:`pedrl.sim.motion.common.search_array`)."""
+SEARCH = neighbour_search()
+"""The default neighbour search (:func:`pedrl.sim.motion.common.neighbour_search`)."""
+
+
+class SequentialConstants(NamedTuple):
+    """The constants of one decision under the sequential rule (``stop``), read by name by :func:`sequential_room`:
+    built from the room's kernel constants by :func:`sequential_constants` (the fused step) and from the decision's
+    arguments by :func:`sequential_substeps` (the torch room's dispatcher)."""
+
+    radius_sq: np.float32
+    """``r^2`` (m^2): a wall closer than ``r`` is touched."""
+    contact_sq: np.float32
+    """``(2 r)^2`` (m^2): a body closer than ``2 r`` is hit."""
+    search: Search
+    """The neighbour search: grids from ``search.min_agents`` agents."""
+
+
+@cached_njit(nogil=True)
+def sequential_constants(room):
+    """The :class:`SequentialConstants` of a decision of a room whose kernel constants are ``room``
+    (:class:`pedrl.sim.params.KernelRoom`)."""
+    radius = room.agent_radius
+    return SequentialConstants(
+        np.float32(radius * radius), np.float32(4.0 * radius * radius),
+        room_search(room),
+    )  # fmt: skip
 
 
 @cached_njit(nogil=True, inline="always")
@@ -95,10 +122,7 @@ def _step_grids(r, positions, step, present, low, high, contact_sq, num_substeps
 
 
 @cached_njit(nogil=True)
-def _sequential(
-    positions, step, going, present, depth, walls, low, high, radius_sq, start, normal, tangent, span,
-    order, contact_sq, search, out, blocked, crashed_wall, reached,
-):  # fmt: skip
+def _sequential(positions, step, going, present, depth, walls, low, high, exits, order, motion, out):
     num_replicas, num_agents = going.shape
     moved = np.zeros(num_agents, dtype=np.float32)  # sub-steps moved, per agent of the replica
     acted_moved = np.zeros(num_agents, dtype=np.bool_)  # moved in this sub-step (it acted already)
@@ -106,19 +130,24 @@ def _sequential(
     current = np.empty((num_agents, 2), dtype=np.float32)
     for r in range(num_replicas):
         sequential_room(
-            r, positions, step, going, present, depth, walls, low, high, radius_sq, start, normal, tangent, span,
-            order, contact_sq, search, out, blocked, crashed_wall, reached, moved, acted_moved, passed, current,
+            r, positions, step, going, present, depth, walls, low, high, exits, order, motion, out, moved, acted_moved,
+            passed, current,
         )  # fmt: skip
 
 
 @cached_njit(nogil=True)
 def sequential_room(
-    r, positions, step, going, present, depth, walls, low, high, radius_sq, start, normal, tangent, span,
-    order, contact_sq, search, out, blocked, crashed_wall, reached, moved, acted_moved, passed, current,
+    r, positions, step, going, present, depth, walls, low, high, exits, order, motion, out, moved, acted_moved,
+    passed, current,
 ):  # fmt: skip
-    """The sub-steps of replica ``r`` (of :func:`sequential_substeps`); ``moved``, ``acted_moved``, ``passed`` ``(N,)``
-    and ``current`` ``(N, 2)`` are scratch. ``search``: :data:`SEARCH`; with a grid (rebuilt each sub-step from the
-    bodies' places, each within one step of them while it lasts), the same numbers as every pair."""
+    """The sub-steps of replica ``r`` (of :func:`sequential_substeps`) into ``out``
+    (:class:`pedrl.sim.motion.common.KernelMoves`, its ``cut_body`` untouched): ``exits`` is
+    :class:`pedrl.sim.geometry.Exits`, ``motion`` :class:`SequentialConstants` (with a grid, rebuilt each sub-step from
+    the bodies' places, each within one step of them while it lasts, the same numbers as every pair); ``moved``,
+    ``acted_moved``, ``passed`` ``(N,)`` and ``current`` ``(N, 2)`` are scratch."""
+    start, normal, tangent, span = exits.start, exits.normal, exits.tangent, exits.span
+    radius_sq, contact_sq, search = motion.radius_sq, motion.contact_sq, motion.search
+    blocked, crashed_wall, reached = out.blocked, out.cut_wall, out.reached
     num_agents = going.shape[1]
     num_substeps = walls.shape[0]
     own_walls = low.shape[0] > 0  # axis-aligned walls: tested here, else ``walls`` holds the tests
@@ -126,8 +155,10 @@ def sequential_room(
         moved[i] = 0.0
         current[i, 0] = positions[r, i, 0]
         current[i, 1] = positions[r, i, 1]
-    grid = num_agents >= search[0]
-    cells, boxes, reach = _step_grids(r, positions, step, present, low, high, contact_sq, num_substeps, grid, search[1])
+    grid = num_agents >= search.min_agents
+    cells, boxes, reach = _step_grids(
+        r, positions, step, present, low, high, contact_sq, num_substeps, grid, search.reach_scale
+    )
     nx = cells.shape[0]
     for k in range(num_substeps):
         anyone = False
@@ -196,8 +227,8 @@ def sequential_room(
             current[i, 0] = positions[r, i, 0] + moved[i] * step[r, i, 0]
             current[i, 1] = positions[r, i, 1] + moved[i] * step[r, i, 1]
     for i in range(num_agents):
-        out[r, i, 0] = current[i, 0]
-        out[r, i, 1] = current[i, 1]
+        out.moved_to[r, i, 0] = current[i, 0]
+        out.moved_to[r, i, 1] = current[i, 1]
 
 
 def sequential_substeps(
@@ -212,7 +243,7 @@ def sequential_substeps(
     walls: torch.Tensor | None,
     depth: torch.Tensor,
     priority: torch.Tensor,
-    search: np.ndarray = SEARCH,
+    search: Search = SEARCH,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """The sub-steps of :func:`pedrl.sim.motion.sequential.move_agents_sequential_torch`, agent by agent, compiled.
 
@@ -257,17 +288,9 @@ def sequential_substeps(
         walls.contiguous().numpy(),
         low.contiguous().numpy(),
         high.contiguous().numpy(),
-        np.float32(radius_sq),
-        geometry.exits[:, 0].contiguous().numpy(),
-        geometry.exit_normals.contiguous().numpy(),
-        geometry.exit_tangents.contiguous().numpy(),
-        geometry.exit_spans.contiguous().numpy(),
+        geometry.kernel_exits(),
         priority.argsort(dim=1).numpy(),
-        np.float32(contact_sq),
-        search,
-        out.numpy(),
-        blocked.numpy(),
-        crashed_wall.numpy(),
-        reached.numpy(),
+        SequentialConstants(radius_sq=np.float32(radius_sq), contact_sq=np.float32(contact_sq), search=search),
+        KernelMoves(out.numpy(), blocked.numpy(), crashed_wall.numpy(), np.zeros(shape, np.bool_), reached.numpy()),
     )
     return out, blocked, crashed_wall, reached

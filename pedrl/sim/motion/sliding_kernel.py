@@ -4,11 +4,13 @@
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 import torch
 
 from pedrl._numba import cached_njit
-from pedrl.sim.geometry import Geometry
+from pedrl.sim.geometry import Geometry, Walls
 from pedrl.sim.grid_kernel import (
     RELATIVE_SLACK,
     SLACK,
@@ -18,19 +20,71 @@ from pedrl.sim.grid_kernel import (
     make_cells,
 )
 from pedrl.sim.motion.common import (
+    HEADWAY,
     PAIR_MARGIN,
     STEERING_CUTOFF,
+    STEERING_NAMES,
+    YIELD,
+    KernelMoves,
     Movement,
+    Search,
     Steering,
-    search_array,
-    steering_array,
+    neighbour_search,
+    steering_constant,
 )
 from pedrl.sim.motion.sequential_kernel import _passes_exits
+from pedrl.sim.sensing_kernel import room_search
 
-__all__ = ["SEARCH", "sliding_room", "sliding_substeps"]
+__all__ = ["SEARCH", "SlidingConstants", "constants_of", "sliding_constants", "sliding_room", "sliding_substeps"]
 
-SEARCH = search_array()
-"""The default neighbour search (:func:`pedrl.sim.motion.common.search_array`)."""
+SEARCH = neighbour_search()
+"""The default neighbour search (:func:`pedrl.sim.motion.common.neighbour_search`)."""
+
+
+class SlidingConstants(NamedTuple):
+    """The constants of one decision under a sliding model (``slide``, ``headway``, ``yield``, ``continuous``), read by
+    name by :func:`sliding_room`: built from the room's kernel constants by :func:`sliding_constants` (the fused
+    step) and from the decision's arguments by :func:`sliding_substeps` (the torch room's dispatcher)."""
+
+    radius_sq: np.float32
+    """``r^2`` (m^2): a wall closer than ``r`` is entered."""
+    contact_sq: np.float32
+    """``(2 r)^2`` (m^2): a body closer than ``2 r`` is entered."""
+    substep_length: np.float32
+    """The duration of a sub-step (s)."""
+    num_substeps: int
+    headway: bool
+    """The collision-free speed rule (``headway``, ``yield``, ``continuous``) with ``time_gap``."""
+    yield_order: bool
+    """Only bodies earlier in the order of action slow a mover (``yield``)."""
+    time_gap: np.float32
+    """``T`` (s) of the headway rule (1 where it is off, unused then)."""
+    diameter: np.float32
+    """``2 r`` (m)."""
+    margin: np.float32
+    """The exits' crossing margin (m, ``PAIR_MARGIN``)."""
+    steer: bool
+    """The direction rule of ``motion=continuous``, with the four values below (1 where it is off)."""
+    neighbour_strength: np.float32
+    neighbour_range: np.float32
+    wall_strength: np.float32
+    wall_range: np.float32
+    search: Search
+    """The neighbour search: grids from ``search.min_agents`` agents."""
+
+
+@cached_njit(nogil=True)
+def sliding_constants(room):
+    """The :class:`SlidingConstants` of a decision of a room whose kernel constants are ``room``
+    (:class:`pedrl.sim.params.KernelRoom`)."""
+    radius = room.agent_radius
+    return SlidingConstants(
+        np.float32(radius * radius), np.float32(4.0 * radius * radius),
+        np.float32(room.decision_length / room.num_substeps), room.num_substeps, room.contact >= HEADWAY,
+        room.contact == YIELD, np.float32(room.time_gap), np.float32(2.0 * radius), np.float32(PAIR_MARGIN),
+        room.continuous, room.steering_neighbour_strength, room.steering_neighbour_range, room.steering_wall_strength,
+        room.steering_wall_range, room_search(room),
+    )  # fmt: skip
 
 
 @cached_njit(nogil=True, inline="always")
@@ -106,10 +160,10 @@ def _cell_of(cells, x, y):
 
 
 @cached_njit(nogil=True, inline="always")
-def _steer(i, r, velocities, current, present_row, starts, directions, inverse, radius, diameter, steering, grid,
+def _steer(i, r, velocities, current, present_row, starts, directions, inverse, radius, diameter, motion, grid,
            cells, walls, c, reach, near):  # fmt: skip
     """The wanted velocity of mover ``i`` under ``motion=continuous`` (``pedrl.sim.motion.sliding.steer`` of one
-    agent): its commanded speed along the direction rule's unit vector. ``steering`` is ``(a, D, b, B)``. With
+    agent): its commanded speed along the direction rule's unit vector (``motion``: :class:`SlidingConstants`). With
     ``grid``, over the bodies binned within ``reach`` (the rule's cut-off) and the walls listed in the mover's cell
     ``c``, summed in index order as the loop over all sums them; ``near`` ``(N,)`` int64 scratch."""
     zero = np.float32(0.0)
@@ -122,6 +176,7 @@ def _steer(i, r, velocities, current, present_row, starts, directions, inverse, 
     ey = cy / speed
     fx = ex
     fy = ey
+    strength, reach_of = motion.neighbour_strength, motion.neighbour_range
     x = current[i, 0]
     y = current[i, 1]
     if grid:  # the bodies whose term survives the cut-off, then summed in index order
@@ -136,21 +191,21 @@ def _steer(i, r, velocities, current, present_row, starts, directions, inverse, 
                 dx = x - current[j, 0]
                 dy = y - current[j, 1]
                 distance = np.sqrt(dx * dx + dy * dy)
-                if (diameter - distance) / steering[1] > _CUTOFF and distance > zero:
+                if (diameter - distance) / motion.neighbour_range > _CUTOFF and distance > zero:
                     near[count] = j
                     count += 1
         near[:count].sort()
         for k in range(count):
             j = near[k]
-            fx, fy = _push(fx, fy, x - current[j, 0], y - current[j, 1], diameter, steering[0], steering[1])
+            fx, fy = _push(fx, fy, x - current[j, 0], y - current[j, 1], diameter, strength, reach_of)
     else:
         for j in range(current.shape[0]):
             if j != i and present_row[j]:
-                fx, fy = _push(fx, fy, x - current[j, 0], y - current[j, 1], diameter, steering[0], steering[1])
+                fx, fy = _push(fx, fy, x - current[j, 0], y - current[j, 1], diameter, strength, reach_of)
     first, last = (walls.start[c], walls.start[c + 1]) if grid else (0, starts.shape[0])
     for k in range(first, last):
         dx, dy = _from_wall(x, y, walls.items[k] if grid else k, starts, directions, inverse)
-        fx, fy = _push(fx, fy, dx, dy, radius, steering[2], steering[3])
+        fx, fy = _push(fx, fy, dx, dy, radius, motion.wall_strength, motion.wall_range)
     norm = np.sqrt(fx * fx + fy * fy)
     if norm > zero:
         return fx / norm * speed, fy / norm * speed
@@ -158,12 +213,14 @@ def _steer(i, r, velocities, current, present_row, starts, directions, inverse, 
 
 
 @cached_njit(nogil=True)
-def _grids(r, velocities, current, present_row, starts, directions, inverse, radius, diameter, substep_length,
-           num_substeps, headway, time_gap, steer, steering, scale):  # fmt: skip
-    """The grids of one decision of room ``r``: the bodies' cells (binned at each sub-step) over the box the present
-    bodies cannot leave in the decision, the walls listed per cell, and the reaches (m) of the searches: the
-    direction rule's bodies (its cut-off), the headway rule's (a gap of ``v T`` leaves the speed), a contact (the two
-    moves of a sub-step); each times ``scale`` (1 but in the tests' control)."""
+def _grids(r, velocities, current, present_row, starts, directions, inverse, radius, motion, num_substeps):
+    """The grids of one decision of room ``r`` (``motion``: :class:`SlidingConstants`; ``num_substeps`` 0 without a
+    grid): the bodies' cells (binned at each sub-step) over the box the present bodies cannot leave in the decision,
+    the walls listed per cell, and the reaches (m) of the searches: the direction rule's bodies (its cut-off), the
+    headway rule's (a gap of ``v T`` leaves the speed), a contact (the two moves of a sub-step); each times the
+    search's ``reach_scale`` (1 but in the tests' control)."""
+    diameter, substep_length, time_gap = motion.diameter, motion.substep_length, motion.time_gap
+    headway, steer, scale = motion.headway, motion.steer, motion.search.reach_scale
     fastest = np.float32(0.0)
     low_x = low_y = np.float32(np.inf)
     high_x = high_y = np.float32(-np.inf)
@@ -178,20 +235,17 @@ def _grids(r, velocities, current, present_row, starts, directions, inverse, rad
     slack = step * np.float32(num_substeps) + SLACK
     one = np.float32(1.0) + RELATIVE_SLACK
     body = (diameter + np.float32(2.0) * step) * one * scale + SLACK
-    steer_reach = (diameter - _CUTOFF * steering[1]) * one * scale + SLACK if steer else np.float32(0.0)
+    steer_reach = (diameter - _CUTOFF * motion.neighbour_range) * one * scale + SLACK if steer else np.float32(0.0)
     headway_reach = (diameter + fastest * time_gap) * one * scale + SLACK if headway else np.float32(0.0)
-    wall = (max(radius - _CUTOFF * steering[3] if steer else np.float32(0.0), radius + step)) * one * scale + SLACK
+    steer_wall = radius - _CUTOFF * motion.wall_range if steer else np.float32(0.0)
+    wall = (max(steer_wall, radius + step)) * one * scale + SLACK
     cells = make_cells(low_x - slack, low_y - slack, high_x + slack, high_y + slack,
                        max(body, steer_reach, headway_reach), current.shape[0], present)  # fmt: skip
     return cells, bin_segments(cells, starts, directions, inverse, wall), body, steer_reach, headway_reach
 
 
 @cached_njit(nogil=True)
-def _sliding(
-    positions, velocities, going, present, order, starts, directions, inverse, exit_start, exit_normal,
-    exit_tangent, exit_span, radius_sq, contact_sq, substep_length, num_substeps, headway, yield_order, time_gap,
-    diameter, margin, steer, steering, search, out, blocked, cut_wall, cut_body, reached,
-):  # fmt: skip
+def _sliding(positions, velocities, going, present, order, segments, exits, motion, out):
     num_replicas, num_agents = going.shape
     wanted = np.empty((num_agents, 2), dtype=np.float32)
     current = np.empty((num_agents, 2), dtype=np.float32)
@@ -199,23 +253,26 @@ def _sliding(
     rank_of = np.empty(num_agents, dtype=np.int64)
     for r in range(num_replicas):
         sliding_room(
-            r, positions, velocities, going, present, order, starts, directions, inverse, exit_start, exit_normal,
-            exit_tangent, exit_span, radius_sq, contact_sq, substep_length, num_substeps, headway, yield_order,
-            time_gap, diameter, margin, steer, steering, search, out, blocked, cut_wall, cut_body, reached, wanted,
-            current, factor, rank_of,
+            r, positions, velocities, going, present, order, segments, exits, motion, out, wanted, current, factor,
+            rank_of,
         )  # fmt: skip
 
 
 @cached_njit(nogil=True)
 def sliding_room(
-    r, positions, velocities, going, present, order, starts, directions, inverse, exit_start, exit_normal,
-    exit_tangent, exit_span, radius_sq, contact_sq, substep_length, num_substeps, headway, yield_order, time_gap,
-    diameter, margin, steer, steering, search, out, blocked, cut_wall, cut_body, reached,
-    wanted, current, factor, rank_of,
+    r, positions, velocities, going, present, order, segments, exits, motion, out, wanted, current, factor, rank_of
 ):  # fmt: skip
-    """The sub-steps of replica ``r`` (of :func:`sliding_substeps`); ``wanted``, ``current`` ``(N, 2)``, ``factor`` and
-    ``rank_of`` ``(N,)`` are scratch. ``steer``: ``motion=continuous``, with ``steering`` ``(a, D, b, B)`` float32.
-    ``search``: :data:`SEARCH`; with a grid, the same numbers as every pair (:mod:`pedrl.sim.grid_kernel`)."""
+    """The sub-steps of replica ``r`` (of :func:`sliding_substeps`) into ``out``
+    (:class:`pedrl.sim.motion.common.KernelMoves`): ``segments`` is :class:`pedrl.sim.geometry.Walls`, ``exits``
+    :class:`pedrl.sim.geometry.Exits`, ``motion`` :class:`SlidingConstants` (with a grid, the same numbers as every
+    pair: :mod:`pedrl.sim.grid_kernel`); ``wanted``, ``current`` ``(N, 2)``, ``factor`` and ``rank_of`` ``(N,)`` are
+    scratch."""
+    starts, directions, inverse = segments.starts, segments.directions, segments.inverse
+    exit_start, exit_normal, exit_tangent, exit_span = exits.start, exits.normal, exits.tangent, exits.span
+    radius_sq, contact_sq, substep_length = motion.radius_sq, motion.contact_sq, motion.substep_length
+    num_substeps, headway, yield_order = motion.num_substeps, motion.headway, motion.yield_order
+    time_gap, diameter, margin, steer = motion.time_gap, motion.diameter, motion.margin, motion.steer
+    blocked, cut_wall, cut_body, reached = out.blocked, out.cut_wall, out.cut_body, out.reached
     num_agents = going.shape[1]
     zero = np.float32(0.0)
     one = np.float32(1.0)
@@ -228,11 +285,10 @@ def sliding_room(
         wanted[i, 0] = velocities[r, i, 0] if present[r, i] else zero
         wanted[i, 1] = velocities[r, i, 1] if present[r, i] else zero
     radius = diameter * np.float32(0.5)  # float32(r) exactly
-    grid = num_agents >= search[0]
+    grid = num_agents >= motion.search.min_agents
     cells, walls, body_reach, steer_reach, headway_reach = _grids(
-        r, velocities, current, present[r], starts, directions, inverse, radius, diameter, substep_length,
-        num_substeps if grid else 0, headway, time_gap, steer, steering, search[1],
-    )  # fmt: skip
+        r, velocities, current, present[r], starts, directions, inverse, radius, motion, num_substeps if grid else 0
+    )
     near = np.empty(num_agents if grid else 0, np.int64)
     nx = cells.shape[0]
     for _ in range(num_substeps):
@@ -249,7 +305,7 @@ def sliding_room(
                 if present[r, i]:
                     c = _cell_of(cells, current[i, 0], current[i, 1]) if grid else -1
                     wanted[i, 0], wanted[i, 1] = _steer(
-                        i, r, velocities, current, present[r], starts, directions, inverse, radius, diameter, steering,
+                        i, r, velocities, current, present[r], starts, directions, inverse, radius, diameter, motion,
                         grid, cells, walls, c, steer_reach, near,
                     )  # fmt: skip
         for i in range(num_agents):  # headway_factors, from the positions at the start of the sub-step
@@ -332,8 +388,36 @@ def sliding_room(
                 present[r, i] = False
                 going[r, i] = False
     for i in range(num_agents):
-        out[r, i, 0] = current[i, 0]
-        out[r, i, 1] = current[i, 1]
+        out.moved_to[r, i, 0] = current[i, 0]
+        out.moved_to[r, i, 1] = current[i, 1]
+
+
+def constants_of(
+    *,
+    agent_radius: float,
+    substep_length: float,
+    num_substeps: int,
+    time_gap: float | None,
+    yield_to_earlier: bool,
+    steering: Steering | None,
+    search: Search = SEARCH,
+) -> SlidingConstants:
+    """The :class:`SlidingConstants` of :func:`sliding_substeps`'s arguments (those of a room's kernel constants are
+    :func:`sliding_constants`'s: ``tests/sim/test_params.py`` holds the two equal)."""
+    return SlidingConstants(
+        radius_sq=np.float32(agent_radius * agent_radius),
+        contact_sq=np.float32(4.0 * agent_radius * agent_radius),
+        substep_length=np.float32(substep_length),
+        num_substeps=num_substeps,
+        headway=time_gap is not None,
+        yield_order=yield_to_earlier,
+        time_gap=np.float32(1.0 if time_gap is None else time_gap),
+        diameter=np.float32(2.0 * agent_radius),
+        margin=np.float32(PAIR_MARGIN),
+        steer=steering is not None,
+        **{name: steering_constant(steering, name) for name in STEERING_NAMES},
+        search=search,
+    )
 
 
 def sliding_substeps(
@@ -352,7 +436,7 @@ def sliding_substeps(
     time_gap: float | None,
     yield_to_earlier: bool = False,
     steering: Steering | None = None,
-    search: np.ndarray = SEARCH,
+    search: Search = SEARCH,
 ) -> Movement:
     """:func:`pedrl.sim.motion.sliding.move_agents_sliding_torch`, agent by agent, compiled (same float32
     operations, same order).
@@ -384,36 +468,35 @@ def sliding_substeps(
     cut_body = torch.zeros(shape, dtype=torch.bool)
     reached = torch.zeros(shape, dtype=torch.bool)
     going = active & (velocities != 0).any(-1)
+    motion = constants_of(
+        agent_radius=agent_radius,
+        substep_length=substep_length,
+        num_substeps=num_substeps,
+        time_gap=time_gap,
+        yield_to_earlier=yield_to_earlier,
+        steering=steering,
+        search=search,
+    )
+    # the wall segments given; the walls' boxes are the stop rule's, unread here
+    segments = Walls(
+        starts=wall_starts.numpy(),
+        directions=wall_directions.numpy(),
+        inverse=wall_inverse.numpy(),
+        aligned=np.zeros(0, np.bool_),
+        low=np.zeros((0, 2), np.float32),
+        high=np.zeros((0, 2), np.float32),
+    )
+    flags = (blocked.numpy(), cut_wall.numpy(), cut_body.numpy(), reached.numpy())
     _sliding(
         positions.contiguous().numpy(),
         velocities.contiguous().numpy(),
         going.numpy().copy(),
         active.numpy().copy(),
         order.contiguous().numpy(),
-        wall_starts.numpy(),
-        wall_directions.numpy(),
-        wall_inverse.numpy(),
-        geometry.exits[:, 0].contiguous().numpy(),
-        geometry.exit_normals.contiguous().numpy(),
-        geometry.exit_tangents.contiguous().numpy(),
-        geometry.exit_spans.contiguous().numpy(),
-        np.float32(agent_radius * agent_radius),
-        np.float32(4.0 * agent_radius * agent_radius),
-        np.float32(substep_length),
-        num_substeps,
-        time_gap is not None,
-        yield_to_earlier,
-        np.float32(1.0 if time_gap is None else time_gap),
-        np.float32(2.0 * agent_radius),
-        np.float32(PAIR_MARGIN),
-        steering is not None,
-        steering_array(steering),
-        search,
-        out.numpy(),
-        blocked.numpy(),
-        cut_wall.numpy(),
-        cut_body.numpy(),
-        reached.numpy(),
+        segments,
+        geometry.kernel_exits(),
+        motion,
+        KernelMoves(out.numpy(), *flags),
     )
     return Movement(
         positions=out, blocked=blocked, crashed_wall=cut_wall, crashed_agent=cut_body & ~cut_wall, reached=reached
