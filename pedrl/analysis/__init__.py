@@ -1,6 +1,8 @@
 """Pedestrian-dynamics analysis of recorded trajectories (paper section 6).
 
-PedPy export, Gaussian local density, speed and flow, fundamental diagrams, density maps, and figures.
+PedPy export, Gaussian local density, speed and flow, fundamental diagrams, density maps, and figures. Recorded crowds
+are one type, :class:`Recording` (defined on the floor of the layering, :mod:`pedrl.common.recording`, so that the
+trial can record it); one run of it in its area, :meth:`Trajectories.of_run`, is what the measures read.
 
 Depends only on numpy and matplotlib; it never imports :mod:`pedrl.sim` or torch. PedPy (the optional extra
 ``pedrl[analysis]``) reads the exported files but is not needed here.
@@ -34,7 +36,6 @@ from pedrl.analysis.plots import (
     plot_learning_curves,
     plot_room,
 )
-from pedrl.analysis.recording import Recording
 from pedrl.analysis.trajectories import DEFAULT_EXIT_DEPTH, AreaGeometry, Geometry, RoomGeometry, Trajectories
 from pedrl.analysis.trajectory_files import (
     FRAMES_PAST_EXIT,
@@ -48,6 +49,7 @@ from pedrl.analysis.trajectory_files import (
     write_pedpy_trajectories,
     write_pedpy_trajectory,
 )
+from pedrl.common.recording import Recording
 
 __all__ = [
     "DEFAULT_EXIT_DEPTH",

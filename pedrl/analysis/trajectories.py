@@ -3,7 +3,7 @@
 The analysis never imports :mod:`pedrl.sim`. It takes a plain view of the area a trial ran in, an
 :class:`AreaGeometry` (numpy arrays and WKT text), which the side that built the simulation's geometry builds from
 it (:meth:`pedrl.scenarios.Scenario.analysis_geometry`), and the recorded states as :class:`Trajectories` (numpy
-arrays, float32 or 64).
+arrays, float32 or 64), one run of a :class:`~pedrl.common.recording.Recording` each.
 """
 
 from __future__ import annotations
@@ -13,6 +13,8 @@ from typing import Final
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+from pedrl.common.recording import Recording
 
 X: Final = 0
 Y: Final = 1
@@ -234,7 +236,8 @@ Geometry = AreaGeometry
 
 @dataclass(frozen=True)
 class Trajectories:
-    """The recorded states of one trial.
+    """The recorded states of one trial: one run of a :class:`~pedrl.common.recording.Recording` in the area it ran
+    in (:meth:`of_run`), the measures' input.
 
     Frame ``t`` is the state after decision ``t`` (frame 0 is the initial state), so frames are
     ``1 / framerate`` seconds apart. ``active[t, n]`` says whether agent ``n`` is in the scene at frame ``t``;
@@ -283,6 +286,19 @@ class Trajectories:
         object.__setattr__(self, "velocities", velocities)
         object.__setattr__(self, "active", active)
         object.__setattr__(self, "framerate", float(self.framerate))
+
+    @classmethod
+    def of_run(cls, recording: Recording, index: int, geometry: Geometry) -> Trajectories:
+        """Run ``index`` of ``recording`` in ``geometry``, its agents of each frame those of
+        :meth:`~pedrl.common.recording.Recording.acted` (velocities 0 where the recording has none)."""
+        velocities = recording.velocities if recording.velocities is not None else np.zeros_like(recording.positions)
+        return cls(
+            positions=recording.positions[index],
+            velocities=velocities[index],
+            active=recording.acted()[index],
+            framerate=recording.frame_rate,
+            geometry=geometry,
+        )
 
     @property
     def num_frames(self) -> int:

@@ -5,4 +5,6 @@
 - :mod:`pedrl.common.commands`: what a command line shares: ``CONFIG_DIR``, :func:`~pedrl.common.commands.fail` (one
   line on stderr, exit code 2), and the ``argparse`` parser and types of the ``python -m`` tools. The Hydra entry
   points add their own pieces in :mod:`pedrl.cli`, which nothing below them imports.
+- :mod:`pedrl.common.recording`: :class:`~pedrl.common.recording.Recording`, the one type of recorded crowds, which the
+  trial writes and the analysis, the evaluation and the validation suite read.
 """

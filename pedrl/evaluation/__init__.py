@@ -5,8 +5,8 @@ Tables 4 and 5).
   through :func:`pedrl.load_policy`: no trainer is built), the trials recorded
   batch by batch (:func:`record_batch`), the figures of Tables 4/5 (:class:`ScalingStats`) and the whole run over
   plain arguments (:func:`evaluate_policy`).
-- :mod:`pedrl.evaluation.batch`: what a batch of evaluated trials is (:class:`BatchRecord`), and what simulates
-  whole trials itself (:class:`Recorder`).
+- :mod:`pedrl.evaluation.batch`: what simulates whole trials itself (:class:`Recorder`); a batch of evaluated
+  trials, however recorded, is a :class:`pedrl.analysis.Recording`.
 - :mod:`pedrl.evaluation.report`: the figures and files of a run and the console table (:func:`print_table`).
 - :mod:`pedrl.evaluation.config`: the eval config: its validation and :func:`evaluate`, which turns a validated
   config into the engine's plain arguments. ``pedrl/evaluate.py`` is the ``@hydra.main`` wrapper around it.
@@ -74,7 +74,6 @@ from pedrl.evaluation.engine import (
     SCALING_COLUMNS,
     STUCK_PATH,
     STUCK_WINDOW,
-    BatchRecord,
     EvalSettings,
     LoadedPolicy,
     Recorder,
@@ -105,7 +104,6 @@ __all__ = [
     "SCALING_COLUMNS",
     "STUCK_PATH",
     "STUCK_WINDOW",
-    "BatchRecord",
     "EvalSettings",
     "JuPedSimReference",
     "LoadedPolicy",

@@ -28,9 +28,10 @@ from pedrl.analysis import (
     write_jupedsim_sqlite,
     write_pedpy_trajectory,
 )
-from pedrl.analysis.trajectories import Geometry
+from pedrl.analysis.trajectories import Geometry, Trajectories
 from pedrl.common.checks import first_line
-from pedrl.evaluation.batch import BatchRecord, Recorder
+from pedrl.common.recording import Recording
+from pedrl.evaluation.batch import Recorder
 from pedrl.evaluation.jupedsim_reference import JuPedSimReference
 from pedrl.evaluation.report import write_density_map, write_fundamental_diagram, write_scaling_json
 from pedrl.integrations.jupedsim import JuPedSimModel
@@ -160,7 +161,7 @@ class CrowdProgress:
 
 def record_batch(
     env: RoomEnv, controller: Controller, *, fused: bool | None = False, label: str = "pedrl-eval"
-) -> BatchRecord:
+) -> Recording:
     """Reset ``env`` (its generator draws the scene) and run one trial in every replica to its end, with a progress
     bar named ``label`` for a large crowd (:class:`CrowdProgress`).
 
@@ -175,20 +176,7 @@ def record_batch(
         record = run_crowd(env, controller, fused=fused, record=True, progress=progress).record
     finally:
         progress.close()
-    return BatchRecord(
-        positions=record.positions,
-        velocities=record.velocities,
-        in_room=record.in_room,
-        exit_time=np.where(record.left_at >= 0, record.left_at * env.decision_length, np.nan).astype(np.float32),
-        frame_rate=env.decisions_per_second / record.every,
-        radius=env.agent_radius,
-        max_speed=env.max_speed,
-        crashes=record.crashes,
-        wall_crashes=record.wall_crashes,
-        speed_sum=record.speed_sum,
-        speed_sq_sum=record.speed_sq_sum,
-        speed_count=record.speed_count,
-    )
+    return replace(record, exit_time=record.exit_time.astype(np.float32))  # the evaluation's exit times: float32
 
 
 def check_fused_controller(controller: Controller, envs: Iterable[RoomEnv], fused: bool | None = True) -> None:
@@ -213,7 +201,7 @@ class ScalingStats:
     speed_sq_sum: float = 0.0
     speed_count: int = 0
 
-    def add(self, record: BatchRecord, keep: int) -> None:
+    def add(self, record: Recording, keep: int) -> None:
         """Add the first ``keep`` replicas of ``record``."""
         reached, exit_time = record.left[:keep], record.exit_time[:keep]
         num_agents = reached.shape[1]
@@ -480,7 +468,7 @@ def simulate_agent_count(
             record = record_batch(env, policy.controller, fused=settings.fused, label=label)
         keep = min(runs_per_batch, total_runs - first_run)
         stats.add(record, keep)
-        runs = [record.run(i, geometry) for i in range(keep)]
+        runs = [Trajectories.of_run(record, i, geometry) for i in range(keep)]
         diagram = compute_fundamental_diagram(
             runs, point=point, radius=settings.radius, min_density=settings.min_density
         )

@@ -22,7 +22,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from pedrl.evaluation.batch import BatchRecord
+from pedrl.common.recording import Recording
 from pedrl.integrations.jupedsim import (
     JuPedSimModel,
     JuPedSimRun,
@@ -61,7 +61,7 @@ class JuPedSimReference:
                 f" {env.decision_length:g} s) must be a whole number of JuPedSim steps"
             )
 
-    def record(self, env: RoomEnv) -> BatchRecord:
+    def record(self, env: RoomEnv) -> Recording:
         """Reset ``env`` (its generator draws the scenes) and simulate every replica's scene with JuPedSim."""
         env.reset()
         model = replace(self.model, radius=env.agent_radius)
@@ -71,8 +71,8 @@ class JuPedSimReference:
         )
 
 
-def batch_record(runs: list[JuPedSimRun]) -> BatchRecord:
-    """JuPedSim runs of one scene count as a :class:`~pedrl.evaluation.batch.BatchRecord` (one replica each), in
+def batch_record(runs: list[JuPedSimRun]) -> Recording:
+    """JuPedSim runs of one scene count as a :class:`~pedrl.common.recording.Recording` (one replica each), in
     the room's conventions (module docstring); shorter runs are padded with their last frame, agents inactive."""
     length = max(run.num_frames for run in runs)
     frames = np.arange(length)[:, None]  # (T, 1)
@@ -87,7 +87,7 @@ def batch_record(runs: list[JuPedSimRun]) -> BatchRecord:
         speeds.append(np.where(in_frame[1:], np.linalg.norm(velocity[1:], axis=-1), 0.0))  # (T - 1, N) m/s
     speed = np.stack(speeds)  # (R, T - 1, N)
     counted = np.stack(active)[:, 1:]
-    return BatchRecord(
+    return Recording(
         positions=np.stack(positions).astype(np.float32),
         velocities=np.stack(velocities).astype(np.float32),
         in_room=np.stack(in_room),

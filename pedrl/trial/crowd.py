@@ -28,11 +28,12 @@ import numpy as np
 import torch
 
 from pedrl._numba import numba_available
+from pedrl.common.recording import Recording
 from pedrl.rl.policy import PolicyController, TabularPolicy
 from pedrl.sim import RoomEnv
 from pedrl.sim.controllers import GreedyDoorController
-from pedrl.trial.fused import FusedRecord, Progress, record_trial_fused, run_trial_fused
-from pedrl.trial.loop import CrowdRun, Learner, TrialRecord, crowd_loop
+from pedrl.trial.fused import FusedTrace, Progress, record_trial_fused, run_trial_fused
+from pedrl.trial.loop import CrowdRun, Learner, crowd_loop, exit_times
 from pedrl.trial.stats import TOTALS, Totals, TrialStats
 from pedrl.trial.stepped import CompiledRoom
 
@@ -109,7 +110,7 @@ def run_crowd(
     if getattr(controller, "stepped", False):  # a network: the kernels step each decision, it acts in torch between
         return crowd_loop(CompiledRoom(env), controller, record=record, progress=progress)
     trace = record_trial_fused(env, controller, reset=start is None, progress=progress)
-    return CrowdRun(_fused_stats(env, trace), _fused_record(trace) if record else None)
+    return CrowdRun(_fused_stats(env, trace), _fused_record(env, trace) if record else None)
 
 
 # ---------------------------------------------------------------------- what the fused trial can run
@@ -157,26 +158,31 @@ def _room_reason(env: RoomEnv) -> str | None:
 
 
 # ---------------------------------------------------------------------- the fused trial's recording
-def _fused_record(trace: FusedRecord) -> TrialRecord:
-    """The fused trial's trace as the torch loop records a trial (speeds from the recorded velocities)."""
+def _fused_record(env: RoomEnv, trace: FusedTrace) -> Recording:
+    """The fused trial's trace as the torch loop records a trial (speeds from the recorded velocities), a frame every
+    ``trace.every`` decisions."""
     totals = Totals(*trace.totals)
     taken = trace.active[:, 1:]
     speed_sq = np.where(taken, (trace.velocities[:, 1:].astype(np.float64) ** 2).sum(-1), 0.0)
-    return TrialRecord(
+    return Recording(
         positions=trace.positions,
         velocities=trace.velocities,
         in_room=trace.in_room(),
-        left_at=np.where(totals.reached > 0, totals.decisions, -1).astype(np.int64),
+        exit_time=exit_times(
+            np.where(totals.reached > 0, totals.decisions, -1).astype(np.int64), env.decisions_per_second
+        ),
+        frame_rate=env.decisions_per_second / trace.every,
+        radius=env.agent_radius,
+        max_speed=env.max_speed,
         crashes=totals.crashes_agent.astype(np.int64),
         wall_crashes=totals.crashes_wall.astype(np.int64),
         speed_sum=np.sqrt(speed_sq).sum((1, 2)),
         speed_sq_sum=speed_sq.sum((1, 2)),
         speed_count=taken.sum((1, 2)).astype(np.int64),
-        every=trace.every,
     )
 
 
-def _fused_stats(env: RoomEnv, trace: FusedRecord) -> TrialStats:
+def _fused_stats(env: RoomEnv, trace: FusedTrace) -> TrialStats:
     """The statistics of a recorded fused trial, all rooms together (one process, as the torch loop's)."""
     return TrialStats.from_totals(
         torch.from_numpy(trace.totals).float().view(len(TOTALS), -1),

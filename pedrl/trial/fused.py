@@ -32,7 +32,7 @@ from pedrl.trial.stats import TOTALS, Totals, TrialStats
 from pedrl.vq.encoder import EncoderSettings, StateEncoder
 from pedrl.vq.quantizer import Quantizer
 
-__all__ = ["FusedRecord", "RoomInputs", "record_trial_fused", "room_inputs", "run_trial_fused", "set_kernel_threads"]
+__all__ = ["FusedTrace", "RoomInputs", "record_trial_fused", "room_inputs", "run_trial_fused", "set_kernel_threads"]
 
 
 def set_kernel_threads(threads: int) -> None:
@@ -56,8 +56,10 @@ def run_trial_fused(env: RoomEnv, learner: Learner) -> TrialStats:
 
 
 @dataclass(frozen=True)
-class FusedRecord:
-    """A recorded trial of every room (numpy, frame 0 the reset, frame t after decision ``t * every``).
+class FusedTrace:
+    """What the fused kernels trace of a trial of every room (numpy, frame 0 the reset, frame t after decision
+    ``t * every``), read once into the trial's :class:`~pedrl.common.recording.Recording` and statistics
+    (:func:`pedrl.trial.crowd.run_crowd`).
 
     Attributes:
         positions: ``(R, T, N, 2)`` agent centres (m).
@@ -81,7 +83,7 @@ class FusedRecord:
 
 def record_trial_fused(
     env: RoomEnv, controller: Any, *, reset: bool = True, progress: Progress | None = None
-) -> FusedRecord:
+) -> FusedTrace:
     """One trial of every room of ``env``, acted by ``controller`` (a learned policy, epsilon-greedy without
     learning, or the greedy walker, with the controller's own ``epsilon`` and ``generator``), recorded frame by
     frame: from a reset (its generator draws the scene), or with ``reset=False`` from the rooms' current state (a
@@ -101,7 +103,7 @@ def record_trial_fused(
         last = -(-last // every)
         positions[r, last + 1 :] = positions[r, last]
         velocities[r, last + 1 :] = velocities[r, last]
-    return FusedRecord(positions, velocities, active, totals, every)
+    return FusedTrace(positions, velocities, active, totals, every)
 
 
 RECORD_BYTES: Final = 2 << 30

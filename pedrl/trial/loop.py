@@ -3,21 +3,21 @@ validation alike.
 
 :func:`crowd_loop` resets the rooms (or starts from a reset the caller made), lets the controller act decision after
 decision until every room is empty, and returns the trial's statistics (:class:`~pedrl.trial.stats.TrialStats`) and,
-when asked, its recording (:class:`TrialRecord`). The controller is a :class:`Learner` (a learned policy acting
-epsilon-greedily and, in training, learning by equation 1) or any controller with ``act(env, obs, info) -> (R, N)``
-(a :class:`~pedrl.rl.policy.PolicyController`, the greedy walker). Which path runs a trial, this loop or the fused
-trial, is chosen in one place: :func:`pedrl.trial.crowd.run_crowd`.
+when asked, its recording (a :class:`~pedrl.common.recording.Recording`). The controller is a :class:`Learner` (a
+learned policy acting epsilon-greedily and, in training, learning by equation 1) or any controller with ``act(env, obs,
+info) -> (R, N)`` (a :class:`~pedrl.rl.policy.PolicyController`, the greedy walker). Which path runs a trial, this loop
+or the fused trial, is chosen in one place: :func:`pedrl.trial.crowd.run_crowd`.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
 from typing import Any, Final, NamedTuple
 
 import numpy as np
 import torch
 
+from pedrl.common.recording import Recording
 from pedrl.rl import epsilon_greedy, td_update
 from pedrl.rl.policy import TabularPolicy
 from pedrl.sim import RoomEnv
@@ -127,49 +127,21 @@ class Acting(Driver):
         return self.controller.act(env, obs, info)
 
 
-@dataclass(frozen=True)
-class TrialRecord:
-    """A recorded trial of every room (numpy, on the host; frame 0 the start, frame t after decision t).
-
-    Attributes:
-        positions: ``(R, T, N, 2)`` float32 agent centres (m); a room that emptied early keeps its last frame.
-        velocities: ``(R, T, N, 2)`` float32 velocities (m/s).
-        in_room: ``(R, T, N)`` bool: in the room after frame t (frame 0: at the start).
-        left_at: ``(R, N)`` int64 the decision at which the agent reached its own goal, -1 if it did not.
-        crashes: ``(R, N)`` int64 decisions in which another body cut its move.
-        wall_crashes: ``(R, N)`` int64 decisions in which a wall cut its move.
-        speed_sum: ``(R,)`` float64 sum over agents and decisions taken of the speed after the decision (m/s).
-        speed_sq_sum: ``(R,)`` float64 the same sum of squared speeds (m^2/s^2).
-        speed_count: ``(R,)`` int64 decisions taken (agent-decisions).
-        every: Decisions between frames: 1, but for a crowd too large to record each decision
-            (:func:`pedrl.trial.fused.record_every`), whose speed sums are then over the recorded frames.
-    """
-
-    positions: np.ndarray
-    velocities: np.ndarray
-    in_room: np.ndarray
-    left_at: np.ndarray
-    crashes: np.ndarray
-    wall_crashes: np.ndarray
-    speed_sum: np.ndarray
-    speed_sq_sum: np.ndarray
-    speed_count: np.ndarray
-    every: int = 1
-
-
 class CrowdRun(NamedTuple):
     """What a trial gives: its statistics, per learning process (one for a controller that does not learn), and its
     recording (None unless asked for)."""
 
     stats: TrialStats
-    record: TrialRecord | None
+    record: Recording | None
 
 
 class Frames:
-    """The recording of the trial loop, decision by decision (:class:`TrialRecord`)."""
+    """The recorder of the trial loop, decision by decision: a :class:`~pedrl.common.recording.Recording` of every
+    room at the end."""
 
     def __init__(self, env: RoomEnv) -> None:
         shape, device = env.active.shape, env.positions.device
+        self.env = env
         self.positions, self.velocities = [_host(env.positions)], [_host(env.velocities)]
         self.in_room = [_host(env.active)]
         self.left_at = torch.full(shape, -1, dtype=torch.int64, device=device)
@@ -194,18 +166,29 @@ class Frames:
         self.velocities.append(_host(env.velocities))
         self.in_room.append(_host(env.active))
 
-    def record(self) -> TrialRecord:
-        return TrialRecord(
+    def record(self) -> Recording:
+        """The trial of every room, frame 0 the start and frame t after decision t."""
+        env = self.env
+        return Recording(
             positions=torch.stack(self.positions, 1).numpy(),
             velocities=torch.stack(self.velocities, 1).numpy(),
             in_room=torch.stack(self.in_room, 1).numpy(),
-            left_at=self.left_at.cpu().numpy(),
+            exit_time=exit_times(self.left_at.cpu().numpy(), env.decisions_per_second),
+            frame_rate=env.decisions_per_second,
+            radius=env.agent_radius,
+            max_speed=env.max_speed,
             crashes=self.crashes.cpu().numpy(),
             wall_crashes=self.wall_crashes.cpu().numpy(),
             speed_sum=self.speed_sum.sum(1).cpu().numpy(),
             speed_sq_sum=self.speed_sq_sum.sum(1).cpu().numpy(),
             speed_count=self.speed_count.sum(1).cpu().numpy(),
         )
+
+
+def exit_times(left_at: np.ndarray, rate: float) -> np.ndarray:
+    """``(R, N)`` float64 times (s) of the decisions or frames ``left_at`` (``rate`` of them a second) at which agents
+    left through their own exit (-1: never, NaN)."""
+    return np.where(left_at >= 0, left_at / rate, np.nan)
 
 
 def _host(tensor: torch.Tensor) -> torch.Tensor:

@@ -1,6 +1,6 @@
 """Crowds the validation suite simulates: a pedrl room driven by a controller (learned tables or greedy), or JuPedSim.
 
-A crowd turns a scenario, a number of agents and a time budget into a :class:`~pedrl.validation.measures.Recording`;
+A crowd turns a scenario, a number of agents and a time budget into a :class:`~pedrl.common.recording.Recording`;
 the tests judge recordings only, so every model is held to the same measures. Both crowds place their agents with
 the pedrl room of the run (its ``reset(seed=...)``, or the test's hand placement): JuPedSim starts from the very
 positions, exits and routes of the pedrl runs it is compared with.
@@ -22,6 +22,7 @@ from pedrl.integrations.jupedsim import pad_frames, simulate_room
 from pedrl.scenarios import Scenario
 from pedrl.sim import RoomEnv, RoomParams
 from pedrl.trial.crowd import run_crowd
+from pedrl.trial.loop import exit_times
 
 
 class Crowd(Protocol):
@@ -49,11 +50,6 @@ class Crowd(Protocol):
             headings: ``(R, N)`` start headings (rad) of hand-placed agents, or ``None`` for the room's (uniform).
         """
         ...
-
-
-def exit_times(left_at: np.ndarray, frame_rate: float) -> np.ndarray:
-    """``(R, N)`` times (s) of the frames ``left_at`` at which agents left (-1: never, NaN)."""
-    return np.where(left_at >= 0, left_at / frame_rate, np.nan)
 
 
 @dataclass
@@ -148,14 +144,7 @@ class PedrlCrowd:
             headings=headings,
         )
         record = run_crowd(env, self.controller, fused=self.fused, record=True, start=(obs, info)).record
-        return Recording(
-            positions=record.positions,
-            in_room=record.in_room,
-            exit_time=exit_times(record.left_at, env.decisions_per_second),
-            frame_rate=env.decisions_per_second,
-            radius=env.agent_radius,
-            max_speed=env.max_speed,
-        )
+        return replace(record, velocities=None)  # the suite reads positions; its files, velocity 0 as JuPedSim's
 
 
 @dataclass

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from pedrl.analysis import Recording, trajectories_for_export, write_jupedsim_sqlite
+from pedrl.analysis import Recording, Trajectories, trajectories_for_export, write_jupedsim_sqlite
 from pedrl.scenarios import LIDDLE_WIDTHS, Scenario
 from pedrl.validation.crowds import Crowd
 from pedrl.validation.measures import InvariantTally
@@ -126,7 +126,9 @@ class Context:
             count = self._written[self.test] = self._written.get(self.test, 0) + 1
             self.trajectories.mkdir(parents=True, exist_ok=True)
             path = self.trajectories / f"{self.test}_{count}.sqlite"
-            write_jupedsim_sqlite(path, trajectories_for_export(recording.run(0, scenario.analysis_geometry())))
+            write_jupedsim_sqlite(
+                path, trajectories_for_export(Trajectories.of_run(recording, 0, scenario.analysis_geometry()))
+            )
         return recording
 
 

@@ -34,8 +34,9 @@ def test_a_trial_in_parts_equals_one_call(monkeypatch):
     assert len(calls) > 3  # four decisions a part
     assert [done for done, _ in calls] == sorted(done for done, _ in calls)
     assert calls[-1][1] == 0 and all(left > 0 for _, left in calls[:-1])
-    for name in ("positions", "velocities", "in_room", "left_at", "crashes", "speed_sum"):
+    for name in ("positions", "velocities", "in_room", "crashes", "speed_sum"):
         assert np.array_equal(getattr(parts.record, name), getattr(whole.record, name)), name
+    assert np.array_equal(parts.record.exit_time, whole.record.exit_time, equal_nan=True)
     assert parts.stats == whole.stats
 
 
@@ -44,12 +45,13 @@ def test_a_crowd_too_large_to_record_is_recorded_every_few_decisions(monkeypatch
     per_frame = 17 * 3 * 12
     sampled = recorded(monkeypatch, record_bytes=per_frame * 8).record  # 8 frames fit
     decisions = whole.positions.shape[1] - 1
-    assert sampled.every == -(-(fused_max_decisions() + 1) // 8) > 1
-    assert sampled.positions.shape[1] == -(-decisions // sampled.every) + 1
+    every = round(whole.frame_rate / sampled.frame_rate)  # decisions between frames
+    assert every == -(-(fused_max_decisions() + 1) // 8) > 1 and sampled.frame_rate == whole.frame_rate / every
+    assert sampled.positions.shape[1] == -(-decisions // every) + 1
     for frame in range(sampled.positions.shape[1] - 1):  # frame k after decision k * every
-        assert np.array_equal(sampled.positions[:, frame], whole.positions[:, frame * sampled.every])
+        assert np.array_equal(sampled.positions[:, frame], whole.positions[:, frame * every])
     assert np.array_equal(sampled.positions[:, -1], whole.positions[:, -1])  # and the end
-    assert np.array_equal(sampled.left_at, whole.left_at)  # exits are counted, not sampled
+    assert np.array_equal(sampled.exit_time, whole.exit_time, equal_nan=True)  # exits are counted, not sampled
 
 
 def fused_max_decisions() -> int:
