@@ -7,7 +7,7 @@ import warnings
 import pytest
 from omegaconf import open_dict
 
-import pedrl.sim.room_checks
+import pedrl.sim.rewards
 from pedrl.io import load_checkpoint
 from pedrl.notices import PedrlWarning, warn
 from pedrl.train import train
@@ -15,8 +15,8 @@ from pedrl.train import train
 
 def test_a_run_whose_tables_turn_non_finite_stops_with_one_line(train_config, tmp_path, monkeypatch):
     """Rewards near float32's limit (here let through by lifting the bound) overflow the returns to inf."""
-    monkeypatch.setattr(pedrl.sim.room_checks, "MAX_REWARD", float("inf"))
-    cfg = train_config("algo=vqql", "logger=none", "env.reward_goal=3e38", "env.reward_crash_wall=-3e38")
+    monkeypatch.setattr(pedrl.sim.rewards, "MAX_REWARD", float("inf"))
+    cfg = train_config("algo=vqql", "logger=none", "env.reward_goal=3e38")
     with pytest.raises(ValueError, match=r"phase 1, trial \d+: the returns or Q tables turned inf or NaN") as error:
         train(cfg, run_dir=tmp_path)
     assert "\n" not in str(error.value)
