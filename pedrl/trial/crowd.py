@@ -135,7 +135,7 @@ def _policy_reason(env: RoomEnv, policy: TabularPolicy) -> str | None:
     if policy.device.type != "cpu":
         return f"on {policy.device.type}: it runs on the CPU"
     settings = policy.encoder.settings
-    if (env.num_neighbours, env.num_walls) != (settings.num_neighbours, settings.num_walls):
+    if (env.params.num_neighbours, env.params.num_walls) != (settings.num_neighbours, settings.num_walls):
         return "in a room that senses other neighbour or wall slots than the encoder reads"
     quantizer = policy.encoder.quantizer
     if quantizer is None:
@@ -182,7 +182,7 @@ def _fused_stats(env: RoomEnv, trace: FusedRecord) -> TrialStats:
         torch.from_numpy(trace.totals).float().view(len(TOTALS), -1),
         processes=1,
         num_agents=env.num_agents,
-        decision_length=env.decision_length,
+        decision_length=env.params.decision_length,
         td_error=torch.zeros(1),
         decisions=trace.positions.shape[1] - 1,
     )

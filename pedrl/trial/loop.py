@@ -266,7 +266,7 @@ def crowd_loop(
         totals,
         processes=driver.processes,
         num_agents=num_agents,
-        decision_length=env.decision_length,
+        decision_length=env.params.decision_length,
         td_error=driver.td_error(),
         decisions=int(decisions),
     )

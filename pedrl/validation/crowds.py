@@ -151,10 +151,10 @@ class PedrlCrowd:
         return Recording(
             positions=record.positions,
             in_room=record.in_room,
-            exit_time=exit_times(record.left_at, env.decisions_per_second),
-            frame_rate=env.decisions_per_second,
-            radius=env.agent_radius,
-            max_speed=env.max_speed,
+            exit_time=exit_times(record.left_at, env.params.decisions_per_second),
+            frame_rate=env.params.decisions_per_second,
+            radius=env.params.agent_radius,
+            max_speed=env.params.max_speed,
         )
 
 
