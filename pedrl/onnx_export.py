@@ -91,15 +91,17 @@ def contract(policy: NeuralPolicy, room: Any, process: int) -> dict[str, Any]:
         "actions": {
             "count": len(speeds) * len(turns),
             "index": "speed_index * 9 + turn_index",
-            "frame": room.action_frame,
+            "frame": room.params.action_frame,
             "speed": speeds,
             "turn": turns,
-            "speed_meaning": "the new speed (m/s)" if room.action_frame == "goal" else "the change of speed (m/s)",
+            "speed_meaning": "the new speed (m/s)"
+            if room.params.action_frame == "goal"
+            else "the change of speed (m/s)",
             "turn_meaning": "the heading's offset from the line to the goal (rad)"
-            if room.action_frame == "goal"
+            if room.params.action_frame == "goal"
             else "the change of heading (rad)",
-            "max_speed": float(room.max_speed),
-            "decision_length_s": float(room.decision_length),
+            "max_speed": float(room.params.max_speed),
+            "decision_length_s": float(room.params.decision_length),
         },
         "room": config.get("env", {}),
         "scenario": config.get("scenario", {}),

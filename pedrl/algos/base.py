@@ -405,7 +405,7 @@ class Trainer:
     def feature_weights(self, feature_index: torch.Tensor | None = None) -> torch.Tensor:
         """Per-feature weights ``(F,)`` (or of the features ``feature_index`` selects) from the ``vq`` settings."""
         room = next(iter(self._envs.values()))
-        return feature_weights(self.vq, room.num_neighbours, room.num_features, self.device, feature_index)
+        return feature_weights(self.vq, room.params.num_neighbours, room.num_features, self.device, feature_index)
 
     def policy(self, quantizer: Any, q_values: torch.Tensor) -> TabularPolicy:
         """The tables ``q_values (P, A, K, U)`` over ``quantizer`` as a policy of this trainer's rooms (rooms

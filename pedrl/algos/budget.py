@@ -36,7 +36,7 @@ def memory_needs(trainer: TrainerView) -> dict[str, float]:
         tables = max(tables, TABLE_COPIES * entries * 4)
         rooms = trainer.processes * trainer.rooms_per_process
         trained_in = [room for _, room in trainer.rooms(env)]  # the phase's room and the mix rooms
-        rows = phase.gather_trials * rooms * sum(room.num_agents for room in trained_in) * env.max_decisions
+        rows = phase.gather_trials * rooms * sum(room.num_agents for room in trained_in) * env.params.max_decisions
         gathered = max(gathered, rows * (GATHER_COPIES * env.num_features * 4 + 16))
         fit_rows = min(rows, trainer.vq.max_states)
         kmeans = max(kmeans, (KMEANS_COPIES * fit_rows * env.num_features + chunk * trainer.vq.num_prototypes) * 4)
@@ -57,7 +57,7 @@ def check_gathering_yield(trainer: TrainerView) -> None:
             "algo.gather_trials": phase.gather_trials,
             "rooms_per_process": trainer.rooms_per_process,
             "agents": sum(trained_in),
-            "env.max_decisions": env.max_decisions,
+            "env.max_decisions": env.params.max_decisions,
         }
         if not trainer.vq.per_process:
             factors = {"processes": trainer.processes, **factors}

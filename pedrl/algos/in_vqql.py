@@ -95,7 +95,7 @@ class INVQQL(Trainer):
 
     def sensed_neighbours(self, num_agents: int) -> int:
         """Neighbours an agent senses when ``num_agents`` agents are in the room: ``min(m - 1, k)``."""
-        return min(num_agents - 1, self.env_for(num_agents).num_neighbours)
+        return min(num_agents - 1, self.env_for(num_agents).params.num_neighbours)
 
     def fit_quantizer(
         self,
@@ -110,7 +110,7 @@ class INVQQL(Trainer):
         part's K (see :meth:`Trainer.fit_quantizers`)."""
         env = self.env_for(phase.num_agents)
         n = self.sensed_neighbours(phase.num_agents)
-        index = feature_indices(n, env.num_neighbours, env.num_walls).to(self.device)
+        index = feature_indices(n, env.params.num_neighbours, env.params.num_walls).to(self.device)
         full = states[num_sensed == n][:, index]
         quantizer, distortion = self.fit_plain_quantizer(full, index, num_prototypes=num_prototypes)
         union = previous if previous is not None else UnionQuantizer()
@@ -131,7 +131,7 @@ class INVQQL(Trainer):
         env = self.env_for(self.stages[0])
         for n in expected:
             index, quantizer = part.part(n)
-            wanted = feature_indices(n, env.num_neighbours, env.num_walls)
+            wanted = feature_indices(n, env.params.num_neighbours, env.params.num_walls)
             if not torch.equal(index.cpu(), wanted) or quantizer.dim != wanted.numel():
                 return f"part {n} reads features {index.tolist()}: must read {wanted.tolist()}"
         limit = (position + 1) * self.vq.num_prototypes

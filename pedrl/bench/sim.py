@@ -52,7 +52,7 @@ def time_stepping(
 
     def advance(count: int) -> None:
         for _ in range(count):
-            if env.decision >= env.max_decisions:
+            if env.decision >= env.params.max_decisions:
                 env.reset()
             env.step(torch.randint(0, NUM_ACTIONS, shape, generator=generator, device=env.device))
 

@@ -188,7 +188,7 @@ def walk_pedrl(agents: int, sim_time: float, *, seed: int = 0) -> dict:
         "agent_steps": int(record.speed_count.sum()) * env.num_substeps,
         "agents_left": int(record.left.sum()),
         "same_exits_share": float((env.exit_index[0].numpy() == nearest_exits(positions, scenario)).mean()),
-        "time_step_s": env.decision_length / env.num_substeps,
+        "time_step_s": env.params.decision_length / env.num_substeps,
     }
 
 

@@ -259,7 +259,7 @@ def check_against_room(cfg: DictConfig, geometry: Geometry, envs: dict[int, Room
             f"measurement.distance={cfg.measurement.distance!r} is invalid: the measurement point must be inside the "
             f"room, a distance in [0, {geometry.length:g}) m (the room's length) in front of the door"
         )
-    fps, decisions = (cfg.get("export") or {}).get("fps"), next(iter(envs.values())).decisions_per_second
+    fps, decisions = (cfg.get("export") or {}).get("fps"), next(iter(envs.values())).params.decisions_per_second
     if fps is not None and fps < decisions:
         raise ValueError(
             f"export.fps={fps!r} is invalid: must be at least the room's {decisions:g} decisions per second "
@@ -304,5 +304,5 @@ def _recording_path(env: RoomEnv, controller: Any, setting: Any) -> str:
 def _kept_frames(env: RoomEnv, *, thinned: bool) -> int:
     """Agent-frames a batch in ``env`` keeps: every decision's (the torch loop), or every
     :func:`pedrl.trial.fused.record_every` decisions' and the start (the fused trial), in every room."""
-    every = record_every(env.num_replicas, env.num_agents, env.max_decisions) if thinned else 1
-    return env.num_replicas * (-(-env.max_decisions // every) + 1) * env.num_agents
+    every = record_every(env.num_replicas, env.num_agents, env.params.max_decisions) if thinned else 1
+    return env.num_replicas * (-(-env.params.max_decisions // every) + 1) * env.num_agents

@@ -147,7 +147,9 @@ class CrowdProgress:
         if env.num_replicas * env.num_agents >= PROGRESS_AGENTS:
             from tqdm import tqdm
 
-            self.bar = tqdm(total=env.max_decisions, desc=label, unit="decision", dynamic_ncols=True, leave=False)
+            self.bar = tqdm(
+                total=env.params.max_decisions, desc=label, unit="decision", dynamic_ncols=True, leave=False
+            )
 
     def __call__(self, decisions: int, left: int) -> None:
         if self.bar is not None:
@@ -481,8 +483,8 @@ def simulate_agent_count(
                 run_dir / f"animation_{env.num_agents}.gif",
                 fps=settings.animation_fps,
                 max_frames=settings.animation_max_frames,
-                agent_radius=env.agent_radius,
-                max_speed=env.max_speed,
+                agent_radius=env.params.agent_radius,
+                max_speed=env.params.max_speed,
             )
         for i in range(min(keep, to_export - first_run)):
             if first_run + i == 0:

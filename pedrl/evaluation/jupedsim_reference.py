@@ -51,23 +51,25 @@ class JuPedSimReference:
     def check(self, env: RoomEnv) -> None:
         """One-line ``ValueError`` if a decision of ``env`` is not a whole number of JuPedSim steps, the scenario
         has no room for JuPedSim's exit aprons, or JuPedSim refuses the model's parameters at the room's body radius."""
-        model = replace(self.model, radius=env.agent_radius)
+        model = replace(self.model, radius=env.params.agent_radius)
         walkable_with_aprons(self.scenario, depth=apron_depth(model))
         check_model(model)
-        steps = env.decision_length / self.model.dt
+        steps = env.params.decision_length / self.model.dt
         if abs(steps - round(steps)) > 1e-6 * steps or round(steps) < 1:
             raise ValueError(
                 f"jupedsim.dt={self.model.dt!r} is invalid: a decision of the room (1 / decisions_per_second ="
-                f" {env.decision_length:g} s) must be a whole number of JuPedSim steps"
+                f" {env.params.decision_length:g} s) must be a whole number of JuPedSim steps"
             )
 
     def record(self, env: RoomEnv) -> Recording:
         """Reset ``env`` (its generator draws the scenes) and simulate every replica's scene with JuPedSim."""
         env.reset()
-        model = replace(self.model, radius=env.agent_radius)
-        max_time = env.max_decisions * env.decision_length
+        model = replace(self.model, radius=env.params.agent_radius)
+        max_time = env.params.max_decisions * env.params.decision_length
         return batch_record(
-            simulate_room(self.scenario, env, model=model, max_time=max_time, frame_rate=env.decisions_per_second)
+            simulate_room(
+                self.scenario, env, model=model, max_time=max_time, frame_rate=env.params.decisions_per_second
+            )
         )
 
 

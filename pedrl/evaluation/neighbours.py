@@ -110,7 +110,7 @@ def scenes_of(room, *, speed_ratios: Sequence[float], seed: int) -> Scenes:
     return Scenes(
         positions=positions.repeat_interleave(count, 0),
         headings=bearings.repeat_interleave(count, 0),
-        speeds=(ratios * room.max_speed).repeat(positions.shape[0]),
+        speeds=(ratios * room.params.max_speed).repeat(positions.shape[0]),
         goals=goals.repeat_interleave(count, 0),
     )
 
@@ -170,8 +170,8 @@ def sight_ids(
         sensed=observers if alone else torch.ones_like(observers),
         geometry=room.geometry,
         goals=scenes.goals[:, None, None].expand(num_scenes, configurations, agents, 2).reshape(batch, agents, 2),
-        num_neighbours=room.num_neighbours,
-        num_walls=room.num_walls,
+        num_neighbours=room.params.num_neighbours,
+        num_walls=room.params.num_walls,
     )
     features = obs.features[:, 0].view(num_scenes, configurations, -1)
     sensed_counts = obs.num_sensed[:, 0].view(num_scenes, configurations)

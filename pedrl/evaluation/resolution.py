@@ -105,8 +105,8 @@ def turn_ids(
             sensed=sensed,
             geometry=room.geometry,
             goals=room.targets(),
-            num_neighbours=room.num_neighbours,
-            num_walls=room.num_walls,
+            num_neighbours=room.params.num_neighbours,
+            num_walls=room.params.num_walls,
         )
         num_sensed = obs.num_sensed[:, 0]
         # decision 0 draws the random void fillings once per position; the later headings keep them
@@ -190,7 +190,7 @@ def heading_resolution(
         policy.encoder,
         room,
         headings=headings,
-        speed=speed_ratio * room.max_speed,
+        speed=speed_ratio * room.params.max_speed,
         seed=seed,
         processes=policy.num_processes,
     )

@@ -68,9 +68,9 @@ def observation_bounds(env: RoomEnv) -> tuple[np.ndarray, np.ndarray]:
     are widened by ``BOUND_SLACK``; a feature of unknown kind gets ``(-inf, inf)``. Inactive agents' zeros are
     inside every bound.
     """
-    max_speed = float(env.max_speed)
+    max_speed = float(env.params.max_speed)
     max_distance = float(env.max_distance)
-    goal_depth = float(getattr(env, "goal_depth", 0.0))
+    goal_depth = float(env.params.goal_depth)
     low, high = [], []
     for name in env.feature_names:
         if name == "speed":
@@ -190,7 +190,7 @@ class PedestrianParallelEnv(ParallelEnv):
             agent: spaces.Box(low=low, high=high, dtype=np.float32) for agent in self.possible_agents
         }
         self.action_spaces = {agent: spaces.Discrete(env.num_actions) for agent in self.possible_agents}
-        max_velocity = _widen(float(env.max_speed))
+        max_velocity = _widen(float(env.params.max_speed))
         num_agents = env.num_agents
         state_low = np.concatenate((np.full(2 * num_agents, -np.inf), np.full(2 * num_agents, -max_velocity))).astype(
             np.float32

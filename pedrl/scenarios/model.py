@@ -139,7 +139,7 @@ class Scenario:
         """
         params = RoomParams.from_settings(settings) if params is None else replace(params, **settings)
         room = RoomEnv(self.geometry(), params, num_replicas=num_replicas, num_agents=num_agents, device=device)
-        self.check_capacity(room.num_agents, room.agent_radius)
+        self.check_capacity(room.num_agents, room.params.agent_radius)
         return room
 
     def geometry(self, *, goal_depth: float = 0.0, device: str | torch.device = "cpu") -> Geometry:

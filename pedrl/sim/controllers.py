@@ -47,15 +47,15 @@ class GreedyDoorController:
 
     def act(self, env: RoomEnv, obs: torch.Tensor, info: Mapping[str, Any]) -> torch.Tensor:
         """Actions ``(R, N)`` int64 for observations ``obs (R, N, F)`` of ``env``."""
-        turns = torch.as_tensor(env.turn_ratios, dtype=obs.dtype, device=obs.device) * math.pi
-        if env.action_frame == "goal":  # the turn index sets the heading relative to the line to the door
+        turns = torch.as_tensor(env.params.turn_ratios, dtype=obs.dtype, device=obs.device) * math.pi
+        if env.params.action_frame == "goal":  # the turn index sets the heading relative to the line to the door
             residual = turns.expand(*obs.shape[:-1], -1)
         else:
             velocity_angle = obs[..., 1]  # heading relative to the line to the door, rad, in (-pi, pi]
             residual = torch.remainder(velocity_angle.unsqueeze(-1) + turns + math.pi, 2 * math.pi) - math.pi
         turn_index = residual.abs().argmin(dim=-1)
-        speed_index = int(torch.as_tensor(env.speed_ratios).argmax())
-        actions = speed_index * len(env.turn_ratios) + turn_index
+        speed_index = int(torch.as_tensor(env.params.speed_ratios).argmax())
+        actions = speed_index * len(env.params.turn_ratios) + turn_index
         if self.epsilon == 0.0:
             return actions
         draw = torch.rand(actions.shape, generator=self.generator, device=self.generator.device)

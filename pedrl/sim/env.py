@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import fields, replace
+from dataclasses import replace
 from typing import Any, Final
 
 import torch
@@ -29,6 +29,7 @@ from pedrl.sim.actions import (
 from pedrl.sim.geometry import Geometry, X, Y, extent, spawn_counts
 from pedrl.sim.motion import (
     Motion,
+    MotionModel,
     Movement,
     SlidingMotion,
     move_agents,
@@ -72,14 +73,15 @@ class RoomEnv:
         headings: Headings ``(R, N)`` (rad, world frame, in ``(-pi, pi]``).
         speeds: Speeds ``(R, N)`` (m/s, in ``[0, max_speed]``); frozen once an agent is inactive.
         active: Agents still in their trial ``(R, N)`` bool.
-        params: The room's settings (:class:`~pedrl.sim.params.RoomParams`), with what the fast path supports; each
-            is also an attribute of the room (``agent_radius``, ``max_speed``, ``motion``, ...), bar two: ``rewards``
-            is their reward table and ``substep_length`` the longest move per sub-step (m; the body radius where the
-            setting is None).
+        params: The room's settings (:class:`~pedrl.sim.params.RoomParams`), with what the fast path supports: read
+            them there (``room.params.max_speed``; ``params.rewards`` is their reward table, ``params.substep`` the
+            longest move per sub-step, ``params.decision_length`` a decision's duration). The room keeps only what is
+            its own: the batch, the built area and tables, the state, and the motion model (:attr:`motion`).
         state: The rooms' state (:class:`~pedrl.sim.state.RoomState`); :meth:`load_state` sets it.
         geometry: The walkable area: walls, exits, spawn areas and routes (:class:`~pedrl.sim.geometry.Geometry`),
             on ``device``, its goal points at ``goal_depth``.
-        motion: The motion model (:class:`~pedrl.sim.motion.MotionModel`: ``Stop``, ``Slide``, ``Yield`` ...).
+        motion: The motion model (:class:`~pedrl.sim.motion.MotionModel`: ``Stop``, ``Slide``, ``Yield`` ...),
+            ``params.motion`` (read-only).
         motion_constants: The constants of a decision's movement under it (:class:`~pedrl.sim.motion.Motion`).
         exit_index: The exit each agent heads for ``(R, N)`` int64: its group's, or the nearest at placement.
         stage: The waypoint each agent aims at ``(R, N)`` int64; past its group's waypoints, its exit.
@@ -90,6 +92,8 @@ class RoomEnv:
         num_features: ``3 + 3 * num_neighbours + 2 * num_walls``.
         feature_names: Names of the features in layout order.
         num_substeps: Sub-steps per decision.
+        speed_changes: The speed change (m/s) of each speed index, ``speed_ratios * max_speed``, on ``device``.
+        turn_changes: The heading change (rad) of each turn index, ``turn_ratios * pi``, on ``device``.
     """
 
     num_actions: Final = NUM_ACTIONS
@@ -110,7 +114,7 @@ class RoomEnv:
                 (``pedrl.scenarios``; ``Scenario.room(...)`` compiles it and builds a room in one call, the paper's
                 room with ``pedrl.scenarios.paper_room``); its goal points are moved to ``params.goal_depth``.
             params: The room's settings (:class:`~pedrl.sim.params.RoomParams`, checked when they were made; None:
-                the defaults). Each is also an attribute of the room of the same name (``room.max_speed``).
+                the defaults), kept as :attr:`params` (``room.params.max_speed``).
             num_replicas: Number R of independent rooms stepped together.
             num_agents: Number N of agents per room.
             device: Torch device of every tensor.
@@ -133,19 +137,18 @@ class RoomEnv:
         check_area(area, params.agent_radius)
         check_integer("num_walls", params.num_walls, minimum=0, maximum=area.num_walls)
         self.params = params
-        for item in fields(params):  # each setting, also an attribute of the room
-            setattr(self, item.name, getattr(params, item.name))
-        self.rewards, self.substep_length = params.rewards, params.substep
         self._build(self._checked_room(area))
 
     def _checked_room(self, area: Geometry) -> Geometry:
         """The walkable area with its goal points at ``goal_depth``, and the checks that need it: the agents fit in
         the spawn areas, the sub-steps and the memory of a decision."""
-        if area.goal_depth != self.goal_depth:
-            area = replace(area, goal_depth=self.goal_depth)
+        if area.goal_depth != self.params.goal_depth:
+            area = replace(area, goal_depth=self.params.goal_depth)
         self.spawn_counts = spawn_counts(self.num_agents, [spawn.weight for spawn in area.spawns])
-        check_density(area, self.spawn_counts, self.num_agents, agent_radius=self.agent_radius, room=extent(area))
-        self.decision_length, self.num_substeps = self.params.decision_length, self.params.num_substeps
+        check_density(
+            area, self.spawn_counts, self.num_agents, agent_radius=self.params.agent_radius, room=extent(area)
+        )
+        self.num_substeps = self.params.num_substeps
         check_memory(
             {"room state and collision pairs": self.step_memory()},
             device=self.device,
@@ -161,22 +164,22 @@ class RoomEnv:
         self.spawns = Spawns(
             self.geometry,
             self.spawn_counts,
-            agent_radius=self.agent_radius,
+            agent_radius=self.params.agent_radius,
             num_replicas=self.num_replicas,
             room=extent(geometry),
             device=self.device,
         )
-        constants = (self.geometry, self.agent_radius, self.decision_length, self.num_substeps)
+        constants = (self.geometry, self.params.agent_radius, self.params.decision_length, self.num_substeps)
         model = self.motion
         self.motion_constants = (
             Motion(*constants)
             if model.contact == "stop"
             else SlidingMotion(*constants, model.time_gap, model.contact == "yield", model.steering)
         )
-        self.speed_changes = torch.tensor(self.speed_ratios, device=self.device) * self.max_speed
-        self.turn_changes = torch.tensor(self.turn_ratios, device=self.device) * math.pi
-        self.num_features = num_features(self.num_neighbours, self.num_walls)
-        self.feature_names = feature_names(self.num_neighbours, self.num_walls)
+        self.speed_changes = torch.tensor(self.params.speed_ratios, device=self.device) * self.params.max_speed
+        self.turn_changes = torch.tensor(self.params.turn_ratios, device=self.device) * math.pi
+        self.num_features = num_features(self.params.num_neighbours, self.params.num_walls)
+        self.feature_names = feature_names(self.params.num_neighbours, self.params.num_walls)
         self.generator = torch.Generator(device=self.device)
         self.generator.seed()
 
@@ -262,6 +265,11 @@ class RoomEnv:
         return self._steps_taken - self._oldest_reset
 
     @property
+    def motion(self) -> MotionModel:
+        """The motion model, ``params.motion``."""
+        return self.params.motion
+
+    @property
     def max_distance(self) -> float:
         """The room diagonal (m): no two points of the room are further apart (for ``fill_void_neighbours``)."""
         return self.geometry.diagonal
@@ -309,7 +317,7 @@ class RoomEnv:
             replicas = torch.ones(self.num_replicas, dtype=torch.bool, device=self.device)
         chosen = replicas.unsqueeze(-1)  # (R, 1)
         positions, headings, speeds = self.spawns.start(
-            options, replicas, self.generator, max_speed=self.max_speed, rounds=MAX_PLACEMENT_ROUNDS
+            options, replicas, self.generator, max_speed=self.params.max_speed, rounds=MAX_PLACEMENT_ROUNDS
         )
 
         self.positions = torch.where(chosen.unsqueeze(-1), positions, self.positions)
@@ -317,7 +325,9 @@ class RoomEnv:
         self.speeds = torch.where(chosen, speeds, self.speeds)
         self.velocities = velocities_from(speeds=self.speeds, headings=self.headings)
         self.active = self.active | chosen
-        exits = self.spawns.assign(self.positions, chosen, max_speed=self.max_speed, queue_weight=self.queue_weight)
+        exits = self.spawns.assign(
+            self.positions, chosen, max_speed=self.params.max_speed, queue_weight=self.params.queue_weight
+        )
         self.exit_index = torch.where(chosen, exits, self.exit_index)
         self.stage = torch.where(chosen, 0, self.stage)
         self._targets = self.spawns.route_point(self.stage, self.exit_index)
@@ -358,7 +368,7 @@ class RoomEnv:
 
         # ---- decide: new speeds and headings
         bearings = None
-        if self.action_frame == "goal":
+        if self.params.action_frame == "goal":
             to_goal = targets - self.positions
             bearings = torch.atan2(to_goal[..., Y], to_goal[..., X])
         speeds, headings = apply_actions(
@@ -367,7 +377,7 @@ class RoomEnv:
             actions=actions,
             speed_changes=self.speed_changes,
             turn_changes=self.turn_changes,
-            max_speed=self.max_speed,
+            max_speed=self.params.max_speed,
             active=acting,
             bearings=bearings,
         )
@@ -378,7 +388,7 @@ class RoomEnv:
         self._steps_taken += 1
         self.decisions = self.decisions + 1
         in_room = acting & ~movement.reached
-        truncated = in_room & (self.decisions >= self.max_decisions).unsqueeze(-1)
+        truncated = in_room & (self.decisions >= self.params.max_decisions).unsqueeze(-1)
         self.positions = movement.positions
         self.speeds = speeds
         self.headings = headings
@@ -389,7 +399,7 @@ class RoomEnv:
         # ---- rewards and observations: the goal only through the agent's own exit
         reached = self.spawns.own_exit(movement.reached, movement.positions, self.exit_index)
         reward = compute_rewards(
-            table=self.rewards,
+            table=self.params.rewards,
             reached=reached,
             crashed_wall=movement.crashed_wall,
             crashed_agent=movement.crashed_agent,
@@ -422,8 +432,8 @@ class RoomEnv:
         if model.contact != "stop":
             movement = move_agents_sliding(**bodies, motion=constants, priority=priority)
             # the speed is the distance actually walked; the heading stays the commanded one
-            walked = torch.linalg.vector_norm(movement.positions - self.positions, dim=-1) / self.decision_length
-            speeds = torch.where(acting, walked.clamp_max(self.max_speed), speeds)
+            walked = torch.linalg.vector_norm(movement.positions - self.positions, dim=-1) / self.params.decision_length
+            speeds = torch.where(acting, walked.clamp_max(self.params.max_speed), speeds)
             velocities = velocities_from(speeds=speeds, headings=headings)
         else:
             if model.rule == "sequential":
@@ -446,7 +456,7 @@ class RoomEnv:
                 " grids of cells in memory linear in the agents",
             )
             self._torch_memory_checked = True
-        sense = compiled_observe() if self.compile_sensing else observe
+        sense = compiled_observe() if self.params.compile_sensing else observe
         return sense(
             positions=self.positions,
             velocities=self.velocities,
@@ -456,8 +466,8 @@ class RoomEnv:
             sensed=sensed,
             geometry=self.geometry,
             goals=self.targets(),
-            num_neighbours=self.num_neighbours,
-            num_walls=self.num_walls,
+            num_neighbours=self.params.num_neighbours,
+            num_walls=self.params.num_walls,
         )
 
     @staticmethod

@@ -194,7 +194,7 @@ class RoomParams:
     agent_radius: float = setting(ANY, kernel(float), 0.4)
     max_speed: float = setting(ANY, kernel(np.float32), 2.5)
     decisions_per_second: float = setting(
-        ANY, derived("decision_length", lambda room: float(room.decision_length)), 1.0
+        ANY, derived("decision_length", lambda room: float(room.params.decision_length)), 1.0
     )
     max_decisions: int = setting(ANY, kernel(int), 200)
     num_neighbours: int = setting(ANY, kernel(int), 7)

@@ -136,7 +136,7 @@ def _policy_reason(env: RoomEnv, policy: TabularPolicy) -> str | None:
     if policy.device.type != "cpu":
         return f"on {policy.device.type}: it runs on the CPU"
     settings = policy.encoder.settings
-    if (env.num_neighbours, env.num_walls) != (settings.num_neighbours, settings.num_walls):
+    if (env.params.num_neighbours, env.params.num_walls) != (settings.num_neighbours, settings.num_walls):
         return "in a room that senses other neighbour or wall slots than the encoder reads"
     quantizer = policy.encoder.quantizer
     if quantizer is None:
@@ -169,11 +169,11 @@ def _fused_record(env: RoomEnv, trace: FusedTrace) -> Recording:
         velocities=trace.velocities,
         in_room=trace.in_room(),
         exit_time=exit_times(
-            np.where(totals.reached > 0, totals.decisions, -1).astype(np.int64), env.decisions_per_second
+            np.where(totals.reached > 0, totals.decisions, -1).astype(np.int64), env.params.decisions_per_second
         ),
-        frame_rate=env.decisions_per_second / trace.every,
-        radius=env.agent_radius,
-        max_speed=env.max_speed,
+        frame_rate=env.params.decisions_per_second / trace.every,
+        radius=env.params.agent_radius,
+        max_speed=env.params.max_speed,
         crashes=totals.crashes_agent.astype(np.int64),
         wall_crashes=totals.crashes_wall.astype(np.int64),
         speed_sum=np.sqrt(speed_sq).sum((1, 2)),
@@ -188,7 +188,7 @@ def _fused_stats(env: RoomEnv, trace: FusedTrace) -> TrialStats:
         torch.from_numpy(trace.totals).float().view(len(TOTALS), -1),
         processes=1,
         num_agents=env.num_agents,
-        decision_length=env.decision_length,
+        decision_length=env.params.decision_length,
         td_error=torch.zeros(1),
         decisions=trace.positions.shape[1] - 1,
     )

@@ -92,7 +92,7 @@ def record_trial_fused(
     trial goes on (:data:`Progress`)."""
     greedy = not isinstance(controller, PolicyController)
     policy = _walker_policy(env) if greedy else controller.policy
-    every = record_every(env.num_replicas, env.num_agents, env.max_decisions)
+    every = record_every(env.num_replicas, env.num_agents, env.params.max_decisions)
     totals, _, steps, trace, room_steps = _launch(
         env, policy, controller.epsilon, controller.generator, False, 0.0, 0.0, record=True, greedy=greedy,
         reset=reset, every=every, progress=progress,
@@ -183,7 +183,7 @@ def _launch(env, policy, epsilon, generator, learn, alpha, gamma, *, record, gre
     steps = np.zeros(rooms // group, np.int64)
     settings = policy.encoder.settings
     random_void = settings.void_features == "random"
-    frames = -(-env.max_decisions // every) + 1 if record else 1
+    frames = -(-env.params.max_decisions // every) + 1 if record else 1
     trace = Trace.allocate(rooms, frames, agents if record else 1, every)
     part = max(1, PROGRESS_EVERY // (rooms * agents)) if progress is not None else 2**62
     learning = Learning(np.float32(epsilon), learn, np.float32(alpha), np.float32(gamma),
@@ -230,7 +230,7 @@ def _stats(env: RoomEnv, totals: torch.Tensor, td_sums: np.ndarray, steps: np.nd
         totals,
         processes=processes,
         num_agents=env.num_agents,
-        decision_length=env.decision_length,
+        decision_length=env.params.decision_length,
         td_error=td_error,
         decisions=int(steps.max()),
     )

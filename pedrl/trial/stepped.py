@@ -75,7 +75,7 @@ class CompiledRoom:
         self._actions = np.zeros((rooms, agents), np.int64)
         self._streams = np.empty(rooms, np.uint64)
         self._state = None
-        self._slots = torch.arange(env.num_neighbours)
+        self._slots = torch.arange(env.params.num_neighbours)
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self.env, name)

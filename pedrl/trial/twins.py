@@ -121,7 +121,7 @@ def check_twins(
     from pedrl.vq.factored_kernel import pack_factored
 
     report = TwinReport(other=[])
-    rooms, agents = env.num_replicas, env.num_agents
+    rooms, agents, params = env.num_replicas, env.num_agents, env.params
     generator = torch.Generator().manual_seed(seed)
     obs, info = env.reset(seed=seed)
     inputs = fused.room_inputs(env)
@@ -151,8 +151,8 @@ def check_twins(
         mine = env.state.arrays()
         in_room = (acting & ~terminated).numpy()  # terminated: passed any exit
         for r in range(rooms):
-            sense_room(r, mine, in_room, inputs.walls, env.num_neighbours, env.num_walls, room_search(inputs.room),
-                       features, num_sensed, np.empty((2, size), np.float32),
+            sense_room(r, mine, in_room, inputs.walls, params.num_neighbours, params.num_walls,
+                       room_search(inputs.room), features, num_sensed, np.empty((2, size), np.float32),
                        np.empty((2, size), np.int64))  # fmt: skip
         if not np.array_equal(num_sensed, info["num_sensed"].numpy()):
             report.other.append(f"decision {report.decisions}: the numbers of sensed neighbours differ")
@@ -186,7 +186,7 @@ def _copy(generator: torch.Generator) -> torch.Generator:
 
 def _angle_columns(env: RoomEnv) -> torch.Tensor:
     """The feature columns that are angles (the door's, each neighbour's and each wall's bearing)."""
-    k, w = env.num_neighbours, env.num_walls
+    k, w = env.params.num_neighbours, env.params.num_walls
     columns = [1] + [5 + 3 * i for i in range(k)] + [3 + 3 * k + 2 * i + 1 for i in range(w)]
     mask = torch.zeros(env.num_features, dtype=torch.bool)
     mask[columns] = True
@@ -232,8 +232,8 @@ def _canonical(features: torch.Tensor, k: int, w: int) -> torch.Tensor:
 
 def _compare_features(report, env: RoomEnv, features, expected, present, angles, tolerance: float) -> None:
     """The worst excess of a feature over its bound (relative ``tolerance``, or ``tolerance`` rad for angles)."""
-    features = _canonical(features, env.num_neighbours, env.num_walls)
-    expected = _canonical(expected, env.num_neighbours, env.num_walls)
+    features = _canonical(features, env.params.num_neighbours, env.params.num_walls)
+    expected = _canonical(expected, env.params.num_neighbours, env.params.num_walls)
     difference = (features - expected).abs()
     difference[..., angles] = torch.minimum(difference[..., angles], 2 * math.pi - difference[..., angles])
     bound = torch.where(angles, torch.full_like(expected, tolerance), tolerance * expected.abs().clamp_min(1.0))

@@ -110,8 +110,9 @@ class EncoderSettings:
     def for_room(cls, room: Any, **choices: Any) -> EncoderSettings:
         """The settings of observations of ``room`` (a :class:`pedrl.sim.RoomEnv`: its neighbour slots, walls, longest
         distance and top speed) with ``choices`` (``void_features``, ``void_draws``, ``distance_transform``)."""
-        sizes = ("num_neighbours", "num_walls", "max_distance", "max_speed")
-        return cls(**{name: getattr(room, name) for name in sizes}, **choices)
+        params = room.params
+        sizes = dict(num_neighbours=params.num_neighbours, num_walls=params.num_walls, max_speed=params.max_speed)
+        return cls(**sizes, max_distance=room.max_distance, **choices)
 
     def spanning(self, rooms: Sequence[Any]) -> EncoderSettings:
         """These settings over ``rooms`` too (anything with a ``max_distance``, e.g. the rooms of a run trained

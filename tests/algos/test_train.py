@@ -185,7 +185,7 @@ def test_void_filling_is_drawn_once_per_agent_and_trial(void_draws, train_config
     env = trainer.env_for(3)
     obs, info = env.reset(seed=0)
     flat, sensed = obs.reshape(-1, env.num_features), info["num_sensed"].reshape(-1)
-    assert (sensed < env.num_neighbours).all()  # 3 agents: 2 neighbours sensed, 5 void slots
+    assert (sensed < env.params.num_neighbours).all()  # 3 agents: 2 neighbours sensed, 5 void slots
     encoder = StateEncoder(trainer.encoder_settings)
     first = encoder.prepare(flat, sensed, 0, trainer.generator)
     later = encoder.prepare(flat, sensed, 5, trainer.generator)  # the same state later in the trial
@@ -236,7 +236,7 @@ def test_log_distance_transform_changes_only_distances(train_config, tmp_path):
     distance = torch.tensor(["distance" in name for name in names])
     assert torch.equal(before[:, ~distance], after[:, ~distance])
     torch.testing.assert_close(after[:, distance], before[:, distance].log1p())
-    assert distance.sum() == 1 + env.num_neighbours + env.num_walls
+    assert distance.sum() == 1 + env.params.num_neighbours + env.params.num_walls
 
 
 def test_it_vqql_iterations_can_learn_in_a_larger_crowd(train_config, tmp_path):

@@ -36,7 +36,7 @@ def over_nearest_neighbour(env: RoomEnv, prototypes: int = 256) -> StateEncoder:
     """An encoder whose prototypes differ only in the nearest neighbour's three features, spread over their ranges:
     they alone weigh."""
     settings = EncoderSettings.for_room(env)
-    features = num_features(env.num_neighbours, env.num_walls)
+    features = num_features(env.params.num_neighbours, env.params.num_walls)
     generator = torch.Generator().manual_seed(0)
 
     def uniform(low: float, high: float) -> torch.Tensor:

@@ -65,7 +65,7 @@ def test_seeded_rollouts_repeat_and_equal_room_env_stepped_directly():
     """
     first, second = parallel_env(**SMALL), parallel_env(**SMALL)
     room = paper_room(**SIZES).room(num_replicas=1, num_agents=5, max_decisions=30)
-    options = {"positions": PLACED, "headings": [UP, 0.0, 1.0, 2.0, 3.0], "speeds": [room.max_speed] + [0.0] * 4}
+    options = {"positions": PLACED, "headings": [UP, 0.0, 1.0, 2.0, 3.0], "speeds": [room.params.max_speed] + [0.0] * 4}
     obs_first, _ = first.reset(seed=7, options=options)
     obs_second, _ = second.reset(seed=7, options=options)
     room_obs, _ = room.reset(seed=7, options={key: [value] for key, value in options.items()})
@@ -123,7 +123,7 @@ def _placed(**room) -> PedestrianParallelEnv:
         options={
             "positions": PLACED,
             "headings": [UP, 0.0, 0.0, 0.0, 0.0],
-            "speeds": [env.env.max_speed, 0.0, 0.0, 0.0, 0.0],
+            "speeds": [env.env.params.max_speed, 0.0, 0.0, 0.0, 0.0],
         },
     )
     return env
@@ -134,7 +134,7 @@ def test_agent_at_the_door_with_the_noop_terminates_and_leaves_agents():
     obs, rewards, terminations, truncations, infos = env.step({})  # everyone takes the no-op
     assert terminations == {"pedestrian_0": True, **dict.fromkeys(_agents(5)[1:], False)}
     assert not any(truncations.values())
-    assert rewards["pedestrian_0"] == env.env.rewards.goal
+    assert rewards["pedestrian_0"] == env.env.params.rewards.goal
     assert infos["pedestrian_0"]["reached"]
     np.testing.assert_array_equal(obs["pedestrian_0"], 0.0)  # RoomEnv: reached agents observe 0
     assert env.agents == _agents(5)[1:]
@@ -175,14 +175,14 @@ def test_observations_and_states_stay_in_their_spaces_in_a_random_crowd():
         obs, *_ = env.step(_rollout_actions(env, rng))
     space = env.observation_space("pedestrian_0")
     names = env.env.feature_names
-    assert space.high[names.index("speed")] == np.float32(env.env.max_speed)
+    assert space.high[names.index("speed")] == np.float32(env.env.params.max_speed)
     assert space.low[names.index("velocity_angle")] == np.float32(-math.pi)
 
 
 def test_head_on_neighbours_at_top_speed_are_inside_the_bounds():
     """The relative speed's extreme, -2 max_speed, lies inside the space."""
     env = parallel_env(**{**SMALL, "num_agents": 2})
-    speed = env.env.max_speed
+    speed = env.env.params.max_speed
     head_on = {"positions": [[2.0, 4.0], [4.0, 4.0]], "headings": [0.0, math.pi], "speeds": [speed] * 2}
     obs, _ = env.reset(options=head_on)
     rel_speed = env.env.feature_names.index("neighbour0_rel_speed")

@@ -57,10 +57,10 @@ def small_policy(per_process=False):
     env = paper_room(width=8.0, length=8.0, door_width=2.0).room(num_replicas=2, num_agents=5, max_decisions=6)
     obs, info = env.reset(seed=3)
     settings = EncoderSettings(
-        num_neighbours=env.num_neighbours,
-        num_walls=env.num_walls,
+        num_neighbours=env.params.num_neighbours,
+        num_walls=env.params.num_walls,
         max_distance=env.max_distance,
-        max_speed=env.max_speed,
+        max_speed=env.params.max_speed,
         void_features="random",
     )
     states = torch.randn(200, env.num_features, generator=torch.Generator().manual_seed(0))

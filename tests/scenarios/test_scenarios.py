@@ -37,12 +37,12 @@ def test_each_scenario_keeps_bodies_apart_inside_and_off_the_walls(name):
         inside = env.active
         positions = env.positions.double()
         assert env.geometry.inside(env.positions)[inside].all()
-        assert (distances_to_segments(positions, walls).amin(-1)[inside] >= env.agent_radius - 1e-5).all()
+        assert (distances_to_segments(positions, walls).amin(-1)[inside] >= env.params.agent_radius - 1e-5).all()
         gaps = torch.cdist(positions, positions) + torch.eye(env.num_agents, dtype=torch.float64) * 1e9
         both = inside.unsqueeze(-1) & inside.unsqueeze(-2)
-        assert (gaps[both] >= 2 * env.agent_radius - 1e-5).all()
+        assert (gaps[both] >= 2 * env.params.agent_radius - 1e-5).all()
         moved = (env.positions - before).norm(dim=-1)
-        assert (moved <= env.max_speed / env.decisions_per_second + 1e-4).all()
+        assert (moved <= env.params.max_speed / env.params.decisions_per_second + 1e-4).all()
     assert left.any() or name == "corridor"  # someone found an exit (the greedy crowds of the corridor deadlock)
 
 
@@ -255,10 +255,10 @@ def test_only_its_own_exit_reaches_the_goal():
     assert env.exit_index.tolist() == [[0, 1]] and env.geometry.exit_goals[0, 0] >= 20.0
     _, reward, terminated, _, info = env.step(torch.full((1, 2), NOOP_ACTION))
     assert terminated[0, 0] and not info["reached"][0, 0]  # out through the wrong end: no goal
-    assert reward[0, 0] < env.rewards.goal / 2
+    assert reward[0, 0] < env.params.rewards.goal / 2
     env.reset(options={"positions": [[(17.0, 1.0), (0.5, 2.5)]], "headings": [[0.0, math.pi]], "speeds": [[1.0, 1.0]]})
     _, reward, terminated, _, info = env.step(torch.full((1, 2), NOOP_ACTION))
-    assert terminated[0, 1] and info["reached"][0, 1] and reward[0, 1] >= env.rewards.goal / 2  # its own end
+    assert terminated[0, 1] and info["reached"][0, 1] and reward[0, 1] >= env.params.rewards.goal / 2  # its own end
 
     rooms = env_factory(ENV, {"name": "four_exits"})(num_replicas=1, num_agents=1)
     rooms.reset(options={"positions": [[(2.0, 0.6)]], "headings": [[-math.pi / 2]], "speeds": [[1.0]]})

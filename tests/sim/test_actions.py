@@ -51,7 +51,7 @@ def lone_walkers_out(turns: tuple[float, ...]) -> float:
     obs, info = env.reset(seed=1)
     controller = GreedyDoorController()
     out = torch.zeros(env.num_replicas, 1, dtype=torch.bool)
-    for _ in range(env.max_decisions):
+    for _ in range(env.params.max_decisions):
         obs, _, terminated, _, info = env.step(controller.act(env, obs, info))
         out |= terminated
     return out.float().mean().item()
@@ -76,7 +76,7 @@ def test_the_codec_kernel_is_the_torch_codec_of_one_agent(frame):
     shape = (1, 2 * NUM_ACTIONS)
     actions = torch.arange(NUM_ACTIONS).repeat(2).reshape(shape)
     active = (torch.arange(shape[1]) < NUM_ACTIONS).reshape(shape)
-    speeds = torch.rand(shape, generator=generator) * env.max_speed
+    speeds = torch.rand(shape, generator=generator) * env.params.max_speed
     headings = (torch.rand(shape, generator=generator) * 2 - 1) * math.pi
     positions, targets = (torch.rand(*shape, 2, generator=generator) * 10 for _ in range(2))
     to_goal = targets - positions
@@ -87,7 +87,7 @@ def test_the_codec_kernel_is_the_torch_codec_of_one_agent(frame):
         actions=actions,
         speed_changes=env.speed_changes,
         turn_changes=env.turn_changes,
-        max_speed=env.max_speed,
+        max_speed=env.params.max_speed,
         active=active,
         bearings=bearings,
     )

@@ -18,7 +18,7 @@ def test_room_config_builds_a_room_with_run_time_arguments():
     env = env_factory(OmegaConf.to_container(OmegaConf.load(CONFIG)))(num_replicas=2, num_agents=5, device="cpu")
     assert isinstance(env, RoomEnv)
     assert (env.num_replicas, env.num_agents, env.device.type) == (2, 5, "cpu")
-    assert isinstance(env.speed_ratios, tuple) and all(isinstance(v, float) for v in env.speed_ratios)
+    assert isinstance(env.params.speed_ratios, tuple) and all(isinstance(v, float) for v in env.params.speed_ratios)
     obs, _ = env.reset(seed=0)
     assert obs.shape == (2, 5, 28)
 

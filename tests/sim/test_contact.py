@@ -44,7 +44,7 @@ needs_numba = pytest.mark.skipif(not numba_available(), reason="numba is off (PE
 
 def check_bodies(env: RoomEnv, start: torch.Tensor, acting: torch.Tensor) -> None:
     """No overlap, nobody on or through a wall or outside the area, nobody faster than ``max_speed``."""
-    r = env.agent_radius
+    r = env.params.agent_radius
     inside = env.active
     positions = env.positions.double()
     walls = env.geometry.walls[: env.geometry.num_walls].double()
@@ -53,12 +53,12 @@ def check_bodies(env: RoomEnv, start: torch.Tensor, acting: torch.Tensor) -> Non
     gaps = torch.cdist(positions, positions) + torch.eye(env.num_agents, dtype=torch.float64) * 1e9
     both = inside.unsqueeze(-1) & inside.unsqueeze(-2)
     assert (gaps[both] >= 2 * r - TOLERANCE).all()
-    assert ((env.speeds >= 0) & (env.speeds <= env.max_speed)).all()
+    assert ((env.speeds >= 0) & (env.speeds <= env.params.max_speed)).all()
     moved = (env.positions - start).norm(dim=-1)
-    assert (moved <= env.max_speed / env.decisions_per_second + TOLERANCE).all()
+    assert (moved <= env.params.max_speed / env.params.decisions_per_second + TOLERANCE).all()
     # the speed is the distance walked per second (its own heading kept)
-    walked = moved * env.decisions_per_second
-    torch.testing.assert_close(env.speeds[acting], walked[acting].clamp(max=env.max_speed), atol=1e-4, rtol=0)
+    walked = moved * env.params.decisions_per_second
+    torch.testing.assert_close(env.speeds[acting], walked[acting].clamp(max=env.params.max_speed), atol=1e-4, rtol=0)
 
 
 # ---------------------------------------------------------------- configuration
@@ -102,7 +102,7 @@ def random_scene(seed: int, num_agents: int, room: tuple[float, float, float], s
     env.reset(seed=seed)
     generator = torch.Generator().manual_seed(seed)
     shape = (2, num_agents)
-    speeds = env.max_speed * speed_scale * torch.rand(shape, generator=generator)
+    speeds = env.params.max_speed * speed_scale * torch.rand(shape, generator=generator)
     headings = math.pi - 2 * math.pi * torch.rand(shape, generator=generator)
     active = torch.rand(shape, generator=generator) < 0.9
     priority = torch.rand(shape, generator=generator)
@@ -129,7 +129,7 @@ def test_kernel_equals_the_torch_reference_to_the_bit(seed, num_agents, room, sp
         velocities=velocities,
         active=active,
         motion=SlidingMotion(
-            env.geometry, env.agent_radius, env.decision_length,
+            env.geometry, env.params.agent_radius, env.params.decision_length,
             20 if rule == "continuous" else env.num_substeps, None if rule == "slide" else 1.0,
             rule in ("yield", "continuous"), Steering() if rule == "continuous" else None,
         ),
@@ -167,7 +167,7 @@ def test_invariants_hold_after_every_step(seed, num_agents, room, rule, compiled
     env.reset(seed=seed)
     with kernels_on(compiled):
         for _ in range(60 if compiled else 20):
-            if env.decision >= env.max_decisions or not env.active.any():
+            if env.decision >= env.params.max_decisions or not env.active.any():
                 env.reset()
             start, acting = env.positions.clone(), env.active.clone()
             actions = torch.randint(0, NUM_ACTIONS, shape, generator=generator)
@@ -262,7 +262,7 @@ def follow_run(contact: str, order: str = "random") -> tuple[list[float], int]:
     for _ in range(30):
         _, _, _, _, info = env.step(torch.tensor([[NOOP, ACCELERATE]]))
         contacts += int(info["crashed_agent"].sum())
-        gaps.append(float((env.positions[0, 0] - env.positions[0, 1]).norm()) - 2 * env.agent_radius)
+        gaps.append(float((env.positions[0, 0] - env.positions[0, 1]).norm()) - 2 * env.params.agent_radius)
     return gaps, contacts
 
 
@@ -294,7 +294,7 @@ def greedy_crowd_run(rule: str) -> tuple[float, float]:
     obs, info = env.reset(seed=3)
     out = torch.zeros(env.num_replicas, env.num_agents, dtype=torch.bool)
     contacts = 0.0
-    for _ in range(env.max_decisions):
+    for _ in range(env.params.max_decisions):
         obs, _, terminated, _, info = env.step(controller.act(env, obs, info))
         out |= terminated
         contacts += info["crashed_agent"].float().mean().item()

@@ -69,7 +69,7 @@ def test_bad_motion_settings_give_one_line_errors(build, fragments):
 @pytest.mark.parametrize("decisions_per_second", [1.0, 2.0, 3.0, 4.0])
 def test_the_time_step_is_at_most_0_05_s(decisions_per_second):
     env = continuous(num_agents=2, decisions_per_second=decisions_per_second)
-    assert env.decision_length / env.num_substeps <= 0.05 + 1e-12
+    assert env.params.decision_length / env.num_substeps <= 0.05 + 1e-12
     assert env.motion.steering == Steering()  # JuPedSim's defaults
     assert paper_room().room(num_agents=2, motion=Yield()).motion.steering is None  # the step model keeps its own
 
@@ -138,7 +138,7 @@ def walk_past_a_standing_body(motion: str) -> tuple[bool, int]:
     env = continuous(num_agents=2, width=6.0, length=8.0, door_width=1.2, max_decisions=40, **settings)
     env.reset(seed=0, options={"positions": [[[3.0, 4.0], [3.05, 5.5]]]})
     contacts = 0
-    for _ in range(20 * int(env.decisions_per_second)):
+    for _ in range(20 * int(env.params.decisions_per_second)):
         _, _, terminated, _, info = env.step(torch.tensor([[WALK, STAND]]))
         contacts += int(info["crashed_agent"][0, 0]) + int(info["crashed_wall"][0, 0])
         assert (env.positions[0, 0] - env.positions[0, 1]).norm() >= 0.4 - 1e-4  # no overlap

@@ -34,7 +34,7 @@ def motion(env: RoomEnv, velocities: torch.Tensor) -> dict:
         positions=env.positions,
         velocities=velocities,
         active=env.active,
-        motion=Motion(env.geometry, env.agent_radius, env.decision_length, env.num_substeps),
+        motion=Motion(env.geometry, env.params.agent_radius, env.params.decision_length, env.num_substeps),
     )
 
 
@@ -198,8 +198,8 @@ def test_move_agents_equals_the_literal_substep_rule(seed, num_replicas, num_age
     generator = torch.Generator().manual_seed(seed)
     shape = (num_replicas, num_agents)
     for _ in range(12):
-        speeds = torch.rand(shape, generator=generator) * env.max_speed
-        speeds = torch.where(torch.rand(shape, generator=generator) < 0.3, env.max_speed, speeds)
+        speeds = torch.rand(shape, generator=generator) * env.params.max_speed
+        speeds = torch.where(torch.rand(shape, generator=generator) < 0.3, env.params.max_speed, speeds)
         speeds = torch.where(torch.rand(shape, generator=generator) < 0.2, 0.0, speeds)
         headings = math.pi - 2 * math.pi * torch.rand(shape, generator=generator)
         # aim a third of the agents at the door, so the door and its posts are exercised
@@ -244,7 +244,7 @@ def test_dense_rooms_match_the_reference_and_exercise_every_event():
     for _ in range(60):
         if not env.active.any():
             env.reset()
-        speeds = torch.full((3, 12), env.max_speed)
+        speeds = torch.full((3, 12), env.params.max_speed)
         goal_x, goal_y = env.geometry.exit_goals[0].tolist()
         headings = torch.atan2(goal_y - env.positions[..., 1], goal_x - env.positions[..., 0])
         headings = headings + 0.6 * torch.randn(3, 12, generator=generator)
@@ -329,7 +329,7 @@ def test_move_agents_sequential_equals_the_literal_agent_by_agent_loop(seed, num
     generator = torch.Generator().manual_seed(seed)
     shape = (num_replicas, num_agents)
     for _ in range(8):
-        speeds = torch.where(torch.rand(shape, generator=generator) < 0.2, 0.0, env.max_speed)
+        speeds = torch.where(torch.rand(shape, generator=generator) < 0.2, 0.0, env.params.max_speed)
         goal_x, goal_y = env.geometry.exit_goals[0].tolist()
         to_door = torch.atan2(goal_y - env.positions[..., 1], goal_x - env.positions[..., 0])
         headings = to_door + 0.8 * torch.randn(shape, generator=generator)
@@ -346,7 +346,7 @@ def test_move_agents_sequential_equals_the_literal_agent_by_agent_loop(seed, num
         # no two bodies in the room overlap afterwards
         inside = env.active & ~fast.reached
         gaps = fast.positions.unsqueeze(2) - fast.positions.unsqueeze(1)
-        close = (gaps * gaps).sum(-1) < (2 * env.agent_radius) ** 2 - 1e-4
+        close = (gaps * gaps).sum(-1) < (2 * env.params.agent_radius) ** 2 - 1e-4
         close &= inside.unsqueeze(1) & inside.unsqueeze(2) & ~torch.eye(num_agents, dtype=torch.bool)
         assert not close.any()
         env.positions, env.active = fast.positions, env.active & ~fast.reached
@@ -371,7 +371,7 @@ def test_compiled_rule_equals_the_torch_rule_with_slanted_walls_and_two_exits(se
         targets = env.targets()
         to_exit = torch.atan2(targets[..., 1] - env.positions[..., 1], targets[..., 0] - env.positions[..., 0])
         headings = to_exit + 0.6 * torch.randn(shape, generator=generator)
-        kwargs = motion(env, velocities_from(speeds=torch.full(shape, env.max_speed), headings=headings))
+        kwargs = motion(env, velocities_from(speeds=torch.full(shape, env.params.max_speed), headings=headings))
         kwargs["priority"] = torch.rand(shape, generator=generator)
         eager = move_agents_sequential(**kwargs, compiled=False)
         compiled = move_agents_sequential(**kwargs, compiled=True)
@@ -400,7 +400,7 @@ def test_the_literal_rules_use_the_room_exits_beyond_the_paper_room(tmp_path):
         targets = env.targets()
         to_exit = torch.atan2(targets[..., 1] - env.positions[..., 1], targets[..., 0] - env.positions[..., 0])
         headings = to_exit + 0.3 * torch.randn(shape, generator=generator)
-        kwargs = motion(env, velocities_from(speeds=torch.full(shape, env.max_speed), headings=headings))
+        kwargs = motion(env, velocities_from(speeds=torch.full(shape, env.params.max_speed), headings=headings))
         fast, slow = move_agents(**kwargs), move_agents_literal(**kwargs)
         for field in ("positions", "blocked", "crashed_wall", "reached"):
             assert torch.equal(getattr(fast, field), getattr(slow, field)), field

@@ -31,8 +31,8 @@ def _place(env: RoomEnv, positions, headings, speeds):
 @pytest.mark.parametrize(("distance", "decisions_per_second"), [(10.3, 1.0), (3.0, 2.0), (0.9, 1.0), (26.1, 0.5)])
 def test_agent_heading_at_the_door_reaches_it_in_the_expected_decisions(distance, decisions_per_second):
     env = paper_room().room(**TABLE_2, num_agents=1, decisions_per_second=decisions_per_second)
-    _place(env, [(30.0, 100.0 - distance)], [UP], [env.max_speed])
-    per_decision = env.max_speed / decisions_per_second  # m, straight up at full speed
+    _place(env, [(30.0, 100.0 - distance)], [UP], [env.params.max_speed])
+    per_decision = env.params.max_speed / decisions_per_second  # m, straight up at full speed
     expected = math.ceil(distance / per_decision)
     for decision in range(1, expected + 1):
         obs, reward, terminated, truncated, info = env.step(_noop(env))
@@ -55,11 +55,11 @@ def test_head_on_agents_both_stop_and_both_get_the_agent_penalty():
     """Under the simultaneous rule both stop at the same sub-step (the sequential rule: test_dynamics)."""
     env = paper_room().room(**TABLE_2, num_agents=2, motion=Simultaneous())
     gap = 5.0
-    _place(env, [(20.0, 50.0), (20.0 + gap, 50.0)], [RIGHT, LEFT], [env.max_speed] * 2)
+    _place(env, [(20.0, 50.0), (20.0 + gap, 50.0)], [RIGHT, LEFT], [env.params.max_speed] * 2)
     _, reward, terminated, _, info = env.step(_noop(env))
-    substep = env.max_speed / env.num_substeps
+    substep = env.params.max_speed / env.num_substeps
     closing = 2 * substep
-    moved = max(k for k in range(env.num_substeps + 1) if gap - k * closing >= 2 * env.agent_radius)
+    moved = max(k for k in range(env.num_substeps + 1) if gap - k * closing >= 2 * env.params.agent_radius)
     assert moved < env.num_substeps  # they do collide within the decision
     assert reward.tolist() == [[-4.0, -4.0]]
     assert info["crashed_agent"].tolist() == [[True, True]] and info["crashed_wall"].tolist() == [[False, False]]
@@ -68,36 +68,36 @@ def test_head_on_agents_both_stop_and_both_get_the_agent_penalty():
     torch.testing.assert_close(
         env.positions[0], torch.tensor([[20.0 + moved * substep, 50.0], [20.0 + gap - moved * substep, 50.0]])
     )
-    assert (env.positions[0, 1] - env.positions[0, 0]).norm() >= 2 * env.agent_radius
+    assert (env.positions[0, 1] - env.positions[0, 0]).norm() >= 2 * env.params.agent_radius
 
 
 def test_agent_driven_into_a_wall_stops_inside_the_room():
     env = paper_room().room(**TABLE_2, num_agents=1)
     start = 2.0
-    _place(env, [(30.0, start)], [DOWN], [env.max_speed])
+    _place(env, [(30.0, start)], [DOWN], [env.params.max_speed])
     _, reward, _, _, info = env.step(_noop(env))
-    substep = env.max_speed / env.num_substeps
-    moved = max(k for k in range(env.num_substeps + 1) if start - k * substep >= env.agent_radius)
+    substep = env.params.max_speed / env.num_substeps
+    moved = max(k for k in range(env.num_substeps + 1) if start - k * substep >= env.params.agent_radius)
     assert reward.tolist() == [[-15.0]]
     assert info["crashed_wall"].tolist() == [[True]] and info["crashed_agent"].tolist() == [[False]]
     assert env.speeds.item() == 0.0
     assert env.positions[0, 0, 1].item() == pytest.approx(start - moved * substep)
-    assert env.positions[0, 0, 1].item() >= env.agent_radius
+    assert env.positions[0, 0, 1].item() >= env.params.agent_radius
     assert env.active.all()
 
 
 def test_agent_driven_into_a_door_post_stops_below_it():
     env = paper_room().room(**TABLE_2, num_agents=1)
-    _place(env, [(29.0, 98.0)], [UP], [env.max_speed])  # straight at the left door post (29, 100)
+    _place(env, [(29.0, 98.0)], [UP], [env.params.max_speed])  # straight at the left door post (29, 100)
     _, reward, terminated, _, info = env.step(_noop(env))
     assert reward.tolist() == [[-15.0]] and not terminated.any() and info["crashed_wall"].all()
-    assert 100.0 - env.positions[0, 0, 1].item() >= env.agent_radius
+    assert 100.0 - env.positions[0, 0, 1].item() >= env.params.agent_radius
     assert env.active.all()
 
 
 def test_walking_into_a_standing_agent_penalises_only_the_mover():
     env = paper_room().room(**TABLE_2, num_agents=2)
-    _place(env, [(10.0, 50.0), (12.0, 50.0)], [RIGHT, LEFT], [env.max_speed, 0.0])
+    _place(env, [(10.0, 50.0), (12.0, 50.0)], [RIGHT, LEFT], [env.params.max_speed, 0.0])
     _, reward, _, _, info = env.step(_noop(env))
     assert reward.tolist() == [[-4.0, 0.0]]
     assert info["crashed_agent"].tolist() == [[True, False]]
@@ -110,7 +110,7 @@ def test_actions_change_speed_and_heading_before_moving():
     full_speed_left_turn = 8 * 9 + 7  # +1.0 max_speed, +0.25 pi
     env.step(torch.tensor([[full_speed_left_turn]]))
     diagonal = 2.5 * math.sqrt(0.5)
-    assert env.speeds.item() == pytest.approx(env.max_speed) and env.headings.item() == pytest.approx(UP / 2)
+    assert env.speeds.item() == pytest.approx(env.params.max_speed) and env.headings.item() == pytest.approx(UP / 2)
     torch.testing.assert_close(env.positions[0, 0], torch.tensor([30.0 + diagonal, 50.0 + diagonal]))
     torch.testing.assert_close(env.velocities[0, 0], torch.tensor([diagonal, diagonal]), atol=1e-5, rtol=0)
 
@@ -134,7 +134,7 @@ def test_truncation_at_max_decisions():
 
 def test_arrival_on_the_last_decision_is_terminated_not_truncated():
     env = paper_room().room(**TABLE_2, num_agents=2, max_decisions=2)
-    _place(env, [(30.0, 96.0), (10.0, 10.0)], [UP, UP], [env.max_speed, 0.0])
+    _place(env, [(30.0, 96.0), (10.0, 10.0)], [UP, UP], [env.params.max_speed, 0.0])
     env.step(_noop(env))
     _, reward, terminated, truncated, _ = env.step(_noop(env))
     assert terminated.tolist() == [[True, False]] and truncated.tolist() == [[False, True]]
@@ -170,9 +170,9 @@ def test_reset_places_agents_apart_clear_of_walls_standing():
     env = paper_room(width=20.0, length=25.0, door_width=2.0).room(num_replicas=5, num_agents=60)
     _, info = env.reset(seed=2)
     gaps = torch.cdist(env.positions, env.positions) + torch.eye(60) * 1e3
-    assert gaps.min() >= 2 * env.agent_radius
+    assert gaps.min() >= 2 * env.params.agent_radius
     x, y = env.positions[..., 0], env.positions[..., 1]
-    r = env.agent_radius
+    r = env.params.agent_radius
     assert (x >= r).all() and (x <= 20.0 - r).all() and (y >= r).all() and (y <= 25.0 - r).all()
     assert (env.speeds == 0).all() and env.active.all() and info["decision"] == 0
     assert (env.headings > -math.pi).all() and (env.headings <= math.pi).all()
@@ -353,7 +353,7 @@ def test_the_widest_action_sets_are_kept():
         speed_ratios=(-1.0, -1.0, -0.5, -0.1, 0.0, 0.1, 0.5, 1.0, 1.0),
         turn_ratios=(-1.0, -0.5, 0, 0, 0, 0, 0, 0.5, 1.0),
     )
-    assert env.turn_ratios[0] == -1.0 and env.speed_ratios[-1] == 1.0
+    assert env.params.turn_ratios[0] == -1.0 and env.params.speed_ratios[-1] == 1.0
 
 
 def test_too_many_agents_message_names_n_and_the_room():
@@ -373,7 +373,7 @@ def test_dense_but_allowed_rooms_are_placed():
     env = paper_room(width=5.0, length=6.0, door_width=1.0).room(num_replicas=3, num_agents=15)
     env.reset(seed=0)
     gaps = torch.cdist(env.positions, env.positions) + torch.eye(15) * 1e3
-    assert gaps.min() >= 2 * env.agent_radius
+    assert gaps.min() >= 2 * env.params.agent_radius
 
 
 @pytest.mark.parametrize(
@@ -427,9 +427,9 @@ def test_a_queue_to_the_door_moves_up_together_when_the_front_acts_first(order):
 def test_progress_reward_and_time_cost_by_default():
     """One decision straight at the door at full speed: -1 (time cost) + 2.5 (metres of approach)."""
     env = paper_room().room(num_agents=1)
-    _place(env, [(30.0, 50.0)], [UP], [env.max_speed])
+    _place(env, [(30.0, 50.0)], [UP], [env.params.max_speed])
     _, reward, _, _, _ = env.step(_noop(env))
-    assert reward.item() == pytest.approx(-1.0 + env.max_speed)
+    assert reward.item() == pytest.approx(-1.0 + env.params.max_speed)
     _place(env, [(30.0, 50.0)], [DOWN], [0.0])  # standing still: the time cost alone
     _, reward, _, _, _ = env.step(_noop(env))
     assert reward.item() == pytest.approx(-1.0)

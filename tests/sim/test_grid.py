@@ -63,8 +63,9 @@ def walk(room: str, rule: str, search: Search, decisions: int = 12, seed: int = 
         else:
             movement = sliding_substeps(
                 positions=positions, velocities=velocities, active=active, geometry=env.geometry,
-                wall_starts=starts, wall_directions=directions, wall_inverse=inverse, agent_radius=env.agent_radius,
-                substep_length=0.05 if rule == "continuous" else 0.25, num_substeps=20 if rule == "continuous" else 4,
+                wall_starts=starts, wall_directions=directions, wall_inverse=inverse,
+                agent_radius=env.params.agent_radius, substep_length=0.05 if rule == "continuous" else 0.25,
+                num_substeps=20 if rule == "continuous" else 4,
                 order=order.argsort(dim=1), time_gap=None if rule == "slide" else 0.4,
                 yield_to_earlier=rule in ("yield", "continuous"),
                 steering=Steering() if rule == "continuous" else None, search=search,
@@ -83,10 +84,10 @@ def _stop(positions, velocities, active, env, priority, search) -> Movement:
     walls = None
     if not env.geometry.axis_aligned:
         substeps = torch.arange(1, 5).to(positions.dtype).view(-1, 1, 1, 1)
-        walls = env.geometry.touches_walls(positions + substeps * step, radius=env.agent_radius)
+        walls = env.geometry.touches_walls(positions + substeps * step, radius=env.params.agent_radius)
     moved_to, blocked, crashed_wall, reached = sequential_substeps(
         positions=positions, step=step, going=active & (step != 0).any(-1), active=active, geometry=env.geometry,
-        agent_radius=env.agent_radius, num_substeps=4, walls=walls, depth=step.norm(dim=-1) + 1e-3,
+        agent_radius=env.params.agent_radius, num_substeps=4, walls=walls, depth=step.norm(dim=-1) + 1e-3,
         priority=priority, search=search,
     )  # fmt: skip
     return Movement(moved_to, blocked, crashed_wall, blocked & ~crashed_wall, reached)

@@ -133,10 +133,12 @@ def test_the_kernels_read_every_packed_setting_of_the_room():
     env = paper_room(width=10.0, length=12.0).room(num_agents=3, motion=Yield(time_gap=0.7, order="door_first"))
     room = env.params.kernel_room(env)
     assert isinstance(room, KernelRoom) and room._fields == tuple(_kernel_entries(RoomParams))
-    assert room.max_speed == np.float32(env.max_speed) and room.agent_radius == env.agent_radius
+    assert room.max_speed == np.float32(env.params.max_speed) and room.agent_radius == env.params.agent_radius
     assert room.door_first and room.time_gap == 0.7 and room.num_substeps == env.num_substeps
     assert room.contact == CONTACT_MODELS.index("yield") and not room.continuous
-    assert room.reward_goal == np.float32(env.rewards.goal) and room.decision_length == env.decision_length
+    assert (
+        room.reward_goal == np.float32(env.params.rewards.goal) and room.decision_length == env.params.decision_length
+    )
     assert np.array_equal(room.speed_changes, env.speed_changes.numpy())
     hosted = {field.name for field in dataclasses.fields(RoomParams) if field.metadata["packing"].host is not None}
     area = {"goal_depth"}  # the kernels read the area as walls and exits
@@ -168,7 +170,7 @@ def test_the_params_are_the_validated_arguments():
     )
     assert env.params.motion == Yield()
     assert env.params.speed_ratios == (0, 0, 0, 0, 0, 0.1, 0.2, 0.5, 1)
-    assert env.params.substep_length is None and env.substep_length == env.agent_radius  # None: the body radius
+    assert env.params.substep_length is None and env.params.substep == env.params.agent_radius  # None: the body radius
     with pytest.raises(dataclasses.FrozenInstanceError):
         env.params.max_speed = 5.0
 

@@ -20,10 +20,10 @@ def _capacity(width: float, length: float, radius: float = 0.4) -> int:
 
 def check_state(env: RoomEnv) -> None:
     """Bodies apart, clear of walls and inside the room; speeds in range."""
-    r = env.agent_radius
+    r = env.params.agent_radius
     active = env.active
     x, y = env.positions[..., 0].double(), env.positions[..., 1].double()
-    assert ((env.speeds >= 0) & (env.speeds <= env.max_speed)).all()
+    assert ((env.speeds >= 0) & (env.speeds <= env.params.max_speed)).all()
     assert torch.isfinite(env.positions).all()
     x_min, y_min, x_max, y_max = env.geometry.bounds
     inside = (x > x_min) & (x < x_max) & (y > y_min) & (y < y_max)
@@ -61,7 +61,7 @@ def test_invariants_hold_after_every_step(seed, num_replicas, num_agents, room, 
     generator = torch.Generator().manual_seed(seed)
     events = 0
     for _ in range(200):
-        if env.decision >= env.max_decisions or not env.active.any():
+        if env.decision >= env.params.max_decisions or not env.active.any():
             env.reset()
         before = env.active.clone()
         start = env.positions.clone()
@@ -80,7 +80,7 @@ def test_invariants_hold_after_every_step(seed, num_replicas, num_agents, room, 
         velocities = env.speeds.unsqueeze(-1) * torch.stack((env.headings.cos(), env.headings.sin()), dim=-1)
         torch.testing.assert_close(env.velocities[env.active], velocities[env.active], atol=1e-5, rtol=1e-5)
         if truncated.any():
-            assert info["decision"] == env.max_decisions
+            assert info["decision"] == env.params.max_decisions
         assert not reward[~before].any() and torch.equal(obs[~before], torch.zeros_like(obs[~before]))
         assert torch.equal(obs[terminated], torch.zeros_like(obs[terminated]))
         # Table 2 events (the default time cost -1 otherwise), plus 1 per metre of approach to the door centre
@@ -89,14 +89,14 @@ def test_invariants_hold_after_every_step(seed, num_replicas, num_agents, room, 
         event = torch.where(terminated, 100.0, event)
         goal = env.geometry.exit_goals[0]
         approach = (start - goal).norm(dim=-1) - (env.positions - goal).norm(dim=-1)
-        expected = torch.where(before, event + env.reward_progress * approach, 0.0)
+        expected = torch.where(before, event + env.params.reward_progress * approach, 0.0)
         torch.testing.assert_close(reward, expected, atol=1e-4, rtol=1e-5)
         crashed = info["crashed_agent"] | info["crashed_wall"]
         assert not (info["crashed_agent"] & info["crashed_wall"]).any()
         assert (env.speeds[crashed] == 0).all() and not crashed[~before].any()
         in_room = before & ~terminated
         others = in_room.sum(-1, keepdim=True) - 1
-        expected_sensed = torch.where(in_room, others.clamp(max=env.num_neighbours), 0)
+        expected_sensed = torch.where(in_room, others.clamp(max=env.params.num_neighbours), 0)
         assert torch.equal(info["num_sensed"], expected_sensed)
         assert torch.equal(info["neighbour_mask"].sum(-1), expected_sensed)
         assert torch.isfinite(obs).all()

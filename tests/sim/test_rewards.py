@@ -80,7 +80,7 @@ def test_the_kernel_is_the_torch_function_of_one_agent():
     start, end, target = (torch.rand(1, 16, 2, generator=generator) * 10 for _ in range(3))
     progress = torch.hypot(*(start - target).unbind(-1)) - torch.hypot(*(end - target).unbind(-1))
     expected = compute_rewards(
-        table=env.rewards,
+        table=env.params.rewards,
         reached=reached,
         crashed_wall=crashed_wall,
         crashed_agent=crashed_agent,

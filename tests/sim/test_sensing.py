@@ -158,7 +158,7 @@ def test_fill_void_neighbours_keeps_sensed_slots_and_fills_valid_values(num_agen
         num_neighbours=7,
         num_walls=2,
         max_distance=env.max_distance,
-        max_speed=env.max_speed,
+        max_speed=env.params.max_speed,
         generator=generator,
     )
     assert filled.shape == obs.shape and filled is not obs
@@ -169,7 +169,7 @@ def test_fill_void_neighbours_keeps_sensed_slots_and_fills_valid_values(num_agen
     assert torch.equal(filled[..., :3], obs[..., :3]) and torch.equal(filled[..., 24:], obs[..., 24:])
     void = ~sensed
     rel_speed, distance, angle = new_slots[..., 0], new_slots[..., 1], new_slots[..., 2]
-    assert ((rel_speed[void] >= -2 * env.max_speed) & (rel_speed[void] <= 2 * env.max_speed)).all()
+    assert ((rel_speed[void] >= -2 * env.params.max_speed) & (rel_speed[void] <= 2 * env.params.max_speed)).all()
     assert ((angle[void] > -PI32) & (angle[void] <= PI32)).all()
     assert (distance[void] >= 0.8 - 1e-6).all() and (distance[void] <= env.max_distance + 1e-4).all()
     assert (distance.diff(dim=-1) >= 0).all()  # still sorted nearest first
@@ -182,7 +182,7 @@ def test_fill_void_neighbours_keeps_sensed_slots_and_fills_valid_values(num_agen
         num_neighbours=7,
         num_walls=2,
         max_distance=env.max_distance,
-        max_speed=env.max_speed,
+        max_speed=env.params.max_speed,
         generator=torch.Generator().manual_seed(0),
     )
     assert torch.equal(again, filled)
@@ -251,7 +251,7 @@ def test_other_numbers_of_neighbours_and_walls(num_neighbours, num_walls):
     assert info["num_sensed"].tolist() == [[min(4, num_neighbours)] * 5] * 2
     wall_distances = obs[..., 3 + 3 * num_neighbours :: 2]
     assert (wall_distances.diff(dim=-1) >= 0).all()
-    assert (wall_distances >= env.agent_radius - 1e-4).all()
+    assert (wall_distances >= env.params.agent_radius - 1e-4).all()
 
 
 def test_filled_distances_are_uniform_order_statistics():

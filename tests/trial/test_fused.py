@@ -58,7 +58,7 @@ def scene(name: str, agents: int, contact: str, seed: int, replicas: int = 4, fr
     generator = torch.Generator().manual_seed(seed)
     for _ in range(3):
         env.step(torch.randint(81, (replicas, agents), generator=generator))
-    env.speeds = torch.rand(env.speeds.shape, generator=generator) * env.max_speed
+    env.speeds = torch.rand(env.speeds.shape, generator=generator) * env.params.max_speed
     env.headings = (torch.rand(env.headings.shape, generator=generator) * 2 - 1) * math.pi
     env.velocities = torch.stack((env.speeds * env.headings.cos(), env.speeds * env.headings.sin()), -1)
     return env
@@ -71,10 +71,11 @@ def fused_features(env: RoomEnv, present: torch.Tensor) -> tuple[np.ndarray, np.
     features = np.zeros((rooms, agents, env.num_features), np.float32)
     num_sensed = np.zeros((rooms, agents), np.int64)
     size = max(agents, env.geometry.num_walls)
-    state, search = env.state.arrays(), neighbour_search()
+    state, search, params = env.state.arrays(), neighbour_search(), env.params
     for r in range(rooms):
-        sense_room(r, state, present.numpy(), env.geometry.kernel_walls(), env.num_neighbours, env.num_walls, search,
-                   features, num_sensed, np.empty((2, size), np.float32), np.empty((2, size), np.int64))  # fmt: skip
+        sense_room(r, state, present.numpy(), env.geometry.kernel_walls(), params.num_neighbours, params.num_walls,
+                   search, features, num_sensed, np.empty((2, size), np.float32),
+                   np.empty((2, size), np.int64))  # fmt: skip
     return features, num_sensed
 
 
@@ -97,7 +98,7 @@ def test_features_match_the_torch_sensing(name, agents, contact, seed):
     expected = observe(
         positions=env.positions, velocities=env.velocities, headings=env.headings, speeds=env.speeds,
         observers=present, sensed=present, geometry=env.geometry, goals=env.targets(),
-        num_neighbours=env.num_neighbours, num_walls=env.num_walls,
+        num_neighbours=env.params.num_neighbours, num_walls=env.params.num_walls,
     )  # fmt: skip
     features, num_sensed = fused_features(env, present)
     assert int(present.sum()) > agents  # a real scene

@@ -55,7 +55,7 @@ def test_a_crowd_too_large_to_record_is_recorded_every_few_decisions(monkeypatch
 
 
 def fused_max_decisions() -> int:
-    return paper_room(width=8.0, length=10.0, door_width=1.2).room(num_agents=12).max_decisions
+    return paper_room(width=8.0, length=10.0, door_width=1.2).room(num_agents=12).params.max_decisions
 
 
 def test_a_placed_crowd_runs_through_the_fused_trial_only():

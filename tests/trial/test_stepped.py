@@ -34,7 +34,7 @@ def test_compiled_step_keeps_the_torch_steps_contract():
     assert set(info) >= {"crashed_agent", "crashed_wall", "reached", "num_sensed", "neighbour_mask", "speed"}
     assert torch.equal(info["neighbour_mask"].sum(-1), info["num_sensed"])
     assert bool((obs[~room.active] == 0).all())  # who left gets 0, as from the torch step
-    assert float(info["speed"].max()) <= room.max_speed + 1e-6
+    assert float(info["speed"].max()) <= room.params.max_speed + 1e-6
 
 
 @pytest.mark.parametrize("motion", [Yield(order="door_first"), Continuous(contact="yield", time_gap=0.4)])

@@ -201,7 +201,7 @@ def test_invariants_hold_after_every_kernel_step(seed, name, contact, fast):
     state = env.state.clone().arrays()
     work, events = Work.allocate(*shape, env.num_substeps), Events.allocate(*shape)
     scratch, inputs = act_scratch(shape[1]), fused.room_inputs(env)
-    for _ in range(env.max_decisions):
+    for _ in range(env.params.max_decisions):
         actions = torch.randint(0, NUM_ACTIONS, shape, generator=generator)
         if fast:  # mostly accelerate, so bodies meet walls, each other and the door
             actions = torch.where(torch.rand(shape, generator=generator) < 0.7, 8 * 9 + actions % 9, actions)

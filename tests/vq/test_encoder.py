@@ -19,10 +19,10 @@ def room_and_obs(agents=6, replicas=2, seed=0):
 
 def settings_of(env, **changes):
     values = dict(
-        num_neighbours=env.num_neighbours,
-        num_walls=env.num_walls,
+        num_neighbours=env.params.num_neighbours,
+        num_walls=env.params.num_walls,
         max_distance=env.max_distance,
-        max_speed=env.max_speed,
+        max_speed=env.params.max_speed,
     )
     return EncoderSettings(**(values | changes))
 
@@ -37,7 +37,7 @@ def test_encode_is_prepare_then_the_quantizer():
     encoder = StateEncoder(settings)
     flat = obs.reshape(-1, env.num_features)
     prepared = encoder.prepare(flat, info["num_sensed"].reshape(-1), 0, torch.Generator())
-    columns = distance_indices(env.num_neighbours, env.num_walls)
+    columns = distance_indices(env.params.num_neighbours, env.params.num_walls)
     assert torch.equal(prepared[:, columns], flat[:, columns].log1p())  # log(1 + d) on every distance
     others = torch.ones(env.num_features, dtype=torch.bool)
     others[columns] = False
@@ -84,7 +84,7 @@ def test_every_kind_of_quantizer_round_trips_through_its_state_dict(kind):
         quantizer = ProcessQuantizers([fitted(flat, seed=0), fitted(flat, seed=1)])
     else:
         n = int(num_sensed[0])
-        index = feature_indices(n, env.num_neighbours, env.num_walls)
+        index = feature_indices(n, env.params.num_neighbours, env.params.num_walls)
         quantizer = UnionQuantizer().unite(n, index, fitted(flat[:, index]))
     encoder = StateEncoder(settings_of(env), quantizer)
     encoder.check()
@@ -99,7 +99,7 @@ def test_check_refuses_a_quantizer_of_other_observations():
     flat = obs.reshape(-1, env.num_features)
     with pytest.raises(ValueError, match="reads 27 features: the observations have 28"):
         StateEncoder(settings_of(env), fitted(flat[:, :27])).check()
-    index = feature_indices(2, env.num_neighbours, env.num_walls)
+    index = feature_indices(2, env.params.num_neighbours, env.params.num_walls)
     union = UnionQuantizer().unite(3, index, fitted(flat[:, index]))  # part 3 reading part 2's projection
     with pytest.raises(ValueError, match="part 3: reads features"):
         StateEncoder(settings_of(env), union).check()
