@@ -12,11 +12,12 @@ from pedrl.sim.controllers import GreedyDoorController
 
 
 def test_greedy_controller_turns_towards_the_door_at_full_speed():
-    env = SimpleNamespace(
+    params = SimpleNamespace(
         speed_ratios=(-1.0, -0.5, -0.25, -0.1, 0.0, 0.1, 0.25, 0.5, 1.0),
         turn_ratios=COARSE_TURN_RATIOS,
         action_frame="heading",
     )
+    env = SimpleNamespace(params=params)
     obs = torch.zeros(1, 4, 28)
     obs[0, :, 1] = torch.tensor([0.0, 0.2, -torch.pi / 2, 3.0])  # heading relative to the door direction (rad)
     actions = GreedyDoorController().act(env, obs, {})
@@ -26,7 +27,8 @@ def test_greedy_controller_turns_towards_the_door_at_full_speed():
 
 
 def test_greedy_controller_in_the_goal_frame_takes_the_top_speed_straight_at_the_door_whatever_its_heading():
-    env = SimpleNamespace(speed_ratios=GOAL_SPEED_RATIOS, turn_ratios=GOAL_TURN_RATIOS, action_frame="goal")
+    params = SimpleNamespace(speed_ratios=GOAL_SPEED_RATIOS, turn_ratios=GOAL_TURN_RATIOS, action_frame="goal")
+    env = SimpleNamespace(params=params)
     obs = torch.zeros(1, 4, 28)
     obs[0, :, 1] = torch.tensor([0.0, 0.2, -torch.pi / 2, 3.0])
     actions = GreedyDoorController().act(env, obs, {})
@@ -34,12 +36,12 @@ def test_greedy_controller_in_the_goal_frame_takes_the_top_speed_straight_at_the
 
 
 def test_greedy_controller_with_epsilon_replaces_that_share_of_its_actions():
-    env = SimpleNamespace(
+    params = SimpleNamespace(
         speed_ratios=(-1.0, -0.5, -0.25, -0.1, 0.0, 0.1, 0.25, 0.5, 1.0),
         turn_ratios=COARSE_TURN_RATIOS,
-        num_actions=81,
         action_frame="heading",
     )
+    env = SimpleNamespace(params=params, num_actions=81)
     obs = torch.zeros(50, 200, 28)  # every agent faces the door: the greedy action is 8 * 9 + 4 = 76
     noisy = GreedyDoorController(epsilon=0.3, generator=torch.Generator().manual_seed(0)).act(env, obs, {})
     changed = float((noisy != 76).double().mean())
