@@ -49,6 +49,7 @@ from pedrl.sim import RoomEnv
 from pedrl.trial.crowd import choose_path, run_crowd
 from pedrl.trial.loop import Learner
 from pedrl.trial.rollout import Gathered, TrialStats, check_finite, gather
+from pedrl.trial.walking import WalkingLog
 from pedrl.vq import Quantizer
 from pedrl.vq.encoder import VOID_DRAWS, VOID_FEATURES, EncoderSettings, StateEncoder
 from pedrl.vq.settings import VQSettings
@@ -84,6 +85,8 @@ class Trainer:
         seed: the run's seed; phase ``i`` seeds its generators from ``(seed, i)``.
         run_dir: where outputs go.
         tensorboard: write TensorBoard events.
+        walking_probes: free-walking probes of the learned policy over the run (:class:`pedrl.trial.walking.WalkingLog`;
+            0: none).
         progress: show a progress bar.
         run_config: the resolved run config, stored in checkpoints and compared on resume.
         mix: rooms of other scenarios that take turns with each phase's room, trial by trial
@@ -116,6 +119,7 @@ class Trainer:
         seed: int = 0,
         run_dir: str | Path = ".",
         tensorboard: bool = True,
+        walking_probes: int = 0,
         progress: bool = True,
         run_config: Mapping[str, Any] | None = None,
         mix: Sequence[TrainingRoom] = (),
@@ -175,6 +179,8 @@ class Trainer:
             "algo.gather_trials or env.max_decisions",
         )
         check_gathering_yield(self)
+        trials = sum(phase.trials for phase in self.phases())
+        self.walking = WalkingLog(walking_probes, trials, room.params, self.env_factory)
 
     # ------------------------------------------------------------------ what subclasses define
     def phases(self) -> list[Phase]:
@@ -360,6 +366,7 @@ class Trainer:
                 room=label,
                 agents=env.num_agents,
                 per_room=bool(self.mix),
+                walking=self.walking.measure(global_trial, policy),
             )
             global_trial += 1
             bar.set_postfix(success=f"{stats.success_rate.mean():.2f}", eps=f"{epsilon:.3f}")

@@ -12,6 +12,7 @@ from typing import Any, Final
 from pedrl.algos.phase import Phase
 from pedrl.io import CsvWriter, RunLogger, save_checkpoint
 from pedrl.trial.rollout import Gathered, TrialStats
+from pedrl.trial.walking import SCALARS as WALKING_SCALARS
 
 CURVE_METRICS: Final = (
     "success_rate",
@@ -32,6 +33,7 @@ CURVE_COLUMNS: Final = (
     *(f"{m}_{s}" for m in CURVE_METRICS for s in ("mean", "std")),
     "decisions_per_s",
     "room",
+    *(f"walking_{name}" for name in WALKING_SCALARS),
 )
 
 
@@ -87,10 +89,13 @@ class RunRecord:
         room: str = "",
         agents: int | None = None,
         per_room: bool = False,
+        walking: Mapping[str, float] | None = None,
     ) -> None:
         """Write one trial's row of ``learning_curve.csv`` and its TensorBoard scalars (mean and spread over the
         processes); the row names the ``room`` it was played in and its ``agents`` (None: the phase's), and
-        ``per_room`` (training across scenarios) also logs the room's own curves, ``rooms/<room>/<metric>``."""
+        ``per_room`` (training across scenarios) also logs the room's own curves, ``rooms/<room>/<metric>``.
+        ``walking``: the free-walking probe's figures after this trial (:class:`pedrl.trial.walking.WalkingLog`),
+        ``walking/<name>`` and the ``walking_<name>`` columns (empty in the rows of the trials not probed)."""
         row: dict[str, Any] = {
             "phase": phase.index,
             "agents": phase.num_agents if agents is None else agents,
@@ -100,6 +105,7 @@ class RunRecord:
             "decisions_per_s": rate,
             "room": room,
             **final_figures(stats),
+            **{f"walking_{name}": value for name, value in (walking or {}).items()},
         }
         for metric in CURVE_METRICS:
             tag = "losses/td_error" if metric == "td_error" else f"charts/{metric}"
@@ -111,6 +117,8 @@ class RunRecord:
         if per_room:
             means = {f"rooms/{room}/{metric}": float(getattr(stats, metric).mean()) for metric in CURVE_METRICS}
             self.logger.log_scalars(global_trial, means)
+        if walking:
+            self.logger.log_scalars(global_trial, {f"walking/{name}": value for name, value in walking.items()})
         self.curve.write(row)
 
     def log_phase(

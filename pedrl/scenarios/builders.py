@@ -129,6 +129,15 @@ def corridor(
     return Scenario("corridor", walkable, (east, west), spawns, lines)
 
 
+def straight_corridor(length: float = 40.0, width: float = 2.0) -> Scenario:
+    """RiMEA test 1's corridor, ``length x width``, closed at ``x = 0``, its exit the far end (the validation suite's
+    RiMEA 1 and the free-walking probe, :mod:`pedrl.trial.walking`)."""
+    _positive(length=length, width=width)
+    walkable = box(0.0, 0.0, length, width)
+    exit_ = LineString([(length, 0.0), (length, width)])
+    return Scenario("rimea_1", walkable, (exit_,), (Spawn(box(0.0, 0.0, min(2.0, length), width), exit=0),))
+
+
 def corner(*, width: float = 2.0, leg: float = 12.0, spawn_length: float = 10.0) -> Scenario:
     """RiMEA test 6: a corridor of ``width`` along x for ``leg`` m, turning left into a leg along y of ``leg`` m; the
     agents start in its first ``spawn_length`` m, aim at the corner's centre, then at the exit at the end."""

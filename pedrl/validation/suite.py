@@ -25,6 +25,7 @@ from shapely.geometry import LineString, box
 
 from pedrl.integrations.jupedsim import JuPedSimRunError
 from pedrl.scenarios import LIDDLE_FLOWS, LIDDLE_WIDTHS, Scenario, Spawn, build_scenario
+from pedrl.scenarios.builders import straight_corridor
 from pedrl.validation.crowds import Crowd
 from pedrl.validation.framework import (
     Budget,
@@ -109,13 +110,6 @@ def rimea_name(number: int) -> str:
 
 
 # ---------------------------------------------------------------------------------------------- RiMEA 1
-
-
-def straight_corridor(length: float = 40.0, width: float = 2.0) -> Scenario:
-    """RiMEA test 1's corridor, ``length x width``, its exit the far end."""
-    walkable = box(0.0, 0.0, length, width)
-    exit_ = LineString([(length, 0.0), (length, width)])
-    return Scenario("rimea_1", walkable, (exit_,), (Spawn(box(0.0, 0.0, 2.0, width), exit=0),))
 
 
 def rimea_1(context: Context) -> TestResult:
