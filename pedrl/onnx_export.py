@@ -22,6 +22,7 @@ import torch
 
 from pedrl.common.checks import check_integer
 from pedrl.io.files import replace_atomically
+from pedrl.rl.network import head_values
 from pedrl.rl.neural import NeuralPolicy
 from pedrl.sim.sensing import distance_indices, feature_names
 
@@ -43,6 +44,7 @@ class _Exported(torch.nn.Module):
         self.register_buffer("std", policy.std.detach().cpu().clone())
         self.register_buffer("slots", torch.arange(settings.num_neighbours))
         network = policy.network
+        self.head = network.head
         self.weights = [w[process].detach().cpu().clone() for w in network.weights]
         self.biases = [b[process, 0].detach().cpu().clone() for b in network.biases]
         for layer, (weight, bias) in enumerate(zip(self.weights, self.biases, strict=True)):
@@ -58,6 +60,7 @@ class _Exported(torch.nn.Module):
             x = x @ getattr(self, f"w{layer}") + getattr(self, f"b{layer}")
             if layer < last:
                 x = torch.relu(x)
+        x = head_values(self.head, x)
         return x, x.argmax(dim=1)
 
 

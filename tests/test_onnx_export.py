@@ -13,20 +13,31 @@ from tests.conftest import compose_config
 onnxruntime = pytest.importorskip("onnxruntime")
 
 
-@pytest.fixture(scope="module")
-def dqn_checkpoint(tmp_path_factory):
+def train_dqn(tmp_path_factory, *overrides: str):
     run = tmp_path_factory.mktemp("dqn")
     cfg = compose_config("train", ["debug=default", "algo=dqn", "algo.trials=4", "algo.iterations=1", "logger=none",
-                                   "threads=1", "progress=false"])  # fmt: skip
+                                   "threads=1", "progress=false", *overrides])  # fmt: skip
     train(cfg, run_dir=run)
     return run / "checkpoints" / "last.safetensors"
+
+
+@pytest.fixture(scope="module")
+def dqn_checkpoint(tmp_path_factory):
+    return train_dqn(tmp_path_factory)
+
+
+@pytest.fixture(scope="module")
+def branching_checkpoint(tmp_path_factory):
+    return train_dqn(tmp_path_factory, "algo.head=branching")
 
 
 def _export(checkpoint, out, *overrides):
     return export(compose_config("export", [f"checkpoint={checkpoint}", f"out={out}", *overrides]))
 
 
-def test_onnx_round_trip_gives_pedrls_values_and_actions(dqn_checkpoint, tmp_path):
+@pytest.mark.parametrize("head", ["dqn_checkpoint", "branching_checkpoint"])
+def test_onnx_round_trip_gives_pedrls_values_and_actions(head, request, tmp_path):
+    dqn_checkpoint = request.getfixturevalue(head)
     path = _export(dqn_checkpoint, tmp_path / "policy.onnx", "process=1")
     policy = load_policy(dqn_checkpoint)
     room = room_factory(policy)(num_replicas=3, num_agents=20)

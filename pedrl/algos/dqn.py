@@ -38,12 +38,14 @@ from pedrl.configs import TrainingRoom
 from pedrl.io.files import remove_temporaries_in
 from pedrl.rl import LinearSchedule
 from pedrl.rl.deep_q import DoubleDQN, DQNSettings
-from pedrl.rl.network import QNetwork, check_hidden
+from pedrl.rl.network import QNetwork, check_hidden, head_outputs
 from pedrl.rl.neural import NeuralPolicy
+from pedrl.rl.qtable import NUM_ACTIONS
 from pedrl.rl.replay import ReplayBuffer
 from pedrl.sim import RoomEnv
 from pedrl.trial.crowd import choose_path, run_crowd
 from pedrl.trial.rollout import gather
+from pedrl.trial.walking import WalkingLog
 from pedrl.vq.encoder import EncoderSettings, StateEncoder
 from pedrl.vq.settings import VQSettings
 
@@ -62,6 +64,8 @@ class DQN:
         iterations: blocks the trials are split into, each ending with a checkpoint ``iter_XXXX``.
         gather_trials: random-walk trials whose states standardise the inputs.
         hidden: widths of the hidden layers.
+        head: the network's last layer, ``joint`` (a value per action) or ``branching`` (a state value and an
+            advantage per speed and per turn index: :data:`pedrl.rl.network.HEADS`).
         learning_rate: Adam's step size.
         gamma: discount.
         batch_size: transitions per process and gradient step.
@@ -74,7 +78,7 @@ class DQN:
         max_grad_norm: each process's gradient is clipped to this norm.
         epsilon_start, epsilon_end, epsilon_decay_fraction: the exploration schedule over the run's trials.
         env, mix, home, vq, processes, rooms_per_process, checkpoint_every, device, seed, run_dir, tensorboard,
-            progress, run_config, fused: as :class:`pedrl.algos.base.Trainer`'s (of ``vq`` only
+            walking_probes, progress, run_config, fused: as :class:`pedrl.algos.base.Trainer`'s (of ``vq`` only
             ``distance_transform`` is read: the inputs are the states as the tables' quantizer sees them).
     """
 
@@ -90,6 +94,7 @@ class DQN:
         iterations: int = 1,
         gather_trials: int = 2,
         hidden: Sequence[int] = (256, 256),
+        head: str = "joint",
         learning_rate: float = 5e-4,
         gamma: float = 0.91,
         batch_size: int = 256,
@@ -110,6 +115,7 @@ class DQN:
         seed: int = 0,
         run_dir: str | Path = ".",
         tensorboard: bool = True,
+        walking_probes: int = 0,
         progress: bool = True,
         run_config: Mapping[str, Any] | None = None,
         mix: Sequence[TrainingRoom] = (),
@@ -125,6 +131,7 @@ class DQN:
             gather_trials,
         )
         self.learning_rate, self.buffer_size, self.hidden = learning_rate, buffer_size, tuple(hidden)
+        self.head = head
         self.settings = DQNSettings(gamma, batch_size, learning_starts, train_every, gradient_steps, target_every,
                                     reward_scale, max_grad_norm)  # fmt: skip
         self.schedule = LinearSchedule(epsilon_start, epsilon_end, max(1, round(epsilon_decay_fraction * trials)))
@@ -137,6 +144,7 @@ class DQN:
         self.home, self.mix = home, list(mix)
         self._mix_envs = [e.factory(num_replicas=replicas, num_agents=e.num_agents, device=self.device) for e in mix]
         self.fused = fused
+        self.walking = WalkingLog(walking_probes, trials, self.env.params, env)
         self.path, why_not = self.trial_path()  # fused=true refused before any compute
         self.encoder_settings = EncoderSettings.for_room(
             self.env, distance_transform=self.vq.distance_transform
@@ -165,7 +173,7 @@ class DQN:
     def memory_needs(self) -> dict[str, float]:
         """Estimated bytes of the largest allocations: the replay memory, the networks with Adam's moments (online,
         target, two moments: four copies), a batch's activations, and a decision of the largest room."""
-        widths = (self.width, *self.hidden, self.env.num_actions)
+        widths = (self.width, *self.hidden, head_outputs(self.head, self.env.num_actions))
         weights = sum((a + 1) * b for a, b in zip(widths[:-1], widths[1:], strict=True)) * self.processes * 4
         batch = self.settings.batch_size * self.processes * sum(widths) * 4 * 6  # forward, backward, targets
         rooms = [self.env, *self._mix_envs]
@@ -223,8 +231,8 @@ class DQN:
         states = torch.cat([part.states for part in gathered])
         mean, std = states.mean(0), states.std(0)
         std = torch.where(std < MIN_STD, 1.0, std)
-        network = QNetwork(self.processes, self.width, self.hidden, self.env.num_actions, generator=self.generator,
-                           device=self.device)  # fmt: skip
+        network = QNetwork(self.processes, self.width, self.hidden, self.env.num_actions, head=self.head,
+                           generator=self.generator, device=self.device)  # fmt: skip
         self.policy = self.make_policy(network, mean.float().contiguous(), std.float().contiguous())
         self.update = DoubleDQN(self.policy, self.settings, self.learning_rate)
         self.buffer = ReplayBuffer(self.processes, self.buffer_size, self.width, device=self.device)
@@ -259,8 +267,9 @@ class DQN:
                 stats = run_crowd(room, driver, fused=self.fused).stats
                 self._check_finite(phase, trial, stats, driver.loss)
                 rate = stats.agent_decisions / (time.perf_counter() - trial_tic)
+                walking = self.walking.measure(global_trial, self.policy)
                 record.log_trial(phase, trial, global_trial, epsilon, stats, rate, room=label, agents=room.num_agents,
-                                 per_room=bool(self.mix))  # fmt: skip
+                                 per_room=bool(self.mix), walking=walking)  # fmt: skip
                 record.logger.log_spread(global_trial, "losses/q_loss", driver.loss.double())
                 record.logger.log_scalars(global_trial, {"dqn/gradient_steps": self.update.updates,
                                                          "dqn/replay_size": self.buffer.size})  # fmt: skip
@@ -318,6 +327,7 @@ def _check_settings(settings: Mapping[str, Any]) -> None:
                 "rooms_per_process"):  # fmt: skip
         check_integer(key, settings[key], minimum=1)
     check_hidden(settings["hidden"])
+    head_outputs(settings["head"], NUM_ACTIONS)
     check_number("learning_rate", settings["learning_rate"], low=0.0, high=1.0, low_open=True)
     check_number("gamma", settings["gamma"], low=0.0, high=1.0)
     check_integer("batch_size", settings["batch_size"], minimum=1, maximum=MAX_BATCH)

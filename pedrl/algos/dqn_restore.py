@@ -15,6 +15,7 @@ from pedrl.configs import check_stored_config, current_form
 from pedrl.io import CheckpointError, load_checkpoint
 from pedrl.policy_files import RNG_KEYS, check_rng_state
 from pedrl.rl.deep_q import DoubleDQN
+from pedrl.rl.network import head_outputs
 from pedrl.rl.neural import NeuralPolicy, neural_from_tensors
 from pedrl.rl.replay import ReplayBuffer
 
@@ -56,12 +57,15 @@ def load_dqn_resume(trainer: Any, path: str | Path) -> ResumedDQN:
         global_trial, done = _progress(trainer, meta)
         tensors = checkpoint.tensors
         policy = neural_from_tensors(trainer.encoder_settings, tensors, num_actions=trainer.env.num_actions)
-        expected = (trainer.processes, (trainer.width, *trainer.hidden, trainer.env.num_actions))
+        outputs = head_outputs(trainer.head, trainer.env.num_actions)
+        expected = (trainer.processes, (trainer.width, *trainer.hidden, outputs))
         if (policy.num_processes, policy.network.widths) != expected:
             raise ValueError(
                 f"the network is {policy.num_processes} x {list(policy.network.widths)}: the config makes "
                 f"{expected[0]} x {list(expected[1])}"
             )
+        if policy.network.head != trainer.head:
+            raise ValueError(f"the network's head is {policy.network.head}: the config makes {trainer.head}")
         policy = trainer.make_policy(policy.network, policy.mean, policy.std)
         policy.network.requires_grad_(True)
         update = DoubleDQN(policy, trainer.settings, trainer.learning_rate)

@@ -41,8 +41,7 @@ class DoubleDQN:
     def __init__(self, policy: NeuralPolicy, settings: DQNSettings, learning_rate: float) -> None:
         self.policy, self.settings = policy, settings
         network = policy.network
-        self.target = QNetwork(network.processes, network.widths[0], network.widths[1:-1], network.widths[-1],
-                               device=policy.device)  # fmt: skip
+        self.target = network.twin(device=policy.device)
         self.target.load_state_dict(network.state_dict())
         self.target.requires_grad_(False)
         self.optimizer = torch.optim.Adam(network.parameters(), lr=learning_rate)

@@ -22,12 +22,20 @@ from typing import Final
 
 import torch
 
-from pedrl.common.checks import check_integer
+from pedrl.common.checks import check_choice, check_integer
+from pedrl.sim.actions import NUM_SPEED_CHANGES, NUM_TURNS
 
 MAX_WIDTH: Final = 1 << 16
 """Widest hidden layer (units): wider is a typo (a 65,536-wide square layer holds 4 Gi weights)."""
 MAX_LAYERS: Final = 16
 """Most hidden layers."""
+HEADS: Final = ("joint", "branching")
+"""What the last layer gives (``algo.head``). ``joint``: one value per action (81). ``branching``: a state value
+``V``, one advantage per speed index ``A_s`` and one per turn index ``A_t`` (1 + 9 + 9 = 19 outputs), the Q-value of
+action ``(i, j)`` being ``V + A_s[i] - mean(A_s) + A_t[j] - mean(A_t)``: action branching (Tavakoli, Pardo and
+Kormushev 2018) with a dueling state value (Wang et al. 2016), so that every decision teaches the value of its speed
+and of its turn (each seen in 1 of 9 decisions, not 1 of 81) and the values of two actions that differ in one
+component differ by that component's advantage alone."""
 
 
 def check_hidden(hidden: object) -> tuple[int, ...]:
@@ -45,14 +53,51 @@ def check_hidden(hidden: object) -> tuple[int, ...]:
     return tuple(hidden)
 
 
+def head_outputs(head: str, actions: int) -> int:
+    """Width of the last layer of a ``head`` (:data:`HEADS`) over ``actions`` actions (one line for a head that
+    cannot give them: ``branching`` needs the room's 9 x 9)."""
+    check_choice("head", head, HEADS)
+    if head == "joint":
+        return actions
+    if actions != NUM_SPEED_CHANGES * NUM_TURNS:
+        raise ValueError(
+            f"head='branching' is invalid for {actions} actions: it needs {NUM_SPEED_CHANGES} x {NUM_TURNS} = 81"
+        )
+    return 1 + NUM_SPEED_CHANGES + NUM_TURNS
+
+
+def head_of(outputs: int, actions: int) -> str:
+    """The head whose last layer is ``outputs`` wide over ``actions`` actions (a stored network's), or one line."""
+    for head in HEADS:
+        if head != "joint" and actions != NUM_SPEED_CHANGES * NUM_TURNS:
+            continue
+        if head_outputs(head, actions) == outputs:
+            return head
+    raise ValueError(f"the network's last layer gives {outputs} values: must give {actions} (joint) or 19 (branching)")
+
+
+def head_values(head: str, outputs: torch.Tensor) -> torch.Tensor:
+    """Q-values ``(..., U)`` of the last layer's ``outputs (..., O)`` through ``head`` (:data:`HEADS`): the network's
+    and its ONNX graph's (:mod:`pedrl.onnx_export`)."""
+    if head == "joint":
+        return outputs
+    value, speed, turn = torch.split(outputs, (1, NUM_SPEED_CHANGES, NUM_TURNS), dim=-1)
+    speed = speed - speed.mean(-1, keepdim=True)
+    turn = turn - turn.mean(-1, keepdim=True)
+    return (value.unsqueeze(-1) + speed.unsqueeze(-1) + turn.unsqueeze(-2)).flatten(-2)
+
+
 class QNetwork(torch.nn.Module):
-    """``P`` perceptrons ``inputs -> hidden... -> actions`` (ReLU between layers), evaluated together.
+    """``P`` perceptrons ``inputs -> hidden... -> outputs`` (ReLU between layers), evaluated together, giving
+    ``actions`` Q-values through their ``head`` (:data:`HEADS`).
 
     Args:
         processes: P, independent networks.
         inputs: width of an input.
         hidden: widths of the hidden layers.
         actions: U, the Q-values an input gets.
+        head: ``joint`` (the last layer gives the U values) or ``branching`` (a state value and an advantage per
+            speed and per turn index).
         generator: draws the initial weights (PyTorch's ``nn.Linear`` rule: uniform in ``+-1/sqrt(fan_in)``).
     """
 
@@ -63,6 +108,7 @@ class QNetwork(torch.nn.Module):
         hidden: Sequence[int],
         actions: int,
         *,
+        head: str = "joint",
         generator: torch.Generator | None = None,
         device: str | torch.device = "cpu",
     ) -> None:
@@ -70,7 +116,8 @@ class QNetwork(torch.nn.Module):
         check_integer("processes", processes, minimum=1)
         check_integer("inputs", inputs, minimum=1)
         check_integer("actions", actions, minimum=1)
-        self.widths = (inputs, *check_hidden(hidden), actions)
+        self.actions, self.head = actions, head
+        self.widths = (inputs, *check_hidden(hidden), head_outputs(head, actions))
         self.weights = torch.nn.ParameterList()
         self.biases = torch.nn.ParameterList()
         for fan_in, fan_out in zip(self.widths[:-1], self.widths[1:], strict=True):
@@ -96,7 +143,12 @@ class QNetwork(torch.nn.Module):
             x = torch.baddbmm(bias, x, weight)
             if layer < last:
                 x = torch.relu(x)
-        return x
+        return head_values(self.head, x)
+
+    def twin(self, *, device: str | torch.device | None = None) -> QNetwork:
+        """A network of the same shape and head (its own weights, drawn afresh): the target network's frame."""
+        return QNetwork(self.processes, self.widths[0], self.widths[1:-1], self.actions, head=self.head,
+                        device=device if device is not None else self.weights[0].device)  # fmt: skip
 
     def tensors(self, prefix: str) -> dict[str, torch.Tensor]:
         """The weights as named tensors, ``<prefix>/w<l>`` and ``<prefix>/b<l>`` for layer ``l``."""

@@ -16,7 +16,7 @@ import torch
 
 from pedrl.common.checks import check_number
 from pedrl.io import CheckpointError, load_checkpoint, save_checkpoint
-from pedrl.rl.network import QNetwork, layer_widths
+from pedrl.rl.network import QNetwork, head_of, head_outputs, layer_widths
 from pedrl.rl.policy import FILE_KEYS, POLICY_KIND, POLICY_VERSION, PolicyController, TableLayout, check_observations
 from pedrl.rl.qtable import NUM_ACTIONS
 from pedrl.vq.encoder import EncoderSettings, StateEncoder
@@ -65,7 +65,7 @@ class NeuralPolicy:
 
     @property
     def num_actions(self) -> int:
-        return self.network.widths[-1]
+        return self.network.actions
 
     @property
     def num_inputs(self) -> int:
@@ -210,7 +210,9 @@ def neural_from_tensors(
     of other names are ignored (a training checkpoint's optimizer, replay memory and target network)."""
     processes, widths = layer_widths(tensors, NETWORK_PREFIX)
     device = tensors[f"{NETWORK_PREFIX}/w0"].device
-    network = QNetwork(processes, widths[0], widths[1:-1], widths[-1], device=device)
+    branching = head_outputs("branching", NUM_ACTIONS)
+    actions = num_actions if num_actions is not None else (NUM_ACTIONS if widths[-1] == branching else widths[-1])
+    network = QNetwork(processes, widths[0], widths[1:-1], actions, head=head_of(widths[-1], actions), device=device)
     network.load_tensors(tensors, NETWORK_PREFIX)
     network.requires_grad_(False)
     for name in INPUT_KEYS:
