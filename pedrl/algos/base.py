@@ -51,6 +51,7 @@ from pedrl.trial.loop import Learner
 from pedrl.trial.rollout import Gathered, TrialStats, check_finite, gather
 from pedrl.vq import Quantizer
 from pedrl.vq.encoder import VOID_DRAWS, VOID_FEATURES, EncoderSettings, StateEncoder
+from pedrl.vq.factored import check_factor_slots
 from pedrl.vq.settings import VQSettings
 
 TABLES = ("agent", "process")
@@ -168,6 +169,8 @@ class Trainer:
             void_draws=void_draws,
             distance_transform=self.vq.distance_transform,
         ).spanning(self.mix)
+        settings = self.encoder_settings
+        check_factor_slots(self.vq.factor_specs, num_neighbours=settings.num_neighbours, num_walls=settings.num_walls)
         check_memory(
             memory_needs(self),
             device=self.device,
