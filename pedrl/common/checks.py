@@ -15,6 +15,19 @@ DEVICE_TYPES = ("cpu", "cuda")
 """Device types pedrl runs on (``cuda[:index]`` for a GPU)."""
 MAX_SEED = 2**32 - 1
 """Largest ``seed``: derived seeds (``seed * 10007 + phase``, ``seed * 1013 + agents``) stay within int64."""
+MAX_TRIALS = 10**9
+"""Most trials of any count a user gives (a training phase's, its gathering's, an evaluation's per agent count): years
+of compute at the fastest measured rates; more is a typo (or a ``trials_growth`` that overflows)."""
+FASTEST_AGENT_DECISIONS = 1e6
+"""Agent-decisions per second above any measured run (the fused trial's best is 880k on 2 threads,
+docs/performance.md): a run's worst case at this rate is the shortest it could take on any machine."""
+SLOW_AGENT_DECISIONS = 1e5
+"""Agent-decisions per second of the slower paths (the torch loop, a network acting; docs/performance.md): the other
+end of a printed estimate."""
+YEAR_S = 365.25 * 86_400
+"""A run whose worst case would take longer than this at the fastest rate is refused: no machine could finish it."""
+LARGE_RUN_S = 600.0
+"""A run whose worst case would take longer than this at the fastest rate prints its estimate before any compute."""
 
 
 def check_integer(name: str, value: Any, *, minimum: int, maximum: int | None = None) -> int:
@@ -153,3 +166,11 @@ def _gib(size: float) -> str:
 def first_line(err: BaseException) -> str:
     """The first line of an error's message (its type's name when empty): what a one-line error quotes."""
     return (str(err).strip().splitlines() or [type(err).__name__])[0]
+
+
+def duration(seconds: float) -> str:
+    """``seconds`` in the unit a person reads: ``45 s``, ``12 min``, ``3.4 h``, ``5.2 days``, ``3.1e+03 years``."""
+    for unit, size in (("years", YEAR_S), ("days", 86_400.0), ("h", 3_600.0), ("min", 60.0)):
+        if seconds >= size:
+            return f"{seconds / size:.3g} {unit}"
+    return f"{seconds:.2g} s"
