@@ -38,9 +38,11 @@ from pedrl.common.checks import (
     YEAR_S,
     check_bool,
     check_device,
+    check_epsilons,
     check_integer,
     check_memory,
     check_number,
+    check_trials_per_iteration,
     duration,
 )
 from pedrl.configs import TrainingRoom
@@ -381,8 +383,7 @@ def _decisions_on(bar: tqdm) -> Callable[[int, int], None] | None:
 
 def _check_settings(settings: Mapping[str, Any]) -> None:
     """One line for the first of a DQN's ``settings`` (its constructor's arguments) that is out of range."""
-    check_integer("iterations", settings["iterations"], minimum=1, maximum=MAX_TRIALS)
-    check_integer("trials", settings["trials"], minimum=settings["iterations"], maximum=MAX_TRIALS)
+    check_trials_per_iteration(settings["trials"], settings["iterations"], maximum=MAX_TRIALS)
     for key in ("num_agents", "train_every", "target_every", "processes", "rooms_per_process"):
         check_integer(key, settings[key], minimum=1)
     check_integer("gather_trials", settings["gather_trials"], minimum=1, maximum=MAX_TRIALS)
@@ -395,8 +396,7 @@ def _check_settings(settings: Mapping[str, Any]) -> None:
     check_integer("learning_starts", settings["learning_starts"], minimum=0, maximum=settings["buffer_size"])
     check_number("reward_scale", settings["reward_scale"], low=0.0, low_open=True, high=1e6)
     check_number("max_grad_norm", settings["max_grad_norm"], low=0.0, low_open=True, high=1e9)
-    for key in ("epsilon_start", "epsilon_end"):
-        check_number(key, settings[key], low=0.0, high=1.0)
+    check_epsilons(settings["epsilon_start"], settings["epsilon_end"])
     check_number("epsilon_decay_fraction", settings["epsilon_decay_fraction"], low=0.0, high=1.0, low_open=True)
     check_integer("checkpoint_every", settings["checkpoint_every"], minimum=0)
     check_bool("progress", settings["progress"])

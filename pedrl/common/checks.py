@@ -74,6 +74,32 @@ def check_number(
     return float(value)
 
 
+def check_trials_per_iteration(trials: Any, iterations: Any, *, maximum: int = MAX_TRIALS) -> int:
+    """``trials`` as an int in ``[iterations, maximum]`` (``iterations`` checked first), else a one-line
+    ``ValueError`` that names both keys when ``trials`` is below ``iterations``: each iteration learns a trial at
+    least."""
+    check_integer("iterations", iterations, minimum=1, maximum=maximum)
+    if isinstance(trials, Integral) and not isinstance(trials, bool) and trials < iterations:
+        raise ValueError(
+            f"trials={trials!r} is invalid with iterations={iterations!r}: must be an integer in [{iterations}, "
+            f"{maximum}] (each iteration learns a trial at least), or lower iterations"
+        )
+    return check_integer("trials", trials, minimum=iterations, maximum=maximum)
+
+
+def check_epsilons(start: Any, end: Any) -> tuple[float, float]:
+    """``epsilon_start`` and ``epsilon_end`` as floats in ``[0, 1]`` with ``end <= start`` (exploration decays from one
+    to the other), else a one-line ``ValueError`` naming the bad value."""
+    start = check_number("epsilon_start", start, low=0.0, high=1.0)
+    end = check_number("epsilon_end", end, low=0.0, high=1.0)
+    if end > start:
+        raise ValueError(
+            f"epsilon_end={end!r} is invalid with epsilon_start={start!r}: must be a number in [0, {start:g}] "
+            "(exploration decays from epsilon_start to epsilon_end; equal values keep it constant)"
+        )
+    return start, end
+
+
 def check_choice(name: str, value: Any, allowed: tuple[str, ...]) -> str:
     """``value`` if it is one of ``allowed``, else a one-line ``ValueError`` listing them."""
     if not isinstance(value, str) or value not in allowed:
