@@ -138,7 +138,12 @@ class DQN:
         home: str = "room",
         fused: bool | None = None,
     ) -> None:
-        self.vq = vq if isinstance(vq, VQSettings) else VQSettings.from_config(vq)
+        if (vq.factors if isinstance(vq, VQSettings) else (vq or {}).get("factors")) is not None:  # a table's key
+            raise ValueError(
+                "vq.factors is invalid with algo=dqn: the network reads the whole state (of the vq group it reads "
+                "distance_transform only); use algo=vqql or algo=it_vqql for a factored table"
+            )
+        self.vq = vq if isinstance(vq, VQSettings) else VQSettings.from_config(vq)  # every other key checked
         _check_settings(locals())
         self.num_agents, self.trials, self.iterations, self.gather_trials = (
             num_agents,

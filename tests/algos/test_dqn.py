@@ -96,6 +96,9 @@ def test_dqn_torch_path_learns_on_the_reference_step(train_config, tmp_path):
         ("algo.buffer_size=10000000000000", "this run needs about"),
         ("algo.learning_starts=5000", "learning_starts=5000 is invalid"),
         ("algo.gradient_steps=0", "gradient_steps=0 is invalid"),
+        # the vq keys DQN does not read are checked as for the tables (a typo stops); a factored table is refused
+        ("vq.num_prototypes=0", "num_prototypes=0 is invalid"),
+        ("vq.per_process=false vq.factors={own:{num_prototypes:8}}", "vq.factors is invalid with algo=dqn"),
         # counts no machine could finish, or that no memory holds: one line naming the key (they ran silently)
         ("algo.gradient_steps=1000000", "gradient_steps=1000000 is invalid: must be an integer in [1, 10000]"),
         (
