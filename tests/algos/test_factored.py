@@ -168,3 +168,19 @@ def test_a_room_without_neighbour_or_wall_slots_trains_the_factors_it_has(slots,
     checkpoint = load_checkpoint(tmp_path / "checkpoints" / "last.safetensors")
     assert checkpoint.tensors["q_values"].abs().sum() > 0
     assert len(read_csv(tmp_path / "learning_curve.csv")) == 2
+
+
+def test_the_neighbours_tool_refuses_a_factored_table_in_one_line(trained, capsys):
+    """It printed the factors' summed K and "sees neighbours: no" (it read the first id of a set); the plain
+    checkpoint's rows are tests/evaluation/test_neighbours.py's control."""
+    from pedrl.evaluation import neighbours
+
+    checkpoint, exported = trained
+    for path in (checkpoint, exported):
+        with pytest.raises(SystemExit) as exit_:
+            neighbours.main([str(path), "--places", "2", "--samples", "4", "--crowds", "2"])
+        assert exit_.value.code == 2
+        captured = capsys.readouterr()
+        lines = [line for line in captured.err.splitlines() if line.strip()]
+        assert len(lines) == 1 and "is a factored table (vq.factors): this tool counts" in lines[0], captured.err
+        assert captured.out == ""
