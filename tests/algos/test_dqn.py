@@ -165,3 +165,22 @@ def test_a_long_dqn_run_prints_its_estimate_before_any_compute(long, train_confi
     if long:
         assert "360 gradient steps" in lines[0] and "algo.trials=3 x env.max_decisions" in lines[0]
     assert not (tmp_path / "checkpoints").exists()
+
+
+def test_a_network_file_whose_config_contradicts_its_layers_is_refused(train_config, tmp_path):
+    """A stored algo.hidden of other widths or another layer count than the network's tensors loaded and acted; the
+    unchanged file is the control."""
+    import pedrl
+    from pedrl.io import CheckpointError
+    from tests.test_export import _rewritten
+
+    train(train_config(*DQN, "algo.trials=2", "algo.hidden=[16,8]", "algo.learning_starts=10"), run_dir=tmp_path)
+    checkpoint = tmp_path / "checkpoints" / "last.safetensors"
+    exported = pedrl.export_policy(checkpoint, tmp_path / "policy.safetensors")
+    for path in (checkpoint, exported):
+        assert list(pedrl.load_policy(path).network.widths[1:-1]) == [16, 8]
+        for hidden in ([16, 16], [16, 8, 8]):
+            changed = _rewritten(path, tmp_path, lambda t, m, h=hidden: m["config"]["algo"].update(hidden=h))
+            with pytest.raises(CheckpointError) as error:
+                pedrl.load_policy(changed)
+            assert f"its config's algo.hidden={hidden} disagrees with its network's layers [16, 8]" in str(error.value)

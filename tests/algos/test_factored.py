@@ -184,3 +184,18 @@ def test_the_neighbours_tool_refuses_a_factored_table_in_one_line(trained, capsy
         lines = [line for line in captured.err.splitlines() if line.strip()]
         assert len(lines) == 1 and "is a factored table (vq.factors): this tool counts" in lines[0], captured.err
         assert captured.out == ""
+
+
+def test_a_factored_file_whose_config_names_other_factors_is_refused(trained, tmp_path):
+    """A stored vq.factors without the wall factor, or with a smaller K than the table holds, loaded and acted."""
+    import pedrl
+    from pedrl.io import CheckpointError
+    from tests.test_export import _rewritten
+
+    def smaller(tensors, metadata):
+        metadata["config"]["vq"]["factors"]["own"]["num_prototypes"] = 1
+
+    for path in trained:
+        for change in (lambda t, m: m["config"]["vq"]["factors"].pop("wall"), smaller):
+            with pytest.raises(CheckpointError, match=r"its config's vq.factors \(K .*\) disagree with its factored"):
+                pedrl.load_policy(_rewritten(path, tmp_path, change))
