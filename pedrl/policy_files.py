@@ -49,6 +49,7 @@ from pedrl.rl.neural import NeuralPolicy, neural_from_tensors
 from pedrl.rl.policy import POLICY_KIND, TabularPolicy, check_policy_file, from_tensors
 from pedrl.sim import RoomEnv
 from pedrl.vq.encoder import EncoderSettings, StateEncoder
+from pedrl.vq.factored import FactoredQuantizer, factor_specs
 from pedrl.vq.quantizer import ProcessQuantizers
 
 RNG_KEYS: Final = ("rng/trainer", "rng/env")
@@ -132,6 +133,7 @@ def load_policy(
             settings = _encoder_settings(stored, config, room)
             tensors = {k: v for k, v in checkpoint.tensors.items() if k not in RNG_KEYS}
             policy = from_tensors(settings, tensors, num_actions=room.num_actions, metadata=metadata)
+        check_sizes_against_config(policy, config)
     except ValueError as err:
         raise CheckpointError(f"{where}: {first_line(err)}") from None
     _ROOMS[policy] = factory
@@ -278,6 +280,40 @@ def check_run_metadata(meta: Mapping[str, Any], config: Mapping[str, Any], max_s
     final = meta.get("final", {})
     if not isinstance(final, dict) or not all(_is_real(v) for v in final.values()):
         raise ValueError("metadata final is invalid: must map figure names to numbers")
+
+
+def check_sizes_against_config(policy: LearnedPolicy, config: Mapping[str, Any]) -> None:
+    """One line for a file whose stored training config contradicts its tensors (an altered file): a network's hidden
+    layers must be the config's ``algo.hidden``; a table's prototypes at most the config's ``vq.num_prototypes``
+    (IN-VQQL: per stage), a factored table's factors those of ``vq.factors``, each with at most its K (k-means keeps
+    fewer where the states hold fewer distinct ones)."""
+    algo, vq = config["algo"], config.get("vq") or {}
+    if isinstance(policy, NeuralPolicy):
+        hidden, widths = algo.get("hidden"), list(policy.network.widths[1:-1])
+        if hidden is not None and list(hidden) != widths:
+            raise ValueError(
+                f"its config's algo.hidden={shown(list(hidden))} disagrees with its network's layers {widths}"
+            )
+        return
+    quantizer = policy.encoder.quantizer
+    if isinstance(quantizer, FactoredQuantizer):
+        specs = {spec.name: spec.num_prototypes for spec in factor_specs(vq.get("factors")) or ()}
+        held = {name: part.num_prototypes for name, part in quantizer.parts.items()}
+        if set(held) != set(specs) or any(held[name] > specs[name] for name in held):
+            raise ValueError(f"its config's vq.factors (K {specs}) disagree with its factored table's (K {held})")
+        return
+    if vq.get("factors") is not None:
+        raise ValueError("its config's vq.factors disagree with its table over one quantizer of the whole state")
+    stages = algo.get("stages") if ALGO_TARGETS[algo["_target_"]] == "in_vqql" else None
+    per_phase = vq.get("num_prototypes")
+    if not isinstance(per_phase, int) or isinstance(per_phase, bool):
+        return  # the config's own check refuses a bad value; an old one without it has nothing to compare
+    limit = per_phase * (len(stages) if isinstance(stages, list | tuple) else 1)
+    if quantizer.num_prototypes > limit:
+        raise ValueError(
+            f"its config's vq.num_prototypes={per_phase} disagrees with its quantizer's {quantizer.num_prototypes} "
+            f"prototypes: must hold at most {limit}"
+        )
 
 
 def _check_config_parts(config: Mapping[str, Any]) -> None:

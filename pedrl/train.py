@@ -132,8 +132,10 @@ def _resume_path(resume: Any, run_dir: Path) -> Path | None:
         path = run_dir / "checkpoints" / "last.safetensors"
         if not path.is_file():
             raise CheckpointError(
-                f"resume=true but {str(path)!r} does not exist: pass hydra.run.dir=<the run to continue> "
-                "or resume=<path to a checkpoint>"
+                f"resume=true but {str(path)!r} does not exist: "
+                + _iteration_offer(
+                    path.parent, "pass hydra.run.dir=<the run to continue> or resume=<path to a checkpoint>"
+                )
             )
         return path
     if isinstance(resume, str) and resume:
@@ -142,12 +144,27 @@ def _resume_path(resume: Any, run_dir: Path) -> Path | None:
             last = path / "checkpoints" / "last.safetensors"
             if not last.is_file():
                 raise CheckpointError(
-                    f"resume={resume!r} is a directory without checkpoints/last.safetensors: pass a run directory "
-                    "that holds one, or the path of a .safetensors checkpoint"
+                    f"resume={resume!r} is a directory without checkpoints/last.safetensors: "
+                    + _iteration_offer(
+                        last.parent, "pass a run directory that holds one, or the path of a .safetensors checkpoint"
+                    )
                 )
             return last
         return path
     raise ValueError(f"resume={resume!r} is invalid: must be null, true, a run directory or the path of a checkpoint")
+
+
+def _iteration_offer(folder: Path, otherwise: str) -> str:
+    """What to do when ``folder`` (a run's ``checkpoints/``) lacks ``last.safetensors`` (a full disk or a kill while
+    it was written): resume from its newest intact ``iter_XXXX`` checkpoint, which the message names, or
+    ``otherwise``."""
+    iterations = sorted(folder.glob("iter_[0-9][0-9][0-9][0-9].safetensors")) if folder.is_dir() else []
+    if not iterations:
+        return otherwise
+    return (
+        f"its newest iteration checkpoint is there: pass resume={str(iterations[-1])!r} to continue from it "
+        "(the trials after it are learned again)"
+    )
 
 
 class RunFolderCheck(OutputDirCheck):

@@ -61,15 +61,22 @@ EVAL_CASES: list[tuple[str, tuple[str, ...]]] = [
     ("agents=[2,2]", ("agents=[2, 2]", "appear once")),
     ("agents=[2.5]", ("agents=[2.5]", "integers >= 1")),
     ("agents=[1000000]", ("num_agents=1000000", "cannot be placed")),
-    ("trials=0", ("trials=0", "integer >= 1")),
-    ("trials=1.5", ("trials=1.5", "integer >= 1")),
+    ("trials=0", ("trials=0", "integer in [1, 1000000000]")),
+    ("trials=1.5", ("trials=1.5", "integer in [1, 1000000000]")),
+    # counts no machine could finish: one line naming the key (they ran silently for hours)
+    ("trials=1000000000000", ("trials=1000000000000", "integer in [1, 1000000000]")),
+    (
+        "trials=1000000000 max_decisions=1000000",
+        ("trials=1000000000 is invalid with agents=[2, 3] and max_decisions=1000000", "agent-decisions", "a year"),
+    ),
+    ("max_decisions=100000000", ("max_decisions=100000000", "integer in [1, 10000000]")),
     ("trials_per_batch=0", ("trials_per_batch=0", "integer >= 1")),
     ("trials=1000000000 trials_per_batch=1000000000", ("needs about", "GiB", "trials_per_batch")),
     ("controller=foo", ("controller='foo'", "learned, greedy")),
     ("controller=jupedsim jupedsim.dt=1e-9", ("jupedsim.dt=1e-09 is invalid", ">= 0.001 s")),
     ("epsilon=2", ("epsilon=2", "[0, 1]")),
     ("epsilon=-0.1", ("epsilon=-0.1", "[0, 1]")),
-    ("max_decisions=0", ("max_decisions=0", "integer >= 1")),
+    ("max_decisions=0", ("max_decisions=0", "integer in [1, 10000000]")),
     ("seed=-1", ("seed=-1", "integer in [0, 4294967295]")),
     ("seed=1e18", ("seed=1e+18", "integer in [0, 4294967295]")),
     ("threads=0", ("threads=0", "integer >= 1")),
@@ -89,6 +96,10 @@ EVAL_CASES: list[tuple[str, tuple[str, ...]]] = [
     ("export.trials=-1", ("export.trials=-1", "integer >= 0")),
     ("export.fps=0", ("export.fps=0", "> 0")),
     ("export.fps=0.5", ("export.fps=0.5", "at least the room's 1 decisions per second")),
+    # above the trajectory writer's bound: refused before the trials (they ran, then the writer refused)
+    ("export.fps=1e6", ("export.fps=1000000.0", "frames per second in [1, 1e+06)")),
+    ("export.fps=1e9", ("export.fps=1000000000.0", "frames per second in [1, 1e+06)")),
+    ("export.fps=999999 max_decisions=1000", ("needs about", "an exported trial (export.fps=999999", "export.fps")),
     ("animation.enabled=maybe", ("animation.enabled='maybe'", "true or false")),
     ("animation.fps=0", ("animation.fps=0", "> 0")),
     ("animation.max_frames=0", ("animation.max_frames=0", "integer >= 1")),
@@ -98,6 +109,11 @@ EVAL_CASES: list[tuple[str, tuple[str, ...]]] = [
 
 EVAL_FAST = {
     "agents=[0]",
+    "trials=1000000000000",
+    "trials=1000000000 max_decisions=1000000",
+    "max_decisions=100000000",
+    "export.fps=1e6",
+    "export.fps=999999 max_decisions=1000",
     "device=meta",
     "measurement.distance=1000",
     "density_map.tile_size=1e-6",
@@ -177,3 +193,31 @@ def _names(folder: Path) -> set[str]:
             dirs.remove(".hydra")
         names.update(dirs, files)
     return names
+
+
+@pytest.mark.parametrize("long", [False, True], ids=["control", "long"])
+def test_a_long_evaluation_prints_its_estimate_and_shows_every_batch(long, checkpoint, tmp_path, capsys, monkeypatch):
+    """A run whose worst case passes LARGE_RUN_S at the fastest rate says so before its first row (time, memory) and
+    shows a progress bar for every batch; at export.fps, trajectory files past LARGE_EXPORT_BYTES state their size.
+    The thresholds are lowered here (a seconds-long run); the control keeps them and prints neither."""
+    import pedrl.evaluation.config as config
+    from pedrl.evaluation import evaluate
+    from tests.conftest import compose_config
+
+    if long:
+        monkeypatch.setattr(config, "LARGE_RUN_S", 0.0)
+        monkeypatch.setattr(config, "LARGE_EXPORT_BYTES", 0)
+    cfg = compose_config("eval", [f"checkpoint={checkpoint}", *EVAL_BASE, "references=[]", "export.fps=4"])
+    capsys.readouterr()
+    evaluate(cfg, run_dir=tmp_path)
+    captured = capsys.readouterr()
+    lines = captured.out.splitlines()
+    estimate = [line for line in lines if line.startswith("pedrl-eval: a long run: up to ")]
+    export = [line for line in lines if line.startswith("pedrl-eval: export.fps=4 writes up to ")]
+    assert len(estimate) == len(export) == int(long), captured.out
+    assert ("2 agents, runs 1-2" in captured.err) == long, captured.err  # the batch's bar
+    if long:
+        first_row = next(i for i, line in enumerate(lines) if "agents: fails" in line)
+        assert lines.index(estimate[0]) < first_row
+        assert "agent-decisions (trials x processes x agents x max_decisions" in estimate[0]
+        assert "GiB of memory" in estimate[0] and "GiB of trajectory files" in export[0]

@@ -250,6 +250,10 @@ def _rewritten(path, tmp_path, change):
         ("policy", lambda t, m: m["config"]["algo"].pop("_target_"), "algo._target_=None is invalid"),
         ("checkpoint", lambda t, m: m["config"]["algo"].pop("_target_"), "algo._target_=None is invalid"),
         ("checkpoint", lambda t, m: m["encoder"].update(num_walls=1), "disagrees with its config"),
+        # a stored config that contradicts the tensors (it loaded and acted): its K against the quantizer's
+        ("policy", lambda t, m: m["config"]["vq"].update(num_prototypes=2), "vq.num_prototypes=2 disagrees with its"),
+        ("checkpoint", lambda t, m: m["config"]["vq"].update(num_prototypes=2), "must hold at most 2"),
+        ("policy", lambda t, m: m["config"]["vq"].update(factors={"own": {"num_prototypes": 4}}), "vq.factors"),
     ],
 )
 def test_both_kinds_of_file_are_checked_alike_in_one_line(trained, tmp_path, which, change, message):
@@ -257,6 +261,13 @@ def test_both_kinds_of_file_are_checked_alike_in_one_line(trained, tmp_path, whi
     with pytest.raises(CheckpointError, match=message) as error:
         pedrl.load_policy(path)
     assert "\n" not in str(error.value) and str(path) in str(error.value)
+
+
+def test_a_config_that_allows_more_prototypes_than_the_file_holds_loads(trained, tmp_path):
+    """The control of the size checks: k-means may keep fewer prototypes than vq.num_prototypes, and a file whose
+    config allows more loads."""
+    path = _rewritten(trained[1], tmp_path, lambda t, m: m["config"]["vq"].update(num_prototypes=64))
+    assert pedrl.load_policy(path).encoder.quantizer.num_prototypes <= 8
 
 
 def test_a_checkpoint_older_than_its_keys_gets_the_values_of_its_time(trained, tmp_path):

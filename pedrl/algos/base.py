@@ -40,7 +40,15 @@ from pedrl.algos.mix import merge_gathered, room_of_trial
 from pedrl.algos.phase import Phase, TrainResult
 from pedrl.algos.records import RunRecord, final_figures, interactive, report_phase
 from pedrl.algos.restore import load_resume
-from pedrl.common.checks import check_bool, check_choice, check_device, check_integer, check_memory, check_number
+from pedrl.common.checks import (
+    check_bool,
+    check_choice,
+    check_device,
+    check_epsilons,
+    check_integer,
+    check_memory,
+    check_number,
+)
 from pedrl.configs import TrainingRoom
 from pedrl.io.files import remove_temporaries_in
 from pedrl.rl import LinearSchedule, zeros_q_values
@@ -52,6 +60,7 @@ from pedrl.trial.rollout import Gathered, TrialStats, check_finite, gather
 from pedrl.trial.walking import WalkingLog
 from pedrl.vq import Quantizer
 from pedrl.vq.encoder import VOID_DRAWS, VOID_FEATURES, EncoderSettings, StateEncoder
+from pedrl.vq.factored import check_factor_slots
 from pedrl.vq.settings import VQSettings
 
 TABLES = ("agent", "process")
@@ -134,8 +143,7 @@ class Trainer:
         check_bool("logger.tensorboard", tensorboard)
         check_number("alpha", alpha, low=0.0, high=1.0, low_open=True)
         check_number("gamma", gamma, low=0.0, high=1.0)
-        check_number("epsilon_start", epsilon_start, low=0.0, high=1.0)
-        check_number("epsilon_end", epsilon_end, low=0.0, high=1.0)
+        check_epsilons(epsilon_start, epsilon_end)
         check_number("epsilon_decay_fraction", epsilon_decay_fraction, low=0.0, high=1.0, low_open=True)
         check_choice("void_features", void_features, VOID_FEATURES)
         check_choice("void_draws", void_draws, VOID_DRAWS)
@@ -172,6 +180,8 @@ class Trainer:
             void_draws=void_draws,
             distance_transform=self.vq.distance_transform,
         ).spanning(self.mix)
+        settings = self.encoder_settings
+        check_factor_slots(self.vq.factor_specs, num_neighbours=settings.num_neighbours, num_walls=settings.num_walls)
         check_memory(
             memory_needs(self),
             device=self.device,

@@ -33,7 +33,18 @@ from pedrl.algos.dqn_restore import load_dqn_resume
 from pedrl.algos.mix import room_of_trial
 from pedrl.algos.phase import MAX_TRIALS, Phase, TrainResult
 from pedrl.algos.records import RunRecord, final_figures, interactive, report_phase
-from pedrl.common.checks import check_bool, check_device, check_integer, check_memory, check_number
+from pedrl.common.checks import (
+    LARGE_RUN_S,
+    YEAR_S,
+    check_bool,
+    check_device,
+    check_epsilons,
+    check_integer,
+    check_memory,
+    check_number,
+    check_trials_per_iteration,
+    duration,
+)
 from pedrl.configs import TrainingRoom
 from pedrl.io.files import remove_temporaries_in
 from pedrl.rl import LinearSchedule
@@ -51,6 +62,17 @@ from pedrl.vq.settings import VQSettings
 
 MAX_BATCH: Final = 1 << 20
 """Largest ``batch_size`` (transitions per process and step)."""
+MAX_GRADIENT_STEPS: Final = 10_000
+"""Largest ``gradient_steps`` (per round, after a decision): even at the fastest step (:data:`FASTEST_STEP_S`) a
+round then takes a second for every decision; the presets take 1 or 2."""
+FASTEST_STEP_S: Final = 1e-4
+"""Seconds of a gradient step no machine beats (a GPU's, bound by its kernel launches): a run whose worst case at this
+pace passes a year is refused."""
+CPU_TRANSITION_S: Final = 40e-6
+"""Seconds a gradient step takes per transition of its batch on one CPU thread (``main_dqn``'s network, two hidden
+layers of 256: two steps of 512 transitions in 42 ms, docs/performance.md): the printed estimate's pace."""
+GATHER_COPIES: Final = 2
+"""Copies of every gathered state in the memory estimate: as recorded, and concatenated."""
 MIN_STD: Final = 1e-3
 """A feature whose spread on the random walk is below this (a constant) is standardised by 1 instead."""
 
@@ -122,7 +144,12 @@ class DQN:
         home: str = "room",
         fused: bool | None = None,
     ) -> None:
-        self.vq = vq if isinstance(vq, VQSettings) else VQSettings.from_config(vq)
+        if (vq.factors if isinstance(vq, VQSettings) else (vq or {}).get("factors")) is not None:  # a table's key
+            raise ValueError(
+                "vq.factors is invalid with algo=dqn: the network reads the whole state (of the vq group it reads "
+                "distance_transform only); use algo=vqql or algo=it_vqql for a factored table"
+            )
+        self.vq = vq if isinstance(vq, VQSettings) else VQSettings.from_config(vq)  # every other key checked
         _check_settings(locals())
         self.num_agents, self.trials, self.iterations, self.gather_trials = (
             num_agents,
@@ -153,8 +180,10 @@ class DQN:
         check_memory(
             self.memory_needs(),
             device=self.device,
-            advice="lower algo.buffer_size, algo.hidden, algo.batch_size, processes, rooms_per_process or the agents",
+            advice="lower algo.buffer_size, algo.hidden, algo.batch_size, processes, rooms_per_process, the agents, "
+            "algo.gather_trials or env.max_decisions",
         )
+        self._check_learning_length()
 
     # ------------------------------------------------------------------ what a run is
     def phases(self) -> list[Phase]:
@@ -177,12 +206,44 @@ class DQN:
         weights = sum((a + 1) * b for a, b in zip(widths[:-1], widths[1:], strict=True)) * self.processes * 4
         batch = self.settings.batch_size * self.processes * sum(widths) * 4 * 6  # forward, backward, targets
         rooms = [self.env, *self._mix_envs]
+        rows = self.gather_trials * sum(r.num_replicas * r.num_agents * r.params.max_decisions for r in rooms)
         return {
             "replay memory": ReplayBuffer.bytes_needed(self.processes, self.buffer_size, self.width),
+            "gathered states": GATHER_COPIES * rows * self.encoder_settings.num_features * 4,
             "networks and Adam": 4 * weights,
             "batch": batch,
             "room": max(room.step_memory() for room in rooms),
         }
+
+    def gradient_steps_at_most(self) -> int:
+        """Gradient steps of the whole run if no walker leaves before its trial's end: a round of
+        ``gradient_steps`` every ``train_every`` decisions of every trial (of the longest room)."""
+        longest = max(room.params.max_decisions for room in [self.env, *self._mix_envs])
+        return self.trials * -(-longest // self.settings.train_every) * self.settings.gradient_steps
+
+    def _check_learning_length(self) -> None:
+        """Refuse, in one line naming the keys, a run whose gradient steps would take more than a year at the fastest
+        step; print the estimate of a run that would take more than a few minutes on one CPU thread."""
+        steps = self.gradient_steps_at_most()
+        keys = (
+            f"algo.trials={self.trials} x env.max_decisions / algo.train_every={self.settings.train_every} x "
+            f"algo.gradient_steps={self.settings.gradient_steps}"
+        )
+        if steps * FASTEST_STEP_S > YEAR_S:
+            raise ValueError(
+                f"algo.gradient_steps={self.settings.gradient_steps} is invalid here: {keys} gives up to {steps:.3g} "
+                f"gradient steps, {duration(steps * FASTEST_STEP_S)} at {FASTEST_STEP_S * 1e3:g} ms a step (faster "
+                f"than any machine): must be at most {YEAR_S / FASTEST_STEP_S:.3g} steps (a year): lower "
+                "algo.gradient_steps, algo.trials or env.max_decisions, or raise algo.train_every"
+            )
+        cpu = steps * self.settings.batch_size * self.processes * CPU_TRANSITION_S
+        if self.progress and cpu > LARGE_RUN_S:
+            print(
+                f"dqn: a long run: up to {steps:.3g} gradient steps of {self.settings.batch_size} transitions in each "
+                f"of {self.processes} processes ({keys}, if no walker leaves early), {duration(cpu)} at "
+                f"{CPU_TRANSITION_S * 1e6:g} us a transition on one CPU thread; each trial shows its decisions",
+                flush=True,
+            )
 
     def rooms(self) -> list[tuple[str, RoomEnv]]:
         """The labelled rooms the run trains in: its own, then the ``mix`` rooms (drawing from its generator)."""
@@ -264,7 +325,7 @@ class DQN:
                 trial_tic = time.perf_counter()
                 driver = DeepQLearner(self.policy, epsilon=epsilon, generator=self.generator, update=self.update,
                                       buffer=self.buffer)  # fmt: skip
-                stats = run_crowd(room, driver, fused=self.fused).stats
+                stats = run_crowd(room, driver, fused=self.fused, progress=_decisions_on(bar)).stats
                 self._check_finite(phase, trial, stats, driver.loss)
                 rate = stats.agent_decisions / (time.perf_counter() - trial_tic)
                 walking = self.walking.measure(global_trial, self.policy)
@@ -319,13 +380,28 @@ class DQN:
         record.save(tensors, metadata, phase, iteration=iteration)
 
 
+def _decisions_on(bar: tqdm) -> Callable[[int, int], None] | None:
+    """A trial's progress callback that shows its decisions and the agents left on ``bar`` about once a second (a
+    trial of many gradient steps is long); None where the bar is off."""
+    if bar.disable:
+        return None
+    shown_at = [time.monotonic()]
+
+    def show(decisions: int, left: int) -> None:
+        if time.monotonic() - shown_at[0] >= 1.0:
+            shown_at[0] = time.monotonic()
+            bar.set_postfix(decision=decisions, agents_left=left)
+
+    return show
+
+
 def _check_settings(settings: Mapping[str, Any]) -> None:
     """One line for the first of a DQN's ``settings`` (its constructor's arguments) that is out of range."""
-    check_integer("iterations", settings["iterations"], minimum=1, maximum=MAX_TRIALS)
-    check_integer("trials", settings["trials"], minimum=settings["iterations"], maximum=MAX_TRIALS)
-    for key in ("num_agents", "gather_trials", "train_every", "gradient_steps", "target_every", "processes",
-                "rooms_per_process"):  # fmt: skip
+    check_trials_per_iteration(settings["trials"], settings["iterations"], maximum=MAX_TRIALS)
+    for key in ("num_agents", "train_every", "target_every", "processes", "rooms_per_process"):
         check_integer(key, settings[key], minimum=1)
+    check_integer("gather_trials", settings["gather_trials"], minimum=1, maximum=MAX_TRIALS)
+    check_integer("gradient_steps", settings["gradient_steps"], minimum=1, maximum=MAX_GRADIENT_STEPS)
     check_hidden(settings["hidden"])
     head_outputs(settings["head"], NUM_ACTIONS)
     check_number("learning_rate", settings["learning_rate"], low=0.0, high=1.0, low_open=True)
@@ -335,8 +411,7 @@ def _check_settings(settings: Mapping[str, Any]) -> None:
     check_integer("learning_starts", settings["learning_starts"], minimum=0, maximum=settings["buffer_size"])
     check_number("reward_scale", settings["reward_scale"], low=0.0, low_open=True, high=1e6)
     check_number("max_grad_norm", settings["max_grad_norm"], low=0.0, low_open=True, high=1e9)
-    for key in ("epsilon_start", "epsilon_end"):
-        check_number(key, settings[key], low=0.0, high=1.0)
+    check_epsilons(settings["epsilon_start"], settings["epsilon_end"])
     check_number("epsilon_decay_fraction", settings["epsilon_decay_fraction"], low=0.0, high=1.0, low_open=True)
     check_integer("checkpoint_every", settings["checkpoint_every"], minimum=0)
     check_bool("progress", settings["progress"])

@@ -5,19 +5,15 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Final, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
-from pedrl.common.checks import check_integer, check_number
+from pedrl.common.checks import MAX_TRIALS, check_integer, check_number
 
 if TYPE_CHECKING:
     import torch
 
     from pedrl.sim import RoomEnv
     from pedrl.vq.settings import VQSettings
-
-MAX_TRIALS: Final = 10**9
-"""Most learning trials of one phase: years of compute at the fastest measured rates; more is a typo (or a
-``trials_growth`` that overflows)."""
 
 
 @dataclass(frozen=True)
@@ -41,8 +37,8 @@ class Phase:
     def __post_init__(self) -> None:
         """Check every value before any compute (one line naming it)."""
         check_integer("num_agents", self.num_agents, minimum=1)
-        check_integer("trials", self.trials, minimum=1)
-        check_integer("gather_trials", self.gather_trials, minimum=1)
+        check_integer("trials", self.trials, minimum=1, maximum=MAX_TRIALS)
+        check_integer("gather_trials", self.gather_trials, minimum=1, maximum=MAX_TRIALS)
         check_number("gather_epsilon", self.gather_epsilon, low=0.0, high=1.0)
 
 

@@ -7,7 +7,7 @@ from typing import Any
 
 from pedrl.algos.base import Trainer
 from pedrl.algos.phase import MAX_TRIALS, Phase
-from pedrl.common.checks import check_integer
+from pedrl.common.checks import check_trials_per_iteration
 from pedrl.rl import LinearSchedule
 
 
@@ -44,8 +44,7 @@ class VQQL(Trainer):
         self.trials = trials
         self.iterations = iterations
         self.gather_trials = gather_trials
-        check_integer("iterations", iterations, minimum=1, maximum=MAX_TRIALS)
-        check_integer("trials", trials, minimum=iterations, maximum=MAX_TRIALS)
+        check_trials_per_iteration(trials, iterations, maximum=MAX_TRIALS)
         super().__init__(alpha=alpha, **common)
 
     def phases(self) -> list[Phase]:

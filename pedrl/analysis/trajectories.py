@@ -9,6 +9,7 @@ arrays, float32 or 64), one run of a :class:`~pedrl.common.recording.Recording` 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from numbers import Integral
 from typing import Final
 
 import numpy as np
@@ -290,7 +291,18 @@ class Trajectories:
     @classmethod
     def of_run(cls, recording: Recording, index: int, geometry: Geometry) -> Trajectories:
         """Run ``index`` of ``recording`` in ``geometry``, its agents of each frame those of
-        :meth:`~pedrl.common.recording.Recording.acted` (velocities 0 where the recording has none)."""
+        :meth:`~pedrl.common.recording.Recording.acted` (velocities 0 where the recording has none).
+
+        Raises:
+            ValueError: one line, for an ``index`` that names no run of ``recording`` (a negative one included: it
+                would count from the end).
+        """
+        runs = recording.positions.shape[0]
+        if isinstance(index, bool) or not isinstance(index, Integral) or not 0 <= index < runs:
+            allowed = f"an integer in [0, {runs - 1}]" if runs else "none (the recording holds no run)"
+            raise ValueError(
+                f"index={index!r} is invalid: must be {allowed} (the recording holds {runs} run{'s' * (runs != 1)})"
+            )
         velocities = recording.velocities if recording.velocities is not None else np.zeros_like(recording.positions)
         return cls(
             positions=recording.positions[index],

@@ -46,6 +46,9 @@ FRAMERATE_KEY: Final = "framerate"
 
 _SIGNIFICANT_DIGITS: Final = {np.dtype(np.float32): 9, np.dtype(np.float64): 17}
 
+MAX_FRAMERATE: Final = 1e6
+"""The export's frame rates lie below this (frames per second): a microsecond between frames, far finer than any
+walker's motion, and a second of a trial at 100 walkers is then 100 million rows already."""
 FRAMES_PAST_EXIT: Final = 2
 """Frames an exported walker that left is kept past its last recorded frame, held where it left (inside the exit's
 apron of the written walkable area, at speed 0).
@@ -86,10 +89,11 @@ def trajectories_for_export(
     recorded = trajectories.framerate
     if framerate is None:
         framerate = recorded
-    if isinstance(framerate, bool) or not isinstance(framerate, int | float) or not recorded <= framerate < 1e6:
+    ok = not isinstance(framerate, bool) and isinstance(framerate, int | float)
+    if not (ok and recorded <= framerate < MAX_FRAMERATE):
         raise ValueError(
-            f"framerate={framerate!r} is invalid: must be a number of frames per second of at least the trial's "
-            f"{recorded:g} (fewer frames would skip recorded ones)"
+            f"framerate={framerate!r} is invalid: must be a number of frames per second in [{recorded:g}, "
+            f"{MAX_FRAMERATE:g}), at least the trial's {recorded:g} (fewer frames would skip recorded ones)"
         )
     if isinstance(frames_past_exit, bool) or not isinstance(frames_past_exit, int | np.integer):
         raise ValueError(f"frames_past_exit={frames_past_exit!r} is invalid: must be an integer >= 0")

@@ -15,6 +15,19 @@ DEVICE_TYPES = ("cpu", "cuda")
 """Device types pedrl runs on (``cuda[:index]`` for a GPU)."""
 MAX_SEED = 2**32 - 1
 """Largest ``seed``: derived seeds (``seed * 10007 + phase``, ``seed * 1013 + agents``) stay within int64."""
+MAX_TRIALS = 10**9
+"""Most trials of any count a user gives (a training phase's, its gathering's, an evaluation's per agent count): years
+of compute at the fastest measured rates; more is a typo (or a ``trials_growth`` that overflows)."""
+FASTEST_AGENT_DECISIONS = 1e6
+"""Agent-decisions per second above any measured run (the fused trial's best is 880k on 2 threads,
+docs/performance.md): a run's worst case at this rate is the shortest it could take on any machine."""
+SLOW_AGENT_DECISIONS = 1e5
+"""Agent-decisions per second of the slower paths (the torch loop, a network acting; docs/performance.md): the other
+end of a printed estimate."""
+YEAR_S = 365.25 * 86_400
+"""A run whose worst case would take longer than this at the fastest rate is refused: no machine could finish it."""
+LARGE_RUN_S = 600.0
+"""A run whose worst case would take longer than this at the fastest rate prints its estimate before any compute."""
 
 
 def check_integer(name: str, value: Any, *, minimum: int, maximum: int | None = None) -> int:
@@ -59,6 +72,32 @@ def check_number(
         allowed = f"a number in {interval}" if interval else f"a finite number {'>' if low_open else '>='} {low:g}"
         raise ValueError(f"{name}={value!r} is invalid: must be {allowed}")
     return float(value)
+
+
+def check_trials_per_iteration(trials: Any, iterations: Any, *, maximum: int = MAX_TRIALS) -> int:
+    """``trials`` as an int in ``[iterations, maximum]`` (``iterations`` checked first), else a one-line
+    ``ValueError`` that names both keys when ``trials`` is below ``iterations``: each iteration learns a trial at
+    least."""
+    check_integer("iterations", iterations, minimum=1, maximum=maximum)
+    if isinstance(trials, Integral) and not isinstance(trials, bool) and trials < iterations:
+        raise ValueError(
+            f"trials={trials!r} is invalid with iterations={iterations!r}: must be an integer in [{iterations}, "
+            f"{maximum}] (each iteration learns a trial at least), or lower iterations"
+        )
+    return check_integer("trials", trials, minimum=iterations, maximum=maximum)
+
+
+def check_epsilons(start: Any, end: Any) -> tuple[float, float]:
+    """``epsilon_start`` and ``epsilon_end`` as floats in ``[0, 1]`` with ``end <= start`` (exploration decays from one
+    to the other), else a one-line ``ValueError`` naming the bad value."""
+    start = check_number("epsilon_start", start, low=0.0, high=1.0)
+    end = check_number("epsilon_end", end, low=0.0, high=1.0)
+    if end > start:
+        raise ValueError(
+            f"epsilon_end={end!r} is invalid with epsilon_start={start!r}: must be a number in [0, {start:g}] "
+            "(exploration decays from epsilon_start to epsilon_end; equal values keep it constant)"
+        )
+    return start, end
 
 
 def check_choice(name: str, value: Any, allowed: tuple[str, ...]) -> str:
@@ -153,3 +192,11 @@ def _gib(size: float) -> str:
 def first_line(err: BaseException) -> str:
     """The first line of an error's message (its type's name when empty): what a one-line error quotes."""
     return (str(err).strip().splitlines() or [type(err).__name__])[0]
+
+
+def duration(seconds: float) -> str:
+    """``seconds`` in the unit a person reads: ``45 s``, ``12 min``, ``3.4 h``, ``5.2 days``, ``3.1e+03 years``."""
+    for unit, size in (("years", YEAR_S), ("days", 86_400.0), ("h", 3_600.0), ("min", 60.0)):
+        if seconds >= size:
+            return f"{seconds / size:.3g} {unit}"
+    return f"{seconds:.2g} s"

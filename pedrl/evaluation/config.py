@@ -16,14 +16,21 @@ import torch
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from pedrl.analysis.trajectories import Geometry
+from pedrl.analysis.trajectory_files import FRAMES_PAST_EXIT, MAX_FRAMERATE
 from pedrl.common.checks import (
+    FASTEST_AGENT_DECISIONS,
+    LARGE_RUN_S,
     MAX_SEED,
+    MAX_TRIALS,
+    SLOW_AGENT_DECISIONS,
+    YEAR_S,
     check_bool,
     check_choice,
     check_device,
     check_integer,
     check_memory,
     check_number,
+    duration,
     first_line,
 )
 from pedrl.evaluation.engine import (
@@ -43,6 +50,7 @@ from pedrl.io.files import check_outputs
 from pedrl.rl.policy import PolicyController
 from pedrl.runtime import set_threads
 from pedrl.sim import RoomEnv
+from pedrl.sim.room_checks import MAX_DECISIONS
 from pedrl.sim.routing import check_queue_weight
 from pedrl.trial.crowd import choose_path
 from pedrl.trial.fused import record_every
@@ -54,6 +62,14 @@ DENSITY_MAP_BYTES_PER_TILE: Final = 40
 RECORD_BYTES_PER_AGENT_FRAME: Final = 80
 """Bytes per recorded agent-frame of a batch in the memory estimate: positions and velocities (float32 x 2) on the
 device, stacked on the host and again as trajectories, and the activity flags."""
+EXPORT_BYTES_PER_AGENT_FRAME: Final = 100
+"""Bytes per agent-frame of an exported trial in the memory estimate: its resampling's float64 blend and the resampled
+positions, velocities and flags."""
+EXPORT_FILE_BYTES_PER_AGENT_FRAME: Final = 96
+"""Bytes per agent-frame of the two trajectory files of an exported trial, measured: about 30 in PedPy's text file, 62
+in JuPedSim's SQLite file."""
+LARGE_EXPORT_BYTES: Final = 2**30
+"""Trajectory files of an ``export.fps`` expected to hold more than this are announced with their size."""
 
 
 # ---------------------------------------------------------------------- the evaluation
@@ -75,11 +91,24 @@ def evaluate(cfg: DictConfig, *, run_dir: str | Path) -> list[dict[str, Any]]:
     set_threads(cfg.get("threads"))
     run_dir = Path(run_dir)
     device = torch.device(cfg.device)
-    runs = [(name, *_prepare(cfg, name, device)) for name in controllers(cfg)]
+    prepared = [(name, *_prepare(cfg, name, device)) for name in controllers(cfg)]
+    runs = [(name, policy, envs, geometry) for name, policy, envs, geometry, _ in prepared]
     settings = settings_from_config(cfg)
+    work = sum(worst_case(cfg, policy.processes, envs) for _, policy, envs, _ in runs)
     for index, (name, policy, envs, _) in enumerate(runs):  # every output writable, before the first trial
         folder = run_dir if index == 0 else run_dir / name
         check_outputs(*output_paths(folder, settings, list(envs), processes=policy.processes))
+    if work / FASTEST_AGENT_DECISIONS > LARGE_RUN_S:  # a long run says so, and shows every batch's progress
+        print(estimate_line(work, max(memory for *_, memory in prepared)), flush=True)
+        settings = replace(settings, progress=True)
+    export_bytes = sum(export_file_bytes(cfg, policy.processes, envs) for _, policy, envs, _ in runs)
+    if export_bytes > LARGE_EXPORT_BYTES:
+        print(
+            f"pedrl-eval: export.fps={cfg.export.fps!r} writes up to {export_bytes / 2**30:.3g} GiB of trajectory "
+            f"files (export.trials={cfg.export.trials!r} trials of each agent count, .txt and .sqlite, if no walker "
+            "leaves early)",
+            flush=True,
+        )
 
     # ---- the evaluations, from plain values
     rows: list[dict[str, Any]] = []
@@ -106,8 +135,9 @@ def controllers(cfg: DictConfig) -> list[str]:
     return names
 
 
-def _prepare(cfg: DictConfig, controller: str, device: torch.device) -> tuple[Any, dict[int, RoomEnv], Geometry]:
-    """The policy file made ready for ``controller``, its rooms and their area, checked against the config."""
+def _prepare(cfg: DictConfig, controller: str, device: torch.device) -> tuple[Any, dict[int, RoomEnv], Geometry, float]:
+    """The policy file made ready for ``controller``, its rooms and their area, checked against the config, and the
+    estimated bytes of its largest allocations (:func:`check_against_room`)."""
     kind, path = source(cfg)
     policy = load_controller(
         path,
@@ -123,12 +153,13 @@ def _prepare(cfg: DictConfig, controller: str, device: torch.device) -> tuple[An
     trials_per_batch = min(int(cfg.trials_per_batch), int(cfg.trials))
     envs = build_rooms(policy, list(cfg.agents), trials_per_batch=trials_per_batch, device=device)
     geometry = room_geometry(envs, policy.env_factory.scenario)
-    check_against_room(cfg, geometry, envs, policy.controller)
+    check_run_length(cfg, worst_case(cfg, policy.processes, envs))
+    memory = check_against_room(cfg, geometry, envs, policy.controller)
     if isinstance(policy.controller, Recorder):
         for env in envs.values():
             policy.controller.check(env)
     check_fused_controller(policy.controller, envs.values(), cfg.get("fused"))
-    return policy, envs, geometry
+    return policy, envs, geometry, memory
 
 
 def source(cfg: DictConfig) -> tuple[str, str]:
@@ -204,7 +235,7 @@ def _validate_values(cfg: DictConfig) -> None:
         raise ValueError(f"agents={agents!r} is invalid: must be a non-empty list of integers >= 1, e.g. [20,40]")
     if len(set(agents)) != len(agents):
         raise ValueError(f"agents={agents!r} is invalid: every agent count must appear once")
-    check_integer("trials", cfg.get("trials"), minimum=1)
+    check_integer("trials", cfg.get("trials"), minimum=1, maximum=MAX_TRIALS)
     check_integer("trials_per_batch", cfg.get("trials_per_batch"), minimum=1)
     check_choice("controller", cfg.get("controller"), CONTROLLERS)
     references = cfg.get("references")
@@ -222,7 +253,7 @@ def _validate_values(cfg: DictConfig) -> None:
         raise ValueError(f"{which}=jupedsim is invalid here: {INSTALL_HINT}")
     check_number("epsilon", cfg.get("epsilon"), low=0.0, high=1.0)
     if cfg.get("max_decisions") is not None:
-        check_integer("max_decisions", cfg.max_decisions, minimum=1)
+        check_integer("max_decisions", cfg.max_decisions, minimum=1, maximum=MAX_DECISIONS)
     check_queue_weight(cfg.get("queue_weight"))
     check_integer("seed", cfg.get("seed"), minimum=0, maximum=MAX_SEED)
     threads = cfg.get("threads")
@@ -245,10 +276,11 @@ def _validate_values(cfg: DictConfig) -> None:
     choose_path([], None, cfg.get("fused"))  # the value; the rooms are checked once built
 
 
-def check_against_room(cfg: DictConfig, geometry: Geometry, envs: dict[int, RoomEnv], controller: Any = None) -> None:
+def check_against_room(cfg: DictConfig, geometry: Geometry, envs: dict[int, RoomEnv], controller: Any = None) -> float:
     """The checks that need the checkpoint's room, before any compute: the measurement point lies inside it, the
-    export's frame rate is no lower than the decisions', and the recordings, density maps, room states and the
-    encoder's search structures fit in memory.
+    export's frame rate lies in the trajectory writer's range, from the decisions' rate up, and the recordings,
+    density maps, room states, the encoder's search structures and an exported trial fit in memory. Returns the
+    estimated bytes of those allocations.
 
     ``controller`` (None: the rooms alone) decides each batch's path (:func:`pedrl.trial.crowd.choose_path`): the fused
     trial keeps a frame every :func:`pedrl.trial.fused.record_every` decisions and builds the nearest-prototype lists
@@ -260,10 +292,11 @@ def check_against_room(cfg: DictConfig, geometry: Geometry, envs: dict[int, Room
             f"room, a distance in [0, {geometry.length:g}) m (the room's length) in front of the door"
         )
     fps, decisions = (cfg.get("export") or {}).get("fps"), next(iter(envs.values())).params.decisions_per_second
-    if fps is not None and fps < decisions:
+    if fps is not None and not decisions <= fps < MAX_FRAMERATE:
         raise ValueError(
-            f"export.fps={fps!r} is invalid: must be at least the room's {decisions:g} decisions per second "
-            "(or null: the recording's frame rate)"
+            f"export.fps={fps!r} is invalid: must be a number of frames per second in [{decisions:g}, "
+            f"{MAX_FRAMERATE:g}), at least the room's {decisions:g} decisions per second (or null: the recording's "
+            "frame rate)"
         )
     tile_size = float(cfg.density_map.tile_size)
     tiles = math.ceil(geometry.width / tile_size) * math.ceil(geometry.length / tile_size)
@@ -280,6 +313,11 @@ def check_against_room(cfg: DictConfig, geometry: Geometry, envs: dict[int, Room
         "recorded trials": RECORD_BYTES_PER_AGENT_FRAME * frames,
         "room": max(env.step_memory() for env in envs.values()),
     }
+    if fps is not None and int(cfg.export.trials):
+        frames = max(export_frames(float(fps), env) * env.num_agents for env in envs.values())
+        needs[f"an exported trial (export.fps={fps!r}: {frames:.3g} agent-frames)"] = (
+            EXPORT_BYTES_PER_AGENT_FRAME * frames
+        )
     if any(thinned.values()) and isinstance(controller, PolicyController) and not network:
         from pedrl.vq.encode_kernel import packed_sets  # numba's module, loaded where the fused trial runs
 
@@ -288,8 +326,60 @@ def check_against_room(cfg: DictConfig, geometry: Geometry, envs: dict[int, Room
     check_memory(
         needs,
         device=next(iter(envs.values())).device,
-        advice="raise density_map.tile_size, or lower trials_per_batch, the agents or max_decisions",
+        advice="raise density_map.tile_size, or lower trials_per_batch, the agents, max_decisions or export.fps",
     )
+    return float(sum(needs.values()))
+
+
+# ---------------------------------------------------------------------- how long, how large
+def worst_case(cfg: DictConfig, processes: int, envs: dict[int, RoomEnv]) -> float:
+    """Agent-decisions of one controller's evaluation if no walker leaves before its trial's end: ``trials x
+    processes x agents x max_decisions``, summed over the agent counts (a stuck walker keeps a trial going)."""
+    return float(sum(int(cfg.trials) * processes * agents * env.params.max_decisions for agents, env in envs.items()))
+
+
+def check_run_length(cfg: DictConfig, work: float) -> None:
+    """Refuse, in one line naming the keys, an evaluation whose worst case (``work`` agent-decisions of a controller,
+    :func:`worst_case`) would take more than a year at a rate above any measured run."""
+    seconds = work / FASTEST_AGENT_DECISIONS
+    if seconds <= YEAR_S:
+        return
+    length = cfg.get("max_decisions")
+    length = "null (the trained room's)" if length is None else length
+    raise ValueError(
+        f"trials={cfg.trials!r} is invalid with agents={list(cfg.agents)} and max_decisions={length}: the evaluation "
+        f"runs up to {work:.3g} agent-decisions (x processes, if no walker leaves), "
+        f"{duration(seconds)} at {FASTEST_AGENT_DECISIONS:g} per second (faster than any measured run): must be at "
+        f"most {YEAR_S * FASTEST_AGENT_DECISIONS:.3g} agent-decisions (a year): lower trials, the agents or "
+        "max_decisions"
+    )
+
+
+def estimate_line(work: float, memory: float) -> str:
+    """The line a long evaluation prints before any compute: its worst case, how long that takes at the measured
+    rates, and its memory."""
+    fast, slow = work / FASTEST_AGENT_DECISIONS, work / SLOW_AGENT_DECISIONS
+    return (
+        f"pedrl-eval: a long run: up to {work:.3g} agent-decisions (trials x processes x agents x max_decisions, if "
+        f"no walker leaves early), {duration(fast)} to {duration(slow)} at {SLOW_AGENT_DECISIONS:g}-"
+        f"{FASTEST_AGENT_DECISIONS:g} agent-decisions per second, about {memory / 2**30:.3g} GiB of memory; every "
+        "batch shows its progress"
+    )
+
+
+def export_frames(fps: float, env: RoomEnv) -> int:
+    """Frames of one exported trial at ``fps`` in ``env`` at most: the decisions' frames resampled, and the frames a
+    walker that left is kept past its exit (:func:`pedrl.analysis.trajectory_files.trajectories_for_export`)."""
+    return math.ceil(env.params.max_decisions * fps / env.params.decisions_per_second) + 1 + FRAMES_PAST_EXIT
+
+
+def export_file_bytes(cfg: DictConfig, processes: int, envs: dict[int, RoomEnv]) -> float:
+    """Bytes of one controller's trajectory files at ``export.fps`` if no walker leaves early (0 without a rate)."""
+    fps, trials = cfg.export.get("fps"), min(int(cfg.export.trials), int(cfg.trials) * processes)
+    if fps is None:
+        return 0.0
+    frames = sum(export_frames(float(fps), env) * env.num_agents for env in envs.values())
+    return float(EXPORT_FILE_BYTES_PER_AGENT_FRAME * frames * trials)
 
 
 def _recording_path(env: RoomEnv, controller: Any, setting: Any) -> str:

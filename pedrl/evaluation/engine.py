@@ -142,9 +142,9 @@ class CrowdProgress:
     """A progress bar (tqdm, on stderr) of the decisions of a batch of ``env``'s rooms, with the agents left; a
     no-op for batches smaller than :data:`PROGRESS_AGENTS`."""
 
-    def __init__(self, env: RoomEnv, label: str) -> None:
+    def __init__(self, env: RoomEnv, label: str, *, always: bool = False) -> None:
         self.bar = None
-        if env.num_replicas * env.num_agents >= PROGRESS_AGENTS:
+        if always or env.num_replicas * env.num_agents >= PROGRESS_AGENTS:
             from tqdm import tqdm
 
             self.bar = tqdm(
@@ -162,10 +162,15 @@ class CrowdProgress:
 
 
 def record_batch(
-    env: RoomEnv, controller: Controller, *, fused: bool | None = False, label: str = "pedrl-eval"
+    env: RoomEnv,
+    controller: Controller,
+    *,
+    fused: bool | None = False,
+    label: str = "pedrl-eval",
+    progress: bool = False,
 ) -> Recording:
     """Reset ``env`` (its generator draws the scene) and run one trial in every replica to its end, with a progress
-    bar named ``label`` for a large crowd (:class:`CrowdProgress`).
+    bar named ``label`` for a large crowd, or for any with ``progress`` (:class:`CrowdProgress`).
 
     ``fused``: the learned tables or the greedy walker through the fused trial's kernels (on the CPU, one compiled
     pass per batch), or the torch loop, the reference (False); None: the fused pass wherever it can run
@@ -173,11 +178,11 @@ def record_batch(
     (their random streams differ). A crowd too large to record every decision is recorded every few
     (:func:`pedrl.trial.fused.record_every`; the frame rate says how often).
     """
-    progress = CrowdProgress(env, label)
+    bar = CrowdProgress(env, label, always=progress)
     try:
-        record = run_crowd(env, controller, fused=fused, record=True, progress=progress).record
+        record = run_crowd(env, controller, fused=fused, record=True, progress=bar).record
     finally:
-        progress.close()
+        bar.close()
     return replace(record, exit_time=record.exit_time.astype(np.float32))  # the evaluation's exit times: float32
 
 
@@ -286,6 +291,8 @@ class EvalSettings:
         animation_max_frames: its most frames, None for all (``animation.max_frames``).
         tensorboard: write TensorBoard events under ``tb/``.
         fused: record through the fused trial's kernels (:func:`record_batch`); None: wherever they can run.
+        progress: a progress bar for every batch, whatever its size (a long run's; else only for batches of at least
+            :data:`PROGRESS_AGENTS` agents).
     """
 
     trials: int
@@ -303,6 +310,7 @@ class EvalSettings:
     tensorboard: bool
     fused: bool | None = None
     export_fps: float | None = None
+    progress: bool = False
 
 
 def output_paths(
@@ -467,7 +475,7 @@ def simulate_agent_count(
             record = policy.controller.record(env)
         else:
             label = f"{env.num_agents} agents, runs {first_run + 1}-{min(first_run + runs_per_batch, total_runs)}"
-            record = record_batch(env, policy.controller, fused=settings.fused, label=label)
+            record = record_batch(env, policy.controller, fused=settings.fused, label=label, progress=settings.progress)
         keep = min(runs_per_batch, total_runs - first_run)
         stats.add(record, keep)
         runs = [Trajectories.of_run(record, i, geometry) for i in range(keep)]

@@ -247,11 +247,28 @@ def neighbour_sight(policy: TabularPolicy, settings: SightSettings | None = None
 
     Raises:
         TypeError: one line, for a ``policy`` that is not a TabularPolicy.
+        ValueError: one line, for a factored table (:func:`plain_tables_only`).
     """
+    plain_tables_only(policy)
     settings = settings if settings is not None else SightSettings()
     room = policy_room(policy, num_replicas=settings.places, num_agents=1)
     scenes = scenes_of(room, speed_ratios=settings.speed_ratios, seed=settings.seed)
     return sight_of(policy.encoder, room, scenes, settings, processes=policy.num_processes)
+
+
+def plain_tables_only(policy: TabularPolicy) -> TabularPolicy:
+    """``policy``, a table over one quantizer of the whole state; a one-line ``ValueError`` for a factored table
+    (``vq.factors``), whose state is a set of ids (own, one per neighbour slot, one per wall): this tool counts the one
+    id a plain quantizer gives a state, and summing the factors' K would read a set as one id."""
+    tables_only(policy)
+    if policy.encoder.num_slots is not None:
+        source = policy.metadata.get("source", "the policy")
+        raise ValueError(
+            f"{source} is a factored table (vq.factors): this tool counts the one prototype a plain quantizer gives "
+            "a state, and a factored table gives each sensed neighbour an id of its own neighbour factor (it sees "
+            "every neighbour by construction); judge it by pedrl-eval and pedrl-validate"
+        )
+    return policy
 
 
 def sight_of(
@@ -337,7 +354,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             crowd_size=args.crowd_size,
             seed=args.seed,
         )
-        policies = [tables_only(load_policy(path)) for path in args.checkpoints]
+        policies = [plain_tables_only(tables_only(load_policy(path))) for path in args.checkpoints]
     except (ValueError, TypeError) as err:
         fail(PROGRAM, str(err))
     print("| checkpoint | speed | K | " + " | ".join(MEASURES) + " | sees neighbours |")

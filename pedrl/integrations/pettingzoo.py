@@ -301,8 +301,8 @@ class PedestrianParallelEnv(ParallelEnv):
             if index is None:
                 last = self.possible_agents[-1]
                 raise ValueError(f"actions key {agent!r} is invalid: must be one of pedestrian_0 .. {last}")
-            try:
-                value = operator.index(action)
+            try:  # a bool is no action: True would be taken as action 1
+                value = None if _is_bool(action) else operator.index(action)
             except TypeError:
                 value = None
             if value is None or not 0 <= value < num_actions:
@@ -326,6 +326,13 @@ class PedestrianParallelEnv(ParallelEnv):
                 "speed": float(values["speed"]),
             }
         return infos
+
+
+def _is_bool(value: Any) -> bool:
+    """Whether ``value`` is a Python, numpy or torch boolean (a scalar of them)."""
+    if isinstance(value, bool | np.bool_):
+        return True
+    return isinstance(value, torch.Tensor | np.ndarray) and value.dtype in (torch.bool, np.bool_)
 
 
 RUN_KEYWORDS: Final = ("num_agents", "max_decisions", "device")

@@ -19,6 +19,10 @@ from pedrl.sim.routing import MAX_QUEUE_WEIGHT
 
 OPTION_KEYS: Final = ("positions", "headings", "speeds", "replicas")
 """The keys of ``RoomEnv.reset``'s ``options``."""
+MAX_DECISIONS: Final = 10**7
+"""Most decisions of a trial (``max_decisions``): four months of walk at one decision per second, a thousand times
+the longest trial of any preset; a crowd still in its room then is stuck (a greedy walker held at a wall keeps a
+trial going to its end), and a trial of this length at 100 agents takes 17 minutes at the fastest measured rate."""
 MAX_SUBSTEPS: Final = 1000
 """Most sub-steps per decision (``max_speed / decisions_per_second / substep_length``, 7 by default): the sequential
 collision rule loops over them, so ``max_speed=1e5`` (250 000 sub-steps) hung and ``1e9`` tried to allocate 20 GB."""
@@ -196,7 +200,7 @@ def checked_settings(params: Any) -> dict[str, Any]:
         "decisions_per_second": check_real(
             "decisions_per_second", params.decisions_per_second, unit="1/s", positive=True
         ),
-        "max_decisions": check_integer("max_decisions", params.max_decisions, minimum=1),
+        "max_decisions": check_integer("max_decisions", params.max_decisions, minimum=1, maximum=MAX_DECISIONS),
         "num_neighbours": check_integer("num_neighbours", params.num_neighbours, minimum=0),
         "num_walls": check_integer("num_walls", params.num_walls, minimum=0),
         "action_frame": check_choice("action_frame", params.action_frame, ACTION_FRAMES),

@@ -35,7 +35,7 @@ from pedrl.common.checks import check_integer
 from pedrl.sim.sensing import FEATURES_PER_NEIGHBOUR, FEATURES_PER_WALL, NUM_OWN_FEATURES
 from pedrl.vq.quantizer import Quantizer
 
-__all__ = ["FACTORS", "FACTOR_FEATURES", "FactorSpec", "FactoredQuantizer", "factor_specs"]
+__all__ = ["FACTORS", "FACTOR_FEATURES", "FactorSpec", "FactoredQuantizer", "check_factor_slots", "factor_specs"]
 
 FACTOR_FEATURES: Final = {
     "own": ("speed", "velocity_angle", "door_distance"),
@@ -121,10 +121,25 @@ def split_state(
     """``(own (B, 3), neighbours (B, k, 3), walls (B, w, 2))`` of states ``(B, F)`` of ``k`` neighbour and ``w`` wall
     slots (the layout of :mod:`pedrl.sim.sensing`)."""
     first_wall = NUM_OWN_FEATURES + FEATURES_PER_NEIGHBOUR * num_neighbours
+    batch = states.shape[0]  # named, not -1: a room of no neighbour or no wall slot has 0 features of that kind
     own = states[:, :NUM_OWN_FEATURES]
-    neighbours = states[:, NUM_OWN_FEATURES:first_wall].reshape(-1, num_neighbours, FEATURES_PER_NEIGHBOUR)
-    walls = states[:, first_wall : first_wall + FEATURES_PER_WALL * num_walls].reshape(-1, num_walls, FEATURES_PER_WALL)
-    return own, neighbours, walls
+    neighbours = states[:, NUM_OWN_FEATURES:first_wall].reshape(batch, num_neighbours, FEATURES_PER_NEIGHBOUR)
+    walls = states[:, first_wall : first_wall + FEATURES_PER_WALL * num_walls]
+    return own, neighbours, walls.reshape(batch, num_walls, FEATURES_PER_WALL)
+
+
+def check_factor_slots(specs: tuple[FactorSpec, ...] | None, *, num_neighbours: int, num_walls: int) -> None:
+    """Refuse, before any compute, a neighbour or wall factor of ``specs`` in a room whose state has no slot of that
+    kind (``env.num_neighbours=0``, ``env.num_walls=0``): it would have nothing to be fitted on. The table without
+    that factor reads the room as it is (one line naming the factor, the setting, and both ways out)."""
+    slots = {"neighbour": ("env.num_neighbours", num_neighbours), "wall": ("env.num_walls", num_walls)}
+    for spec in specs or ():
+        if spec.name in slots and slots[spec.name][1] == 0:
+            key = slots[spec.name][0]
+            raise ValueError(
+                f"vq.factors.{spec.name} is invalid with {key}=0: the state has no {spec.name} slot for it to read: "
+                f"leave the factor out (~vq.factors.{spec.name}) or raise {key}"
+            )
 
 
 class FactoredQuantizer:

@@ -96,12 +96,24 @@ def test_dqn_torch_path_learns_on_the_reference_step(train_config, tmp_path):
         ("algo.buffer_size=10000000000000", "this run needs about"),
         ("algo.learning_starts=5000", "learning_starts=5000 is invalid"),
         ("algo.gradient_steps=0", "gradient_steps=0 is invalid"),
+        # the vq keys DQN does not read are checked as for the tables (a typo stops); a factored table is refused
+        ("vq.num_prototypes=0", "num_prototypes=0 is invalid"),
+        ("vq.per_process=false vq.factors={own:{num_prototypes:8}}", "vq.factors is invalid with algo=dqn"),
+        # counts no machine could finish, or that no memory holds: one line naming the key (they ran silently)
+        ("algo.gradient_steps=1000000", "gradient_steps=1000000 is invalid: must be an integer in [1, 10000]"),
+        (
+            "algo.trials=1000000000 algo.gradient_steps=10000",
+            "algo.gradient_steps=10000 is invalid here: algo.trials=1000000000 x env.max_decisions / "
+            "algo.train_every=1 x algo.gradient_steps=10000 gives up to 4e.14 gradient steps, 1.27e.03 years",
+        ),
+        ("algo.gather_trials=1000000000", "this run needs about .* GiB of memory .*gathered states"),
+        ("algo.gather_trials=10000000000", "gather_trials=10000000000 is invalid: must be an integer in [1, 10000000"),
         ("algo.reward_scale=-1", "reward_scale=-1"),
         ("+algo.value_transfer=true", "algo.value_transfer is not a setting of pedrl.algos.DQN"),
     ],
 )
 def test_dqn_bad_settings_are_one_line_before_any_compute(train_config, tmp_path, override, message):
-    cfg = train_config(*DQN, override)
+    cfg = train_config(*DQN, *override.split())
     with pytest.raises(ValueError, match=message.replace("[", r"\[").replace("]", r"\]")) as err:
         build_trainer(cfg, tmp_path)
     assert "\n" not in str(err.value)
@@ -134,3 +146,41 @@ def test_pedrl_eval_runs_a_network_on_the_kernels_as_on_the_torch_step_and_from_
     kernels, reference = rows["checkpoint"]["learned"], rows["torch"]["learned"]
     assert abs(float(kernels["fails_pct"]) - float(reference["fails_pct"])) <= 15.0
     assert abs(float(kernels["mean_speed"]) - float(reference["mean_speed"])) <= 0.15 * float(reference["mean_speed"])
+
+
+@pytest.mark.parametrize("long", [False, True], ids=["control", "long"])
+def test_a_long_dqn_run_prints_its_estimate_before_any_compute(long, train_config, tmp_path, capsys, monkeypatch):
+    """A run whose gradient steps would take more than LARGE_RUN_S on one CPU thread says how many, and how long, when
+    it is built (the threshold is lowered here; the control keeps it and prints nothing)."""
+    import pedrl.algos.dqn as dqn
+
+    if long:
+        monkeypatch.setattr(dqn, "LARGE_RUN_S", 0.0)
+    cfg = train_config(*DQN, "algo.trials=3", "algo.gradient_steps=3")
+    cfg.progress = True
+    capsys.readouterr()
+    build_trainer(cfg, tmp_path)
+    lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("dqn: a long run: up to ")]
+    assert len(lines) == int(long)
+    if long:
+        assert "360 gradient steps" in lines[0] and "algo.trials=3 x env.max_decisions" in lines[0]
+    assert not (tmp_path / "checkpoints").exists()
+
+
+def test_a_network_file_whose_config_contradicts_its_layers_is_refused(train_config, tmp_path):
+    """A stored algo.hidden of other widths or another layer count than the network's tensors loaded and acted; the
+    unchanged file is the control."""
+    import pedrl
+    from pedrl.io import CheckpointError
+    from tests.test_export import _rewritten
+
+    train(train_config(*DQN, "algo.trials=2", "algo.hidden=[16,8]", "algo.learning_starts=10"), run_dir=tmp_path)
+    checkpoint = tmp_path / "checkpoints" / "last.safetensors"
+    exported = pedrl.export_policy(checkpoint, tmp_path / "policy.safetensors")
+    for path in (checkpoint, exported):
+        assert list(pedrl.load_policy(path).network.widths[1:-1]) == [16, 8]
+        for hidden in ([16, 16], [16, 8, 8]):
+            changed = _rewritten(path, tmp_path, lambda t, m, h=hidden: m["config"]["algo"].update(hidden=h))
+            with pytest.raises(CheckpointError) as error:
+                pedrl.load_policy(changed)
+            assert f"its config's algo.hidden={hidden} disagrees with its network's layers [16, 8]" in str(error.value)

@@ -136,6 +136,12 @@ def test_a_seed_gives_the_same_factored_run(train_config, tmp_path):
         (["vq.factors={own: {num_prototypes: 4, weights: {pace: 1}}}"], ("weights.pace names no feature", "speed")),
         (["vq.per_process=true", "vq.factors={own: {num_prototypes: 4}}"], ("vq.per_process=true is invalid",)),
         (["algo=in_vqql", "vq.factors={own: {num_prototypes: 4}}"], ("vq.factors is invalid with algo=in_vqql",)),
+        # a factor of a kind the room senses no slot of: nothing to fit it on (it crashed after the first phase)
+        (
+            ["experiment=main_factored", "env.num_neighbours=0"],
+            ("vq.factors.neighbour is invalid with env.num_neighbours=0", "~vq.factors.neighbour"),
+        ),
+        (["experiment=main_factored", "env.num_walls=0"], ("vq.factors.wall is invalid with env.num_walls=0",)),
     ],
 )
 def test_bad_factors_are_refused_in_one_line_before_any_compute(overrides, fragments, tmp_path, capsys):
@@ -144,3 +150,52 @@ def test_bad_factors_are_refused_in_one_line_before_any_compute(overrides, fragm
     outcome = run_hydra_main(pedrl.train, [*base, *overrides], capsys)
     assert_refused(outcome, "pedrl-train", fragments)
     assert_nothing_computed(run_dir)
+
+
+@pytest.mark.parametrize(
+    ("slots", "factors"),
+    [
+        ("env.num_neighbours=0", "vq.factors={own: {num_prototypes: 8}, wall: {num_prototypes: 4}}"),
+        ("env.num_walls=0", "vq.factors={own: {num_prototypes: 8}, neighbour: {num_prototypes: 4}}"),
+    ],
+)
+def test_a_room_without_neighbour_or_wall_slots_trains_the_factors_it_has(slots, factors, train_config, tmp_path):
+    """The way out the refusal names: the table without the empty factor trains (the state split of a room of 0 slots
+    of a kind was numpy-ambiguous and crashed)."""
+    overrides = ("debug=default", "algo=vqql", "algo.num_agents=3", "algo.trials=2", "env.max_decisions=10",
+                 "logger=none", "vq.per_process=false", slots, factors)  # fmt: skip
+    train(train_config(*overrides), run_dir=tmp_path)
+    checkpoint = load_checkpoint(tmp_path / "checkpoints" / "last.safetensors")
+    assert checkpoint.tensors["q_values"].abs().sum() > 0
+    assert len(read_csv(tmp_path / "learning_curve.csv")) == 2
+
+
+def test_the_neighbours_tool_refuses_a_factored_table_in_one_line(trained, capsys):
+    """It printed the factors' summed K and "sees neighbours: no" (it read the first id of a set); the plain
+    checkpoint's rows are tests/evaluation/test_neighbours.py's control."""
+    from pedrl.evaluation import neighbours
+
+    checkpoint, exported = trained
+    for path in (checkpoint, exported):
+        with pytest.raises(SystemExit) as exit_:
+            neighbours.main([str(path), "--places", "2", "--samples", "4", "--crowds", "2"])
+        assert exit_.value.code == 2
+        captured = capsys.readouterr()
+        lines = [line for line in captured.err.splitlines() if line.strip()]
+        assert len(lines) == 1 and "is a factored table (vq.factors): this tool counts" in lines[0], captured.err
+        assert captured.out == ""
+
+
+def test_a_factored_file_whose_config_names_other_factors_is_refused(trained, tmp_path):
+    """A stored vq.factors without the wall factor, or with a smaller K than the table holds, loaded and acted."""
+    import pedrl
+    from pedrl.io import CheckpointError
+    from tests.test_export import _rewritten
+
+    def smaller(tensors, metadata):
+        metadata["config"]["vq"]["factors"]["own"]["num_prototypes"] = 1
+
+    for path in trained:
+        for change in (lambda t, m: m["config"]["vq"]["factors"].pop("wall"), smaller):
+            with pytest.raises(CheckpointError, match=r"its config's vq.factors \(K .*\) disagree with its factored"):
+                pedrl.load_policy(_rewritten(path, tmp_path, change))

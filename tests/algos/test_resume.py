@@ -96,6 +96,27 @@ def test_resume_of_a_directory_without_checkpoint_says_so(tmp_path):
         train(tiny_config(*TINY, f"resume={tmp_path}"), run_dir=tmp_path / "run")
 
 
+def test_resume_without_last_offers_the_newest_iteration_checkpoint_which_resumes(tmp_path):
+    """After a full disk (or a kill while last.safetensors was written) the run keeps its iter_XXXX checkpoints:
+    resume=true and resume=<the run> name the newest, and resuming from it finishes the run; the control, a run
+    without any checkpoint, keeps the plain refusal."""
+    train(tiny_config(*TINY, "algo.iterations=2"), run_dir=tmp_path)
+    folder = tmp_path / "checkpoints"
+    for lost in ("last", "iter_0002"):  # the disk filled up in the second iteration
+        (folder / f"{lost}.safetensors").unlink()
+    newest = str(folder / "iter_0001.safetensors")
+    for resume in ("resume=true", f"resume={tmp_path}"):
+        with pytest.raises(CheckpointError) as error:
+            train(tiny_config(*TINY, "algo.iterations=2", resume), run_dir=tmp_path)
+        assert f"its newest iteration checkpoint is there: pass resume={newest!r} to continue" in str(error.value)
+        assert "\n" not in str(error.value)
+    train(tiny_config(*TINY, "algo.iterations=2", f"resume={newest}"), run_dir=tmp_path)
+    assert (folder / "last.safetensors").is_file() and (folder / "iter_0002.safetensors").is_file()
+    with pytest.raises(CheckpointError, match="does not exist: pass hydra.run.dir=") as error:
+        train(tiny_config(*TINY, "resume=true"), run_dir=tmp_path / "empty")
+    assert "iteration checkpoint" not in str(error.value)
+
+
 def test_a_checkpoint_outside_a_run_continues_in_the_new_run_directory(tmp_path, monkeypatch):
     _interrupt_after(monkeypatch, 14)
     with pytest.raises(KeyboardInterrupt):

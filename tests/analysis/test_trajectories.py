@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import shapely
 
-from pedrl.analysis import AreaGeometry, RoomGeometry, Trajectories
+from pedrl.analysis import AreaGeometry, Recording, RoomGeometry, Trajectories
 
 
 def shoelace_area(outline: np.ndarray) -> float:
@@ -135,6 +135,25 @@ def test_non_finite_positions_only_matter_for_active_agents():
         Trajectories(**arrays)
     arrays["active"][2, 1] = False
     Trajectories(**arrays)
+
+
+def two_runs() -> Recording:
+    """A recording of 2 runs of 3 frames of 2 agents, run ``r`` at x = r + 1."""
+    positions = np.ones((2, 3, 2, 2), np.float32) * np.array([1.0, 2.0], np.float32)[:, None, None, None]
+    in_room = np.ones((2, 3, 2), bool)
+    return Recording(positions=positions, in_room=in_room, exit_time=np.full((2, 2), np.nan), frame_rate=2.0)
+
+
+def test_of_run_reads_the_run_it_names():
+    runs = [Trajectories.of_run(two_runs(), index, RoomGeometry()) for index in (0, 1)]
+    assert [float(run.positions[0, 0, 0]) for run in runs] == [1.0, 2.0]
+
+
+@pytest.mark.parametrize("index", [2, 5, -1, -2, 1.0, True, "0"])
+def test_of_run_refuses_an_index_that_names_no_run_in_one_line(index):
+    with pytest.raises(ValueError) as error:
+        Trajectories.of_run(two_runs(), index, RoomGeometry())
+    assert str(error.value) == f"index={index!r} is invalid: must be an integer in [0, 1] (the recording holds 2 runs)"
 
 
 def test_geometry_type_is_checked():

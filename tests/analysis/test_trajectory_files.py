@@ -348,8 +348,9 @@ def test_a_walker_still_in_the_room_at_its_last_frame_is_not_held_on(make_trial)
     [
         (
             {"framerate": 0.5},
-            "framerate=0.5 is invalid: must be a number of frames per second of at least the trial's 1",
+            "framerate=0.5 is invalid: must be a number of frames per second in [1, 1e+06), at least the trial's 1",
         ),
+        ({"framerate": 1e6}, "framerate=1000000.0 is invalid: must be a number of frames per second in [1, 1e+06)"),
         ({"framerate": "4"}, "framerate='4' is invalid"),
         ({"frames_past_exit": -1}, "frames_past_exit=-1 is invalid"),
         ({"frames_past_exit": 1.5}, "frames_past_exit=1.5 is invalid"),

@@ -20,7 +20,7 @@ from pedrl.vq.pruned import GRAPH_BLOCK_BYTES, GRAPH_MAX_PAIRS, GRAPH_SIZE, grap
 from pedrl.vq.quantizer import Quantizer
 
 needs_numba = pytest.mark.skipif(not numba_available(), reason="the fused trial is numba's")
-AGENTS, DECISIONS = 40, 100_000_000
+AGENTS, DECISIONS = 40, 10_000_000  # the longest trial allowed (MAX_DECISIONS)
 
 
 def eval_config(fused=None):
@@ -40,8 +40,8 @@ def free_memory(monkeypatch, gib: float) -> None:
 
 @needs_numba
 def test_the_recording_check_counts_the_frames_the_fused_trial_keeps(monkeypatch):
-    """``max_decisions=100000000`` at 40 agents: every frame would be 298 GiB, the fused trial keeps one every
-    ``record_every`` decisions (2 GiB of frames): accepted with 16 GiB free; the torch loop, which keeps every frame,
+    """``max_decisions=10000000`` at 40 agents: every frame would be 29.8 GiB, the fused trial keeps one every
+    ``record_every`` decisions (7.5 GiB of frames): accepted with 16 GiB free; the torch loop, which keeps every frame,
     is refused (the control), and so is the thinned recording where less is free than it needs."""
     envs = long_rooms()
     geometry = room_geometry(envs, ROOM)
@@ -50,7 +50,7 @@ def test_the_recording_check_counts_the_frames_the_fused_trial_keeps(monkeypatch
     every = record_every(1, AGENTS, DECISIONS)
     kept = RECORD_BYTES_PER_AGENT_FRAME * (-(-DECISIONS // every) + 1) * AGENTS
     assert every > 1 and kept < 80 / 17 * RECORD_BYTES + RECORD_BYTES_PER_AGENT_FRAME * AGENTS
-    with pytest.raises(ValueError, match=r"^this run needs about 298 GiB of memory \(recorded trials 298 GiB") as err:
+    with pytest.raises(ValueError, match=r"^this run needs about 29.8 GiB of memory \(recorded trials 29.8 GiB") as err:
         check_against_room(eval_config(fused=False), geometry, envs, GreedyDoorController())
     assert "\n" not in str(err.value)
     free_memory(monkeypatch, 4)

@@ -222,6 +222,10 @@ def test_bad_actions_and_steps_before_reset_are_refused():
         env.step({"pedestrian_0": 81})
     with pytest.raises(ValueError, match=r"is invalid: must be an integer"):
         env.step({"pedestrian_0": 1.5})
+    for flag in (True, False, np.True_, torch.tensor(True)):  # no action: True was taken as action 1
+        with pytest.raises(ValueError, match=r"actions\['pedestrian_0'\]=.* is invalid: must be an integer in \[0, "):
+            env.step({"pedestrian_0": flag})
+    env.step({"pedestrian_0": np.int64(1), "pedestrian_1": torch.tensor(2)})  # the control: integers of any kind
     with pytest.warns(UserWarning, match=r"ignores the options 'replicas'"):
         env.reset(options={"replicas": [True]})
 
