@@ -205,8 +205,8 @@ def ranking_lines(rows: list[dict[str, Any]]) -> list[str]:
                 verdict = f"{a} fails {'less' if difference < 0 else 'more'} than {b}"
             else:
                 verdict = (
-                    f"too few scenes to rank {a} and {b} on fails (a gap within {RANKING_ERRORS:g} standard errors;"
-                    " trials=100 or more narrows it)"
+                    f"too few scenes to rank {a} and {b} on fails (the gap is within {RANKING_ERRORS:g} standard"
+                    " errors; more trials narrow them)"
                 )
             lines.append(
                 f"{agents} agents: fails {a} - {b} = {difference:+.2f} ± {RANKING_ERRORS * error:.2f} points"
