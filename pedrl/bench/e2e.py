@@ -235,8 +235,8 @@ def measure_commit(commit: str, *, rooms: Sequence[int], trials: int, quick: boo
         command = [sys.executable, str(driver), "--tree", str(tree), "--rooms", ",".join(map(str, rooms))]
         command += ["--trials", str(trials), "--device", device, "--output", str(output)]
         command += ["--quick"] if quick else []
-        env = {key: value for key, value in os.environ.items() if key != "PYTHONPATH"}
-        subprocess.run(command, check=True, env=env, cwd=folder)
+        # PYTHONPATH kept (it may hold the dependencies); the driver drops its entries that hold another pedrl
+        subprocess.run(command, check=True, cwd=folder)
         result = json.loads(output.read_text())
         outside = modules_outside(result["modules"], tree)
         if outside:  # the driver checks this too; a second look where the rows are read
