@@ -5,9 +5,10 @@ numba compiles a kernel at its first call (minutes for the fused trial's kernels
 on-disk cache (``NUMBA_CACHE_DIR`` where it is set and writable, else ``__pycache__`` next to the module, else the
 user's cache folder, ``~/.cache/numba``), so later processes load them in under a second. Kernels are declared with
 :func:`cached_njit`: the first compile of a process whose cache is cold says so in one line on stderr
-(:data:`COMPILING`), a kernel whose cache files cannot be read (truncated, garbage) is recompiled into a fresh cache,
-with one warning line per process, instead of failing every run, and where no folder can hold a cache the kernels are
-compiled in every process, with one warning line.
+(:data:`COMPILING`), and each kernel whose compile took a second or more says so in one line when it is done
+(:data:`COMPILED`: the first run's progress); a kernel whose cache files cannot be read (truncated, garbage) is
+recompiled into a fresh cache, with one warning line per process, instead of failing every run, and where no folder
+can hold a cache the kernels are compiled in every process, with one warning line.
 The torch code stays the reference and the path on other devices: the kernels return its numbers to the bit (the
 tree search the exact argmin, which can order float32 ties differently from the matrix search). Each kernel module
 names its specification in its first line. In `pedrl.sim.motion` and `pedrl.rl.qlearning` a function with a
@@ -20,6 +21,7 @@ from __future__ import annotations
 import functools
 import os
 import sys
+import time
 from collections.abc import Callable
 from types import ModuleType
 from typing import TYPE_CHECKING, Any
@@ -37,8 +39,18 @@ _COMPILED: list[str] = []
 """The kernels this process compiled because their cache held no copy (the first one is announced)."""
 _UNCACHED: list[str] = []
 """The kernels declared without a cache because no folder could hold one (the first one is reported)."""
-COMPILING = "pedrl: compiling the numba kernels (first run: up to a few minutes; cached afterwards in {folder})"
+COMPILING = (
+    "pedrl: compiling the numba kernels (first run only: seconds to minutes per kernel, a line as each one taking"
+    " longer than a second is done; cached afterwards in {folder})"
+)
 """The line printed on stderr before the first compile of a process whose cache holds no copy of a kernel."""
+COMPILED = "pedrl: compiled {kernel}{callees} in {seconds:.0f} s"
+"""The line printed on stderr when a kernel compiled by this process (with the kernels it calls) is done, where it
+took :data:`PROGRESS_SECONDS` or more: the first run's progress through its kernels."""
+PROGRESS_SECONDS = 1.0
+"""Compiles shorter than this say nothing when they are done (a tiny kernel's line would only be noise)."""
+_IN_PROGRESS: list[tuple[str, float, int]] = []
+"""The kernels being compiled, outermost first: name, start (perf_counter) and the count of compiles before it."""
 DISABLE_VARIABLE = "PEDRL_NO_NUMBA"
 """Set it (to anything but empty or ``0``) to run the torch code on the CPU too."""
 
@@ -127,10 +139,33 @@ def _healing_cache_class() -> type:
             if loaded is None and self._enabled:  # a cold cache: numba compiles next
                 if not _COMPILED and not _HEALED:
                     print(COMPILING.format(folder=cache_folder(self)), file=sys.stderr, flush=True)
-                _COMPILED.append(f"{self._py_func.__module__}.{self._py_func.__qualname__}")
+                kernel = f"{self._py_func.__module__}.{self._py_func.__qualname__}"
+                _COMPILED.append(kernel)
+                _IN_PROGRESS.append((kernel, time.perf_counter(), len(_COMPILED)))
             return loaded
 
+        def save_overload(self, sig: Any, data: Any) -> None:
+            super().save_overload(sig, data)
+            compiled_done(f"{self._py_func.__module__}.{self._py_func.__qualname__}")
+
     return HealingCache
+
+
+def compiled_done(kernel: str) -> None:
+    """``kernel``'s compile is done (numba saves it to the cache): where it was the outermost compile in progress
+    and took :data:`PROGRESS_SECONDS` or more, say so in one line on stderr (:data:`COMPILED`), with the count of the
+    kernels it called that were compiled with it."""
+    for index in range(len(_IN_PROGRESS) - 1, -1, -1):
+        if _IN_PROGRESS[index][0] == kernel:
+            _, start, before = _IN_PROGRESS.pop(index)
+            if index == 0:
+                seconds, callees = time.perf_counter() - start, len(_COMPILED) - before
+                if seconds >= PROGRESS_SECONDS:
+                    with_callees = f" (and {callees} kernel{'s' if callees != 1 else ''} it calls)" if callees else ""
+                    line = COMPILED.format(kernel=kernel, callees=with_callees, seconds=seconds)
+                    print(line, file=sys.stderr, flush=True)
+                _IN_PROGRESS.clear()  # a callee whose compile failed leaves nothing behind
+            return
 
 
 def cache_folder(cache: Any) -> str:

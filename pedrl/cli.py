@@ -16,7 +16,7 @@ import sys
 import tempfile
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any, ClassVar, TypeVar
+from typing import Any, ClassVar, Final, TypeVar
 
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
@@ -56,17 +56,41 @@ def run_reporting_errors(program: str, action: Callable[[], T]) -> T:
     fail(program, message)
 
 
+INTERNAL_GROUPS: Final = {"debug_algo": "algo", "debug_experiment": "experiment"}
+"""Groups that ``debug=<name>`` chooses with the group beside it (``debug_experiment/<debug>_<experiment>.yaml``): a
+patch for a debug run, never a choice of its own. Given alone, ``debug_experiment=default_main_dqn`` patched the
+full default run (no debug budgets) and trained for ten minutes without a word; it is refused in one line."""
+
+
+def internal_group_problem(key: str, value: str, config_dir: str | Path) -> str | None:
+    """Why ``key=value`` may not be given on the command line (``key`` one of :data:`INTERNAL_GROUPS`), with the
+    command that means it (``experiment=main_dqn debug=default``), or None for another key."""
+    beside = INTERNAL_GROUPS.get(key)
+    if beside is None:
+        return None
+    debugs = sorted((path.stem for path in (Path(config_dir) / "debug").glob("*.yaml")), key=len, reverse=True)
+    debug = next((name for name in debugs if value.startswith(f"{name}_")), None)
+    meant = f": run {beside}={value.removeprefix(f'{debug}_')} debug={debug}" if debug else ""
+    return (
+        f"{key}={value!r} is invalid: {key} is chosen by debug=<name> with {beside}=<name>, not given on the command"
+        f" line (alone it patches the full run, not a debug one){meant}"
+    )
+
+
 def check_group_choices(
     program: str, args: list[str], config_dir: str | Path, groups: tuple[str, ...] | None = None
 ) -> None:
     """Refuse ``group=option`` overrides naming no file of ``conf/<group>/``, or a group the program does not
     compose (``groups``; ``None``: every group), with one line where Hydra would print a multi-line composition
-    error: ``pedrl-train: error: scenario='mall' is invalid: must be one of ...``."""
+    error: ``pedrl-train: error: scenario='mall' is invalid: must be one of ...``; and the groups that ``debug=``
+    chooses itself (:data:`INTERNAL_GROUPS`)."""
     for arg in args:
         key, sep, value = arg.partition("=")
         key = key.lstrip("+~")
         if arg.startswith("-") or not sep or "." in key or not value or "(" in value:
             continue
+        if (problem := internal_group_problem(key, value, config_dir)) is not None:
+            fail(program, problem)
         group = Path(config_dir) / key
         if not group.is_dir():
             continue

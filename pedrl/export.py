@@ -75,7 +75,21 @@ def _export_onnx(cfg: DictConfig, device) -> Path:
 def main(cfg: DictConfig) -> None:
     """Export a policy; a bad value or file exits with code 2 and one line."""
     path = run_reporting_errors("pedrl-export", lambda: export(cfg))
-    print(f"pedrl-export: wrote {path} ({path.stat().st_size / 2**20:.2f} MiB) from {cfg.checkpoint}")
+    for line in written(path, cfg.checkpoint):
+        print(line)
+
+
+def written(path: Path, checkpoint: str) -> list[str]:
+    """What ``pedrl-export`` says of the file it wrote: its size and source, and for an ONNX model of a checkpoint of
+    several learning processes, whose replicas it agrees with (:func:`pedrl.onnx_export.process_note`)."""
+    lines = [f"pedrl-export: wrote {path} ({path.stat().st_size / 2**20:.2f} MiB) from {checkpoint}"]
+    if path.suffix == ".onnx":
+        from pedrl.onnx_export import process_note
+
+        note = process_note(f"{path}.json")
+        if note is not None:
+            lines.append(f"pedrl-export: {path.name} holds {note}")
+    return lines
 
 
 if __name__ == "__main__":

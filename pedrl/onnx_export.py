@@ -75,6 +75,7 @@ def contract(policy: NeuralPolicy, room: Any, process: int) -> dict[str, Any]:
         "producer": "pedrl-export",
         "algo": policy.metadata.get("algo", "dqn"),
         "process": process,
+        "processes": policy.num_processes,
         "inputs": {
             "obs": {"dtype": "float32", "shape": ["batch", settings.num_features]},
             "num_sensed": {"dtype": "int64", "shape": ["batch"], "range": [0, settings.num_neighbours]},
@@ -147,3 +148,17 @@ def export_onnx(policy: NeuralPolicy, room: Any, out: str | Path, *, process: in
     text = json.dumps(contract(policy, room, process), indent=2)
     replace_atomically(out.with_name(out.name + ".json"), lambda path: path.write_text(text))
     return out
+
+
+def process_note(contract_path: str | Path) -> str | None:
+    """For a model written from a checkpoint of several learning processes, one line saying that it is one process's
+    network, so that it agrees with pedrl's crowd only in the replicas of that process (replica ``i`` acts with network
+    ``i mod P``), and how to write another; None for a checkpoint of one process."""
+    contract = json.loads(Path(contract_path).read_text())
+    processes, process = contract.get("processes", 1), contract["process"]
+    if processes <= 1:
+        return None
+    return (
+        f"the network of process {process} of {processes}: pedrl's crowd acts with network i mod {processes} in"
+        f" replica i, so this model agrees with the replicas of process {process} only (process=<index> writes another)"
+    )

@@ -338,3 +338,21 @@ def test_an_output_that_cannot_be_written_is_refused_before_any_compute(
     written = {str(p.relative_to(run_dir)) for p in run_dir.rglob("*") if ".hydra" not in p.parts}
     assert written - {"train.log", "validate.log", ".hydra"} == {name, *map(str, Path(name).parents)} - {"."}
     assert kind == "folder" or path.read_text() == "keep me"
+
+
+@pytest.mark.parametrize(
+    ("args", "fragments"),
+    [
+        (
+            ["debug_experiment=default_main_dqn"],
+            ("debug_experiment='default_main_dqn' is invalid", "run experiment=main_dqn debug=default"),
+        ),
+        (["debug_algo=default_dqn"], ("debug_algo='default_dqn' is invalid", "run algo=dqn debug=default")),
+        (["+debug_experiment=default_main"], ("debug_experiment='default_main'", "run experiment=main debug=default")),
+    ],
+)
+def test_a_debug_patch_given_alone_is_refused_before_the_full_run(args, fragments, tmp_path, capsys):
+    # debug_experiment=default_main_dqn alone patched the full default training, which then ran for ten minutes
+    outcome = run_hydra_main(pedrl.train, [*args, f"hydra.run.dir={tmp_path / 'run'}"], capsys)
+    assert_refused(outcome, "pedrl-train", fragments)
+    assert not (tmp_path / "run").exists()

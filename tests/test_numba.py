@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from pedrl._numba import COMPILING, numba_available
+from pedrl._numba import COMPILED, COMPILING, numba_available
 
 pytestmark = pytest.mark.skipif(not numba_available(), reason="numba is off (PEDRL_NO_NUMBA)")
 
@@ -59,11 +59,13 @@ def twice(value):
 """
 
 
-def run_tiny_kernel(folder, **env_vars: str) -> subprocess.CompletedProcess:
+def run_tiny_kernel(folder, *, progress_seconds: float | None = None, **env_vars: str) -> subprocess.CompletedProcess:
     (folder / "tiny_kernel.py").write_text(TINY_KERNEL)
     env = {**os.environ, "OMP_NUM_THREADS": "1", **env_vars}
     env["PYTHONPATH"] = os.pathsep.join([str(folder), env.get("PYTHONPATH", "")])
     script = "from tiny_kernel import twice; print(twice(21))"
+    if progress_seconds is not None:  # where a compile this long says it is done
+        script = f"import pedrl._numba; pedrl._numba.PROGRESS_SECONDS = {progress_seconds}\n{script}"
     return subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
 
 
@@ -81,6 +83,20 @@ def test_a_cold_cache_announces_the_compile_in_one_line_and_a_warm_one_is_silent
     warm = run_tiny_kernel(tmp_path / "code", NUMBA_CACHE_DIR=str(cache))
     assert warm.returncode == 0 and warm.stdout.strip() == "42"
     assert warm.stderr.strip() == "", warm.stderr  # loaded from the cache: nothing to say
+
+
+def test_a_first_run_says_as_each_kernel_is_compiled(tmp_path):
+    # the compile of every kernel (here one, made to count as long) is a line when it is done: the first run's progress
+    (tmp_path / "code").mkdir()
+    cold = run_tiny_kernel(tmp_path / "code", progress_seconds=0.0, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    assert cold.returncode == 0, cold.stderr
+    lines = [line for line in cold.stderr.splitlines() if line.strip()]
+    assert len(lines) == 2, cold.stderr
+    assert lines[0] == COMPILING.format(folder=tmp_path / "cache")
+    assert lines[1].startswith(COMPILED.format(kernel="tiny_kernel.twice", callees="", seconds=0.0)[:-4])
+    assert lines[1].endswith(" s")
+    warm = run_tiny_kernel(tmp_path / "code", progress_seconds=0.0, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    assert warm.stderr.strip() == "", warm.stderr  # loaded from the cache: nothing compiled, nothing to say
 
 
 def test_without_any_writable_cache_folder_the_kernels_compile_with_one_warning(tmp_path):

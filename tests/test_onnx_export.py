@@ -58,6 +58,24 @@ def test_onnx_round_trip_gives_pedrls_values_and_actions(head, request, tmp_path
     assert len(contract["actions"]["speed"]) * len(contract["actions"]["turn"]) == contract["actions"]["count"] == 81
 
 
+def test_a_model_of_one_process_of_several_says_whose_replicas_it_agrees_with(dqn_checkpoint, tmp_path):
+    # pedrl's crowd acts with network i mod P in replica i; a model of process 0 disagrees with the others' replicas
+    from pedrl.export import written
+
+    processes = load_policy(dqn_checkpoint).num_processes
+    assert processes == 2  # debug=default
+    path = _export(dqn_checkpoint, tmp_path / "p.onnx")
+    lines = written(path, str(dqn_checkpoint))
+    assert lines[0].startswith(f"pedrl-export: wrote {path} (")
+    assert lines[1] == (
+        "pedrl-export: p.onnx holds the network of process 0 of 2: pedrl's crowd acts with network i mod 2 in replica"
+        " i, so this model agrees with the replicas of process 0 only (process=<index> writes another)"
+    )
+    assert json.loads((tmp_path / "p.onnx.json").read_text())["processes"] == processes
+    policy_file = _export(dqn_checkpoint, tmp_path / "p.safetensors")
+    assert len(written(policy_file, str(dqn_checkpoint))) == 1  # a policy file holds every process: nothing to say
+
+
 def test_a_tables_checkpoint_is_refused_for_onnx_in_one_line(tmp_path):
     cfg = compose_config("train", ["debug=default", "algo=vqql", "algo.trials=2", "algo.iterations=1",
                                    "logger=none", "threads=1", "progress=false"])  # fmt: skip

@@ -58,7 +58,10 @@ def _arguments(argv: list[str] | None) -> tuple[argparse.Namespace, list[int] | 
     )
     parser.add_argument("--contention", action="store_true", help="e2e: also measure beside a busy torch process")
     parser.add_argument(
-        "--baseline", default=None, metavar="COMMIT", help="e2e: also measure COMMIT's code (temporary worktree), first"
+        "--baseline",
+        default=None,
+        metavar="COMMIT",
+        help="e2e: also measure COMMIT's code (its tree alone, in a temporary folder), first",
     )
     parser.add_argument(
         "--agents",
@@ -110,6 +113,13 @@ def _arguments(argv: list[str] | None) -> tuple[argparse.Namespace, list[int] | 
         parser.error(f"--write-docs is invalid with --only={args.only!r}: it writes the walk section's table")
     if args.write_docs is not None and (problem := walk.page_problem(args.write_docs)) is not None:
         parser.error(problem)
+    if args.baseline is not None:
+        from pedrl.bench.e2e import baseline_problem
+
+        if "e2e" not in sections:
+            parser.error(f"--baseline is invalid with --only={args.only!r}: it measures the e2e section")
+        if (problem := baseline_problem(args.baseline)) is not None:
+            parser.error(problem)
     if args.device.startswith("cuda") and not torch.cuda.is_available():
         parser.error(f"--device={args.device!r} is invalid here: no CUDA GPU is available")
     return args, rooms, sections

@@ -30,6 +30,7 @@ from pedrl.analysis import (
 )
 from pedrl.analysis.trajectories import Geometry, Trajectories
 from pedrl.common.checks import first_line
+from pedrl.common.progress import progress_bar
 from pedrl.common.recording import Recording
 from pedrl.evaluation.batch import Recorder
 from pedrl.evaluation.jupedsim_reference import JuPedSimReference
@@ -139,17 +140,14 @@ PROGRESS_AGENTS: Final = 5_000
 
 
 class CrowdProgress:
-    """A progress bar (tqdm, on stderr) of the decisions of a batch of ``env``'s rooms, with the agents left; a
-    no-op for batches smaller than :data:`PROGRESS_AGENTS`."""
+    """The progress of the decisions of a batch of ``env``'s rooms, with the agents left, on stderr: a bar (tqdm) on a
+    terminal, a line every few percent in a log (:func:`pedrl.common.progress.progress_bar`); a no-op for batches
+    smaller than :data:`PROGRESS_AGENTS`."""
 
     def __init__(self, env: RoomEnv, label: str, *, always: bool = False) -> None:
         self.bar = None
         if always or env.num_replicas * env.num_agents >= PROGRESS_AGENTS:
-            from tqdm import tqdm
-
-            self.bar = tqdm(
-                total=env.params.max_decisions, desc=label, unit="decision", dynamic_ncols=True, leave=False
-            )
+            self.bar = progress_bar(env.params.max_decisions, label, unit="decision")
 
     def __call__(self, decisions: int, left: int) -> None:
         if self.bar is not None:
@@ -422,7 +420,7 @@ def evaluate_policy(
                 f"contacts {row['crashes_per_agent']:.1f} per agent (walls {row['wall_crashes_per_agent']:.1f}), "
                 f"door flow {row['door_flow']:.2f} /s, "
                 f"evacuated {row['evacuated_pct']:.0f} % of trials "
-                f"({time.perf_counter() - tic:.1f} s)",
+                f"(simulated in {time.perf_counter() - tic:.1f} s of wall time)",
                 flush=True,
             )
         figure = write_fundamental_diagram(

@@ -171,6 +171,48 @@ def print_table(rows: list[dict[str, Any]], label: str) -> None:
         )
     if any(math.isnan(r["crashes_per_agent"]) for r in rows):
         print("  contacts n/a: a contact is a move the room's contact rule cut; JuPedSim has no such event")
+    for line in ranking_lines(rows):
+        print(f"  {line}")
+
+
+RANKING_ERRORS: Final = 2.0
+"""Two controllers' fails are ranked where their means differ by more than this many standard errors of the
+difference (about a 95 % interval); within it the scenes are too few to tell them apart."""
+
+
+def ranking_lines(rows: list[dict[str, Any]]) -> list[str]:
+    """One line per agent count and reference: whether the scenes tell the first controller's fails from the
+    reference's, their difference beside two standard errors of it (``sqrt(std_a^2 / n_a + std_b^2 / n_b)``, the
+    scenes taken as independent).
+
+    ``pedrl-eval ... trials=10`` on one process is 10 scenes: at 100 agents a spread of 20 to 30 points per scene
+    leaves about 20 points of doubt, and a 10-point gap there says nothing; these lines say so under the table.
+    """
+    lines = []
+    counts = list(dict.fromkeys(r["agents"] for r in rows))
+    for agents in counts:
+        first, *references = [r for r in rows if r["agents"] == agents]
+        for other in references:
+            a, b = first.get("controller", "first"), other.get("controller", "reference")
+            difference = first["fails_pct"] - other["fails_pct"]
+            error = math.sqrt(
+                first["fails_std"] ** 2 / max(first["trials"], 1) + other["fails_std"] ** 2 / max(other["trials"], 1)
+            )
+            scenes = f"{first['trials']} and {other['trials']} scenes"
+            if error == 0.0 and difference == 0.0:
+                verdict = "the same fails on every scene"
+            elif abs(difference) > RANKING_ERRORS * error:
+                verdict = f"{a} fails {'less' if difference < 0 else 'more'} than {b}"
+            else:
+                verdict = (
+                    f"too few scenes to rank {a} and {b} on fails (the gap is within {RANKING_ERRORS:g} standard"
+                    " errors; more trials narrow them)"
+                )
+            lines.append(
+                f"{agents} agents: fails {a} - {b} = {difference:+.2f} ± {RANKING_ERRORS * error:.2f} points"
+                f" ({RANKING_ERRORS:g} standard errors over {scenes}): {verdict}"
+            )
+    return lines
 
 
 def _number(value: float, spec: str) -> str:

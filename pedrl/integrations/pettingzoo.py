@@ -43,11 +43,15 @@ from pedrl.rl.neural import NeuralPolicy
 from pedrl.rl.policy import TabularPolicy
 from pedrl.sim import NOOP_ACTION, RoomEnv
 
-__all__ = ["PedestrianParallelEnv", "parallel_env"]
+__all__ = ["REGISTRY_ID", "PedestrianParallelEnv", "make_env", "parallel_env", "register"]
 
 AGENT_PREFIX: Final = "pedestrian_"
-INFO_KEYS: Final = ("crashed_agent", "crashed_wall", "reached", "speed")
-"""Per-agent info keys, taken from ``RoomEnv``'s info for the agent."""
+INFO_KEYS: Final = ("crashed_agent", "crashed_wall", "reached", "speed", "num_sensed")
+"""Per-agent info keys, taken from ``RoomEnv``'s info for the agent (``num_sensed``: the neighbours in its
+observation, the second input of an ONNX model of ``pedrl-export``)."""
+REGISTRY_ID: Final = "pedrl/room_v0"
+"""The id under which importing this module registers :func:`make_env` in PettingZoo's registry of parallel
+environments (PettingZoo 1.27 on): ``pettingzoo.make("parallel", "pedrl/room_v0", num_agents=5)``."""
 PLACEMENT_OPTIONS: Final = {"positions": 2, "headings": 1, "speeds": 1}
 """``reset`` options passed to ``RoomEnv.reset``, with the number of axes of one replica's value."""
 BOUND_SLACK: Final = 1e-5
@@ -106,7 +110,9 @@ class PedestrianParallelEnv(ParallelEnv):
       unknown agent name or an action outside ``[0, 81)`` is a ``ValueError``;
     - the returned dicts are keyed by the agents active before the step; those that reached the door
       (``terminations``, observation 0) or ran out of time (``truncations``) leave ``agents`` afterwards;
-    - infos hold ``crashed_agent``, ``crashed_wall``, ``reached`` (bools) and ``speed`` (m/s after the step);
+    - infos hold ``crashed_agent``, ``crashed_wall``, ``reached`` (bools), ``speed`` (m/s after the step) and
+      ``num_sensed`` (int: the neighbours the observation holds, which an ONNX model of ``pedrl-export`` reads beside
+      it);
     - with no agent left, ``step`` returns empty dicts and does not advance the room.
 
     ``reset(seed, options)`` reseeds the room's generator when ``seed`` is given; ``options`` may hold one
@@ -324,6 +330,7 @@ class PedestrianParallelEnv(ParallelEnv):
                 "crashed_wall": bool(values["crashed_wall"]),
                 "reached": bool(values["reached"]),
                 "speed": float(values["speed"]),
+                "num_sensed": int(values["num_sensed"]),
             }
         return infos
 
@@ -412,3 +419,41 @@ def _warn_other_room(room: RoomEnv, own: RoomEnv) -> None:
             UserWarning,
             stacklevel=3,
         )
+
+
+def make_env(*, max_cycles: int | None = None, **kwargs: Any) -> PedestrianParallelEnv:
+    """:func:`parallel_env` as PettingZoo's registry calls it: ``max_cycles`` (PettingZoo's name for an episode's
+    length, which ``pettingzoo.make`` passes) is the room's ``max_decisions``.
+
+    Raises:
+        ValueError: If ``max_cycles`` and ``max_decisions`` are both given and differ (one line).
+    """
+    if max_cycles is not None:
+        given = kwargs.get("max_decisions")
+        if given is not None and given != max_cycles:
+            raise ValueError(
+                f"max_cycles={max_cycles!r} and max_decisions={given!r} disagree: give one of them (max_cycles is"
+                " PettingZoo's name for the room's max_decisions)"
+            )
+        kwargs["max_decisions"] = max_cycles
+    return parallel_env(**kwargs)
+
+
+def register() -> bool:
+    """Register :func:`make_env` under :data:`REGISTRY_ID` in PettingZoo's registry of parallel environments, once;
+    run when this module is imported. Returns whether PettingZoo has a registry (``pettingzoo.register``, from 1.27
+    on); before it, ``parallel_env`` is the way in."""
+    import pettingzoo
+
+    if not all(hasattr(pettingzoo, name) for name in ("register", "spec")):
+        return False
+    from pettingzoo.env_registry.exceptions import PettingZooRegistryError
+
+    try:
+        pettingzoo.spec("parallel", REGISTRY_ID)  # registered already (a second import, a reload)
+    except PettingZooRegistryError:
+        pettingzoo.register("parallel", REGISTRY_ID, entry_point=f"{__name__}:make_env")
+    return True
+
+
+register()

@@ -224,8 +224,12 @@ def _write_back(env: RoomEnv, state: KernelState, steps: int) -> None:
 
 def _stats(env: RoomEnv, totals: torch.Tensor, td_sums: np.ndarray, steps: np.ndarray, processes: int,
            learn: bool) -> TrialStats:  # fmt: skip
-    updates = float(td_sums[:, 1].sum())
-    td_error = torch.full((processes,), float(td_sums[:, 0].sum()) / max(updates, 1.0) if learn else 0.0)
+    if not learn:
+        td_error = torch.zeros(processes)
+    elif td_sums.shape[0] == processes:  # the trainers' layout: a row of sums per learning process
+        td_error = torch.from_numpy(td_sums[:, 0] / np.maximum(td_sums[:, 1], 1.0))
+    else:  # rooms that share tables across processes in one group: one pooled figure, no spread to show
+        td_error = torch.full((processes,), float(td_sums[:, 0].sum()) / max(float(td_sums[:, 1].sum()), 1.0))
     return TrialStats.from_totals(
         totals,
         processes=processes,

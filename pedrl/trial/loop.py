@@ -91,7 +91,9 @@ class Learner(Driver):
         self._on_cpu = env.device.type == "cpu"
         mask = env.active.reshape(-1) if self._on_cpu else None
         self._rows = self.policy.rows(obs, info, self.generator, rows_mask=mask)
-        self._td_total = torch.zeros(2, device=env.device)  # sum of |TD error|, number of updates
+        # per learning process: the sum of |TD error| and the number of updates (the spread over processes is real)
+        self._process = self.policy.layout.of(env.num_replicas, env.num_agents, env.device)[0]
+        self._td_total = torch.zeros(2, self.processes, device=env.device)
 
     def act(self, env: RoomEnv, obs: torch.Tensor, info: Mapping[str, Any]) -> torch.Tensor:
         """Actions ``(R, N)``, epsilon-greedy on the rows of the latest observations."""
@@ -107,13 +109,14 @@ class Learner(Driver):
             td = td_update(
                 q_values, rows, actions, reward, next_rows, terminated, valid, alpha=self.alpha, gamma=self.gamma
             )
-            self._td_total += torch.stack((td.abs().sum(), valid.sum()))
+            self._td_total[0].index_add_(0, self._process, td.abs().to(self._td_total.dtype))
+            self._td_total[1].index_add_(0, self._process, valid.to(self._td_total.dtype))
         self._rows = next_rows
 
     def td_error(self) -> torch.Tensor:
         if not self.learn:
             return super().td_error()
-        return (self._td_total[0] / self._td_total[1].clamp_min(1)).expand(self.processes)
+        return self._td_total[0] / self._td_total[1].clamp_min(1)
 
 
 class Acting(Driver):

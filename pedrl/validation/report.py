@@ -58,6 +58,13 @@ def write_reports(
     return paths
 
 
+META_NOTES: Final = {
+    "verdict": " (the runs are at their published sizes, so every pass and FAIL below counts; False after quick=true,"
+    " a smoke run; how many tests passed is the Passed line under the table)",
+}
+"""What a key of the run's header in ``validation.md`` means, where its value alone would mislead."""
+
+
 def markdown(results: Mapping[str, Sequence[TestResult]], *, meta: Mapping[str, Any]) -> str:
     """The report as a Markdown table: one row per test, measured value and verdict per controller; the pass count
     leaves out the invariants (a sanity row) and the tests not applicable at the run's body size."""
@@ -65,7 +72,7 @@ def markdown(results: Mapping[str, Sequence[TestResult]], *, meta: Mapping[str, 
     lines = ["# pedrl validation", ""]
     if meta.get("quick"):
         lines += ["**quick: not a verdict** (every run shrunk for a smoke test)", ""]
-    lines += [f"- {key}: {_format(value)}" for key, value in meta.items()]
+    lines += [f"- {key}: {_format(value)}{META_NOTES.get(key, '')}" for key, value in meta.items()]
     lines += ["", "| test | " + " | ".join(controllers) + " | reference | source |"]
     lines.append("|---" * (len(controllers) + 3) + "|")
     by_test: dict[str, dict[str, TestResult]] = {}

@@ -103,6 +103,7 @@ def test_seeded_rollouts_repeat_and_equal_room_env_stepped_directly():
                 "crashed_wall": bool(room_info["crashed_wall"][0, index]),
                 "reached": bool(room_info["reached"][0, index]),
                 "speed": float(room_info["speed"][0, index]),
+                "num_sensed": int(room_info["num_sensed"][0, index]),  # an ONNX model's second input
             }
         active = room.active[0].tolist()
         assert first.agents == [agent for agent, alive in zip(first.possible_agents, active, strict=True) if alive]
@@ -252,3 +253,41 @@ def test_parallel_api_in_every_scenario(scenario):
     env = parallel_env(scenario=scenario, num_agents=agents, max_decisions=20)
     assert env.env.geometry.name == scenario
     parallel_api_test(env, num_cycles=25)
+
+
+# ---------------------------------------------------------------- PettingZoo's registry
+
+
+@pytest.mark.filterwarnings("ignore:PedestrianParallelEnv.reset ignores the options:UserWarning")
+def test_importing_the_adapter_registers_the_room_in_pettingzoos_registry():
+    if not hasattr(pettingzoo, "register"):
+        pytest.skip("a PettingZoo without a registry (before 1.27)")
+    from pedrl.integrations.pettingzoo import REGISTRY_ID, register
+
+    assert register()  # again: no second entry, no override warning
+    env = pettingzoo.make("parallel", REGISTRY_ID, **SMALL)
+    assert isinstance(env, PedestrianParallelEnv)
+    assert env.possible_agents == _agents(5) and env.env.params.max_decisions == 30
+    assert pettingzoo.spec("parallel", "pedrl/room-v0").id == "pedrl/room-v0"  # PettingZoo's spelling of the id
+    cycles = pettingzoo.make("parallel", REGISTRY_ID, max_cycles=12, num_agents=3)  # PettingZoo's episode length
+    assert cycles.env.params.max_decisions == 12
+    parallel_api_test(pettingzoo.make("parallel", REGISTRY_ID, **SMALL), num_cycles=10)
+
+
+def test_max_cycles_and_max_decisions_that_disagree_are_refused_in_one_line():
+    from pedrl.integrations.pettingzoo import make_env
+
+    with pytest.raises(ValueError) as error:
+        make_env(max_cycles=12, max_decisions=30, num_agents=3)
+    assert str(error.value).startswith("max_cycles=12 and max_decisions=30 disagree") and "\n" not in str(error.value)
+    assert make_env(max_cycles=30, max_decisions=30, num_agents=3).env.params.max_decisions == 30
+
+
+def test_registering_twice_warns_nothing(recwarn):
+    if not hasattr(pettingzoo, "register"):
+        pytest.skip("a PettingZoo without a registry (before 1.27)")
+    from pedrl.integrations.pettingzoo import register
+
+    register()
+    register()
+    assert not [w for w in recwarn if "Overriding" in str(w.message)]

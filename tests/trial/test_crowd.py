@@ -282,3 +282,17 @@ def test_the_fused_recording_has_the_loop_s_form():
             assert getattr(fused_record, name).dtype == value.dtype, name
         else:  # the frame rate (every decision recorded on both), radius and speed limit
             assert getattr(fused_record, name) == value, name
+
+
+@pytest.mark.parametrize("fused", [False, True], ids=["torch-loop", "fused"])
+def test_the_td_error_is_each_process_own(fused):
+    """TensorBoard's spread of the TD error over the processes was 0 on every trial: one pooled figure was copied
+    to every process. Each process's own mean |TD error| now, whose pooled mean over their updates is the old one."""
+    env = small_room()
+    policy = small_policy(env)  # 2 processes of 2 rooms each, random tables: different errors per process
+    env.reset(seed=5)
+    learner = Learner(policy, epsilon=0.3, generator=torch.Generator().manual_seed(7), learn=True, alpha=0.2, gamma=0.9)
+    stats = run_crowd(env, learner, fused=fused).stats
+    assert stats.td_error.shape == (2,)
+    assert bool(torch.isfinite(stats.td_error).all()) and bool((stats.td_error > 0).all())
+    assert float(stats.td_error.double().std(unbiased=False)) > 1e-6  # a real spread over the processes

@@ -352,6 +352,21 @@ def test_a_fail_cell_names_its_failed_criteria_and_a_pass_cell_none():
         TestResult("x", True, 1.0, "s", "ours", "src", failed=["a"])
 
 
+def test_the_verdict_line_says_what_it_means_beside_the_pass_count():
+    # "verdict: True" above "Passed: learned 1/2" read as "the crowd passed": the line says it means a full-size run
+    from pedrl.validation.framework import TestResult
+    from pedrl.validation.report import markdown
+
+    lanes = TestResult("lanes", False, 1.0, "Phi", "ours", "src", failed=["Phi 0.5 < 0.8"])
+    good = TestResult("rimea_1", True, 30.0, "s", "in [26, 34] s", "src")
+    report = markdown({"learned": [lanes, good]}, meta={"verdict": True, "quick": False})
+    (line,) = [line for line in report.splitlines() if line.startswith("- verdict:")]
+    assert line.startswith(
+        "- verdict: True (the runs are at their published sizes, so every pass and FAIL below counts"
+    )
+    assert "Passed: learned 1/2" in report
+
+
 # ---------------------------------------------------------------------------------------------- body sizes
 
 
