@@ -367,20 +367,7 @@ class RoomEnv:
         targets = self.targets()  # this decision's targets, for the order of action and the progress
 
         # ---- decide: new speeds and headings
-        bearings = None
-        if self.params.action_frame == "goal":
-            to_goal = targets - self.positions
-            bearings = torch.atan2(to_goal[..., Y], to_goal[..., X])
-        speeds, headings = apply_actions(
-            speeds=self.speeds,
-            headings=self.headings,
-            actions=actions,
-            speed_changes=self.speed_changes,
-            turn_changes=self.turn_changes,
-            max_speed=self.params.max_speed,
-            active=acting,
-            bearings=bearings,
-        )
+        speeds, headings = self.decide(actions, targets)
         movement, speeds, velocities = self._move(acting, speeds, headings, targets)
         progress = self._goal_distance(self.positions, targets) - self._goal_distance(movement.positions, targets)
 
@@ -414,6 +401,26 @@ class RoomEnv:
             reached=reached,
         )
         return observation.features, reward, movement.reached, truncated, info
+
+    def decide(self, actions: torch.Tensor, targets: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """The speeds and headings ``(R, N)`` that ``actions (R, N)`` command (:func:`pedrl.sim.actions.apply_actions`
+        in the room's action frame, towards ``targets`` (None: :meth:`targets`)), before the motion model moves the
+        bodies: what :meth:`step` applies, and what the free-walking probe (:mod:`pedrl.trial.walking`) measures."""
+        targets = self.targets() if targets is None else targets
+        bearings = None
+        if self.params.action_frame == "goal":
+            to_goal = targets - self.positions
+            bearings = torch.atan2(to_goal[..., Y], to_goal[..., X])
+        return apply_actions(
+            speeds=self.speeds,
+            headings=self.headings,
+            actions=actions,
+            speed_changes=self.speed_changes,
+            turn_changes=self.turn_changes,
+            max_speed=self.params.max_speed,
+            active=self.active,
+            bearings=bearings,
+        )
 
     # ------------------------------------------------------------------ internals
 

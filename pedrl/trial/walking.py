@@ -42,7 +42,6 @@ import torch
 from pedrl.common.checks import check_integer, check_number
 from pedrl.scenarios.builders import straight_corridor
 from pedrl.sim import RoomEnv, RoomParams
-from pedrl.sim.actions import apply_actions
 from pedrl.sim.controllers import GreedyDoorController
 from pedrl.sim.geometry import X, Y, wrap_angle
 
@@ -223,19 +222,9 @@ def walk(room: RoomEnv, controller: Any, *, seed: int, options: dict[str, torch.
     while bool(room.active.any()):
         acting = room.active.clone()
         actions = controller.act(room, obs, info)
-        positions, targets = room.positions, room.targets()
-        to_goal = targets - positions
+        to_goal = room.targets() - room.positions
         bearings = torch.atan2(to_goal[..., Y], to_goal[..., X])
-        speeds, headings = apply_actions(
-            speeds=room.speeds,
-            headings=room.headings,
-            actions=actions,
-            speed_changes=room.speed_changes,
-            turn_changes=room.turn_changes,
-            max_speed=params.max_speed,
-            active=acting,
-            bearings=bearings if params.action_frame == "goal" else None,
-        )
+        speeds, headings = room.decide(actions)
         offset = wrap_angle(headings - bearings).abs()[acting]
         speed = speeds[acting] / params.max_speed
         top = speed >= 1.0 - TOLERANCE
