@@ -27,6 +27,7 @@ from pedrl.sim.sensing_kernel import room_search, sense_room
 from pedrl.sim.state import KernelState, RoomState
 from pedrl.sim.step_kernel import Events, Work, act_room, act_scratch
 from pedrl.sim.streams import next_uniform, seed_streams
+from pedrl.trial.fused import room_inputs
 
 __all__ = ["CompiledRoom", "step_rooms"]
 
@@ -62,12 +63,12 @@ class CompiledRoom:
     """
 
     def __init__(self, env: RoomEnv) -> None:
-        from pedrl.trial.fused import room_inputs, set_kernel_threads
+        from pedrl.trial.fused import set_kernel_threads
 
         set_kernel_threads(torch.get_num_threads())
         self.env = env
         rooms, agents = env.num_replicas, env.num_agents
-        self._inputs = room_inputs(env)
+        self._inputs = None
         self._work = Work.allocate(rooms, agents, env.num_substeps)
         self._events = Events.allocate(rooms, agents)
         self._features = np.zeros((rooms, agents, env.num_features), np.float32)
@@ -85,6 +86,8 @@ class CompiledRoom:
         the kernels' streams): ``(obs, info)`` as :meth:`pedrl.sim.RoomEnv.reset` gives them."""
         env = self.env
         env.place(seed=seed)
+        # the walkers' routes are drawn at placement (each its own way round the walls): read them after it
+        self._inputs = room_inputs(env)
         self._state = env.state.clone().arrays()  # the kernels' own copy
         draw = int(torch.randint(0, 2**62, (1,), generator=env.generator))
         seed_streams(np.uint64(draw), self._streams)

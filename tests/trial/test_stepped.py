@@ -79,3 +79,32 @@ def test_a_network_runs_on_the_kernels_only_where_the_chooser_allows_them():
     assert choose_path([_room(Simultaneous())], Network(), None).name == "torch"
     with pytest.raises(ValueError, match="^fused=true is invalid: the fused trial cannot run with motion=simul"):
         choose_path([_room(Simultaneous())], Network(), True)
+
+
+def test_each_trial_walks_the_routes_drawn_at_its_own_placement():
+    """In a room whose exit is out of sight (the partition room) each walker's route is drawn when it is placed: the
+    kernels' room aims every walker at the same waypoint as the torch room, at every decision of several trials.
+    (Before, the routes were read once, before the first placement: every walker aimed at the exit through the
+    partition.)"""
+    from pedrl.configs import env_factory
+
+    scenario = {"name": "custom", "geometry": "POLYGON ((0 0, 9.9 0, 9.9 9, 10.1 9, 10.1 0, 20 0, 20 12, 0 12, 0 0))",
+                "exits": [[20.0, 1.0, 20.0, 2.6]], "spawn": [[0.5, 0.5, 9.4, 8.0]]}  # fmt: skip
+    factory = env_factory({"_target_": "pedrl.sim.RoomEnv", "motion": {"name": "continuous", "contact": "yield",
+                           "time_gap": 0.4},
+                           "action_frame": "goal", "agent_radius": 0.2, "max_speed": 1.34, "max_decisions": 40,
+                           "speed_ratios": [0.0, 0.5, 0.6, 0.7, 0.8, 0.9, 0.95, 0.98, 1.0]}, scenario)  # fmt: skip
+    # one walker a room: no order of movers to differ between the two (they draw it from other streams)
+    reference, kernels = factory(num_replicas=4, num_agents=1), CompiledRoom(factory(num_replicas=4, num_agents=1))
+    walker = GreedyDoorController()
+    for seed in (4, 5):
+        obs, info = reference.reset(seed=seed)
+        compiled, _ = kernels.reset(seed=seed)
+        assert bool((reference.spawns.route_length > 0).all())  # every start is out of sight of the exit
+        for _ in range(12):
+            torch.testing.assert_close(kernels.targets(), reference.targets())
+            torch.testing.assert_close(compiled, obs, atol=1e-4, rtol=1e-4)
+            actions = walker.act(reference, obs, info)
+            obs, _, _, _, info = reference.step(actions)
+            compiled, *_ = kernels.step(actions)
+    assert bool((reference.stage > 0).any())  # the walk went past a waypoint
