@@ -155,12 +155,8 @@ class Trainer:
             rooms_per_process,
             tables,
         )
-        self.alpha, self.gamma = alpha, gamma
-        self.epsilon_start, self.epsilon_end, self.epsilon_decay_fraction = (
-            epsilon_start,
-            epsilon_end,
-            epsilon_decay_fraction,
-        )
+        self.alpha, self.gamma, self.epsilon_decay_fraction = alpha, gamma, epsilon_decay_fraction
+        self.epsilon_start, self.epsilon_end = epsilon_start, epsilon_end
         self.checkpoint_every, self.seed, self.run_dir = checkpoint_every, seed, Path(run_dir)
         self.tensorboard, self.progress, self.config = tensorboard, progress, dict(run_config or {})
         self.generator = torch.Generator(device=self.device)
@@ -189,8 +185,7 @@ class Trainer:
             "algo.gather_trials or env.max_decisions",
         )
         check_gathering_yield(self)
-        trials = sum(phase.trials for phase in self.phases())
-        self.walking = WalkingLog(walking_probes, trials, room.params, self.env_factory)
+        self.walking = WalkingLog(walking_probes, sum(p.trials for p in self.phases()), room.params, self.env_factory)
 
     # ------------------------------------------------------------------ what subclasses define
     def phases(self) -> list[Phase]:

@@ -58,10 +58,7 @@ def _arguments(argv: list[str] | None) -> tuple[argparse.Namespace, list[int] | 
     )
     parser.add_argument("--contention", action="store_true", help="e2e: also measure beside a busy torch process")
     parser.add_argument(
-        "--baseline",
-        default=None,
-        metavar="COMMIT",
-        help="e2e: also measure COMMIT's code (its tree alone, in a temporary folder), first",
+        "--baseline", default=None, metavar="COMMIT", help="e2e: also measure COMMIT's tree alone, first"
     )
     parser.add_argument(
         "--agents",
@@ -88,14 +85,7 @@ def _arguments(argv: list[str] | None) -> tuple[argparse.Namespace, list[int] | 
         args.sim_time = walk.check_sim_time(args.sim_time) if args.sim_time is not None else None
     except ValueError as err:
         parser.error(str(err))
-    rooms = None
-    if args.rooms:
-        try:
-            rooms = [int(value) for value in args.rooms.split(",")]
-        except ValueError:
-            rooms = []
-        if not rooms or min(rooms) < 1:
-            parser.error(f"--rooms={args.rooms!r} is invalid: must be comma-separated integers >= 1, e.g. 1,4,16")
+    rooms = _rooms(parser, args.rooms)
     if not (args.device == "cpu" or args.device == "cuda" or args.device.startswith("cuda:")):
         parser.error(f"--device={args.device!r} is invalid: must be cpu or cuda[:index]")
     for option, path in (("--output", args.output), ("--write-docs", args.write_docs)):
@@ -123,6 +113,19 @@ def _arguments(argv: list[str] | None) -> tuple[argparse.Namespace, list[int] | 
     if args.device.startswith("cuda") and not torch.cuda.is_available():
         parser.error(f"--device={args.device!r} is invalid here: no CUDA GPU is available")
     return args, rooms, sections
+
+
+def _rooms(parser: argparse.ArgumentParser, text: str | None) -> list[int] | None:
+    """``--rooms`` as a list of room counts (None when not given); one line for a bad list."""
+    if not text:
+        return None
+    try:
+        rooms = [int(value) for value in text.split(",")]
+    except ValueError:
+        rooms = []
+    if not rooms or min(rooms) < 1:
+        parser.error(f"--rooms={text!r} is invalid: must be comma-separated integers >= 1, e.g. 1,4,16")
+    return rooms
 
 
 def main(argv: list[str] | None = None) -> dict:

@@ -44,6 +44,7 @@ from pedrl.scenarios.builders import straight_corridor
 from pedrl.sim import RoomEnv, RoomParams
 from pedrl.sim.controllers import GreedyDoorController
 from pedrl.sim.geometry import X, Y, wrap_angle
+from pedrl.trial.loop import crowd_loop
 
 MIN_STRAIGHT: Final = 0.9
 """Least share of a lone walker's decisions at top speed within one turn step of the goal bearing to pass."""
@@ -208,40 +209,44 @@ def corridor_start(room: RoomEnv, settings: WalkingSettings, copies: int) -> dic
     return {"positions": positions, "headings": angles.repeat_interleave(copies)[:, None].to(room.device)}
 
 
+class _Measured:
+    """``controller`` acting, every decision's commanded speed and heading measured against the goal bearing (module
+    docstring) before the room moves the walkers: a controller of :func:`pedrl.trial.loop.crowd_loop`."""
+
+    def __init__(self, controller: Any, params: RoomParams) -> None:
+        self.controller, self.max_speed = controller, params.max_speed
+        turns = torch.tensor(params.turn_ratios, dtype=torch.float32).abs() * math.pi
+        self.turn_step = float(turns[turns > 0].min()) if bool((turns > 0).any()) else 0.0
+        self.straight = self.offsets = self.speeds = 0.0
+        self.count = 0
+
+    def act(self, env: Any, obs: torch.Tensor, info: Any) -> torch.Tensor:
+        actions = self.controller.act(env, obs, info)
+        acting = env.active
+        to_goal = env.targets() - env.positions
+        speeds, headings = env.decide(actions)
+        offset = wrap_angle(headings - torch.atan2(to_goal[..., Y], to_goal[..., X])).abs()[acting]
+        speed = speeds[acting] / self.max_speed
+        top, aligned = speed >= 1.0 - TOLERANCE, offset <= self.turn_step + TOLERANCE
+        self.straight += float((top & aligned).sum())
+        self.offsets += float(offset.sum())
+        self.speeds += float(speed.sum())
+        self.count += int(acting.sum())
+        return actions
+
+
 def walk(room: RoomEnv, controller: Any, *, seed: int, options: dict[str, torch.Tensor] | None = None) -> Walk:
-    """Run one trial of single walkers in every replica of ``room`` with ``controller`` (``act(env, obs, info)``)
-    in the torch step, and measure every decision (module docstring)."""
-    obs, info = room.reset(seed=seed, options=options)
-    params = room.params
-    turns = torch.tensor(params.turn_ratios, dtype=torch.float32).abs() * math.pi
-    turn_step = float(turns[turns > 0].min()) if bool((turns > 0).any()) else 0.0
-    straight = offsets = speed_sum = 0.0
-    count = 0
-    left = torch.full((room.num_replicas,), math.nan, dtype=torch.float64)
-    decision = 0
-    while bool(room.active.any()):
-        acting = room.active.clone()
-        actions = controller.act(room, obs, info)
-        to_goal = room.targets() - room.positions
-        bearings = torch.atan2(to_goal[..., Y], to_goal[..., X])
-        speeds, headings = room.decide(actions)
-        offset = wrap_angle(headings - bearings).abs()[acting]
-        speed = speeds[acting] / params.max_speed
-        top = speed >= 1.0 - TOLERANCE
-        aligned = offset <= turn_step + TOLERANCE
-        straight += float((top & aligned).sum())
-        offsets += float(offset.sum())
-        speed_sum += float(speed.sum())
-        count += int(acting.sum())
-        obs, _, _, _, info = room.step(actions)
-        decision += 1
-        reached = info["reached"][:, 0].cpu()
-        left = torch.where(reached & left.isnan(), float(decision), left)
-    arrived = ~left.isnan()
+    """One trial of single walkers in every replica of ``room`` with ``controller`` (``act(env, obs, info)``) in the
+    torch step (:func:`pedrl.trial.loop.crowd_loop`), every decision measured (module docstring)."""
+    measured = _Measured(controller, room.params)
+    record = crowd_loop(room, measured, record=True, start=room.reset(seed=seed, options=options)).record
+    left = torch.from_numpy(record.exit_time[:, 0] * room.params.decisions_per_second)
+    arrived = left.isfinite()
+    count = measured.count
     return Walk(
-        straight=straight / count if count else math.nan,
-        heading_offset=math.degrees(offsets / count) if count else math.nan,
-        speed_ratio=speed_sum / count if count else math.nan,
+        straight=measured.straight / count if count else math.nan,
+        heading_offset=math.degrees(measured.offsets / count) if count else math.nan,
+        speed_ratio=measured.speeds / count if count else math.nan,
         decisions=float(left[arrived].mean()) if bool(arrived.any()) else math.nan,
         arrived=float(arrived.double().mean()),
         count=count,
