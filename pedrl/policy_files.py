@@ -170,6 +170,8 @@ def export_policy(
 PRETRAINED: Final = {
     "main": "experiment=main, seed 0, the tables of its first learning process (pedrl-export processes=1)",
     "pedestrian_walk": "experiment=pedestrian_walk, seed 0, the tables of its first learning process",
+    "pedestrian_free": "experiment=pedestrian_free_dqn, seed 0, its network (one learning process); beside it "
+    "pedestrian_free.onnx and its contract pedestrian_free.onnx.json (pedrl-export out=....onnx)",
 }
 """The policy files shipped with pedrl (``pedrl/policies/<name>.safetensors``), to try evaluation, validation and the
 PettingZoo adapter without training first."""

@@ -37,6 +37,7 @@ from pedrl.common.checks import (
     LARGE_RUN_S,
     YEAR_S,
     check_bool,
+    check_choice,
     check_device,
     check_epsilons,
     check_integer,
@@ -73,6 +74,8 @@ CPU_TRANSITION_S: Final = 40e-6
 layers of 256: two steps of 512 transitions in 42 ms, docs/performance.md): the printed estimate's pace."""
 GATHER_COPIES: Final = 2
 """Copies of every gathered state in the memory estimate: as recorded, and concatenated."""
+REPLAY_BALANCES: Final = ("none", "room")
+"""How a batch is drawn from the replay memory (``algo.replay_balance``): uniformly, or every room alike."""
 MIN_STD: Final = 1e-3
 """A feature whose spread on the random walk is below this (a constant) is standardised by 1 instead."""
 
@@ -92,6 +95,8 @@ class DQN:
         gamma: discount.
         batch_size: transitions per process and gradient step.
         buffer_size: transitions each process's replay memory holds.
+        replay_balance: ``none`` (batches uniform over the memory) or ``room`` (every room of the run, its own and each
+            ``mix`` room, drawn equally often: :data:`REPLAY_BALANCES`).
         learning_starts: transitions each memory holds before the first gradient step.
         train_every: decisions between two rounds of gradient steps.
         gradient_steps: gradient steps per round.
@@ -121,6 +126,7 @@ class DQN:
         gamma: float = 0.91,
         batch_size: int = 256,
         buffer_size: int = 100_000,
+        replay_balance: str = "none",
         learning_starts: int = 5_000,
         train_every: int = 1,
         gradient_steps: int = 1,
@@ -160,7 +166,7 @@ class DQN:
         self.learning_rate, self.buffer_size, self.hidden = learning_rate, buffer_size, tuple(hidden)
         self.head = head
         self.settings = DQNSettings(gamma, batch_size, learning_starts, train_every, gradient_steps, target_every,
-                                    reward_scale, max_grad_norm)  # fmt: skip
+                                    reward_scale, max_grad_norm, replay_balance == "room")  # fmt: skip
         self.schedule = LinearSchedule(epsilon_start, epsilon_end, max(1, round(epsilon_decay_fraction * trials)))
         self.processes, self.rooms_per_process, self.checkpoint_every = processes, rooms_per_process, checkpoint_every
         self.device, self.seed, self.run_dir = check_device(device), seed, Path(run_dir)
@@ -321,10 +327,11 @@ class DQN:
                        leave=False)  # fmt: skip
             for trial in bar:
                 epsilon = self.schedule(global_trial)
-                label, room = rooms[room_of_trial(trial, phase.trials, len(rooms))]
+                index = room_of_trial(trial, phase.trials, len(rooms))
+                label, room = rooms[index]
                 trial_tic = time.perf_counter()
                 driver = DeepQLearner(self.policy, epsilon=epsilon, generator=self.generator, update=self.update,
-                                      buffer=self.buffer)  # fmt: skip
+                                      buffer=self.buffer, room=index)  # fmt: skip
                 stats = run_crowd(room, driver, fused=self.fused, progress=_decisions_on(bar)).stats
                 self._check_finite(phase, trial, stats, driver.loss)
                 rate = stats.agent_decisions / (time.perf_counter() - trial_tic)
@@ -409,6 +416,7 @@ def _check_settings(settings: Mapping[str, Any]) -> None:
     check_integer("batch_size", settings["batch_size"], minimum=1, maximum=MAX_BATCH)
     check_integer("buffer_size", settings["buffer_size"], minimum=settings["batch_size"])
     check_integer("learning_starts", settings["learning_starts"], minimum=0, maximum=settings["buffer_size"])
+    check_choice("replay_balance", settings["replay_balance"], REPLAY_BALANCES)
     check_number("reward_scale", settings["reward_scale"], low=0.0, low_open=True, high=1e6)
     check_number("max_grad_norm", settings["max_grad_norm"], low=0.0, low_open=True, high=1e9)
     check_epsilons(settings["epsilon_start"], settings["epsilon_end"])

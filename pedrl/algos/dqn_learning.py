@@ -21,7 +21,7 @@ from pedrl.trial.loop import Driver
 
 class DeepQLearner(Driver):
     """The neural learner in the trial loop (module docstring): acts with ``policy`` at ``epsilon`` and, if
-    ``update`` is given, stores transitions in ``buffer`` and learns."""
+    ``update`` is given, stores transitions in ``buffer`` (marked as played in the run's ``room``) and learns."""
 
     sync_free = True
     stepped = True
@@ -34,9 +34,10 @@ class DeepQLearner(Driver):
         generator: torch.Generator,
         update: DoubleDQN | None = None,
         buffer: ReplayBuffer | None = None,
+        room: int = 0,
     ) -> None:
         self.policy, self.epsilon, self.generator = policy, epsilon, generator
-        self.update, self.buffer = update, buffer
+        self.update, self.buffer, self.room = update, buffer, room
         self.processes = policy.num_processes
 
     def begin(self, env: Any, obs: torch.Tensor, info: Mapping[str, Any]) -> None:
@@ -60,7 +61,8 @@ class DeepQLearner(Driver):
             rows = torch.nonzero(valid).squeeze(1)
             scale = self.update.settings.reward_scale
             taken = Batch(self._inputs, self._actions, reward * scale, next_inputs, terminated)
-            self.buffer.add(self._process.index_select(0, rows), Batch(*(t.index_select(0, rows) for t in taken)))
+            self.buffer.add(self._process.index_select(0, rows), Batch(*(t.index_select(0, rows) for t in taken)),
+                            self.room)  # fmt: skip
             self.update.learn(self.buffer, self.generator)
         self._inputs = next_inputs
 

@@ -30,6 +30,8 @@ class DQNSettings:
     target_every: int
     reward_scale: float
     max_grad_norm: float
+    balanced: bool = False
+    """Batches draw every room of the memory equally often (``algo.replay_balance=room``), else uniformly."""
 
 
 class DoubleDQN:
@@ -56,7 +58,7 @@ class DoubleDQN:
         if buffer.size < settings.learning_starts or self.decisions % settings.train_every:
             return
         for _ in range(settings.gradient_steps):
-            self.descend(buffer.sample(settings.batch_size, generator))
+            self.descend(buffer.sample(settings.batch_size, generator, balanced=settings.balanced))
 
     def descend(self, batch: Batch) -> None:
         """One gradient step of every process on ``batch`` ``(P, B, ...)``."""
