@@ -130,17 +130,17 @@ def test_training_logs_the_probe_without_changing_what_it_learns(network, tmp_pa
     assert all(row["walking_straight"] == "" for row in read_csv(unprobed.parent.parent / "learning_curve.csv"))
 
 
-@pytest.mark.parametrize("kind", ["network", "tables"])
-def test_the_command_reads_every_learner_and_prints_a_row_per_file(kind, request):
-    checkpoint = request.getfixturevalue(kind)
+def test_the_command_reads_every_learner_and_prints_a_row_per_file(network, tables):
     result = subprocess.run(
-        [sys.executable, "-m", "pedrl.evaluation.free_walking", str(checkpoint), "--places", "2", "--lateral", "1"],
+        [sys.executable, "-m", "pedrl.evaluation.free_walking", str(network), str(tables), "--places", "2",
+         "--lateral", "1"],
         capture_output=True, text=True, timeout=300,
     )  # fmt: skip
     assert result.returncode == 0, result.stderr
-    rows = [line for line in result.stdout.splitlines() if line.startswith(f"| {checkpoint}")]
-    assert len(rows) == 1 and rows[0].rstrip(" |").split("|")[-1].strip() in ("pass", "FAIL")
-    assert load_policy(checkpoint) is not None
+    for checkpoint in (network, tables):
+        rows = [line for line in result.stdout.splitlines() if line.startswith(f"| {checkpoint}")]
+        assert len(rows) == 1 and rows[0].rstrip(" |").split("|")[-1].strip() in ("pass", "FAIL")
+        assert load_policy(checkpoint) is not None
 
 
 def test_the_command_refuses_a_bad_argument_in_one_line(tmp_path):
