@@ -117,12 +117,11 @@ class Walk:
 @dataclass(frozen=True)
 class FreeWalking:
     """The probe's figures for a controller (``corridor``, ``room``: :class:`Walk`) and the greedy walker's in the
-    same scenes (``greedy_corridor``, ``greedy_room``)."""
+    same corridor scenes (``greedy_corridor``, the reference of the decisions)."""
 
     corridor: Walk
     room: Walk | None
     greedy_corridor: Walk
-    greedy_room: Walk | None
 
     @property
     def straight(self) -> float:
@@ -263,7 +262,7 @@ def probe_walking(
     device: str | torch.device = "cpu",
 ) -> FreeWalking:
     """The free-walking figures of the controllers ``make_controller()`` builds (one per kind of scene, each seeded
-    by the caller or at ``epsilon=0``) and of the greedy walker beside them.
+    by the caller or at ``epsilon=0``) and of the greedy walker beside them in the corridor.
 
     Args:
         make_controller: builds the controller under test, ``act(env, obs, info) -> (R, 1)``.
@@ -291,7 +290,6 @@ def probe_walking(
         corridor=corridor(make_controller()),
         room=own(make_controller()),
         greedy_corridor=corridor(GreedyDoorController()),
-        greedy_room=own(GreedyDoorController()),
     )
 
 
