@@ -33,13 +33,16 @@ ifndef SEED
 SEED := $(shell python3 -c 'import random; print(random.randrange(2**32))')
 endif
 
-test: setup ## the fast test suite (not slow), in a random order whose seed it prints
-	@echo "test order: --randomly-seed=$(SEED) (rerun this order: make test SEED=$(SEED))"
-	$(PY) -m pytest -q -p randomly --randomly-seed=$(SEED) -m "not slow" $(ARGS)
+# one test process per core (pytest-xdist; JOBS=1: one process, the tests in one order)
+JOBS ?= $(shell nproc 2>/dev/null || echo 1)
+
+test: setup ## the fast test suite (not slow), one process per core, in a random order whose seed it prints
+	@echo "test order: --randomly-seed=$(SEED) (rerun this order: make test SEED=$(SEED) JOBS=$(JOBS))"
+	OMP_NUM_THREADS=1 $(PY) -m pytest -q -p randomly --randomly-seed=$(SEED) -n $(JOBS) -m "not slow" $(ARGS)
 
 test-all: setup ## every test, slow ones included, in a random order whose seed it prints
-	@echo "test order: --randomly-seed=$(SEED) (rerun this order: make test-all SEED=$(SEED))"
-	$(PY) -m pytest -q -p randomly --randomly-seed=$(SEED) $(ARGS)
+	@echo "test order: --randomly-seed=$(SEED) (rerun this order: make test-all SEED=$(SEED) JOBS=$(JOBS))"
+	OMP_NUM_THREADS=1 $(PY) -m pytest -q -p randomly --randomly-seed=$(SEED) -n $(JOBS) $(ARGS)
 
 lint: setup ## ruff check and format check
 	$(VENV)/bin/ruff check pedrl tests

@@ -1,11 +1,19 @@
 """Shared fixtures: Hydra configs composed the way the entry points compose them."""
 
+import os
+
 import pytest
+import torch
 from hydra import compose as hydra_compose
 from hydra import initialize_config_dir
 from omegaconf import DictConfig, open_dict
 
 from pedrl.cli import CONFIG_DIR
+
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    # one torch thread per test process: `make test` runs one process per core (pytest-xdist), and two processes whose
+    # OpenMP threads both spin over the same cores slow each other several times over
+    torch.set_num_threads(1)
 
 
 def compose_config(name: str, overrides: list[str] | tuple[str, ...] = ()) -> DictConfig:

@@ -116,7 +116,8 @@ def check_bool(name: str, value: Any) -> bool:
 
 def shown(value: Any, *, limit: int = 80) -> str:
     """``repr(value)`` cut to ``limit`` characters, with the full length, so that a message stays one short line
-    whatever a config or a file holds (a 1 MB path, a whole WKT polygon)."""
+    whatever a config or a file holds (a 1 MB path, a whole WKT polygon); a string keeps its first and last
+    ``limit / 2`` characters (a long path keeps its file name)."""
     try:
         text = repr(value)
     except RecursionError:
@@ -125,7 +126,9 @@ def shown(value: Any, *, limit: int = 80) -> str:
         return text
     if isinstance(value, list | tuple | dict):
         return f"{text[:limit]}... ({len(value)} items)"
-    return f"{text[:limit]}... ({len(value) if isinstance(value, str | bytes) else len(text)} characters)"
+    if isinstance(value, str | bytes):  # a path's file name is at its end: keep both ends
+        return f"{text[: limit // 2]}...{text[-(limit // 2) :]} ({len(value)} characters)"
+    return f"{text[:limit]}... ({len(text)} characters)"
 
 
 def check_device(value: Any) -> torch.device:

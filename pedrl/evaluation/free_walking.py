@@ -17,17 +17,17 @@ from collections.abc import Sequence
 from typing import Any, Final
 
 from pedrl.sim import RoomParams
-from pedrl.trial.walking import MAX_DECISION_RATIO, MIN_STRAIGHT, FreeWalking, WalkingSettings, policy_probe
+from pedrl.trial.walking import MAX_DECISION_RATIO, MIN_STRAIGHT, FreeWalking, WalkingSettings, probe_learned
 
 
-def probe_policy(policy: Any, settings: WalkingSettings | None = None) -> FreeWalking:
+def probe_loaded(policy: Any, settings: WalkingSettings | None = None) -> FreeWalking:
     """The free-walking figures of a loaded policy (:func:`pedrl.load_policy`, any learner) at ``epsilon=0``, in the
     corridor with its room's settings and in its own room, every learning process acting."""
     from pedrl.configs import room_keywords
     from pedrl.policy_files import room_factory, room_settings
 
     params = RoomParams.from_settings(room_keywords(room_settings(policy)))
-    return policy_probe(policy, params, home=room_factory(policy), settings=settings)
+    return probe_learned(policy, params, home=room_factory(policy), settings=settings)
 
 
 PROGRAM: Final = "python -m pedrl.evaluation.free_walking"
@@ -78,7 +78,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         fail(PROGRAM, str(err))
     print(HEADER)
     for path, policy in zip(args.checkpoints, policies, strict=True):
-        print(row(path, probe_policy(policy, settings)), flush=True)
+        print(row(path, probe_loaded(policy, settings)), flush=True)
     print(
         f"pass: at least {MIN_STRAIGHT:.0%} of the decisions straight at top speed (within one turn step of the goal "
         f"bearing) and every corridor walker out within {MAX_DECISION_RATIO:.3f} times the greedy walker's decisions"

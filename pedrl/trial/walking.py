@@ -260,6 +260,7 @@ def probe_walking(
     settings: WalkingSettings | None = None,
     copies: int = 1,
     device: str | torch.device = "cpu",
+    greedy_corridor: Walk | None = None,
 ) -> FreeWalking:
     """The free-walking figures of the controllers ``make_controller()`` builds (one per kind of scene, each seeded
     by the caller or at ``epsilon=0``) and of the greedy walker beside them in the corridor.
@@ -271,6 +272,8 @@ def probe_walking(
         settings: the scenes (None: :class:`WalkingSettings`' defaults).
         copies: replicas per scene (``P x E`` for a policy of ``P`` processes of ``E`` rooms: each acts).
         device: where the rooms run.
+        greedy_corridor: the greedy walker's corridor walk under the same ``params``, ``settings`` and ``copies``,
+            when the caller already has it (None: walked here).
     """
     settings = settings if settings is not None else WalkingSettings()
     check_integer("copies", copies, minimum=1, maximum=100_000)
@@ -289,16 +292,17 @@ def probe_walking(
     return FreeWalking(
         corridor=corridor(make_controller()),
         room=own(make_controller()),
-        greedy_corridor=corridor(GreedyDoorController()),
+        greedy_corridor=greedy_corridor if greedy_corridor is not None else corridor(GreedyDoorController()),
     )
 
 
-def policy_probe(
+def probe_learned(
     policy: Any,
     params: RoomParams,
     *,
     home: Callable[..., RoomEnv] | None,
     settings: WalkingSettings | None = None,
+    greedy_corridor: Walk | None = None,
 ) -> FreeWalking:
     """:func:`probe_walking` of a learned ``policy`` (tables or network: ``policy.controller(epsilon, generator)``) at
     ``epsilon=0``, its random draws seeded by ``settings.seed``, every learning process acting."""
@@ -308,11 +312,13 @@ def policy_probe(
         return policy.controller(0.0, torch.Generator(device=policy.device).manual_seed(settings.seed))
 
     copies = policy.num_processes * policy.layout.rooms_per_process
-    return probe_walking(make, params, home=home, settings=settings, copies=copies, device=policy.device)
+    return probe_walking(
+        make, params, home=home, settings=settings, copies=copies, device=policy.device, greedy_corridor=greedy_corridor
+    )
 
 
 class WalkingLog:
-    """The probe during training: :func:`policy_probe` of the learned policy after every ``every``-th trial and after
+    """The probe during training: :func:`probe_learned` of the learned policy after every ``every``-th trial and after
     the last, its own rooms and draws (the run's generators are not touched, so a run gives the same tables, network
     and curve with the probe on or off).
 
@@ -327,6 +333,7 @@ class WalkingLog:
         check_integer("logger.walking_probes", probes, minimum=0, maximum=MAX_PROBES)
         self.every = math.ceil(trials / probes) if probes else 0
         self.trials, self.params, self.home = trials, params, home
+        self.greedy_corridor: Walk | None = None  # the greedy walker's corridor walk: the same at every probe
 
     def due(self, global_trial: int) -> bool:
         """Whether the probe runs after the trial ``global_trial`` (counted from 0 over the run)."""
@@ -337,4 +344,6 @@ class WalkingLog:
         """:meth:`FreeWalking.scalars` of ``policy`` when :meth:`due`, else None."""
         if not self.due(global_trial):
             return None
-        return policy_probe(policy, self.params, home=self.home).scalars()
+        probe = probe_learned(policy, self.params, home=self.home, greedy_corridor=self.greedy_corridor)
+        self.greedy_corridor = probe.greedy_corridor
+        return probe.scalars()

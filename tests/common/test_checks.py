@@ -3,7 +3,7 @@ its catalogue (``tests/test_train.py``, ``tests/test_evaluate.py``)."""
 
 import pytest
 
-from pedrl.common.checks import check_epsilons, check_trials_per_iteration, duration
+from pedrl.common.checks import check_epsilons, check_trials_per_iteration, duration, shown
 
 
 def test_exploration_may_stay_constant_or_decay_but_not_rise():
@@ -35,3 +35,13 @@ def test_durations_read_in_their_unit():
         "5 days",
         "2 years",
     ]
+
+
+def test_a_long_value_is_shown_in_one_short_line_a_path_with_its_file_name():
+    path = "/home/someone/" + "deep/" * 40 + "room.wkt"
+    text = shown(path)
+    assert text.startswith("'/home/someone/") and text.endswith(f"room.wkt' ({len(path)} characters)")
+    assert len(text) < 110
+    assert shown("short.wkt") == "'short.wkt'"
+    assert shown(list(range(1000))).endswith("... (1000 items)")
+    assert shown(10**200).endswith("... (201 characters)")

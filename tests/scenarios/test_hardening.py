@@ -24,6 +24,7 @@ from safetensors.torch import load_file, save_file
 
 import pedrl.embed
 from pedrl.cli import CONFIG_DIR
+from pedrl.common.checks import shown
 from pedrl.configs import embed_geometry
 from pedrl.evaluation import load_controller
 from pedrl.io import CheckpointError
@@ -206,7 +207,7 @@ def test_only_regular_files_are_read(make, kind, tmp_path):
     path = make(tmp_path)
     with deadline(20), pytest.raises(ValueError) as error:
         custom(path)
-    one_line_error(error.value, f"scenario.geometry={str(path)!r}", kind, "not a regular file")
+    one_line_error(error.value, f"scenario.geometry={shown(str(path))}", kind, "not a regular file")
 
 
 def test_a_wkt_file_over_the_size_limit_is_refused_without_reading_it(tmp_path):
@@ -230,7 +231,7 @@ def test_a_file_that_is_not_utf8_names_the_key_and_the_file(tmp_path):
     path.write_bytes((ROOM + " -- café").encode("latin-1"))
     with pytest.raises(ValueError) as error:
         custom(path)
-    one_line_error(error.value, f"scenario.geometry={str(path)!r}", "not UTF-8", "0xe9")
+    one_line_error(error.value, f"scenario.geometry={shown(str(path))}", "not UTF-8", "0xe9")
 
 
 def test_z_coordinates_are_dropped_with_a_warning_and_walls_stay_straight(tmp_path):
@@ -250,7 +251,7 @@ def test_a_polygon_of_a_million_vertices_is_refused_at_once(tmp_path):
     with deadline(60), pytest.raises(ValueError) as error:
         custom(path)
     assert time.perf_counter() - start < 5.0
-    one_line_error(error.value, f"scenario.geometry={str(path)!r}", "1000002 vertices", f"at most {MAX_VERTICES}")
+    one_line_error(error.value, f"scenario.geometry={shown(str(path))}", "1000002 vertices", f"at most {MAX_VERTICES}")
 
 
 def test_deeply_nested_wkt_gives_one_line(tmp_path):
@@ -275,7 +276,7 @@ def test_a_room_far_from_the_origin_is_refused_with_the_float32_reason(tmp_path)
     with pytest.raises(ValueError) as error:
         custom(path, exits=[[500010, 5400004, 500010, 5400006]])
     one_line_error(
-        error.value, f"scenario.geometry={str(path)!r}", "float32 positions are 0.5 m apart", "at most 10000 m"
+        error.value, f"scenario.geometry={shown(str(path))}", "float32 positions are 0.5 m apart", "at most 10000 m"
     )
 
 

@@ -16,6 +16,7 @@ import pytest
 import torch
 from shapely.geometry import LineString, Polygon
 
+from pedrl.common.checks import shown
 from pedrl.scenarios import Scenario, build_scenario
 from pedrl.sim import routing
 
@@ -162,7 +163,7 @@ def test_a_non_finite_coordinate_in_a_wkt_file_is_named_with_its_place(wkt, wher
     room = tmp_path / "room.wkt"
     room.write_text(wkt)
     message = refusal({"geometry": str(room)})
-    assert message.startswith(f"scenario.geometry={str(room)!r} is invalid: {where}"), message
+    assert message.startswith(f"scenario.geometry={shown(str(room))} is invalid: {where}"), message
     assert "not a finite number" in message
 
 

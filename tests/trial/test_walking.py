@@ -11,11 +11,11 @@ import torch
 
 from pedrl.configs import room_keywords
 from pedrl.io import load_checkpoint, read_csv
-from pedrl.policy_files import load_policy
+from pedrl.policy_files import load_policy, room_settings
 from pedrl.sim import RoomParams
 from pedrl.sim.actions import NUM_TURNS
 from pedrl.sim.controllers import GreedyDoorController
-from pedrl.trial.walking import SCALARS, WalkingLog, WalkingSettings, probe_walking
+from pedrl.trial.walking import SCALARS, WalkingLog, WalkingSettings, probe_learned, probe_walking
 from tests.refusals import TINY_VQQL, train_checkpoint
 
 WALKING_LAYER = {
@@ -128,6 +128,18 @@ def test_training_logs_the_probe_without_changing_what_it_learns(network, tmp_pa
     for name in first:
         assert torch.equal(first[name], second[name]), name
     assert all(row["walking_straight"] == "" for row in read_csv(unprobed.parent.parent / "learning_curve.csv"))
+
+
+def test_the_log_walks_the_greedy_walker_once_and_reports_what_a_fresh_probe_does(network):
+    policy = load_policy(network)
+    params = RoomParams.from_settings(room_keywords(room_settings(policy)))
+    log = WalkingLog(2, 2, params, home=None)
+    first = log.measure(0, policy)
+    cached = log.greedy_corridor
+    assert cached is not None
+    assert log.measure(1, policy) == first
+    assert log.greedy_corridor is cached
+    assert probe_learned(policy, params, home=None).scalars() == first
 
 
 def test_the_command_reads_every_learner_and_prints_a_row_per_file(network, tables):
