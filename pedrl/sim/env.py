@@ -37,7 +37,7 @@ from pedrl.sim.motion import (
     move_agents_sliding,
 )
 from pedrl.sim.params import RoomParams
-from pedrl.sim.rewards import compute_rewards
+from pedrl.sim.rewards import commanded_deviation, compute_rewards
 from pedrl.sim.room_checks import (
     check_actions,
     check_area,
@@ -368,6 +368,12 @@ class RoomEnv:
 
         # ---- decide: new speeds and headings
         speeds, headings = self.decide(actions, targets)
+        table = self.params.rewards
+        deviation = (
+            commanded_deviation(speeds, headings, self.positions, targets, self.params.max_speed)
+            if table.deviation
+            else None
+        )
         movement, speeds, velocities = self._move(acting, speeds, headings, targets)
         progress = self._goal_distance(self.positions, targets) - self._goal_distance(movement.positions, targets)
 
@@ -386,12 +392,13 @@ class RoomEnv:
         # ---- rewards and observations: the goal only through the agent's own exit
         reached = self.spawns.own_exit(movement.reached, movement.positions, self.exit_index)
         reward = compute_rewards(
-            table=self.params.rewards,
+            table=table,
             reached=reached,
             crashed_wall=movement.crashed_wall,
             crashed_agent=movement.crashed_agent,
             acting=acting,
             progress=progress,
+            deviation=deviation,
         )
         observation = self._observe(observers=in_room, sensed=in_room)
         info = self._info(

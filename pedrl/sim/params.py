@@ -174,6 +174,9 @@ class RoomParams:
         reward_progress: Reward per metre by which a decision brings the agent closer to the goal point (``>= 0``;
             0 is the paper's Table 2, 1 the default): walking to the door at 2 m/s earns ``2 * reward_progress`` per
             decision, standing still 0.
+        reward_deviation: Reward per unit of a decision's commanded deviation from the greedy walker's velocity,
+            ``(1 - speed / max_speed) + |heading - bearing of the goal point| / pi`` (``<= 0``; 0, the default, and
+            the paper: none; :class:`pedrl.sim.rewards.RewardTable`).
         compile_sensing: Run the sensing through ``torch.compile`` (inductor; needs a C++ compiler on CPU). Off by
             default: about a third of the sensing saved for 10 to 30 s of compilation per process, and features that
             differ from the eager ones in the last bits (docs/configuration.md).
@@ -212,6 +215,7 @@ class RoomParams:
     substep_length: float | None = setting(ANY, derived("num_substeps", lambda room: int(room.num_substeps)), None)
     goal_depth: float = setting(ANY, host(_AREA), 0.0)
     reward_progress: float = setting(ANY, kernel(np.float32), 1.0)
+    reward_deviation: float = setting(ANY, kernel(np.float32), 0.0)
     compile_sensing: bool = setting(only(False), host("the fast path senses in its own kernel"), False)
     action_frame: str = setting(ANY, kernel(lambda frame: frame == "goal", "goal_frame"), "heading")
     # every model but Simultaneous (Stop only with axis-aligned walls: RoomEnv.fast_path_reason); its time_step
@@ -270,7 +274,7 @@ class RoomParams:
     @property
     def rewards(self) -> RewardTable:
         """The rewards (``reward_goal``, ``reward_crash_wall``, ``reward_crash_agent``, ``reward_default``,
-        ``reward_progress``) as their table."""
+        ``reward_progress``, ``reward_deviation``) as their table."""
         return RewardTable.of(self)
 
     def kernel_room(self, room: Any) -> KernelRoom:

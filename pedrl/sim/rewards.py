@@ -18,8 +18,18 @@ import torch
 
 from pedrl._numba import cached_njit
 from pedrl.common.checks import check_number
+from pedrl.sim.geometry import wrap_angle
+from pedrl.sim.sensing_kernel import wrap
 
-__all__ = ["MAX_REWARD", "SETTING_PREFIX", "RewardTable", "compute_rewards", "reward_kernel"]
+__all__ = [
+    "MAX_REWARD",
+    "SETTING_PREFIX",
+    "RewardTable",
+    "commanded_deviation",
+    "compute_rewards",
+    "deviation_kernel",
+    "reward_kernel",
+]
 
 MAX_REWARD: Final = 1e6
 """Largest ``|reward|`` (and ``reward_progress``, per m) accepted. Q values and returns are float32 sums of rewards
@@ -29,9 +39,9 @@ SETTING_PREFIX: Final = "reward_"
 """A reward ``x`` of the table is the room's setting ``reward_x``."""
 
 
-def _reward(default: float, *, low: float = -MAX_REWARD) -> Any:
-    """A reward of the table: its ``default`` and the lowest value it accepts (the highest is ``MAX_REWARD``)."""
-    return field(default=default, metadata={"low": low})
+def _reward(default: float, *, low: float = -MAX_REWARD, high: float = MAX_REWARD) -> Any:
+    """A reward of the table: its ``default`` and the range of values it accepts."""
+    return field(default=default, metadata={"low": low, "high": high})
 
 
 @dataclass(frozen=True)
@@ -48,6 +58,11 @@ class RewardTable:
         default: Anything else.
         progress: Per metre by which the decision brought the agent closer to its goal point (added to the above;
             0 in the paper).
+        deviation: Per unit of the decision's commanded deviation from the greedy walker's velocity (added to the
+            above; at most 0; 0, the default, and in the paper: none): ``(1 - speed / max_speed) + |heading -
+            bearing| / pi`` of the commanded speed and heading against the bearing of the goal point
+            (:func:`commanded_deviation`, in ``[0, 2]``). Where the motion model caps what any command walks (a
+            queue), decisions that walk alike differ by it, and the straight one at top speed is the best.
     """
 
     goal: float = _reward(100.0)
@@ -55,11 +70,12 @@ class RewardTable:
     crash_agent: float = _reward(-4.0)
     default: float = _reward(0.0)
     progress: float = _reward(0.0, low=0.0)
+    deviation: float = _reward(0.0, high=0.0)
 
     def __post_init__(self) -> None:
         for item in fields(self):
             name = SETTING_PREFIX + item.name
-            value = check_number(name, getattr(self, item.name), low=item.metadata["low"], high=MAX_REWARD)
+            value = check_number(name, getattr(self, item.name), low=item.metadata["low"], high=item.metadata["high"])
             object.__setattr__(self, item.name, value)
 
     @classmethod
@@ -80,12 +96,13 @@ def compute_rewards(
     crashed_agent: torch.Tensor,
     acting: torch.Tensor,
     progress: torch.Tensor | None = None,
+    deviation: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Reward of each agent for one decision.
 
     ``goal`` if it reached the door, else ``crash_wall`` if it hit a wall, else ``crash_agent`` if it hit an
-    agent, else ``default``; plus ``table.progress * progress``; 0 for agents that did not act (inactive at the start
-    of the decision).
+    agent, else ``default``; plus ``table.progress * progress`` and ``table.deviation * deviation``; 0 for agents that
+    did not act (inactive at the start of the decision).
 
     Args:
         table: The reward values.
@@ -95,6 +112,7 @@ def compute_rewards(
         acting: Agents active during the decision ``(R, N)`` bool.
         progress: How much closer to its goal point the decision brought each agent ``(R, N)`` (m); None: no
             progress term.
+        deviation: :func:`commanded_deviation` of each agent's decision ``(R, N)``; None: no deviation term.
 
     Returns:
         Rewards ``(R, N)`` float32.
@@ -105,14 +123,37 @@ def compute_rewards(
     reward = torch.where(acting, reward, 0.0).to(torch.float32)
     if table.progress and progress is not None:
         reward = reward + torch.where(acting, table.progress * progress, 0.0)
+    if table.deviation and deviation is not None:
+        reward = reward + torch.where(acting, table.deviation * deviation, 0.0)
     return reward
 
 
+def commanded_deviation(
+    speeds: torch.Tensor, headings: torch.Tensor, positions: torch.Tensor, targets: torch.Tensor, max_speed: float
+) -> torch.Tensor:
+    """How far commanded ``speeds`` and ``headings`` ``(R, N)`` lie from the greedy walker's, top speed straight at
+    the goal point, from ``positions`` to ``targets`` ``(R, N, 2)``: ``(1 - speed / max_speed) + |heading - bearing|
+    / pi``, in ``[0, 2]`` (float32)."""
+    to_goal = targets - positions
+    bearings = torch.atan2(to_goal[..., 1], to_goal[..., 0])
+    return (1.0 - speeds / max_speed) + wrap_angle(headings - bearings).abs() / np.float32(np.pi)
+
+
 @cached_njit(nogil=True, inline="always")
-def reward_kernel(room, acting, reached, crashed_wall, crashed_agent, start, end, target):
+def deviation_kernel(room, speed, heading, position, target):
+    """:func:`commanded_deviation` of one agent, float32 (``position`` and ``target`` ``(x, y)``, m); 0 where the room
+    prices no deviation (``reward_deviation`` 0: nothing computed)."""
+    if room.reward_deviation == 0:
+        return np.float32(0.0)
+    bearing = np.arctan2(target[1] - position[1], target[0] - position[0])
+    return (np.float32(1.0) - speed / room.max_speed) + abs(wrap(heading - bearing)) / np.float32(np.pi)
+
+
+@cached_njit(nogil=True, inline="always")
+def reward_kernel(room, acting, reached, crashed_wall, crashed_agent, start, end, target, deviation):
     """:func:`compute_rewards` of one agent, float32: ``room`` is :class:`pedrl.sim.params.KernelRoom` (its
     ``reward_<name>`` entries), the flags bools, ``start`` and ``end`` the agent's centre before and after the decision
-    and ``target`` its goal point, each ``(x, y)`` (m)."""
+    and ``target`` its goal point, each ``(x, y)`` (m), ``deviation`` its decision's :func:`deviation_kernel`."""
     if not acting:
         return np.float32(0.0)
     value = room.reward_default
@@ -124,4 +165,7 @@ def reward_kernel(room, acting, reached, crashed_wall, crashed_agent, start, end
         value = room.reward_goal
     before = np.hypot(start[0] - target[0], start[1] - target[1])
     after = np.hypot(end[0] - target[0], end[1] - target[1])
-    return value + room.reward_progress * (before - after)
+    value = value + room.reward_progress * (before - after)
+    if room.reward_deviation != 0:
+        value = value + room.reward_deviation * deviation
+    return value

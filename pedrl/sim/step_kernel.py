@@ -13,7 +13,7 @@ from pedrl.sim.actions import apply_action_kernel, velocity_kernel
 from pedrl.sim.motion.common import PAIR_MARGIN, STOP, KernelMoves
 from pedrl.sim.motion.sequential_kernel import sequential_constants, sequential_room
 from pedrl.sim.motion.sliding_kernel import sliding_constants, sliding_room
-from pedrl.sim.rewards import reward_kernel
+from pedrl.sim.rewards import deviation_kernel, reward_kernel
 
 __all__ = ["ActScratch", "Events", "Work", "act_room", "act_scratch"]
 
@@ -87,6 +87,7 @@ class ActScratch(NamedTuple):
     passed: np.ndarray
     current: np.ndarray
     rank_of: np.ndarray
+    deviation: np.ndarray
 
 
 @cached_njit(nogil=True)
@@ -96,7 +97,7 @@ def act_scratch(num_agents):
                       np.empty(num_agents, np.float32), np.empty(num_agents, np.float32),
                       np.empty(num_agents, np.bool_), np.empty(num_agents, np.bool_),
                       np.empty((num_agents, 2), np.float32),
-                      np.empty(num_agents, np.int64))  # fmt: skip
+                      np.empty(num_agents, np.int64), np.zeros(num_agents, np.float32))  # fmt: skip
 
 
 @cached_njit(nogil=True)
@@ -128,6 +129,10 @@ def act_room(r, state, actions, room, walls, exits, routes, work, events, scratc
             (targets[r, i, 0], targets[r, i, 1]),
         )  # fmt: skip
         velocities[r, i, 0], velocities[r, i, 1] = velocity_kernel(speeds[r, i], headings[r, i])
+        scratch.deviation[i] = deviation_kernel(
+            room, speeds[r, i], headings[r, i], (positions[r, i, 0], positions[r, i, 1]),
+            (targets[r, i, 0], targets[r, i, 1]),
+        )  # fmt: skip
         old_x[i], old_y[i] = positions[r, i, 0], positions[r, i, 1]
         priority[i] = work.draws[r, i]
         if room.door_first:  # metres dominate, the uniform draw breaks ties
@@ -177,7 +182,7 @@ def act_room(r, state, actions, room, walls, exits, routes, work, events, scratc
         goal[r, i] = reached[r, i] and _own_exit(r, i, new_x, new_y, exit_index, routes, exits.goals)
         reward[r, i] = reward_kernel(
             room, acting[r, i], goal[r, i], crashed_wall[r, i], crashed_agent[r, i], (old_x[i], old_y[i]),
-            (new_x, new_y), (targets[r, i, 0], targets[r, i, 1]),
+            (new_x, new_y), (targets[r, i, 0], targets[r, i, 1]), scratch.deviation[i],
         )  # fmt: skip
         positions[r, i, 0], positions[r, i, 1] = new_x, new_y
         if routes.waypoints.shape[2] > 0:

@@ -13,7 +13,7 @@ import torch
 from pedrl._numba import numba_available
 from pedrl.scenarios import paper_room
 from pedrl.sim.params import RoomParams
-from pedrl.sim.rewards import RewardTable, compute_rewards, reward_kernel
+from pedrl.sim.rewards import RewardTable, commanded_deviation, compute_rewards, deviation_kernel, reward_kernel
 
 
 def test_reward_priority_goal_then_wall_then_agent_then_default():
@@ -67,18 +67,51 @@ def test_the_progress_term_is_paid_per_metre_to_acting_agents_only():
     assert reward.dtype == torch.float32 and reward.tolist() == [[5.0, -2.5, 0.0]]
 
 
+def test_the_deviation_prices_a_command_off_top_speed_straight_at_the_goal():
+    """Analytic cases: straight at top speed 0, half speed 0.5, 45 degrees off 0.25, turned round at rest 2; the
+    greedy walker's command costs nothing in a room, a walker that turns 45 degrees pays a quarter of the price."""
+    positions = torch.zeros(1, 4, 2)
+    targets = torch.tensor([[[10.0, 0.0], [0.0, 10.0], [-3.0, -3.0], [-5.0, 0.0]]])
+    speeds = torch.tensor([[2.0, 1.0, 2.0, 0.0]])
+    headings = torch.tensor([[0.0, torch.pi / 2, -torch.pi / 2, 0.0]])
+    deviation = commanded_deviation(speeds, headings, positions, targets, max_speed=2.0)
+    torch.testing.assert_close(deviation, torch.tensor([[0.0, 0.5, 0.25, 2.0]]))
+    with pytest.raises(ValueError, match=r"^reward_deviation=1 is invalid: must be a number in \[-1e\+06, 0\]"):
+        RewardTable(deviation=1)
+    from pedrl.sim.controllers import GreedyDoorController
+
+    env = paper_room(width=10.0, length=12.0).room(
+        num_agents=4, action_frame="goal", reward_deviation=-8.0, reward_progress=0.0, reward_default=-1.0,
+        speed_ratios=[0, 0.2, 0.4, 0.6, 0.7, 0.8, 0.9, 0.95, 1],
+        turn_ratios=[-0.5, -0.25, -0.1, -0.05, 0, 0.05, 0.1, 0.25, 0.5],
+    )  # fmt: skip
+    obs, info = env.reset(seed=0)
+    greedy = GreedyDoorController().act(env, obs, info)
+    _, reward, _, _, info = env.step(greedy)
+    plain = info["crashed_agent"] | info["crashed_wall"] | info["reached"]
+    assert (~plain).sum() >= 2 and torch.equal(reward[~plain], torch.full_like(reward[~plain], -1.0))
+    env.reset(seed=0)
+    _, turned, _, _, info = env.step(torch.full_like(greedy, 8 * 9 + 7))  # top speed, 0.25 pi off the bearing
+    plain = info["crashed_agent"] | info["crashed_wall"] | info["reached"]
+    assert (~plain).sum() >= 2
+    torch.testing.assert_close(turned[~plain], torch.full_like(turned[~plain], -1.0 - 8.0 * 0.25))
+
+
 @pytest.mark.skipif(not numba_available(), reason="numba")
 def test_the_kernel_is_the_torch_function_of_one_agent():
     """The twins agree to the bit on every combination of flags, with and without progress."""
     env = paper_room(width=10.0, length=12.0).room(
-        num_agents=2, reward_goal=100.0, reward_crash_wall=-15.5, reward_crash_agent=-4.25, reward_progress=1.5
-    )
+        num_agents=2, reward_goal=100.0, reward_crash_wall=-15.5, reward_crash_agent=-4.25, reward_progress=1.5,
+        reward_deviation=-2.5,
+    )  # fmt: skip
     room = env.params.kernel_room(env)
     flags = torch.tensor(list(itertools.product([False, True], repeat=4))).T.reshape(4, 1, 16)
     acting, reached, crashed_wall, crashed_agent = flags
     generator = torch.Generator().manual_seed(0)
     start, end, target = (torch.rand(1, 16, 2, generator=generator) * 10 for _ in range(3))
     progress = torch.hypot(*(start - target).unbind(-1)) - torch.hypot(*(end - target).unbind(-1))
+    speed, heading = torch.rand(1, 16, generator=generator) * 2.5, (torch.rand(1, 16, generator=generator) - 0.5) * 6
+    deviation = commanded_deviation(speed, heading, start, target, env.params.max_speed)
     expected = compute_rewards(
         table=env.params.rewards,
         reached=reached,
@@ -86,12 +119,14 @@ def test_the_kernel_is_the_torch_function_of_one_agent():
         crashed_agent=crashed_agent,
         acting=acting,
         progress=progress,
+        deviation=deviation,
     )
     point = lambda values, i: (np.float32(values[0, i, 0]), np.float32(values[0, i, 1]))  # noqa: E731
     got = [
         reward_kernel(
             room, acting[0, i].item(), reached[0, i].item(), crashed_wall[0, i].item(), crashed_agent[0, i].item(),
             point(start, i), point(end, i), point(target, i),
+            deviation_kernel(room, np.float32(speed[0, i]), np.float32(heading[0, i]), point(start, i), point(target, i)),
         )
         for i in range(16)
     ]  # fmt: skip

@@ -28,9 +28,9 @@ AGENTS = {"paper_room": 20, "bottleneck": 24, "corridor": 24, "corner": 7, "four
 BUILT_IN = [name for name in SCENARIOS if name != "custom"]  # custom is a WKT file of the user's
 
 
-def room(name: str, contact: str, frame: str = "heading", motion: str = "step"):
+def room(name: str, contact: str, frame: str = "heading", motion: str = "step", **more):
     walking = {"name": "continuous", "contact": contact} if motion == "continuous" else {"name": contact}
-    settings = {"_target_": "pedrl.sim.RoomEnv", "max_decisions": 30, "motion": walking, "action_frame": frame}
+    settings = {"_target_": "pedrl.sim.RoomEnv", "max_decisions": 30, "motion": walking, "action_frame": frame, **more}
     settings |= {"decisions_per_second": 2.0} if motion == "continuous" else {}
     if frame == "goal":
         settings |= {"speed_ratios": [0, 0.2, 0.4, 0.6, 0.7, 0.8, 0.9, 0.95, 1],
@@ -98,6 +98,16 @@ def test_the_continuous_motion_matches_through_whole_trials(name, contact):
         report = check_twins(room(name, contact, frame, motion="continuous"), policy, seed=7)
         assert report.failures() == []
         assert report.decisions >= 10 and report.agent_decisions > 100  # real trials
+
+
+@pytest.mark.parametrize(("frame", "motion"), [("goal", "continuous"), ("heading", "step")])
+def test_the_deviation_reward_matches_through_whole_trials(frame, motion):
+    """reward_deviation, the price of a command off the greedy walker's velocity, on both paths."""
+    policy = scenario_policies("bottleneck")["shared"]
+    policy.q_values.normal_(generator=torch.Generator().manual_seed(1))
+    report = check_twins(room("bottleneck", "yield", frame, motion, reward_deviation=-5.0), policy, seed=7)
+    assert report.failures() == []
+    assert report.decisions >= 10 and report.agent_decisions > 100
 
 
 def test_a_room_with_an_automatic_route_matches_through_whole_trials():
