@@ -126,7 +126,8 @@ def test_the_kernel_is_the_torch_function_of_one_agent():
         reward_kernel(
             room, acting[0, i].item(), reached[0, i].item(), crashed_wall[0, i].item(), crashed_agent[0, i].item(),
             point(start, i), point(end, i), point(target, i),
-            deviation_kernel(room, np.float32(speed[0, i]), np.float32(heading[0, i]), point(start, i), point(target, i)),
+            deviation_kernel(room, np.float32(speed[0, i]), np.float32(heading[0, i]), point(start, i),
+                             point(target, i)),
         )
         for i in range(16)
     ]  # fmt: skip
