@@ -22,9 +22,9 @@ setup: $(STAMP) ## create .venv with torch==2.13.0 (CPU) and pedrl[dev,analysis,
 
 RUN_DIR ?= outputs/main/$(shell date +%Y-%m-%d_%H-%M-%S)
 
-run: setup ## the main job: IT-VQQL in the paper's room (experiment=main, ~6 min), then its evaluation beside the greedy walker
-	$(VENV)/bin/pedrl-train experiment=main hydra.run.dir=$(RUN_DIR) $(ARGS)
-	$(VENV)/bin/pedrl-eval checkpoint=$(RUN_DIR)/checkpoints/last.safetensors "agents=[20,100]" trials=10 \
+run: setup ## the main job: IT-VQQL on the factored table in the paper's room (experiment=main_factored), then its evaluation beside the greedy walker
+	$(VENV)/bin/pedrl-train experiment=main_factored hydra.run.dir=$(RUN_DIR) $(ARGS)
+	$(VENV)/bin/pedrl-eval checkpoint=$(RUN_DIR)/checkpoints/last.safetensors "agents=[20,100]" trials=50 \
 		hydra.run.dir=$(RUN_DIR)/eval
 
 # the tests run in a random order (pytest-randomly); rerun one order with `make test SEED=<the seed printed>`
