@@ -46,7 +46,7 @@ class DoubleDQN:
         self.target = network.twin(device=policy.device)
         self.target.load_state_dict(network.state_dict())
         self.target.requires_grad_(False)
-        self.optimizer = torch.optim.Adam(network.parameters(), lr=learning_rate)
+        self.optimizer = torch.optim.Adam(network.parameters(), lr=learning_rate, foreach=True)
         self.updates = self.decisions = 0
         self._sums = torch.zeros(2, network.processes, device=policy.device)
         self._summed = 0

@@ -48,6 +48,7 @@ class ReplayBuffer:
         self.rooms = torch.zeros(shape, dtype=torch.int64, device=device)
         self.sizes = torch.zeros(processes, dtype=torch.int64)
         self.heads = torch.zeros(processes, dtype=torch.int64)
+        self._weights: list[torch.Tensor | None] = [None] * processes  # a balanced ring's weights, until it changes
 
     @staticmethod
     def bytes_needed(processes: int, capacity: int, width: int) -> int:
@@ -76,6 +77,7 @@ class ReplayBuffer:
             self.rooms[p].index_fill_(0, slots, room)
             self.heads[p] = (self.heads[p] + count) % self.capacity
             self.sizes[p] = min(self.capacity, int(self.sizes[p]) + count)
+            self._weights[p] = None
 
     def sample(self, batch_size: int, generator: torch.Generator, *, balanced: bool = False) -> Batch:
         """``batch_size`` transitions of each ring, with replacement: uniform over what it holds, or (``balanced``)
@@ -90,9 +92,12 @@ class ReplayBuffer:
         return Batch(*(getattr(self, name)[process, index] for name in FIELDS))
 
     def _balanced(self, process: int, batch_size: int, generator: torch.Generator) -> torch.Tensor:
-        """Slots ``(B,)`` of ring ``process``, each transition weighted by one over its room's count in the ring."""
-        rooms = self.rooms[process, : int(self.sizes[process])]
-        weights = 1.0 / torch.bincount(rooms).double()[rooms]
+        """Slots ``(B,)`` of ring ``process``, each transition weighted by one over its room's count in the ring (the
+        weights kept until the ring changes: the gradient steps of a decision draw from one set)."""
+        weights = self._weights[process]
+        if weights is None:
+            rooms = self.rooms[process, : int(self.sizes[process])]
+            weights = self._weights[process] = 1.0 / torch.bincount(rooms).double()[rooms]
         return torch.multinomial(weights, batch_size, replacement=True, generator=generator)
 
     def tensors(self) -> dict[str, torch.Tensor]:
@@ -119,6 +124,7 @@ class ReplayBuffer:
                     f"tensor {key} is {theirs.dtype} {tuple(theirs.shape)}: must be {mine.dtype} {tuple(mine.shape)}"
                 )
             mine.copy_(theirs)
+        self._weights = [None] * self.processes
         if bool(
             ((self.sizes < 0) | (self.sizes > self.capacity) | (self.heads < 0) | (self.heads >= self.capacity)).any()
         ):
