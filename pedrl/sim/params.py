@@ -27,7 +27,7 @@ import torch
 from pedrl.sim.actions import DEFAULT_SPEED_RATIOS, DEFAULT_TURN_RATIOS
 from pedrl.sim.motion import CONTACT_MODELS, Continuous, Headway, MotionModel, Slide, Stop, Yield
 from pedrl.sim.motion.common import STEERING_NAMES, neighbour_search, steering_constant
-from pedrl.sim.rewards import RewardTable
+from pedrl.sim.rewards import REWARD_DEFAULTS, RewardTable
 from pedrl.sim.room_checks import check_substeps, check_time_steps, checked_settings
 
 __all__ = [
@@ -208,14 +208,14 @@ class RoomParams:
     turn_ratios: tuple[float, ...] = setting(
         ANY, derived("turn_changes", lambda room: _float32(room.turn_changes)), DEFAULT_TURN_RATIOS
     )
-    reward_goal: float = setting(ANY, kernel(np.float32), 100.0)
-    reward_crash_wall: float = setting(ANY, kernel(np.float32), -15.0)
-    reward_crash_agent: float = setting(ANY, kernel(np.float32), -4.0)
-    reward_default: float = setting(ANY, kernel(np.float32), -1.0)
+    reward_goal: float = setting(ANY, kernel(np.float32), REWARD_DEFAULTS["reward_goal"])
+    reward_crash_wall: float = setting(ANY, kernel(np.float32), REWARD_DEFAULTS["reward_crash_wall"])
+    reward_crash_agent: float = setting(ANY, kernel(np.float32), REWARD_DEFAULTS["reward_crash_agent"])
+    reward_default: float = setting(ANY, kernel(np.float32), REWARD_DEFAULTS["reward_default"])
     substep_length: float | None = setting(ANY, derived("num_substeps", lambda room: int(room.num_substeps)), None)
     goal_depth: float = setting(ANY, host(_AREA), 0.0)
-    reward_progress: float = setting(ANY, kernel(np.float32), 1.0)
-    reward_deviation: float = setting(ANY, kernel(np.float32), 0.0)
+    reward_progress: float = setting(ANY, kernel(np.float32), REWARD_DEFAULTS["reward_progress"])
+    reward_deviation: float = setting(ANY, kernel(np.float32), REWARD_DEFAULTS["reward_deviation"])
     compile_sensing: bool = setting(only(False), host("the fast path senses in its own kernel"), False)
     action_frame: str = setting(ANY, kernel(lambda frame: frame == "goal", "goal_frame"), "heading")
     # every model but Simultaneous (Stop only with axis-aligned walls: RoomEnv.fast_path_reason); its time_step

@@ -23,6 +23,7 @@ from pedrl.sim.sensing_kernel import wrap
 
 __all__ = [
     "MAX_REWARD",
+    "REWARD_DEFAULTS",
     "SETTING_PREFIX",
     "RewardTable",
     "commanded_deviation",
@@ -46,16 +47,18 @@ def _reward(default: float, *, low: float = -MAX_REWARD, high: float = MAX_REWAR
 
 @dataclass(frozen=True)
 class RewardTable:
-    """Reward values of one decision (paper Table 2 defaults), each checked when the table is made (a one-line
-    ``ValueError`` naming the setting ``reward_<name>``): a number in ``[-MAX_REWARD, MAX_REWARD]``, ``progress`` in
-    ``[0, MAX_REWARD]``.
+    """Reward values of one decision, each checked when the table is made (a one-line ``ValueError`` naming the
+    setting ``reward_<name>``): a number in ``[-MAX_REWARD, MAX_REWARD]``, ``progress`` in ``[0, MAX_REWARD]``,
+    ``deviation`` in ``[-MAX_REWARD, 0]``. Its defaults are the room's, the one set (:data:`REWARD_DEFAULTS`, which
+    :class:`~pedrl.sim.params.RoomParams` and ``conf/env/room.yaml`` hold): Table 2's goal and crashes, a time cost of 1
+    and 1 per metre of progress where Table 2 has 0 and 0 (``rewards=paper`` sets those).
 
     Attributes:
         goal: Reaching the door.
         crash_wall: A wall contact during the decision: a wall cut the agent's move (stopped it under the ``stop``
             contact model, deflected or stopped it under ``slide`` and ``headway``; see ``RoomEnv``'s ``contact``).
         crash_agent: A body contact (and no wall contact) during the decision: another body cut the agent's move.
-        default: Anything else.
+        default: Anything else (a time cost per decision).
         progress: Per metre by which the decision brought the agent closer to its goal point (added to the above;
             0 in the paper).
         deviation: Per unit of the decision's commanded deviation from the greedy walker's velocity (added to the
@@ -68,8 +71,8 @@ class RewardTable:
     goal: float = _reward(100.0)
     crash_wall: float = _reward(-15.0)
     crash_agent: float = _reward(-4.0)
-    default: float = _reward(0.0)
-    progress: float = _reward(0.0, low=0.0)
+    default: float = _reward(-1.0)
+    progress: float = _reward(1.0, low=0.0)
     deviation: float = _reward(0.0, high=0.0)
 
     def __post_init__(self) -> None:
@@ -86,6 +89,10 @@ class RewardTable:
     def settings(self) -> dict[str, float]:
         """The table as the room's settings, ``{"reward_<name>": value}``."""
         return {SETTING_PREFIX + item.name: getattr(self, item.name) for item in fields(self)}
+
+
+REWARD_DEFAULTS: Final = RewardTable().settings()
+"""The one default set of rewards, ``{"reward_<name>": value}``: the room's settings take theirs from it."""
 
 
 def compute_rewards(

@@ -26,7 +26,7 @@ def test_reward_priority_goal_then_wall_then_agent_then_default():
         table=RewardTable(), reached=reached, crashed_wall=crashed_wall, crashed_agent=crashed_agent, acting=acting
     )
     assert reward.dtype == torch.float32
-    assert reward.tolist() == [[0.0, -4.0, -15.0, -15.0, 100.0, 100.0, 0.0]]
+    assert reward.tolist() == [[-1.0, -4.0, -15.0, -15.0, 100.0, 100.0, 0.0]]
 
 
 def test_reward_values_come_from_the_table():
@@ -40,7 +40,22 @@ def test_reward_values_come_from_the_table():
         acting=torch.ones(1, 4, dtype=torch.bool),
     )
     assert reward.tolist() == [[1.0, -2.0, -3.0, -0.5]]
-    assert RewardTable() == RewardTable(goal=100.0, crash_wall=-15.0, crash_agent=-4.0, default=0.0)
+
+
+def test_the_rewards_have_one_default_set():
+    """The table, the room's settings and conf/env/room.yaml hold the same defaults: a second set anywhere fails."""
+    from omegaconf import OmegaConf
+
+    from pedrl.cli import CONFIG_DIR
+    from pedrl.sim.rewards import REWARD_DEFAULTS
+
+    assert RewardTable().settings() == REWARD_DEFAULTS == RoomParams().rewards.settings()
+    assert REWARD_DEFAULTS == {"reward_goal": 100.0, "reward_crash_wall": -15.0, "reward_crash_agent": -4.0,
+                               "reward_default": -1.0, "reward_progress": 1.0, "reward_deviation": 0.0}  # fmt: skip
+    room = OmegaConf.load(Path(CONFIG_DIR) / "env" / "room.yaml")
+    assert {name: float(room[name]) for name in REWARD_DEFAULTS} == REWARD_DEFAULTS
+    defaults = {name: RoomParams.__dataclass_fields__[name].default for name in REWARD_DEFAULTS}
+    assert defaults == REWARD_DEFAULTS
 
 
 def test_the_table_checks_each_reward_and_names_its_setting():
@@ -52,7 +67,7 @@ def test_the_table_checks_each_reward_and_names_its_setting():
     with pytest.raises(ValueError, match="reward_goal=True"):
         RewardTable(goal=True)
     params = RoomParams(reward_goal=7.0, reward_progress=2.0)
-    assert params.rewards == RewardTable(goal=7.0, crash_wall=-15.0, crash_agent=-4.0, default=-1.0, progress=2.0)
+    assert params.rewards == RewardTable(goal=7.0, progress=2.0)
     assert RewardTable.of(params).settings() == {name: getattr(params, name) for name in params.rewards.settings()}
 
 
