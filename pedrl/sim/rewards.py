@@ -40,8 +40,9 @@ SETTING_PREFIX: Final = "reward_"
 """A reward ``x`` of the table is the room's setting ``reward_x``."""
 
 
-def _reward(default: float, *, low: float = -MAX_REWARD, high: float = MAX_REWARD) -> Any:
-    """A reward of the table: its ``default`` and the range of values it accepts."""
+def _reward(default: float, *, low: float = -MAX_REWARD, high: float | None = None) -> Any:
+    """A reward of the table: its ``default`` and the range of values it accepts (``high`` None: ``MAX_REWARD``,
+    read when a table is made)."""
     return field(default=default, metadata={"low": low, "high": high})
 
 
@@ -78,7 +79,8 @@ class RewardTable:
     def __post_init__(self) -> None:
         for item in fields(self):
             name = SETTING_PREFIX + item.name
-            value = check_number(name, getattr(self, item.name), low=item.metadata["low"], high=item.metadata["high"])
+            high = MAX_REWARD if item.metadata["high"] is None else item.metadata["high"]
+            value = check_number(name, getattr(self, item.name), low=item.metadata["low"], high=high)
             object.__setattr__(self, item.name, value)
 
     @classmethod
