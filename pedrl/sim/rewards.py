@@ -40,9 +40,9 @@ SETTING_PREFIX: Final = "reward_"
 """A reward ``x`` of the table is the room's setting ``reward_x``."""
 
 
-def _reward(default: float, *, low: float = -MAX_REWARD, high: float | None = None) -> Any:
-    """A reward of the table: its ``default`` and the range of values it accepts (``high`` None: ``MAX_REWARD``,
-    read when a table is made)."""
+def _reward(default: float, *, low: float | None = None, high: float | None = None) -> Any:
+    """A reward of the table: its ``default`` and the range of values it accepts (None: ``-MAX_REWARD``,
+    ``MAX_REWARD``, read when a table is made)."""
     return field(default=default, metadata={"low": low, "high": high})
 
 
@@ -79,8 +79,9 @@ class RewardTable:
     def __post_init__(self) -> None:
         for item in fields(self):
             name = SETTING_PREFIX + item.name
-            high = MAX_REWARD if item.metadata["high"] is None else item.metadata["high"]
-            value = check_number(name, getattr(self, item.name), low=item.metadata["low"], high=high)
+            low, high = item.metadata["low"], item.metadata["high"]
+            low, high = -MAX_REWARD if low is None else low, MAX_REWARD if high is None else high
+            value = check_number(name, getattr(self, item.name), low=low, high=high)
             object.__setattr__(self, item.name, value)
 
     @classmethod

@@ -9,11 +9,21 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from omegaconf import OmegaConf
 
 from pedrl._numba import numba_available
+from pedrl.cli import CONFIG_DIR
 from pedrl.scenarios import paper_room
+from pedrl.sim.controllers import GreedyDoorController
 from pedrl.sim.params import RoomParams
-from pedrl.sim.rewards import RewardTable, commanded_deviation, compute_rewards, deviation_kernel, reward_kernel
+from pedrl.sim.rewards import (
+    REWARD_DEFAULTS,
+    RewardTable,
+    commanded_deviation,
+    compute_rewards,
+    deviation_kernel,
+    reward_kernel,
+)
 
 
 def test_reward_priority_goal_then_wall_then_agent_then_default():
@@ -44,11 +54,6 @@ def test_reward_values_come_from_the_table():
 
 def test_the_rewards_have_one_default_set():
     """The table, the room's settings and conf/env/room.yaml hold the same defaults: a second set anywhere fails."""
-    from omegaconf import OmegaConf
-
-    from pedrl.cli import CONFIG_DIR
-    from pedrl.sim.rewards import REWARD_DEFAULTS
-
     assert RewardTable().settings() == REWARD_DEFAULTS == RoomParams().rewards.settings()
     assert REWARD_DEFAULTS == {"reward_goal": 100.0, "reward_crash_wall": -15.0, "reward_crash_agent": -4.0,
                                "reward_default": -1.0, "reward_progress": 1.0, "reward_deviation": 0.0}  # fmt: skip
@@ -93,8 +98,6 @@ def test_the_deviation_prices_a_command_off_top_speed_straight_at_the_goal():
     torch.testing.assert_close(deviation, torch.tensor([[0.0, 0.5, 0.25, 2.0]]))
     with pytest.raises(ValueError, match=r"^reward_deviation=1 is invalid: must be a number in \[-1e\+06, 0\]"):
         RewardTable(deviation=1)
-    from pedrl.sim.controllers import GreedyDoorController
-
     env = paper_room(width=10.0, length=12.0).room(
         num_agents=4, action_frame="goal", reward_deviation=-8.0, reward_progress=0.0, reward_default=-1.0,
         speed_ratios=[0, 0.2, 0.4, 0.6, 0.7, 0.8, 0.9, 0.95, 1],
@@ -114,7 +117,7 @@ def test_the_deviation_prices_a_command_off_top_speed_straight_at_the_goal():
 
 @pytest.mark.skipif(not numba_available(), reason="numba")
 def test_the_kernel_is_the_torch_function_of_one_agent():
-    """The twins agree to the bit on every combination of flags, with and without progress."""
+    """The twins agree on every combination of flags, with progress and the deviation price."""
     env = paper_room(width=10.0, length=12.0).room(
         num_agents=2, reward_goal=100.0, reward_crash_wall=-15.5, reward_crash_agent=-4.25, reward_progress=1.5,
         reward_deviation=-2.5,
