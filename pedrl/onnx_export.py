@@ -3,7 +3,9 @@
 ``pedrl-export checkpoint=<a dqn checkpoint> out=policy.onnx`` writes ``policy.onnx`` and ``policy.onnx.json``. The
 model takes what :class:`pedrl.sim.RoomEnv` gives, nothing prepared: ``obs`` ``(B, F)`` float32 (an agent's deictic
 state, the features in the order ``contract["observation"]["features"]`` names) and ``num_sensed`` ``(B,)`` int64
-(the neighbours sensed), and returns ``q_values`` ``(B, 81)`` float32 and ``action`` ``(B,)`` int64 (the best one).
+(the neighbours sensed), for a network that reads them ``neighbour_velocity`` ``(B, k, 2)`` float32 (the room's
+``info["neighbour_velocity"]``), and returns ``q_values`` ``(B, 81)`` float32 and ``action`` ``(B,)`` int64 (the
+best one).
 The distance transform, the standardisation and the neighbour presence flags are inside the graph. The JSON file
 states the contract: the inputs and outputs, the features, the action codec (the action frame, the speed and turn of
 each action), the decision length, and the room settings the network learned in. onnxruntime runs it without torch
@@ -51,10 +53,15 @@ class _Exported(torch.nn.Module):
             self.register_buffer(f"w{layer}", weight)
             self.register_buffer(f"b{layer}", bias)
 
-    def forward(self, obs: torch.Tensor, num_sensed: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def forward(
+        self, obs: torch.Tensor, num_sensed: torch.Tensor, neighbour_velocity: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         prepared = torch.where(self.log_mask, torch.log1p(torch.clamp(obs, min=0.0)), obs)
         present = (self.slots.unsqueeze(0) < num_sensed.unsqueeze(1)).to(obs.dtype)
-        x = torch.cat(((prepared - self.mean) / self.std, present), dim=1)
+        parts = [(prepared - self.mean) / self.std, present]
+        if neighbour_velocity is not None:
+            parts.append(neighbour_velocity.flatten(1))
+        x = torch.cat(parts, dim=1)
         last = len(self.weights) - 1
         for layer in range(last + 1):
             x = x @ getattr(self, f"w{layer}") + getattr(self, f"b{layer}")
@@ -62,6 +69,24 @@ class _Exported(torch.nn.Module):
                 x = torch.relu(x)
         x = head_values(self.head, x)
         return x, x.argmax(dim=1)
+
+
+def input_contract(policy: NeuralPolicy) -> dict[str, Any]:
+    """The model's inputs, in order: the observations, the neighbours sensed and, for a policy that reads them, the
+    neighbours' velocities."""
+    settings = policy.encoder.settings
+    inputs: dict[str, Any] = {
+        "obs": {"dtype": "float32", "shape": ["batch", settings.num_features]},
+        "num_sensed": {"dtype": "int64", "shape": ["batch"], "range": [0, settings.num_neighbours]},
+    }
+    if policy.neighbour_velocity:
+        inputs["neighbour_velocity"] = {
+            "dtype": "float32",
+            "shape": ["batch", settings.num_neighbours, 2],
+            "meaning": "each sensed neighbour's velocity along and across the line to the goal (m/s), 0 in empty "
+            "slots: RoomEnv's info['neighbour_velocity']",
+        }
+    return inputs
 
 
 def contract(policy: NeuralPolicy, room: Any, process: int) -> dict[str, Any]:
@@ -76,10 +101,7 @@ def contract(policy: NeuralPolicy, room: Any, process: int) -> dict[str, Any]:
         "algo": policy.metadata.get("algo", "dqn"),
         "process": process,
         "processes": policy.num_processes,
-        "inputs": {
-            "obs": {"dtype": "float32", "shape": ["batch", settings.num_features]},
-            "num_sensed": {"dtype": "int64", "shape": ["batch"], "range": [0, settings.num_neighbours]},
-        },
+        "inputs": input_contract(policy),
         "outputs": {
             "q_values": {"dtype": "float32", "shape": ["batch", len(speeds) * len(turns)]},
             "action": {"dtype": "int64", "shape": ["batch"], "meaning": "argmax of q_values"},
@@ -119,6 +141,9 @@ def export_onnx(policy: NeuralPolicy, room: Any, out: str | Path, *, process: in
     module = _Exported(policy, process).eval()
     settings = policy.encoder.settings
     example = (torch.zeros(2, settings.num_features), torch.zeros(2, dtype=torch.int64))
+    if policy.neighbour_velocity:
+        example = (*example, torch.zeros(2, settings.num_neighbours, 2))
+    names = list(input_contract(policy))
 
     batch = torch.export.Dim("batch")
 
@@ -133,9 +158,9 @@ def export_onnx(policy: NeuralPolicy, room: Any, out: str | Path, *, process: in
                 module,
                 example,
                 str(path),
-                input_names=["obs", "num_sensed"],
+                input_names=names,
                 output_names=["q_values", "action"],
-                dynamic_shapes=({0: batch}, {0: batch}),
+                dynamic_shapes=tuple({0: batch} for _ in names),
                 opset_version=OPSET,
                 dynamo=True,
                 verbose=False,

@@ -35,7 +35,12 @@ def _export(checkpoint, out, *overrides):
     return export(compose_config("export", [f"checkpoint={checkpoint}", f"out={out}", *overrides]))
 
 
-@pytest.mark.parametrize("head", ["dqn_checkpoint", "branching_checkpoint"])
+@pytest.fixture(scope="module")
+def velocity_checkpoint(tmp_path_factory):
+    return train_dqn(tmp_path_factory, "algo.neighbour_velocity=true")
+
+
+@pytest.mark.parametrize("head", ["dqn_checkpoint", "branching_checkpoint", "velocity_checkpoint"])
 def test_onnx_round_trip_gives_pedrls_values_and_actions(head, request, tmp_path):
     dqn_checkpoint = request.getfixturevalue(head)
     path = _export(dqn_checkpoint, tmp_path / "policy.onnx", "process=1")
@@ -46,14 +51,19 @@ def test_onnx_round_trip_gives_pedrls_values_and_actions(head, request, tmp_path
         obs, _, _, _, info = room.step(policy.act(obs, info, generator=torch.Generator().manual_seed(0)))
     flat, sensed = obs.reshape(-1, obs.shape[-1]), info["num_sensed"].reshape(-1)
     session = onnxruntime.InferenceSession(str(path))
-    q_values, action = session.run(None, {"obs": flat.numpy(), "num_sensed": sensed.numpy()})
-    expected = policy.values(policy.inputs(flat, sensed, 0), torch.ones(flat.shape[0], dtype=torch.int64))
+    feeds = {"obs": flat.numpy(), "num_sensed": sensed.numpy()}
+    if policy.neighbour_velocity:
+        feeds["neighbour_velocity"] = info["neighbour_velocity"].reshape(flat.shape[0], -1, 2).numpy()
+    assert [i.name for i in session.get_inputs()] == list(feeds)
+    q_values, action = session.run(None, feeds)
+    expected = policy.values(policy.info_inputs(obs, info), torch.ones(flat.shape[0], dtype=torch.int64))
     inside = room.active.reshape(-1)
     torch.testing.assert_close(torch.from_numpy(q_values)[inside], expected[inside], atol=1e-4, rtol=1e-4)
     assert (torch.from_numpy(action)[inside] == expected[inside].argmax(1)).float().mean() > 0.99
     assert sorted(p.name for p in tmp_path.iterdir()) == ["policy.onnx", "policy.onnx.json"]  # the weights inside
     contract = json.loads((tmp_path / "policy.onnx.json").read_text())
     assert contract["inputs"]["obs"]["shape"] == ["batch", room.num_features] and contract["process"] == 1
+    assert list(contract["inputs"]) == list(feeds)
     assert contract["observation"]["features"][0] == room.feature_names[0]
     assert len(contract["actions"]["speed"]) * len(contract["actions"]["turn"]) == contract["actions"]["count"] == 81
 

@@ -3,10 +3,14 @@ far faster than the same files with their tables zeroed (the control)."""
 
 import pytest
 import torch
+from omegaconf import OmegaConf
 
 import pedrl
+from pedrl.configs import HISTORICAL_VALUES
+from pedrl.io import load_checkpoint
 from pedrl.policy_files import PRETRAINED
 from pedrl.trial.crowd import run_crowd
+from tests.conftest import compose_config
 
 
 def blank(policy):
@@ -59,3 +63,28 @@ def test_the_shipped_network_has_its_onnx_model_and_contract_beside_it():
     expected = policy.values(policy.inputs(flat, sensed, 0), torch.zeros(flat.shape[0], dtype=torch.int64))
     torch.testing.assert_close(torch.from_numpy(q_values), expected, atol=1e-4, rtol=1e-4)
     assert bool((torch.from_numpy(action) == expected.argmax(1)).all())
+
+
+def _leaves(config: dict, prefix: str = "") -> set[str]:
+    """The dotted keys of ``config``'s env, algo and vq settings (a room's own description left whole)."""
+    keys = set()
+    for key, value in config.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict) and prefix.count(".") < 2:
+            keys |= _leaves(value, f"{name}.")
+        elif name.split(".")[0] in ("env", "algo", "vq"):
+            keys.add(name)
+    return keys
+
+
+@pytest.mark.parametrize("name", sorted(PRETRAINED))
+def test_every_key_added_since_a_shipped_policy_was_trained_has_the_value_of_its_time(name):
+    """A key of today's config that a shipped file's stored config lacks must be in HISTORICAL_VALUES: else resuming
+    or comparing such a file reads the key as absent (resume refuses it) or as today's default. The control: a key
+    added after every shipped file (env.reward_deviation) is found."""
+    stored = load_checkpoint(pedrl.pretrained(name)).metadata["config"]
+    algo = "dqn" if stored["algo"]["_target_"].endswith("DQN") else "it_vqql"
+    today = OmegaConf.to_container(compose_config("train", [f"algo={algo}"]), resolve=True)
+    added = {key for key in _leaves(today) - _leaves(stored) if not key.startswith("env.motion.")}
+    assert added <= set(HISTORICAL_VALUES), sorted(added - set(HISTORICAL_VALUES))
+    assert "env.reward_deviation" in added  # the control: without its entry, this file would fail the check

@@ -51,7 +51,7 @@ from pedrl.io.files import remove_temporaries_in
 from pedrl.rl import LinearSchedule
 from pedrl.rl.deep_q import DoubleDQN, DQNSettings
 from pedrl.rl.network import QNetwork, check_hidden, head_outputs
-from pedrl.rl.neural import NeuralPolicy
+from pedrl.rl.neural import NeuralPolicy, input_width
 from pedrl.rl.qtable import NUM_ACTIONS
 from pedrl.rl.replay import ReplayBuffer
 from pedrl.sim import RoomEnv
@@ -91,6 +91,8 @@ class DQN:
         hidden: widths of the hidden layers.
         head: the network's last layer, ``joint`` (a value per action) or ``branching`` (a state value and an
             advantage per speed and per turn index: :data:`pedrl.rl.network.HEADS`).
+        neighbour_velocity: the network also reads each sensed neighbour's velocity in the goal frame (beside the
+            28 features, which give only its closing speed: :mod:`pedrl.sim.sensing`).
         learning_rate: Adam's step size.
         gamma: discount.
         batch_size: transitions per process and gradient step.
@@ -122,6 +124,7 @@ class DQN:
         gather_trials: int = 2,
         hidden: Sequence[int] = (256, 256),
         head: str = "joint",
+        neighbour_velocity: bool = False,
         learning_rate: float = 5e-4,
         gamma: float = 0.91,
         batch_size: int = 256,
@@ -164,7 +167,7 @@ class DQN:
             gather_trials,
         )
         self.learning_rate, self.buffer_size, self.hidden = learning_rate, buffer_size, tuple(hidden)
-        self.head = head
+        self.head, self.neighbour_velocity = head, neighbour_velocity
         self.settings = DQNSettings(gamma, batch_size, learning_starts, train_every, gradient_steps, target_every,
                                     reward_scale, max_grad_norm, replay_balance == "room")  # fmt: skip
         self.schedule = LinearSchedule(epsilon_start, epsilon_end, max(1, round(epsilon_decay_fraction * trials)))
@@ -182,7 +185,7 @@ class DQN:
         self.encoder_settings = EncoderSettings.for_room(
             self.env, distance_transform=self.vq.distance_transform
         ).spanning(self.mix)
-        self.width = self.encoder_settings.num_features + self.encoder_settings.num_neighbours
+        self.width = input_width(self.encoder_settings, neighbour_velocity=neighbour_velocity)
         check_memory(
             self.memory_needs(),
             device=self.device,
@@ -310,7 +313,8 @@ class DQN:
     def make_policy(self, network: QNetwork, mean: torch.Tensor, std: torch.Tensor) -> NeuralPolicy:
         """The run's policy over ``network`` (its rooms ``p E .. p E + E - 1`` act with process ``p``'s network)."""
         return NeuralPolicy(StateEncoder(self.encoder_settings), network, mean, std,
-                            rooms_per_process=self.rooms_per_process)  # fmt: skip
+                            rooms_per_process=self.rooms_per_process,
+                            neighbour_velocity=self.neighbour_velocity)  # fmt: skip
 
     def _learn(self, phases: list[Phase], start: int, record: RunRecord):
         """The trials from global trial ``start`` on, each logged, with the checkpoints."""
@@ -422,5 +426,6 @@ def _check_settings(settings: Mapping[str, Any]) -> None:
     check_epsilons(settings["epsilon_start"], settings["epsilon_end"])
     check_number("epsilon_decay_fraction", settings["epsilon_decay_fraction"], low=0.0, high=1.0, low_open=True)
     check_integer("checkpoint_every", settings["checkpoint_every"], minimum=0)
+    check_bool("neighbour_velocity", settings["neighbour_velocity"])
     check_bool("progress", settings["progress"])
     check_bool("logger.tensorboard", settings["tensorboard"])

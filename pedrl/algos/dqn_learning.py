@@ -77,11 +77,8 @@ class DeepQLearner(Driver):
 
     def _encode(self, obs: torch.Tensor, info: Mapping[str, Any], mask: torch.Tensor) -> torch.Tensor:
         """Network inputs ``(R N, D)`` of the agents in ``mask``; zeros for the others."""
-        flat = obs.reshape(-1, obs.shape[-1])
-        num_sensed = info["num_sensed"].reshape(-1)
-        inputs = torch.zeros(flat.shape[0], self.policy.num_inputs, device=flat.device)
+        inputs = torch.zeros(mask.shape[0], self.policy.num_inputs, device=obs.device)
         rows = torch.nonzero(mask).squeeze(1)
         if rows.shape[0]:
-            chosen = self.policy.inputs(flat.index_select(0, rows), num_sensed.index_select(0, rows), info["decision"])
-            inputs.index_copy_(0, rows, chosen)
+            inputs.index_copy_(0, rows, self.policy.info_inputs(obs, info, rows))
         return inputs

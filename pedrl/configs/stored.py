@@ -24,7 +24,11 @@ HISTORICAL_VALUES: Final = {
     "env.contact": "stop",  # the flat keys of the motion model (pedrl.configs.motion), before env.motion named one
     "env.time_gap": 1.0,
     "env.motion": "step",
+    "env.reward_deviation": 0.0,
     "algo.value_transfer": False,
+    "algo.head": "joint",
+    "algo.replay_balance": "none",
+    "algo.neighbour_velocity": False,
     "algo.tables": "agent",
     "algo.void_draws": "decision",
     "vq.distance_transform": "none",
@@ -33,7 +37,8 @@ HISTORICAL_VALUES: Final = {
 }
 """Keys added after checkpoints were first written, with the value the runs of older checkpoints had (one table per
 agent, raw distances and void fillings drawn at every encode came before their keys; every trial ran the torch loop
-before the fused one)."""
+before the fused one; the neural learner's first networks had the joint head, a uniform memory and the 28 features
+alone; no run paid for deviation before its key)."""
 MAX_CONFIG_DEPTH: Final = 16
 """Deepest nesting of a stored config (a run's config is 4 deep: ``scenario.exits[0][1]``)."""
 MAX_CONFIG_STRING: Final = 4096

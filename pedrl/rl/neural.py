@@ -37,6 +37,8 @@ class NeuralPolicy:
         mean, std: ``(F,)`` the standardisation of the prepared features.
         rooms_per_process: E of the replica-to-process rule; 1 for a loaded policy.
         metadata: plain values carried with the policy (the algorithm, the training config).
+        neighbour_velocity: the network also reads each neighbour slot's velocity in the goal frame (the room's
+            ``info["neighbour_velocity"]``, m/s, 0 in empty slots; ``algo.neighbour_velocity``).
     """
 
     def __init__(
@@ -48,8 +50,10 @@ class NeuralPolicy:
         *,
         rooms_per_process: int = 1,
         metadata: Mapping[str, Any] | None = None,
+        neighbour_velocity: bool = False,
     ) -> None:
         self.encoder, self.network = encoder, network
+        self.neighbour_velocity = neighbour_velocity
         self.mean, self.std = mean, std
         self.metadata = dict(metadata or {})
         self.layout = TableLayout(network.processes, 1, 1, rooms_per_process)
@@ -69,7 +73,8 @@ class NeuralPolicy:
 
     @property
     def num_inputs(self) -> int:
-        """Width of a network input: the prepared features and one presence flag per neighbour slot."""
+        """Width of a network input: the prepared features, one presence flag per neighbour slot and, with
+        ``neighbour_velocity``, two velocity components per slot."""
         return self.network.widths[0]
 
     @property
@@ -77,12 +82,31 @@ class NeuralPolicy:
         return self.mean.device
 
     # ------------------------------------------------------------------ inputs and values
-    def inputs(self, obs: torch.Tensor, num_sensed: torch.Tensor, decision: int) -> torch.Tensor:
-        """Network inputs ``(B, F + k)`` of observations ``(B, F)`` with ``num_sensed (B,)`` neighbours (module
-        docstring of :mod:`pedrl.rl.network`)."""
+    def inputs(
+        self, obs: torch.Tensor, num_sensed: torch.Tensor, decision: int, velocity: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """Network inputs ``(B, D)`` of observations ``(B, F)`` with ``num_sensed (B,)`` neighbours (module
+        docstring of :mod:`pedrl.rl.network`) and, for a policy that reads them, their velocities ``(B, k, 2)``."""
         prepared = self.encoder.prepare(obs, num_sensed, decision, None)
         present = (self._slots < num_sensed.unsqueeze(-1)).to(prepared.dtype)
-        return torch.cat(((prepared - self.mean) / self.std, present), dim=-1)
+        parts = [(prepared - self.mean) / self.std, present]
+        if self.neighbour_velocity:
+            if velocity is None:
+                raise ValueError("this policy reads the neighbours' velocities: pass info['neighbour_velocity']")
+            parts.append(velocity.reshape(velocity.shape[0], -1).to(prepared.dtype))
+        return torch.cat(parts, dim=-1)
+
+    def info_inputs(self, obs: torch.Tensor, info: Mapping[str, Any], rows: torch.Tensor | None = None) -> torch.Tensor:
+        """:meth:`inputs` of the flattened ``obs (R, N, F)`` and ``info`` as a room returns them, of the agents
+        ``rows`` of the flat batch (all when None)."""
+        flat, num_sensed = obs.reshape(-1, obs.shape[-1]), info["num_sensed"].reshape(-1)
+        velocity = None
+        if self.neighbour_velocity:
+            velocity = info["neighbour_velocity"].reshape(flat.shape[0], -1, 2)
+        if rows is not None:
+            flat, num_sensed = flat.index_select(0, rows), num_sensed.index_select(0, rows)
+            velocity = None if velocity is None else velocity.index_select(0, rows)
+        return self.inputs(flat, num_sensed, info["decision"], velocity)
 
     def values(self, inputs: torch.Tensor, process: torch.Tensor, *, network: QNetwork | None = None) -> torch.Tensor:
         """Q-values ``(B, U)`` of ``inputs (B, D)``, row ``b`` through process ``process[b]``'s network (of
@@ -131,7 +155,7 @@ class NeuralPolicy:
             generator = self._generator
         replicas, agents = obs.shape[0], obs.shape[1]
         process, _ = self.layout.of(replicas, agents, obs.device)
-        flat = self.inputs(obs.reshape(replicas * agents, -1), info["num_sensed"].reshape(-1), info["decision"])
+        flat = self.info_inputs(obs, info)
         with torch.no_grad():
             values = self.values(flat, process)
         return self.choose(values, epsilon, generator).view(replicas, agents)
@@ -145,11 +169,12 @@ class NeuralPolicy:
         """One-line ``ValueError`` unless the network reads the encoder's features and presence flags, gives
         ``num_actions`` values (when given), and the standardisation is finite with a positive spread."""
         settings = self.encoder.settings
-        width = settings.num_features + settings.num_neighbours
+        width = input_width(settings, neighbour_velocity=self.neighbour_velocity)
         if self.num_inputs != width:
+            velocities = f" and {2 * settings.num_neighbours} velocity components" if self.neighbour_velocity else ""
             raise ValueError(
-                f"the network reads {self.num_inputs} inputs: must read {width} ({settings.num_features} features "
-                f"and {settings.num_neighbours} presence flags)"
+                f"the network reads {self.num_inputs} inputs: must read {width} ({settings.num_features} features, "
+                f"{settings.num_neighbours} presence flags{velocities})"
             )
         if num_actions is not None and self.num_actions != num_actions:
             raise ValueError(f"the network gives {self.num_actions} values: must give {num_actions}, one per action")
@@ -218,9 +243,17 @@ def neural_from_tensors(
     for name in INPUT_KEYS:
         if name not in tensors:
             raise ValueError(f"tensor {name} is missing")
-    policy = NeuralPolicy(StateEncoder(settings), network, *(tensors[name] for name in INPUT_KEYS), metadata=metadata)
+    velocity = widths[0] == input_width(settings, neighbour_velocity=True)  # the width tells
+    policy = NeuralPolicy(StateEncoder(settings), network, *(tensors[name] for name in INPUT_KEYS), metadata=metadata,
+                          neighbour_velocity=velocity)  # fmt: skip
     policy.check(num_actions)
     return policy
+
+
+def input_width(settings: EncoderSettings, *, neighbour_velocity: bool = False) -> int:
+    """Width of a network input over ``settings``' features: ``F + k`` (presence flags), ``+ 2k`` with the
+    neighbours' velocities."""
+    return settings.num_features + settings.num_neighbours * (3 if neighbour_velocity else 1)
 
 
 class NeuralController(PolicyController):

@@ -351,7 +351,8 @@ class RoomEnv:
             ``max_decisions``), and ``info`` with ``crashed_agent``, ``crashed_wall``, ``reached`` bool
             ``(R, N)`` (left through its own exit: the goal; one that leaves through another group's exit, as a
             corridor walker stepping back out of the end it started at, gets no goal reward and is not counted),
-            ``num_sensed`` int64 ``(R, N)``, ``neighbour_mask`` bool ``(R, N, k)``, ``speed`` float32 ``(R, N)``
+            ``num_sensed`` int64 ``(R, N)``, ``neighbour_mask`` bool ``(R, N, k)``, ``neighbour_velocity`` float32
+            ``(R, N, k, 2)`` (beside the state: :mod:`pedrl.sim.sensing`), ``speed`` float32 ``(R, N)``
             (m/s after the step) and ``decision`` (int, the trial clock). Agents inactive before the step get obs 0
             and reward 0; an agent truncated by this step still gets its final observation (it is still in the
             room), one that left gets 0.
@@ -503,6 +504,7 @@ class RoomEnv:
             "reached": reached,
             "num_sensed": observation.num_sensed,
             "neighbour_mask": observation.neighbour_mask,
+            "neighbour_velocity": observation.neighbour_velocity,
             "speed": self.speeds,
             "decision": self.decision,
         }

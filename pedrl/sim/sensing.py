@@ -20,6 +20,12 @@ index    name                        definition                                 
 
 Neighbours and walls are sorted nearest first. Neighbour slots without a neighbour are 0 and flagged False in
 the neighbour mask.
+
+Beside the state, not part of it: each sensed neighbour's velocity in the agent's goal frame,
+``neighbour_velocity (R, N, k, 2)`` = ``(v_j . e_phi, v_j . e_phi_perp)`` (m/s; ``e_phi`` the unit vector of the
+reference line, ``e_phi_perp`` it turned a quarter left), 0 in empty slots. The paper's state gives only the
+closing speed of a neighbour; a learner that reads this (``algo.neighbour_velocity`` of the neural learner) can tell a
+walker coming at it from a slower one ahead.
 """
 
 from __future__ import annotations
@@ -125,11 +131,14 @@ class Observation:
         features: States ``(R, N, 3 + 3k + 2w)`` float32; rows of non-observers are 0.
         num_sensed: Neighbours sensed ``(R, N)`` int64, ``min(sensed others, k)``; 0 for non-observers.
         neighbour_mask: Which neighbour slots hold a neighbour ``(R, N, k)`` bool.
+        neighbour_velocity: Each slot's neighbour's velocity in the goal frame ``(R, N, k, 2)`` float32 (module
+            docstring), 0 in empty slots and for non-observers.
     """
 
     features: torch.Tensor
     num_sensed: torch.Tensor
     neighbour_mask: torch.Tensor
+    neighbour_velocity: torch.Tensor
 
 
 def observe(
@@ -188,12 +197,14 @@ def observe(
         velocity_x, velocity_y = velocities[..., X], velocities[..., Y]
         closing_x = torch.gather(velocity_x.unsqueeze(1).expand(*shape, num_agents), 2, nearest)
         closing_y = torch.gather(velocity_y.unsqueeze(1).expand(*shape, num_agents), 2, nearest)
-        closing_x -= velocity_x.unsqueeze(-1)  # v_j - v_i
-        closing_y -= velocity_y.unsqueeze(-1)
+        moving = torch.stack((closing_x, closing_y), dim=-1)  # v_j, (R, N, k', 2)
+        closing_x = closing_x - velocity_x.unsqueeze(-1)  # v_j - v_i
+        closing_y = closing_y - velocity_y.unsqueeze(-1)
         rel_speed = (closing_x * along_x + closing_y * along_y) / distance
         angles.append(torch.atan2(along_y, along_x))
     else:
         neighbour_mask = torch.zeros(*shape, 0, dtype=torch.bool, device=device)
+        moving = torch.zeros(*shape, 0, 2, device=device)
 
     if num_walls > 0:
         offsets = geometry.wall_offsets(positions)  # closest point - p, (R, N, S, 2)
@@ -203,19 +214,25 @@ def observe(
         angles.append(torch.atan2(offsets[..., Y], offsets[..., X]))
 
     reference = torch.atan2(to_goal_y, to_goal_x).unsqueeze(-1)  # phi (R, N, 1)
+    cos_phi, sin_phi = torch.cos(reference), torch.sin(reference)
+    velocity = torch.stack((moving[..., X] * cos_phi + moving[..., Y] * sin_phi,
+                            moving[..., Y] * cos_phi - moving[..., X] * sin_phi), dim=-1)  # fmt: skip
     angle = wrap_angle(torch.cat(angles, dim=-1) - reference)  # (R, N, 1 + k' + w)
     own = torch.stack((speeds, angle[..., 0], torch.hypot(to_goal_x, to_goal_y)), dim=-1)
     parts = [own]
     if slots > 0:
         neighbours = torch.stack((rel_speed, distance, angle[..., 1 : 1 + slots]), dim=-1)  # (R, N, k', 3)
         parts.append(neighbours.masked_fill_(~neighbour_mask.unsqueeze(-1), 0.0).flatten(2))
+    velocity = velocity.masked_fill_(~neighbour_mask.unsqueeze(-1), 0.0)
     if slots < num_neighbours:
         parts.append(torch.zeros(*shape, FEATURES_PER_NEIGHBOUR * (num_neighbours - slots), device=device))
         neighbour_mask = torch.nn.functional.pad(neighbour_mask, (0, num_neighbours - slots))
+        velocity = torch.nn.functional.pad(velocity, (0, 0, 0, num_neighbours - slots))
     if num_walls > 0:
         parts.append(torch.stack((wall_distance, angle[..., 1 + slots :]), dim=-1).flatten(2))  # (R, N, 2w)
     features = torch.cat(parts, dim=-1).masked_fill_(~observers.unsqueeze(-1), 0.0)
-    return Observation(features=features, num_sensed=neighbour_mask.sum(-1), neighbour_mask=neighbour_mask)
+    return Observation(features=features, num_sensed=neighbour_mask.sum(-1), neighbour_mask=neighbour_mask,
+                       neighbour_velocity=velocity)  # fmt: skip
 
 
 @lru_cache(maxsize=16)

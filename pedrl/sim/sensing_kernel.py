@@ -37,13 +37,15 @@ from pedrl._numba import cached_njit
 from pedrl.sim.grid_kernel import RELATIVE_SLACK, SLACK, bin_points, bin_segments, cell_range, make_cells
 from pedrl.sim.motion.common import Search
 
-__all__ = ["sense_room", "wrap", "wrap_difference"]
+__all__ = ["NO_VELOCITY", "sense_room", "wrap", "wrap_difference"]
 
 _PI = np.float32(np.pi)
 _TWO_PI = np.float32(2.0 * np.pi)
 _CELL_SCALE = np.float32(0.5)
 """The agents' cell size over ``sqrt(area k / n)`` (``n`` present agents in a box of ``area``, ``k`` neighbours):
 about the distance to the ``k``-th nearest at the mean density, so most searches stop after ring 2."""
+NO_VELOCITY = np.zeros((0, 0, 0, 2), np.float32)
+""":func:`sense_room`'s ``velocity`` where nobody reads the neighbours' velocities (the tables' fused trial)."""
 _WALL_GRID_MIN = 64
 """Rooms with fewer wall segments scan them all: a grid of walls pays off only where there are many."""
 _WALL_CELL_SCALE = np.float32(2.0)
@@ -284,12 +286,19 @@ def _goal_features(r, i, state, features):
 
 
 @cached_njit(nogil=True, inline="always")
-def _near_features(r, i, state, phi, count, near_d, near_j, features, num_sensed):
+def _near_features(r, i, state, phi, count, near_d, near_j, features, num_sensed, velocity):
     """The ``count`` neighbours ``near_j`` of agent ``i`` (nearest first) into its features: closing speed, distance,
-    bearing each."""
+    bearing each; and, where ``velocity`` has rooms, each one's velocity in ``i``'s goal frame into
+    ``velocity[r, i]``."""
     positions, velocities = state.positions, state.velocities
     x, y = positions[r, i, 0], positions[r, i, 1]
     num_sensed[r, i] = count
+    if velocity.shape[0] > 0:
+        cos_phi, sin_phi = np.cos(phi), np.sin(phi)
+        for slot in range(count):
+            j = near_j[slot]
+            velocity[r, i, slot, 0] = velocities[r, j, 0] * cos_phi + velocities[r, j, 1] * sin_phi
+            velocity[r, i, slot, 1] = velocities[r, j, 1] * cos_phi - velocities[r, j, 0] * sin_phi
     for slot in range(count):
         j = near_j[slot]
         along_x, along_y = positions[r, j, 0] - x, positions[r, j, 1] - y
@@ -313,7 +322,7 @@ def _wall_features(r, i, state, walls, phi, count, wall_s, first, features):
 
 
 @cached_njit(nogil=True)
-def _sense_grid(r, state, present, walls, slots, w, first, scale, features, num_sensed, distances, indices):
+def _sense_grid(r, state, present, walls, slots, w, first, scale, features, num_sensed, distances, indices, velocity):
     """:func:`sense_room` by the grids (module docstring), the agents queried cell by cell (near in memory)."""
     positions = state.positions
     near_d, wall_d, near_j, wall_s = distances[0], distances[1], indices[0], indices[1]
@@ -327,7 +336,7 @@ def _sense_grid(r, state, present, walls, slots, w, first, scale, features, num_
         x, y = positions[r, i, 0], positions[r, i, 1]
         phi = _goal_features(r, i, state, features)
         count = _nearest_agents(i, x, y, binned, cells, slots, near_d, near_j, scale, margin) if listed else 0
-        _near_features(r, i, state, phi, count, near_d, near_j, features, num_sensed)
+        _near_features(r, i, state, phi, count, near_d, near_j, features, num_sensed, velocity)
         count = 0
         if wall_grid[2].shape[0] > 0 and w > 0:
             count = _nearest_walls(i, x, y, walls, wall_grid, w, wall_d, wall_s, scale)
@@ -346,24 +355,27 @@ def room_search(room):
 
 
 @cached_njit(nogil=True)
-def sense_room(r, state, present, walls, k, w, search, features, num_sensed, distances, indices):
+def sense_room(r, state, present, walls, k, w, search, features, num_sensed, distances, indices, velocity):
     """The deictic states of room ``r``'s ``present`` agents (:func:`pedrl.sim.sensing.observe` with observers and
     sensed both ``present``) into ``features[r]`` and ``num_sensed[r]``; the others get 0.
 
     ``walls`` is :class:`pedrl.sim.geometry.Walls`, ``state`` :class:`pedrl.sim.state.KernelState`; ``k`` and ``w``
     the neighbour and wall slots; ``search`` the neighbour search (:class:`pedrl.sim.motion.common.Search`, the room's
     :func:`room_search`: grids from ``search.min_agents`` agents, :func:`_sense_grid`). ``distances`` float32 and
-    ``indices`` int64 ``(2, max(N, S))`` are scratch.
+    ``indices`` int64 ``(2, max(N, S))`` are scratch. ``velocity`` float32 ``(R, N, k, 2)`` takes each sensed
+    neighbour's velocity in the goal frame (the observation's ``neighbour_velocity``; 0 in empty slots), or has no
+    rooms (:data:`NO_VELOCITY`) where nobody reads it.
     """
     positions = state.positions
     num_agents = positions.shape[1]
     slots = min(k, num_agents - 1)
     features[r] = np.float32(0.0)
     num_sensed[r] = 0
+    if velocity.shape[0] > 0:
+        velocity[r] = np.float32(0.0)
     if num_agents >= search.min_agents:
-        _sense_grid(
-            r, state, present, walls, slots, w, 3 + 3 * k, search.reach_scale, features, num_sensed, distances, indices
-        )
+        _sense_grid(r, state, present, walls, slots, w, 3 + 3 * k, search.reach_scale, features, num_sensed, distances,
+                    indices, velocity)  # fmt: skip
         return
     near_d, wall_d, near_j, wall_s = distances[0], distances[1], indices[0], indices[1]
     for i in range(num_agents):
@@ -376,7 +388,7 @@ def sense_room(r, state, present, walls, k, w, search, features, num_sensed, dis
             if j != i and present[r, j] and slots > 0:
                 gap_x, gap_y = positions[r, j, 0] - x, positions[r, j, 1] - y
                 count = _insert(near_d, near_j, count, slots, gap_x * gap_x + gap_y * gap_y, j)
-        _near_features(r, i, state, phi, count, near_d, near_j, features, num_sensed)
+        _near_features(r, i, state, phi, count, near_d, near_j, features, num_sensed, velocity)
         count = 0  # the w nearest walls, nearest first, chosen by squared distance
         for s in range(walls.starts.shape[0]):
             off_x, off_y = _wall_offset(x, y, s, walls)

@@ -127,6 +127,7 @@ def _run_process(
     batch = slice(first * num_agents, (first + rooms) * num_agents)  # the process's rooms, flat
     size = max(num_agents, walls.starts.shape[0])
     distances, indices = np.empty((2, size), np.float32), np.empty((2, size), np.int64)
+    no_velocity = np.zeros((0, 0, 0, 2), np.float32)  # the tables read no neighbour velocity
     buffers = encode_buffers(num_agents, features.shape[2])
     scratch = act_scratch(num_agents)
     errors = np.empty(rooms * num_agents, np.float32)
@@ -146,7 +147,7 @@ def _run_process(
             _record(r, 0, state, active, trace)
         if random_void:
             draw_void(r, void, streams)
-        sense_room(r, state, active, walls, k, w, search, features, num_sensed, distances, indices)
+        sense_room(r, state, active, walls, k, w, search, features, num_sensed, distances, indices, no_velocity)
         if is_factored:
             encode_factored_room(r, active, base_rows, sets, features, num_sensed, settings, factored, x)
         elif not greedy:
@@ -167,7 +168,8 @@ def _run_process(
                 _record(r, (steps + trace.every) // trace.every, state, acting, trace)
             if random_void and learning.void_each_decision:
                 draw_void(r, void, streams)
-            sense_room(r, state, events.in_room, walls, k, w, search, features, num_sensed, distances, indices)
+            sense_room(r, state, events.in_room, walls, k, w, search, features, num_sensed, distances, indices,
+                       no_velocity)  # fmt: skip
             if is_factored:
                 encode_factored_room(r, events.in_room, base_rows, next_sets, features, num_sensed, settings, factored,
                                      x)  # fmt: skip

@@ -33,11 +33,13 @@ __all__ = ["CompiledRoom", "step_rooms"]
 
 
 @cached_njit(nogil=True, parallel=True)
-def step_rooms(first, state, actions, room, walls, exits, routes, work, events, features, num_sensed, streams):
+def step_rooms(first, state, actions, room, walls, exits, routes, work, events, features, num_sensed, velocity,
+               streams):  # fmt: skip
     """One decision of every room in parallel (``first``: the rooms' first observation instead, after a reset):
     act (:func:`~pedrl.sim.step_kernel.act_room`: the ``actions`` ``(R, N)``, the move, the exits, the clock, the
-    rewards into ``events``), then sense the agents still in each room into ``features (R, N, F)`` and
-    ``num_sensed (R, N)`` (:func:`~pedrl.sim.sensing_kernel.sense_room`). ``state`` is updated in place."""
+    rewards into ``events``), then sense the agents still in each room into ``features (R, N, F)``,
+    ``num_sensed (R, N)`` and ``velocity (R, N, k, 2)`` (:func:`~pedrl.sim.sensing_kernel.sense_room`). ``state`` is
+    updated in place."""
     rooms, num_agents = actions.shape
     size = max(num_agents, walls.starts.shape[0])
     for r in prange(rooms):
@@ -50,7 +52,7 @@ def step_rooms(first, state, actions, room, walls, exits, routes, work, events, 
             act_room(r, state, actions, room, walls, exits, routes, work, events, scratch)
             present = events.in_room
         sense_room(r, state, present, walls, room.num_neighbours, room.num_walls, room_search(room), features,
-                   num_sensed, distances, indices)  # fmt: skip
+                   num_sensed, distances, indices, velocity)  # fmt: skip
 
 
 class CompiledRoom:
@@ -73,6 +75,7 @@ class CompiledRoom:
         self._events = Events.allocate(rooms, agents)
         self._features = np.zeros((rooms, agents, env.num_features), np.float32)
         self._num_sensed = np.zeros((rooms, agents), np.int64)
+        self._velocity = np.zeros((rooms, agents, env.params.num_neighbours, 2), np.float32)
         self._actions = np.zeros((rooms, agents), np.int64)
         self._streams = np.empty(rooms, np.uint64)
         self._state = None
@@ -124,7 +127,8 @@ class CompiledRoom:
     def _run(self, *, first: bool) -> None:
         inputs = self._inputs
         step_rooms(first, self._state, self._actions, inputs.room, inputs.walls, inputs.exits, inputs.routes,
-                   self._work, self._events, self._features, self._num_sensed, self._streams)  # fmt: skip
+                   self._work, self._events, self._features, self._num_sensed, self._velocity,
+                   self._streams)  # fmt: skip
 
     def _observation(self) -> tuple[torch.Tensor, Mapping[str, Any]]:
         events = self._events
@@ -135,6 +139,7 @@ class CompiledRoom:
             "reached": torch.from_numpy(events.goal.copy()),
             "num_sensed": num_sensed,
             "neighbour_mask": self._slots < num_sensed.unsqueeze(-1),
+            "neighbour_velocity": torch.from_numpy(self._velocity.copy()),
             "speed": torch.from_numpy(self._state.speeds.copy()),
             "decision": self.env.decision,
         }

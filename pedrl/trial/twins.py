@@ -52,6 +52,7 @@ class Tolerances:
             or a wall within float32 rounding can go either way).
         id_share: Share of encoded agents whose state id may differ (near-ties of two prototypes).
         table: Q values after a TD update of the same transitions (absolute).
+        velocity: The neighbours' velocities beside the state (m/s, absolute; ``info["neighbour_velocity"]``).
     """
 
     feature: float = 1e-5
@@ -61,6 +62,7 @@ class Tolerances:
     flag_share: float = 0.01
     id_share: float = 0.01
     table: float = 1e-6
+    velocity: float = 1e-5
 
 
 TOLERANCES: Final = Tolerances()
@@ -82,6 +84,7 @@ class TwinReport:
     flag_mismatches: int = 0
     id_mismatches: int = 0
     table: float = 0.0
+    velocity_error: float = 0.0
     other: list[str] | None = None
     """Differences that no tolerance allows (the active flags, waypoint stages, numbers of sensed neighbours)."""
 
@@ -90,9 +93,10 @@ class TwinReport:
         out = list(self.other or [])
         if self.feature_excess > 0:
             out.append(f"a feature is {self.feature_excess:.3g} over its bound")
-        for name in ("position", "speed", "reward", "table"):
-            if getattr(self, name) > getattr(tolerances, name):
-                out.append(f"{name} differs by {getattr(self, name):.3g} (tolerance {getattr(tolerances, name)})")
+        for name in ("position", "speed", "reward", "table", "velocity"):
+            error = getattr(self, "velocity_error" if name == "velocity" else name)
+            if error > getattr(tolerances, name):
+                out.append(f"{name} differs by {error:.3g} (tolerance {getattr(tolerances, name)})")
         if self.flag_mismatches > tolerances.flag_share * max(self.agent_decisions, 1):
             out.append(f"{self.flag_mismatches} of {self.agent_decisions} agent decisions' flags differ")
         if self.id_mismatches > tolerances.id_share * max(self.encoded, 1):
@@ -147,15 +151,18 @@ def check_twins(
         # ---- sense: from the torch state after the step
         features = np.zeros((rooms, agents, env.num_features), np.float32)
         num_sensed = np.zeros((rooms, agents), np.int64)
+        velocity = np.zeros((rooms, agents, params.num_neighbours, 2), np.float32)
         size = max(agents, env.geometry.num_walls)
         mine = env.state.arrays()
         in_room = (acting & ~terminated).numpy()  # terminated: passed any exit
         for r in range(rooms):
             sense_room(r, mine, in_room, inputs.walls, params.num_neighbours, params.num_walls,
                        room_search(inputs.room), features, num_sensed, np.empty((2, size), np.float32),
-                       np.empty((2, size), np.int64))  # fmt: skip
+                       np.empty((2, size), np.int64), velocity)  # fmt: skip
         if not np.array_equal(num_sensed, info["num_sensed"].numpy()):
             report.other.append(f"decision {report.decisions}: the numbers of sensed neighbours differ")
+        gap = float(np.abs(velocity - info["neighbour_velocity"].numpy()).max(initial=0.0))
+        report.velocity_error = max(report.velocity_error, gap)
         present = torch.from_numpy(in_room)
         _compare_features(report, env, torch.from_numpy(features), obs, present, angles, tolerances.feature)
         # ---- encode: from the torch features, with the same void fillings

@@ -68,9 +68,34 @@ def test_dqn_other_seed_other_numbers(train_config, tmp_path):
     assert not torch.equal(a["network/w0"], b["network/w0"])
 
 
-def test_dqn_killed_mid_run_resumes_to_the_same_network_memory_and_curve(train_config, tmp_path, monkeypatch):
-    overrides = (*DQN, "checkpoint_every=3", "algo.trials=14")
+@pytest.mark.parametrize("inputs", [(), ("algo.neighbour_velocity=true",)], ids=["state", "neighbour_velocity"])
+def test_dqn_killed_mid_run_resumes_to_the_same_network_memory_and_curve(inputs, train_config, tmp_path, monkeypatch):
+    overrides = (*DQN, "checkpoint_every=3", "algo.trials=14", *inputs)
     assert_resume_equals_uninterrupted(train_config, overrides, tmp_path, monkeypatch, stop_after=9, tensors="all")
+
+
+def test_a_network_that_reads_the_neighbours_velocities_keeps_them_in_its_file_and_acts_on_them(train_config, tmp_path):
+    """algo.neighbour_velocity: 2k more inputs; its policy file loads as such (the width tells), the inputs carry
+    info["neighbour_velocity"] (other velocities, other values), and a call without them is refused in one line."""
+    from pedrl.policy_files import export_policy
+
+    train(train_config(*DQN, "algo.trials=4", "algo.iterations=1", "algo.neighbour_velocity=true"), run_dir=tmp_path)
+    checkpoint = tmp_path / "checkpoints" / "last.safetensors"
+    policy = load_policy(export_policy(checkpoint, tmp_path / "policy.safetensors"))
+    settings = policy.encoder.settings
+    assert policy.neighbour_velocity and policy.num_inputs == settings.num_features + 3 * settings.num_neighbours
+    room = room_factory(policy)(num_replicas=2, num_agents=4)
+    obs, info = room.reset(seed=1)
+    obs, _, _, _, info = room.step(policy.act(obs, info, generator=torch.Generator().manual_seed(0)))
+    assert bool(info["neighbour_velocity"].abs().sum() > 0)  # walkers in motion
+    inputs = policy.info_inputs(obs, info)
+    width = settings.num_features + settings.num_neighbours
+    torch.testing.assert_close(inputs[:, width:], info["neighbour_velocity"].reshape(inputs.shape[0], -1))
+    still = {**info, "neighbour_velocity": torch.zeros_like(info["neighbour_velocity"])}
+    process = torch.zeros(inputs.shape[0], dtype=torch.int64)
+    assert not torch.equal(policy.values(inputs, process), policy.values(policy.info_inputs(obs, still), process))
+    with pytest.raises(ValueError, match="reads the neighbours' velocities"):
+        policy.inputs(obs.reshape(-1, obs.shape[-1]), info["num_sensed"].reshape(-1), 0)
 
 
 def test_dqn_resume_refuses_another_network(train_config, tmp_path):
@@ -109,6 +134,7 @@ def test_dqn_torch_path_learns_on_the_reference_step(train_config, tmp_path):
         ("algo.gather_trials=1000000000", "this run needs about .* GiB of memory .*gathered states"),
         ("algo.gather_trials=10000000000", "gather_trials=10000000000 is invalid: must be an integer in [1, 10000000"),
         ("algo.reward_scale=-1", "reward_scale=-1"),
+        ("algo.neighbour_velocity=3", "neighbour_velocity=3 is invalid: must be true or false"),
         ("+algo.value_transfer=true", "algo.value_transfer is not a setting of pedrl.algos.DQN"),
     ],
 )

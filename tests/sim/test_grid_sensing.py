@@ -47,21 +47,23 @@ MANY_WALLS = ("ring", "comb")
 
 
 def sense(state: KernelState, present: np.ndarray, walls, k: int, w: int, search: Search):
-    """``sense_room`` of every room: the features and the numbers sensed."""
+    """``sense_room`` of every room: the features, the numbers sensed and the neighbours' velocities."""
     from pedrl.sim.sensing_kernel import sense_room
 
     rooms, agents = present.shape
     features = np.full((rooms, agents, 3 + 3 * k + 2 * w), np.float32(7.0))  # every entry is written
     num_sensed = np.full((rooms, agents), 7, np.int64)
+    velocity = np.full((rooms, agents, k, 2), np.float32(7.0))
     size = max(agents, walls.starts.shape[0])
     for r in range(rooms):
         sense_room(r, state, present, walls, k, w, search, features, num_sensed, np.empty((2, size), np.float32),
-                   np.empty((2, size), np.int64))  # fmt: skip
-    return features, num_sensed
+                   np.empty((2, size), np.int64), velocity)  # fmt: skip
+    return features, num_sensed, velocity
 
 
 def assert_same(grid, pairs) -> None:
     assert np.array_equal(grid[1], pairs[1]), "the numbers sensed differ"
+    assert np.array_equal(grid[2], pairs[2]), "the neighbours' velocities differ"
     rows = np.flatnonzero((grid[0] != pairs[0]).any(-1).reshape(-1))
     first = divmod(int(rows[0]), grid[0].shape[1]) if rows.size else None
     assert rows.size == 0, f"{rows.size} agents' features differ (the first: room, agent {first})"

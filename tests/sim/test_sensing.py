@@ -101,6 +101,17 @@ def test_features_of_a_hand_built_scene_equal_table_1(scene):
     sensed = min(len(positions) - 1, 7)
     assert info["num_sensed"].tolist() == [[sensed] * len(positions)]
     assert info["neighbour_mask"].tolist() == [[[True] * sensed + [False] * (7 - sensed)] * len(positions)]
+    velocity = torch.tensor([expected_velocities(positions, speeds, headings, i) for i in range(len(positions))])
+    torch.testing.assert_close(info["neighbour_velocity"][0], velocity.float(), atol=1e-5, rtol=1e-5)
+
+
+def expected_velocities(positions, speeds, headings, agent, k=7):
+    """Each of the ``k`` nearest others' velocity along and across the agent's line to the door centre (0 past them)."""
+    px, py = positions[agent]
+    phi = math.atan2(LENGTH - py, WIDTH / 2 - px)
+    nearest = sorted((math.dist(q, (px, py)), j) for j, q in enumerate(positions) if j != agent)[:k]
+    rows = [[speeds[j] * math.cos(headings[j] - phi), speeds[j] * math.sin(headings[j] - phi)] for _, j in nearest]
+    return rows + [[0.0, 0.0]] * (k - len(rows))
 
 
 def test_feature_names_follow_the_layout():

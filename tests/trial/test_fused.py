@@ -64,8 +64,9 @@ def scene(name: str, agents: int, contact: str, seed: int, replicas: int = 4, fr
     return env
 
 
-def fused_features(env: RoomEnv, present: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
-    from pedrl.sim.sensing_kernel import sense_room
+def fused_features(env: RoomEnv, present: torch.Tensor, velocity: np.ndarray | None = None):
+    """The kernel's features and numbers sensed (and, into ``velocity`` where given, the neighbours' velocities)."""
+    from pedrl.sim.sensing_kernel import NO_VELOCITY, sense_room
 
     rooms, agents = env.num_replicas, env.num_agents
     features = np.zeros((rooms, agents, env.num_features), np.float32)
@@ -74,8 +75,8 @@ def fused_features(env: RoomEnv, present: torch.Tensor) -> tuple[np.ndarray, np.
     state, search, params = env.state.arrays(), neighbour_search(), env.params
     for r in range(rooms):
         sense_room(r, state, present.numpy(), env.geometry.kernel_walls(), params.num_neighbours, params.num_walls,
-                   search, features, num_sensed, np.empty((2, size), np.float32),
-                   np.empty((2, size), np.int64))  # fmt: skip
+                   search, features, num_sensed, np.empty((2, size), np.float32), np.empty((2, size), np.int64),
+                   NO_VELOCITY if velocity is None else velocity)  # fmt: skip
     return features, num_sensed
 
 
@@ -100,10 +101,12 @@ def test_features_match_the_torch_sensing(name, agents, contact, seed):
         observers=present, sensed=present, geometry=env.geometry, goals=env.targets(),
         num_neighbours=env.params.num_neighbours, num_walls=env.params.num_walls,
     )  # fmt: skip
-    features, num_sensed = fused_features(env, present)
+    velocity = np.full((*env.active.shape, env.params.num_neighbours, 2), np.float32(7.0))  # every entry is written
+    features, num_sensed = fused_features(env, present, velocity)
     assert int(present.sum()) > agents  # a real scene
     assert torch.equal(torch.from_numpy(num_sensed), expected.num_sensed)
     assert_features_close(torch.from_numpy(features), expected.features)
+    torch.testing.assert_close(torch.from_numpy(velocity), expected.neighbour_velocity, rtol=0, atol=1e-5)
 
 
 def test_the_feature_check_fails_on_a_wrong_feature():
