@@ -46,7 +46,7 @@ from pedrl.sim import NOOP_ACTION, RoomEnv
 __all__ = ["REGISTRY_ID", "PedestrianParallelEnv", "make_env", "parallel_env", "register"]
 
 AGENT_PREFIX: Final = "pedestrian_"
-INFO_KEYS: Final = ("crashed_agent", "crashed_wall", "reached", "speed", "num_sensed")
+INFO_KEYS: Final = ("crashed_agent", "crashed_wall", "reached", "speed", "num_sensed", "neighbour_velocity")
 """Per-agent info keys, taken from ``RoomEnv``'s info for the agent (``num_sensed``: the neighbours in its
 observation, the second input of an ONNX model of ``pedrl-export``)."""
 REGISTRY_ID: Final = "pedrl/room_v0"
@@ -110,9 +110,10 @@ class PedestrianParallelEnv(ParallelEnv):
       unknown agent name or an action outside ``[0, 81)`` is a ``ValueError``;
     - the returned dicts are keyed by the agents active before the step; those that reached the door
       (``terminations``, observation 0) or ran out of time (``truncations``) leave ``agents`` afterwards;
-    - infos hold ``crashed_agent``, ``crashed_wall``, ``reached`` (bools), ``speed`` (m/s after the step) and
+    - infos hold ``crashed_agent``, ``crashed_wall``, ``reached`` (bools), ``speed`` (m/s after the step),
       ``num_sensed`` (int: the neighbours the observation holds, which an ONNX model of ``pedrl-export`` reads beside
-      it);
+      it) and ``neighbour_velocity`` (``(k, 2)`` float32: their velocities in the goal frame, the third input of a
+      model trained with ``algo.neighbour_velocity=true``);
     - with no agent left, ``step`` returns empty dicts and does not advance the room.
 
     ``reset(seed, options)`` reseeds the room's generator when ``seed`` is given; ``options`` may hold one
@@ -331,6 +332,7 @@ class PedestrianParallelEnv(ParallelEnv):
                 "reached": bool(values["reached"]),
                 "speed": float(values["speed"]),
                 "num_sensed": int(values["num_sensed"]),
+                "neighbour_velocity": np.asarray(values["neighbour_velocity"], np.float32),  # (k, 2)
             }
         return infos
 

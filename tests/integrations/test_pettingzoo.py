@@ -98,6 +98,9 @@ def test_seeded_rollouts_repeat_and_equal_room_env_stepped_directly():
             assert type(rewards[agent]) is float and rewards[agent] == float(room_reward[0, index])
             assert terminations[agent] is bool(room_terminated[0, index])
             assert truncations[agent] is bool(room_truncated[0, index])
+            velocity = infos[agent].pop("neighbour_velocity")  # an ONNX model's third input, where it reads one
+            np.testing.assert_array_equal(velocity, room_info["neighbour_velocity"][0, index].numpy())
+            assert velocity.dtype == np.float32 and velocity.shape == (room.params.num_neighbours, 2)
             assert infos[agent] == {
                 "crashed_agent": bool(room_info["crashed_agent"][0, index]),
                 "crashed_wall": bool(room_info["crashed_wall"][0, index]),

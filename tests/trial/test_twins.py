@@ -184,6 +184,23 @@ def test_grids_that_drop_neighbours_fail_the_harness(monkeypatch):
     assert report.failures()
 
 
+def test_neighbour_velocities_with_their_components_swapped_fail_the_harness(monkeypatch):
+    """The control of the velocities beside the state: the torch room giving (across, along) for (along, across) is
+    caught, by far more than the tolerance."""
+    from pedrl.sim import env as env_module
+
+    original = env_module.RoomEnv._info
+
+    def swapped(self, observation, **flags):
+        info = original(self, observation, **flags)
+        return {**info, "neighbour_velocity": info["neighbour_velocity"].flip(-1)}
+
+    monkeypatch.setattr(env_module.RoomEnv, "_info", swapped)
+    report = check_twins(room("paper_room", "yield", "goal"), scenario_policies("paper_room")["shared"], seed=7)
+    assert any(failure.startswith("velocity") for failure in report.failures()), report.failures()
+    assert report.velocity_error > 100 * TOLERANCES.velocity
+
+
 def test_the_tolerances_are_the_declared_ones():
     assert (TOLERANCES.feature, TOLERANCES.position, TOLERANCES.flag_share, TOLERANCES.id_share) == (
         1e-5,
@@ -191,6 +208,7 @@ def test_the_tolerances_are_the_declared_ones():
         0.01,
         0.01,
     )
+    assert TOLERANCES.velocity == 1e-5
 
 
 @settings(max_examples=12, deadline=None)
