@@ -371,7 +371,9 @@ class RoomEnv:
         speeds, headings = self.decide(actions, targets)
         table = self.params.rewards
         deviation = (
-            commanded_deviation(speeds, headings, self.positions, targets, self.params.max_speed)
+            commanded_deviation(
+                speeds, headings, self.positions, targets, self.params.max_speed, self.params.deviation_turn
+            )  # fmt: skip
             if table.deviation
             else None
         )

@@ -177,6 +177,9 @@ class RoomParams:
         reward_deviation: Reward per unit of a decision's commanded deviation from the greedy walker's velocity,
             ``(1 - speed / max_speed) + |heading - bearing of the goal point| / pi`` (``<= 0``; 0, the default, and
             the paper: none; :class:`pedrl.sim.rewards.RewardTable`).
+        deviation_turn: Weight of the heading part of that deviation, in ``[0, MAX_DEVIATION_TURN]``: 1 (the default)
+            prices a quarter turn off the goal bearing as half a stop; 0 prices the speed only, so that stepping
+            aside costs nothing and slowing down does.
         compile_sensing: Run the sensing through ``torch.compile`` (inductor; needs a C++ compiler on CPU). Off by
             default: about a third of the sensing saved for 10 to 30 s of compilation per process, and features that
             differ from the eager ones in the last bits (docs/configuration.md).
@@ -216,6 +219,7 @@ class RoomParams:
     goal_depth: float = setting(ANY, host(_AREA), 0.0)
     reward_progress: float = setting(ANY, kernel(np.float32), REWARD_DEFAULTS["reward_progress"])
     reward_deviation: float = setting(ANY, kernel(np.float32), REWARD_DEFAULTS["reward_deviation"])
+    deviation_turn: float = setting(ANY, kernel(np.float32), 1.0)
     compile_sensing: bool = setting(only(False), host("the fast path senses in its own kernel"), False)
     action_frame: str = setting(ANY, kernel(lambda frame: frame == "goal", "goal_frame"), "heading")
     # every model but Simultaneous (Stop only with axis-aligned walls: RoomEnv.fast_path_reason); its time_step

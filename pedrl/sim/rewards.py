@@ -36,6 +36,8 @@ MAX_REWARD: Final = 1e6
 """Largest ``|reward|`` (and ``reward_progress``, per m) accepted. Q values and returns are float32 sums of rewards
 over up to ``max_decisions`` decisions (bounded by ``max|r| / (1 - gamma)`` and ``max|r| * max_decisions``); this
 keeps them about 20 orders of magnitude below float32's 3.4e38 (``reward_goal=1e38`` learned inf and NaN tables)."""
+MAX_DEVIATION_TURN: Final = 10.0
+"""Largest ``deviation_turn`` (the weight of the heading part of the deviation price) accepted."""
 SETTING_PREFIX: Final = "reward_"
 """A reward ``x`` of the table is the room's setting ``reward_x``."""
 
@@ -139,14 +141,19 @@ def compute_rewards(
 
 
 def commanded_deviation(
-    speeds: torch.Tensor, headings: torch.Tensor, positions: torch.Tensor, targets: torch.Tensor, max_speed: float
+    speeds: torch.Tensor,
+    headings: torch.Tensor,
+    positions: torch.Tensor,
+    targets: torch.Tensor,
+    max_speed: float,
+    turn: float = 1.0,
 ) -> torch.Tensor:
     """How far commanded ``speeds`` and ``headings`` ``(R, N)`` lie from the greedy walker's, top speed straight at
-    the goal point, from ``positions`` to ``targets`` ``(R, N, 2)``: ``(1 - speed / max_speed) + |heading - bearing|
-    / pi``, in ``[0, 2]`` (float32)."""
+    the goal point, from ``positions`` to ``targets`` ``(R, N, 2)``: ``(1 - speed / max_speed) + turn |heading -
+    bearing| / pi``, in ``[0, 1 + turn]`` (float32; ``turn`` the room's ``deviation_turn``)."""
     to_goal = targets - positions
     bearings = torch.atan2(to_goal[..., 1], to_goal[..., 0])
-    return (1.0 - speeds / max_speed) + wrap_angle(headings - bearings).abs() / np.float32(np.pi)
+    return (1.0 - speeds / max_speed) + wrap_angle(headings - bearings).abs() / np.float32(np.pi) * turn
 
 
 @cached_njit(nogil=True, inline="always")
@@ -156,7 +163,9 @@ def deviation_kernel(room, speed, heading, position, target):
     if room.reward_deviation == 0:
         return np.float32(0.0)
     bearing = np.arctan2(target[1] - position[1], target[0] - position[0])
-    return (np.float32(1.0) - speed / room.max_speed) + abs(wrap(heading - bearing)) / np.float32(np.pi)
+    return (np.float32(1.0) - speed / room.max_speed) + abs(wrap(heading - bearing)) / np.float32(
+        np.pi
+    ) * room.deviation_turn
 
 
 @cached_njit(nogil=True, inline="always")

@@ -151,6 +151,7 @@ def test_info_keys_shapes_and_dtypes():
         "reached",
         "num_sensed",
         "neighbour_mask",
+        "neighbour_velocity",
         "speed",
         "decision",
     }
@@ -161,6 +162,9 @@ def test_info_keys_shapes_and_dtypes():
         assert info[key].shape == (3, 4) and info[key].dtype == torch.bool
     assert info["num_sensed"].dtype == torch.int64 and info["num_sensed"].tolist() == [[3] * 4] * 3
     assert info["neighbour_mask"].shape == (3, 4, 7) and info["speed"].dtype == torch.float32
+    velocity = info["neighbour_velocity"]
+    assert velocity.shape == (3, 4, 7, 2) and velocity.dtype == torch.float32
+    assert bool((velocity[:, :, 3:] == 0).all())  # three others: the slots past them are empty
     assert isinstance(info["decision"], int) and info["decision"] == 1
     assert env.num_actions == 81 and env.num_features == 28
     assert env.geometry.bounds == (0.0, 0.0, 60.0, 100.0) and env.geometry.num_walls == 5

@@ -96,6 +96,10 @@ def test_the_deviation_prices_a_command_off_top_speed_straight_at_the_goal():
     headings = torch.tensor([[0.0, torch.pi / 2, -torch.pi / 2, 0.0]])
     deviation = commanded_deviation(speeds, headings, positions, targets, max_speed=2.0)
     torch.testing.assert_close(deviation, torch.tensor([[0.0, 0.5, 0.25, 2.0]]))
+    speed_only = commanded_deviation(speeds, headings, positions, targets, max_speed=2.0, turn=0.0)
+    torch.testing.assert_close(speed_only, torch.tensor([[0.0, 0.5, 0.0, 1.0]]))  # deviation_turn=0: speed alone
+    with pytest.raises(ValueError, match=r"^deviation_turn=-1 is invalid: must be a number in \[0, 10\]"):
+        paper_room().room(num_agents=2, deviation_turn=-1)
     with pytest.raises(ValueError, match=r"^reward_deviation=1 is invalid: must be a number in \[-1e\+06, 0\]"):
         RewardTable(deviation=1)
     env = paper_room(width=10.0, length=12.0).room(
@@ -113,6 +117,14 @@ def test_the_deviation_prices_a_command_off_top_speed_straight_at_the_goal():
     plain = info["crashed_agent"] | info["crashed_wall"] | info["reached"]
     assert (~plain).sum() >= 2
     torch.testing.assert_close(turned[~plain], torch.full_like(turned[~plain], -1.0 - 8.0 * 0.25))
+    half = paper_room(width=10.0, length=12.0).room(
+        num_agents=4, action_frame="goal", reward_deviation=-8.0, reward_progress=0.0, reward_default=-1.0,
+        speed_ratios=env.params.speed_ratios, turn_ratios=env.params.turn_ratios, deviation_turn=0.5,
+    )  # fmt: skip
+    half.reset(seed=0)
+    _, turned, _, _, info = half.step(torch.full_like(greedy, 8 * 9 + 7))  # the turn priced at half
+    plain = info["crashed_agent"] | info["crashed_wall"] | info["reached"]
+    torch.testing.assert_close(turned[~plain], torch.full_like(turned[~plain], -1.0 - 8.0 * 0.125))
 
 
 @pytest.mark.skipif(not numba_available(), reason="numba")
@@ -120,7 +132,7 @@ def test_the_kernel_is_the_torch_function_of_one_agent():
     """The twins agree on every combination of flags, with progress and the deviation price."""
     env = paper_room(width=10.0, length=12.0).room(
         num_agents=2, reward_goal=100.0, reward_crash_wall=-15.5, reward_crash_agent=-4.25, reward_progress=1.5,
-        reward_deviation=-2.5,
+        reward_deviation=-2.5, deviation_turn=0.25,
     )  # fmt: skip
     room = env.params.kernel_room(env)
     flags = torch.tensor(list(itertools.product([False, True], repeat=4))).T.reshape(4, 1, 16)
@@ -129,7 +141,7 @@ def test_the_kernel_is_the_torch_function_of_one_agent():
     start, end, target = (torch.rand(1, 16, 2, generator=generator) * 10 for _ in range(3))
     progress = torch.hypot(*(start - target).unbind(-1)) - torch.hypot(*(end - target).unbind(-1))
     speed, heading = torch.rand(1, 16, generator=generator) * 2.5, (torch.rand(1, 16, generator=generator) - 0.5) * 6
-    deviation = commanded_deviation(speed, heading, start, target, env.params.max_speed)
+    deviation = commanded_deviation(speed, heading, start, target, env.params.max_speed, env.params.deviation_turn)
     expected = compute_rewards(
         table=env.params.rewards,
         reached=reached,
@@ -156,8 +168,9 @@ def test_the_kernel_is_the_torch_function_of_one_agent():
 def test_a_reward_lives_in_its_record_its_setting_and_its_default():
     """The worked example of a new reward: a field of RewardTable (rewards.py: the record, its term in the torch
     function and in the kernel), the setting reward_<name> of RoomParams (params.py; the kernels read it from
-    KernelRoom by that name), its row in docs/configuration.md and its default in conf/env/room.yaml. No other module
-    of the package names it: the step, its kernel and the room's checks call the reward's functions by name."""
+    KernelRoom by that name), its row in docs/configuration.md and its default in conf/env/room.yaml; a reward added
+    after checkpoints were written also has the value of their time in pedrl/configs/stored.py. No other module of the
+    package names it: the step, its kernel and the room's checks call the reward's functions by name."""
     root = Path(__file__).resolve().parents[2]
     kernel_source = inspect.getsource(getattr(reward_kernel, "py_func", reward_kernel))
     torch_source = inspect.getsource(compute_rewards)
@@ -169,7 +182,7 @@ def test_a_reward_lives_in_its_record_its_setting_and_its_default():
             for path in (root / "pedrl").rglob("*.py")
             if re.search(rf"\b{setting}\b", path.read_text())
         }
-        assert naming == {"pedrl/sim/rewards.py", "pedrl/sim/params.py"}, (setting, naming)
+        assert naming - {"pedrl/configs/stored.py"} == {"pedrl/sim/rewards.py", "pedrl/sim/params.py"}, naming
         assert setting in RoomParams.__dataclass_fields__ and f"| `{setting}` |" in manual, setting
         assert re.search(rf"^{setting}:", (root / "conf/env/room.yaml").read_text(), re.MULTILINE), setting
         assert f"room.{setting}" in kernel_source and f"table.{item.name}" in torch_source, setting
