@@ -21,7 +21,7 @@ from pedrl.analysis import Recording
 from pedrl.scenarios import Scenario, build_scenario
 from pedrl.sim.geometry import spawn_counts
 from pedrl.validation.framework import Context, NotApplicableError, TestResult, verdict
-from pedrl.validation.measures import crossing_durations, lane_order_frames
+from pedrl.validation.measures import crossing_durations, face_to_face_share, lane_order_frames
 
 LANES_SOURCE: Final = (
     "Feliciani and Nishinari (2016), Phys. Rev. E 94, 032304: Phi (Table V), crossing times (Table II); not a RiMEA"
@@ -104,8 +104,9 @@ def lanes(context: Context) -> TestResult:
 
 def measure_lanes(recording: Recording, direction: np.ndarray) -> dict[str, float | int | None]:
     """The lanes measures of one ratio's runs: mean ``Phi`` and its chance level over the counted frames, the
-    agent-frames counted and the mean agents in the 10 m area per counted frame, and the mean time to cross the area
-    with the share of agents that did."""
+    agent-frames counted and the mean agents in the 10 m area per counted frame, the mean time to cross the area
+    with the share of agents that did, and the share of agent-frames in the area spent face to face with an oncoming
+    walker (:func:`~pedrl.validation.measures.face_to_face_share`)."""
     phi, counts, chance = lane_order_frames(
         recording.positions,
         recording.in_room,
@@ -120,6 +121,9 @@ def measure_lanes(recording: Recording, direction: np.ndarray) -> dict[str, floa
         recording.positions, recording.in_room, direction, window=LANES_WINDOW, frame_rate=recording.frame_rate
     )
     agents = direction.size * recording.in_room.shape[0]
+    facing = face_to_face_share(
+        recording.positions, recording.in_room, direction, window=LANES_WINDOW, radius=recording.radius
+    )
     return {
         "phi": float(phi.mean()) if phi.size else None,
         "phi_chance": float(chance.mean()) if chance.size else None,
@@ -127,6 +131,7 @@ def measure_lanes(recording: Recording, direction: np.ndarray) -> dict[str, floa
         "agents_in_area": float(counts.mean()) if counts.size else None,
         "crossing_s": float(times.mean()) if times.size else None,
         "crossed_share": times.size / agents,
+        "face_to_face_share": facing,
     }
 
 
@@ -191,6 +196,7 @@ def judge_lanes(runs: Mapping[str, tuple[Recording, np.ndarray]]) -> TestResult:
             "crossing_feliciani_s": dict(FELICIANI_CROSSING),
             "crossed_share": per_ratio("crossed_share"),
             "agents_in_area": per_ratio("agents_in_area"),
+            "face_to_face_share": per_ratio("face_to_face_share"),
             "agent_frames": {label: measured.get(label, {}).get("agent_frames") for label in LANES_RATIOS},
         },
         failed=failed,

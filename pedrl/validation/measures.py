@@ -24,8 +24,6 @@ WEIDMANN_RADIUS: Final = math.sqrt(2.0 / (math.sqrt(3.0) * WEIDMANN["rho_max"]))
 
 
 # ---------------------------------------------------------------------------------------------- Weidmann
-
-
 def weidmann_speed(density: Any, *, v0: float, gamma: float, rho_max: float) -> np.ndarray:
     """Weidmann's speed (m/s) at ``density`` (1/m^2), 0 at and above ``rho_max``."""
     density = np.asarray(density, dtype=np.float64)
@@ -172,6 +170,50 @@ def lane_order_frames(
             counts.append(int(here.sum()))
             chances.append(float(orders[1:].mean()) if shuffles else math.nan)
     return np.array(phis), np.array(counts, dtype=np.int64), np.array(chances)
+
+
+FACE_AHEAD: Final = 2.0
+"""How far in front (m) an agent walking the other way counts as faced (:func:`face_to_face_share`): two strides."""
+
+
+def face_to_face_share(
+    positions: np.ndarray,
+    active: np.ndarray,
+    direction: np.ndarray,
+    *,
+    window: tuple[float, float],
+    radius: float,
+    ahead: float = FACE_AHEAD,
+) -> float | None:
+    """The share of the agent-frames in the measurement area ``window`` in which an agent walking the other way is
+    less than ``ahead`` m in front (along the agent's own walking direction) and less than a body's width (two
+    ``radius``) to its side, so that the two cannot pass without one of them stepping aside: the encounters that lanes
+    avoid. On the walking layer it sets the time to cross: a walker facing one walks at about
+    half its free speed, one in a lane behind another at 0.8-0.9 of it (docs/results.md). None where the area holds
+    nobody.
+
+    Args:
+        positions: ``(R, T, N, 2)`` centres (m).
+        active: ``(R, T, N)`` in-room flags.
+        direction: ``(N,)`` +1 / -1, the way each agent walks along x.
+        window: ``(x_min, x_max)`` of the measurement area (m).
+    """
+    facing = counted = 0
+    sign = direction.astype(np.float64)
+    opposite = sign[:, None] != sign[None, :]
+    for replica in range(positions.shape[0]):
+        for frame in range(positions.shape[1]):
+            x, y = positions[replica, frame, :, 0], positions[replica, frame, :, 1]
+            present = active[replica, frame]
+            here = present & (x >= window[0]) & (x <= window[1])
+            if not here.any():
+                continue
+            forward = (x[None, :] - x[:, None]) * sign[:, None]  # [i, j]: how far j is in front of i
+            near = opposite & present[None, :] & (forward > 0) & (forward < ahead)
+            near &= np.abs(y[None, :] - y[:, None]) < 2.0 * radius
+            facing += int(near[here].any(axis=1).sum())
+            counted += int(here.sum())
+    return facing / counted if counted else None
 
 
 def _rows_order(index: np.ndarray, signs: np.ndarray, rows: int) -> np.ndarray:

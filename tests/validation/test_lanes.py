@@ -19,7 +19,7 @@ from pedrl.validation.lanes import (
     lanes_corridor,
     lanes_directions,
 )
-from pedrl.validation.measures import crossing_durations, lane_order_frames
+from pedrl.validation.measures import crossing_durations, face_to_face_share, lane_order_frames
 
 
 def walkers(ratio, *, lanes, speed=1.37, spread=1.0, replicas=2, frames=90, seed=0, agents=LANES_AGENTS):
@@ -88,6 +88,23 @@ def test_crossing_durations_interpolate_between_frames():
     assert times == pytest.approx([10 / 1.3, 10 / 1.3])
 
 
+def test_face_to_face_counts_an_oncoming_walker_close_in_front_only():
+    """Bodies of 0.4 m: agent 0 walks to +x at x = 15 m; one walking the other way 1.5 m in front and 0.7 m aside
+    faces it (and it that one); 0.9 m aside, 3 m ahead, behind, or walking the same way, it does not; outside the
+    area nobody counts."""
+    direction = np.array([1, -1])
+    active = np.ones((1, 1, 2), dtype=bool)
+
+    def share(other, way=-1, at=15.0):
+        positions = np.array([[[[at, 1.0], other]]])
+        return face_to_face_share(positions, active, np.array([1, way]), window=LANES_WINDOW, radius=0.4)
+
+    assert share([16.5, 1.7]) == 1.0  # both face each other
+    assert share([16.5, 1.9]) == share([18.0, 1.0]) == share([13.5, 1.0]) == share([16.5, 1.3], way=1) == 0.0
+    assert share([14.5, 1.3], at=13.0) == 1.0  # only the one inside the area counts: it faces agent 0
+    assert face_to_face_share(np.zeros((1, 1, 2, 2)), active, direction, window=LANES_WINDOW, radius=0.4) is None
+
+
 def test_lanes_at_a_pedestrians_pace_pass_at_3_3_and_every_ratio_is_reported_beside_feliciani():
     row = judge_lanes(every_ratio(lanes=True))
     assert row.passed and row.value == pytest.approx(1.0)
@@ -103,6 +120,9 @@ def test_lanes_at_a_pedestrians_pace_pass_at_3_3_and_every_ratio_is_reported_bes
     )  # fmt: skip
     assert row.details["agents_in_area"]["3:3"] == pytest.approx(counts.mean(), abs=1e-3)
     assert LANES_MIN_AGENTS <= row.details["agents_in_area"]["3:3"] <= LANES_AGENTS
+    lanes = row.details["face_to_face_share"]["3:3"]  # only walkers near the lanes' border (1.4-1.6 m) meet
+    mixed = judge_lanes(every_ratio(lanes=False)).details["face_to_face_share"]["3:3"]
+    assert lanes < 0.1 and mixed > 3 * lanes  # random lateral places: walkers meet head-on
 
 
 def test_lanes_fail_random_mixing_at_the_experiments_density():
