@@ -40,7 +40,8 @@ def interactive(stream: TextIO | None = None) -> bool:
 
 
 class LineProgress:
-    """A bar's stand-in for logs: ``<label>: 40 % (80/200 decisions, 12 s; agents_left=31)`` lines.
+    """A bar's stand-in for logs: ``<label>: 40 % (80/200 decisions, 12 s, at most 18 s left; agents_left=31)``
+    lines; the time left is the pace so far over the rest of the count (at most: a crowd that empties ends early).
 
     Args:
         total: the count at which the work is done (> 0).
@@ -102,7 +103,9 @@ class LineProgress:
     def _write(self, now: float) -> None:
         percent = 100.0 * self.n / self.total
         extra = "; " + ", ".join(f"{key}={value}" for key, value in self.postfix.items()) if self.postfix else ""
-        line = f"{self.label}: {percent:3.0f} % ({self.n}/{self.total} {self.unit}, {now - self.start:.0f} s{extra})"
+        spent = now - self.start
+        left = f", at most {spent / self.n * (self.total - self.n):.0f} s left" if 0 < self.n < self.total else ""
+        line = f"{self.label}: {percent:3.0f} % ({self.n}/{self.total} {self.unit}, {spent:.0f} s{left}{extra})"
         print(line, file=self.stream if self.stream is not None else sys.stderr, flush=True)
 
 

@@ -35,7 +35,7 @@ def test_a_log_gets_a_line_every_ten_percent_of_a_slow_count():
     lines = stream.getvalue().splitlines()
     assert "\r" not in stream.getvalue()
     assert len(lines) == 10
-    assert lines[0] == "100 agents:  10 % (20/200 decisions, 20 s; agents_left=7)"
+    assert lines[0] == "100 agents:  10 % (20/200 decisions, 20 s, at most 180 s left; agents_left=7)"
     assert lines[-1] == "100 agents: 100 % (200/200 decisions, 200 s; agents_left=7)"
 
 
