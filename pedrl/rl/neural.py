@@ -102,6 +102,8 @@ class NeuralPolicy:
         flat, num_sensed = obs.reshape(-1, obs.shape[-1]), info["num_sensed"].reshape(-1)
         velocity = None
         if self.neighbour_velocity:
+            if "neighbour_velocity" not in info:
+                raise ValueError("info holds no 'neighbour_velocity': this policy reads the neighbours' velocities")
             velocity = info["neighbour_velocity"].reshape(flat.shape[0], -1, 2)
         if rows is not None:
             flat, num_sensed = flat.index_select(0, rows), num_sensed.index_select(0, rows)

@@ -96,6 +96,8 @@ def test_a_network_that_reads_the_neighbours_velocities_keeps_them_in_its_file_a
     assert not torch.equal(policy.values(inputs, process), policy.values(policy.info_inputs(obs, still), process))
     with pytest.raises(ValueError, match="reads the neighbours' velocities"):
         policy.inputs(obs.reshape(-1, obs.shape[-1]), info["num_sensed"].reshape(-1), 0)
+    with pytest.raises(ValueError, match="^info holds no 'neighbour_velocity'"):
+        policy.act(obs, {key: value for key, value in info.items() if key != "neighbour_velocity"})
 
 
 def test_dqn_resume_refuses_another_network(train_config, tmp_path):
