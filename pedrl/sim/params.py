@@ -175,8 +175,8 @@ class RoomParams:
             0 is the paper's Table 2, 1 the default): walking to the door at 2 m/s earns ``2 * reward_progress`` per
             decision, standing still 0.
         reward_deviation: Reward per unit of a decision's commanded deviation from the greedy walker's velocity,
-            ``(1 - speed / max_speed) + |heading - bearing of the goal point| / pi`` (``<= 0``; 0, the default, and
-            the paper: none; :class:`pedrl.sim.rewards.RewardTable`).
+            ``(1 - speed / max_speed) + deviation_turn |heading - bearing of the goal point| / pi`` (``<= 0``; 0, the
+            default, and the paper: none; :class:`pedrl.sim.rewards.RewardTable`).
         deviation_turn: Weight of the heading part of that deviation, in ``[0, MAX_DEVIATION_TURN]``: 1 (the default)
             prices a quarter turn off the goal bearing as half a stop; 0 prices the speed only, so that stepping
             aside costs nothing and slowing down does.

@@ -65,10 +65,11 @@ class RewardTable:
         progress: Per metre by which the decision brought the agent closer to its goal point (added to the above;
             0 in the paper).
         deviation: Per unit of the decision's commanded deviation from the greedy walker's velocity (added to the
-            above; at most 0; 0, the default, and in the paper: none): ``(1 - speed / max_speed) + |heading -
-            bearing| / pi`` of the commanded speed and heading against the bearing of the goal point
-            (:func:`commanded_deviation`, in ``[0, 2]``). Where the motion model caps what any command walks (a
-            queue), decisions that walk alike differ by it, and the straight one at top speed is the best.
+            above; at most 0; 0, the default, and in the paper: none): ``(1 - speed / max_speed) + deviation_turn
+            |heading - bearing| / pi`` of the commanded speed and heading against the bearing of the goal point
+            (:func:`commanded_deviation`, in ``[0, 1 + deviation_turn]``). Where the motion model caps what any
+            command walks (a queue), decisions that walk alike differ by it, and the straight one at top speed is the
+            best.
     """
 
     goal: float = _reward(100.0)

@@ -84,7 +84,7 @@ class TwinReport:
     flag_mismatches: int = 0
     id_mismatches: int = 0
     table: float = 0.0
-    velocity_error: float = 0.0
+    velocity: float = 0.0
     other: list[str] | None = None
     """Differences that no tolerance allows (the active flags, waypoint stages, numbers of sensed neighbours)."""
 
@@ -94,9 +94,8 @@ class TwinReport:
         if self.feature_excess > 0:
             out.append(f"a feature is {self.feature_excess:.3g} over its bound")
         for name in ("position", "speed", "reward", "table", "velocity"):
-            error = getattr(self, "velocity_error" if name == "velocity" else name)
-            if error > getattr(tolerances, name):
-                out.append(f"{name} differs by {error:.3g} (tolerance {getattr(tolerances, name)})")
+            if getattr(self, name) > getattr(tolerances, name):
+                out.append(f"{name} differs by {getattr(self, name):.3g} (tolerance {getattr(tolerances, name)})")
         if self.flag_mismatches > tolerances.flag_share * max(self.agent_decisions, 1):
             out.append(f"{self.flag_mismatches} of {self.agent_decisions} agent decisions' flags differ")
         if self.id_mismatches > tolerances.id_share * max(self.encoded, 1):
@@ -162,7 +161,7 @@ def check_twins(
         if not np.array_equal(num_sensed, info["num_sensed"].numpy()):
             report.other.append(f"decision {report.decisions}: the numbers of sensed neighbours differ")
         gap = float(np.abs(velocity - info["neighbour_velocity"].numpy()).max(initial=0.0))
-        report.velocity_error = max(report.velocity_error, gap)
+        report.velocity = max(report.velocity, gap)
         present = torch.from_numpy(in_room)
         _compare_features(report, env, torch.from_numpy(features), obs, present, angles, tolerances.feature)
         # ---- encode: from the torch features, with the same void fillings

@@ -24,6 +24,8 @@ WEIDMANN_RADIUS: Final = math.sqrt(2.0 / (math.sqrt(3.0) * WEIDMANN["rho_max"]))
 
 
 # ---------------------------------------------------------------------------------------------- Weidmann
+
+
 def weidmann_speed(density: Any, *, v0: float, gamma: float, rho_max: float) -> np.ndarray:
     """Weidmann's speed (m/s) at ``density`` (1/m^2), 0 at and above ``rho_max``."""
     density = np.asarray(density, dtype=np.float64)
@@ -188,15 +190,16 @@ def face_to_face_share(
     """The share of the agent-frames in the measurement area ``window`` in which an agent walking the other way is
     less than ``ahead`` m in front (along the agent's own walking direction) and less than a body's width (two
     ``radius``) to its side, so that the two cannot pass without one of them stepping aside: the encounters that lanes
-    avoid. On the walking layer it sets the time to cross: a walker facing one walks at about
-    half its free speed, one in a lane behind another at 0.8-0.9 of it (docs/results.md). None where the area holds
-    nobody.
+    avoid. On the walking layer it sets the time to cross: a walker facing one walks at about half its free speed, one
+    in a lane behind another at 0.8-0.9 of it (docs/results.md). None where the area holds nobody.
 
     Args:
         positions: ``(R, T, N, 2)`` centres (m).
         active: ``(R, T, N)`` in-room flags.
         direction: ``(N,)`` +1 / -1, the way each agent walks along x.
         window: ``(x_min, x_max)`` of the measurement area (m).
+        radius: The bodies' radius (m).
+        ahead: How far in front (m) an oncoming walker counts.
     """
     facing = counted = 0
     sign = direction.astype(np.float64)
