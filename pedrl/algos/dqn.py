@@ -76,6 +76,8 @@ GATHER_COPIES: Final = 2
 """Copies of every gathered state in the memory estimate: as recorded, and concatenated."""
 REPLAY_BALANCES: Final = ("none", "room")
 """How a batch is drawn from the replay memory (``algo.replay_balance``): uniformly, or every room alike."""
+MAX_N_STEP: Final = 100
+"""Largest ``n_step`` (decisions a return sums; the rings keep a horizon in a byte)."""
 MIN_STD: Final = 1e-3
 """A feature whose spread on the random walk is below this (a constant) is standardised by 1 instead."""
 
@@ -95,6 +97,8 @@ class DQN:
             28 features, which give only its closing speed: :mod:`pedrl.sim.sensing`).
         learning_rate: Adam's step size.
         gamma: discount.
+        n_step: decisions a transition's return sums before it bootstraps (1: one-step Q-learning; fewer where the
+            walker's trial ends before).
         batch_size: transitions per process and gradient step.
         buffer_size: transitions each process's replay memory holds.
         replay_balance: ``none`` (batches uniform over the memory) or ``room`` (every room of the run, its own and each
@@ -127,6 +131,7 @@ class DQN:
         neighbour_velocity: bool = False,
         learning_rate: float = 5e-4,
         gamma: float = 0.91,
+        n_step: int = 1,
         batch_size: int = 256,
         buffer_size: int = 100_000,
         replay_balance: str = "none",
@@ -169,7 +174,7 @@ class DQN:
         self.learning_rate, self.buffer_size, self.hidden = learning_rate, buffer_size, tuple(hidden)
         self.head, self.neighbour_velocity = head, neighbour_velocity
         self.settings = DQNSettings(gamma, batch_size, learning_starts, train_every, gradient_steps, target_every,
-                                    reward_scale, max_grad_norm, replay_balance == "room")  # fmt: skip
+                                    reward_scale, max_grad_norm, replay_balance == "room", n_step)  # fmt: skip
         self.schedule = LinearSchedule(epsilon_start, epsilon_end, max(1, round(epsilon_decay_fraction * trials)))
         self.processes, self.rooms_per_process, self.checkpoint_every = processes, rooms_per_process, checkpoint_every
         self.device, self.seed, self.run_dir = check_device(device), seed, Path(run_dir)
@@ -217,7 +222,8 @@ class DQN:
         rooms = [self.env, *self._mix_envs]
         rows = self.gather_trials * sum(r.num_replicas * r.num_agents * r.params.max_decisions for r in rooms)
         return {
-            "replay memory": ReplayBuffer.bytes_needed(self.processes, self.buffer_size, self.width),
+            "replay memory": ReplayBuffer.bytes_needed(self.processes, self.buffer_size, self.width,
+                                                       horizons=self.settings.n_step > 1),  # fmt: skip
             "gathered states": GATHER_COPIES * rows * self.encoder_settings.num_features * 4,
             "networks and Adam": 4 * weights,
             "batch": batch,
@@ -305,10 +311,15 @@ class DQN:
                            generator=self.generator, device=self.device)  # fmt: skip
         self.policy = self.make_policy(network, mean.float().contiguous(), std.float().contiguous())
         self.update = DoubleDQN(self.policy, self.settings, self.learning_rate)
-        self.buffer = ReplayBuffer(self.processes, self.buffer_size, self.width, device=self.device)
+        self.buffer = self.make_buffer()
         self.summary = {"gathered_states": int(states.shape[0]),
                         "gather_success_rate": sum(p.success_rate for p in gathered) / len(gathered),
                         "parameters": network.num_parameters}  # fmt: skip
+
+    def make_buffer(self) -> ReplayBuffer:
+        """An empty replay memory of the run's processes (keeping horizons with n-step returns)."""
+        return ReplayBuffer(self.processes, self.buffer_size, self.width, horizons=self.settings.n_step > 1,
+                            device=self.device)  # fmt: skip
 
     def make_policy(self, network: QNetwork, mean: torch.Tensor, std: torch.Tensor) -> NeuralPolicy:
         """The run's policy over ``network`` (its rooms ``p E .. p E + E - 1`` act with process ``p``'s network)."""
@@ -417,6 +428,7 @@ def _check_settings(settings: Mapping[str, Any]) -> None:
     head_outputs(settings["head"], NUM_ACTIONS)
     check_number("learning_rate", settings["learning_rate"], low=0.0, high=1.0, low_open=True)
     check_number("gamma", settings["gamma"], low=0.0, high=1.0)
+    check_integer("n_step", settings["n_step"], minimum=1, maximum=MAX_N_STEP)
     check_integer("batch_size", settings["batch_size"], minimum=1, maximum=MAX_BATCH)
     check_integer("buffer_size", settings["buffer_size"], minimum=settings["batch_size"])
     check_integer("learning_starts", settings["learning_starts"], minimum=0, maximum=settings["buffer_size"])

@@ -3,7 +3,9 @@ the update (:mod:`pedrl.rl.deep_q`).
 
 At every decision the :class:`DeepQLearner` encodes the agents still in a room, acts epsilon-greedily on their
 process's network, stores each acting agent's transition in its process's ring, and every ``train_every`` decisions
-takes ``gradient_steps`` steps of :class:`pedrl.rl.deep_q.DoubleDQN` on a batch of each ring.
+takes ``gradient_steps`` steps of :class:`pedrl.rl.deep_q.DoubleDQN` on a batch of each ring. With n-step returns
+(``algo.n_step`` > 1) a :class:`pedrl.rl.replay.NStepWindow` holds each trial's last decisions and stores the
+transitions they complete.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ import torch
 
 from pedrl.rl.deep_q import DoubleDQN
 from pedrl.rl.neural import NeuralPolicy
-from pedrl.rl.replay import Batch, ReplayBuffer
+from pedrl.rl.replay import Batch, NStepWindow, ReplayBuffer
 from pedrl.trial.loop import Driver
 
 
@@ -42,6 +44,9 @@ class DeepQLearner(Driver):
 
     def begin(self, env: Any, obs: torch.Tensor, info: Mapping[str, Any]) -> None:
         self._process, _ = self.policy.layout.of(env.num_replicas, env.num_agents, env.device)
+        self._env = env
+        steps = self.update.settings.n_step if self.update is not None else 1
+        self._window = NStepWindow(steps, self.update.settings.gamma) if steps > 1 else None
         self._inputs = self._encode(obs, info, env.active.reshape(-1))
 
     def act(self, env: Any, obs: torch.Tensor, info: Mapping[str, Any]) -> torch.Tensor:
@@ -58,11 +63,14 @@ class DeepQLearner(Driver):
     def observe(self, obs, info, reward, terminated, valid) -> None:
         next_inputs = self._encode(obs, info, valid & ~terminated)
         if self.update is not None:
-            rows = torch.nonzero(valid).squeeze(1)
             scale = self.update.settings.reward_scale
             taken = Batch(self._inputs, self._actions, reward * scale, next_inputs, terminated)
-            self.buffer.add(self._process.index_select(0, rows), Batch(*(t.index_select(0, rows) for t in taken)),
-                            self.room)  # fmt: skip
+            if self._window is None:
+                rows = torch.nonzero(valid).squeeze(1)
+                transitions = Batch(*(t.index_select(0, rows) for t in taken[:5]))
+            else:  # the trial ends for the walkers that left and for those the clock cut
+                rows, transitions = self._window.fold(taken, valid, terminated | ~self._env.active.reshape(-1))
+            self.buffer.add(self._process.index_select(0, rows), transitions, self.room)
             self.update.learn(self.buffer, self.generator)
         self._inputs = next_inputs
 

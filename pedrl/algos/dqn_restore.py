@@ -71,7 +71,7 @@ def load_dqn_resume(trainer: Any, path: str | Path) -> ResumedDQN:
         update = DoubleDQN(policy, trainer.settings, trainer.learning_rate)
         update.load_tensors(tensors)
         update.updates, update.decisions = _count(meta, "updates"), _count(meta, "decisions")
-        buffer = ReplayBuffer(trainer.processes, trainer.buffer_size, trainer.width, device=trainer.device)
+        buffer = trainer.make_buffer()
         buffer.load_tensors(tensors)
         rng = [check_rng_state(name, tensors[name]) if name in tensors else _missing(name) for name in RNG_KEYS]
     except ValueError as err:

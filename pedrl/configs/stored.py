@@ -30,6 +30,7 @@ HISTORICAL_VALUES: Final = {
     "algo.head": "joint",
     "algo.replay_balance": "none",
     "algo.neighbour_velocity": False,
+    "algo.n_step": 1,
     "algo.tables": "agent",
     "algo.void_draws": "decision",
     "vq.distance_transform": "none",
@@ -39,7 +40,7 @@ HISTORICAL_VALUES: Final = {
 """Keys added after checkpoints were first written, with the value the runs of older checkpoints had (one table per
 agent, raw distances and void fillings drawn at every encode came before their keys; every trial ran the torch loop
 before the fused one; the neural learner's first networks had the joint head, a uniform memory and the 28 features
-alone; no run paid for deviation before its key)."""
+alone and one-step returns; no run paid for deviation before its key)."""
 MAX_CONFIG_DEPTH: Final = 16
 """Deepest nesting of a stored config (a run's config is 4 deep: ``scenario.exits[0][1]``)."""
 MAX_CONFIG_STRING: Final = 4096

@@ -1,5 +1,6 @@
 """Double deep Q-learning, the update of the neural learner (van Hasselt, Guez & Silver 2016; the style of CleanRL's
-``dqn.py``): ``y = r + gamma (1 - terminated) Q_target(s', argmax_a Q(s', a))``, a Huber loss on ``Q(s, a) - y``,
+``dqn.py``): ``y = r + gamma (1 - terminated) Q_target(s', argmax_a Q(s', a))`` (with n-step returns ``r`` the
+discounted sum of a transition's ``h`` rewards and ``gamma^h`` the discount), a Huber loss on ``Q(s, a) - y``,
 Adam, the gradient of each learning process clipped to ``max_grad_norm`` on its own, and the target network copied
 from the online one every ``target_every`` steps. A decision cut by the clock bootstraps (it is not terminal), as
 the tables' update does. The driver that feeds it in the trial loop is :class:`pedrl.algos.dqn_learning.DeepQLearner`.
@@ -32,6 +33,8 @@ class DQNSettings:
     max_grad_norm: float
     balanced: bool = False
     """Batches draw every room of the memory equally often (``algo.replay_balance=room``), else uniformly."""
+    n_step: int = 1
+    """Decisions a transition's return sums before it bootstraps (``algo.n_step``; fewer where its trial ended)."""
 
 
 class DoubleDQN:
@@ -66,7 +69,8 @@ class DoubleDQN:
         with torch.no_grad():
             best = network(batch.next_inputs).argmax(dim=2, keepdim=True)
             following = self.target(batch.next_inputs).gather(2, best).squeeze(2)
-            targets = batch.rewards + settings.gamma * torch.where(batch.terminated, 0.0, following)
+            discount = settings.gamma if batch.horizons is None else settings.gamma ** batch.horizons.float()
+            targets = batch.rewards + discount * torch.where(batch.terminated, 0.0, following)
         values = network(batch.inputs).gather(2, batch.actions.unsqueeze(2)).squeeze(2)
         losses = torch.nn.functional.smooth_l1_loss(values, targets, reduction="none").mean(dim=1)  # (P,)
         self.optimizer.zero_grad(set_to_none=True)

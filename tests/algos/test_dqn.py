@@ -25,8 +25,13 @@ def _greedy_return(policy: NeuralPolicy, factory, seed: int = 11) -> float:
     return float(run_crowd(room, controller, fused=None).stats.episodic_return.mean())
 
 
-def test_dqn_learns_to_walk_better_than_its_untrained_network(train_config, tmp_path):
-    train(train_config(*DQN, "algo.trials=60"), run_dir=tmp_path)
+@pytest.mark.parametrize(
+    "returns",
+    [("algo.trials=60",), ("algo.trials=120", "algo.n_step=3")],  # measured at 60 trials: 3-step returns -40, -40
+    ids=["one_step", "n_step"],
+)
+def test_dqn_learns_to_walk_better_than_its_untrained_network(returns, train_config, tmp_path):
+    train(train_config(*DQN, *returns), run_dir=tmp_path)
     learned = load_policy(tmp_path / "checkpoints" / "last.safetensors")
     factory = room_factory(learned)
     untrained = NeuralPolicy(
@@ -36,7 +41,7 @@ def test_dqn_learns_to_walk_better_than_its_untrained_network(train_config, tmp_
         learned.std,
     )
     before, after = _greedy_return(untrained, factory), _greedy_return(learned, factory)
-    assert after > before + 30.0, (before, after)  # measured: -56 before, -6 after
+    assert after > before + 30.0, (before, after)  # measured: -56 before, -6 after (3-step: -17)
 
 
 def test_dqn_writes_a_checkpoint_per_iteration_and_the_tables_curve(train_config, tmp_path):
@@ -68,7 +73,9 @@ def test_dqn_other_seed_other_numbers(train_config, tmp_path):
     assert not torch.equal(a["network/w0"], b["network/w0"])
 
 
-@pytest.mark.parametrize("inputs", [(), ("algo.neighbour_velocity=true",)], ids=["state", "neighbour_velocity"])
+@pytest.mark.parametrize(
+    "inputs", [(), ("algo.neighbour_velocity=true",), ("algo.n_step=3",)], ids=["state", "neighbour_velocity", "n_step"]
+)
 def test_dqn_killed_mid_run_resumes_to_the_same_network_memory_and_curve(inputs, train_config, tmp_path, monkeypatch):
     overrides = (*DQN, "checkpoint_every=3", "algo.trials=14", *inputs)
     assert_resume_equals_uninterrupted(train_config, overrides, tmp_path, monkeypatch, stop_after=9, tensors="all")
@@ -137,6 +144,8 @@ def test_dqn_torch_path_learns_on_the_reference_step(train_config, tmp_path):
         ("algo.gather_trials=10000000000", "gather_trials=10000000000 is invalid: must be an integer in [1, 10000000"),
         ("algo.reward_scale=-1", "reward_scale=-1"),
         ("algo.neighbour_velocity=3", "neighbour_velocity=3 is invalid: must be true or false"),
+        ("algo.n_step=0", "n_step=0 is invalid: must be an integer in [1, 100]"),
+        ("algo.n_step=2.5", "n_step=2.5 is invalid"),
         ("+algo.value_transfer=true", "algo.value_transfer is not a setting of pedrl.algos.DQN"),
     ],
 )

@@ -95,6 +95,26 @@ def test_the_target_is_the_double_dqn_target():
     torch.testing.assert_close(td, (q - y).abs().mean(1))
 
 
+def test_an_n_step_target_discounts_the_bootstrap_by_gamma_to_the_horizon():
+    """With horizons (n-step returns), y = R + gamma^h Q_target(s_h, argmax Q(s_h, a)): a transition of horizon 1
+    takes the one-step target, one of horizon 3 the bootstrap discounted three times."""
+    policy = _policy(processes=1, hidden=(4,))
+    update = _update(policy, gamma=0.5)
+    generator = torch.Generator().manual_seed(3)
+    s, s_next = (torch.randn(1, 2, policy.num_inputs, generator=generator) for _ in range(2))
+    actions, rewards = torch.tensor([[2, 2]]), torch.tensor([[1.0, 1.0]])
+    terminated, horizons = torch.zeros(1, 2, dtype=torch.bool), torch.tensor([[1, 3]], dtype=torch.uint8)
+    with torch.no_grad():
+        chosen = policy.network(s_next).argmax(2, keepdim=True)
+        bootstrap = update.target(s_next).gather(2, chosen).squeeze(2)
+        q = policy.network(s).gather(2, actions.unsqueeze(2)).squeeze(2)
+    y = rewards + torch.tensor([[0.5, 0.125]]) * bootstrap
+    update.descend(Batch(s, actions, rewards, s_next, terminated, horizons))
+    _, td = update.take_sums()
+    torch.testing.assert_close(td, (q - y).abs().mean(1))
+    assert not torch.allclose(td, (q - rewards - 0.5 * bootstrap).abs().mean(1))  # the one-step target differs
+
+
 def test_the_target_network_follows_every_target_every_steps():
     policy = _policy(processes=1)
     update = _update(policy, target_every=2)
