@@ -222,8 +222,9 @@ class DQN:
         rooms = [self.env, *self._mix_envs]
         rows = self.gather_trials * sum(r.num_replicas * r.num_agents * r.params.max_decisions for r in rooms)
         return {
-            "replay memory": ReplayBuffer.bytes_needed(self.processes, self.buffer_size, self.width,
-                                                       horizons=self.settings.n_step > 1),  # fmt: skip
+            "replay memory": ReplayBuffer.bytes_needed(
+                self.processes, self.buffer_size, self.width, horizons=self.settings.n_step > 1
+            ),  # fmt: skip
             "gathered states": GATHER_COPIES * rows * self.encoder_settings.num_features * 4,
             "networks and Adam": 4 * weights,
             "batch": batch,
