@@ -20,13 +20,14 @@ from typing import Any
 import pytest
 from omegaconf import OmegaConf
 
-from pedrl.algos.base import Trainer, VQSettings
-from pedrl.algos.registry import TRAINER_CLASSES, TRAINER_RUN_ARGUMENTS
+from pedrl.algos.registry import RUN_KEYS, TRAINER_CLASSES
+from pedrl.algos.run import RunSpec
 from pedrl.cli import CONFIG_DIR
 from pedrl.configs import AREA_SETTINGS
 from pedrl.scenarios import paper_room
 from pedrl.sim import RoomParams
 from pedrl.sim.motion import MOTION_MODELS, motion_from_config
+from pedrl.vq.settings import VQSettings
 
 CONF = Path(CONFIG_DIR)
 ALGOS = ("vqql", "it_vqql", "in_vqql")
@@ -35,8 +36,9 @@ ALGOS = ("vqql", "it_vqql", "in_vqql")
 # the YAML file is the new default). Remove an entry once its signature holds the YAML value.
 AWAITING_SIGNATURE: dict[tuple[str, str], str] = {}
 
-# Top-level keys of conf/train.yaml that are Trainer arguments, and the logger group's key.
+# Top-level keys of conf/train.yaml that are keys of the run (RunSpec), and the logger group's key.
 TRAIN_KEYS = ("processes", "rooms_per_process", "checkpoint_every", "device", "seed", "progress")
+RUN_DEFAULTS = {item.name: item.default for item in dataclasses.fields(RunSpec)}
 
 
 def keyword_defaults(cls: type) -> dict[str, Any]:
@@ -76,7 +78,7 @@ def python_defaults(name: str) -> dict[str, Any]:
     """What the class configured by ``conf/<name>`` takes, and its defaults (run-time arguments left out)."""
     if name.startswith("algo/"):
         defaults = keyword_defaults(algo_class(Path(name).stem))
-        return {k: v for k, v in defaults.items() if k not in TRAINER_RUN_ARGUMENTS}
+        return {k: v for k, v in defaults.items() if k not in RUN_KEYS}
     if name == "env/room.yaml":  # the room's settings but its motion model (conf/motion/), the paper room's sizes
         area = inspect.signature(paper_room).parameters
         defaults = {item.name: item.default for item in dataclasses.fields(RoomParams) if item.name != "motion"}
@@ -123,14 +125,14 @@ def test_the_awaited_signature_changes_name_real_keys():
 @pytest.mark.parametrize("key", TRAIN_KEYS)
 def test_train_yaml_top_level_keys_are_the_trainer_defaults(key):
     train = OmegaConf.load(CONF / "train.yaml")
-    assert plain(keyword_defaults(Trainer)[key]) == train[key], key
+    assert plain(RUN_DEFAULTS[key]) == train[key], key
 
 
 def test_logger_default_is_the_trainer_default():
     listed = OmegaConf.to_container(OmegaConf.load(CONF / "train.yaml").defaults)
     defaults = [d for d in listed if isinstance(d, dict) and "logger" in d]
     assert defaults == [{"logger": "tensorboard"}]
-    assert load("logger/tensorboard.yaml")["tensorboard"] == keyword_defaults(Trainer)["tensorboard"]
+    assert load("logger/tensorboard.yaml")["tensorboard"] == RUN_DEFAULTS["tensorboard"]
 
 
 @pytest.mark.parametrize("name", sorted(p.stem for p in (CONF / "rewards").glob("*.yaml")))

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from pedrl._numba import numba_available
-from pedrl.algos import VQQL
+from pedrl.algos import VQQL, RunSpec
 from pedrl.rl import kernels as rl_kernels
 from pedrl.rl import zeros_q_values
 from pedrl.scenarios import paper_room
@@ -36,18 +36,16 @@ KERNELS = {
 
 
 def run_trials(num_agents: int, prototypes: int, rooms_per_process: int, fused: bool) -> None:
-    trainer = VQQL(
+    run = RunSpec(
         env=functools.partial(paper_room(width=12.0, length=12.0, door_width=3.0).room, max_decisions=40),
         vq={"num_prototypes": prototypes, "max_iterations": 2},
-        num_agents=num_agents,
-        trials=1,
-        gather_trials=2,
         processes=2,
         rooms_per_process=rooms_per_process,
         progress=False,
         tensorboard=False,
         fused=fused,
     )
+    trainer = VQQL(run, num_agents=num_agents, trials=1, gather_trials=2)
     env = trainer.env_for(num_agents)
     env.reset(seed=num_agents)
     phase = trainer.phases()[0]
@@ -81,12 +79,12 @@ def test_numba_can_be_switched_off_for_the_torch_code(tmp_path):
 
     script = (
         "import functools, json, torch\n"
-        "from pedrl.algos import VQQL\n"
+        "from pedrl.algos import VQQL, RunSpec\n"
         "from pedrl.scenarios import paper_room\n"
         "room = paper_room(width=12.0, length=12.0, door_width=3.0).room\n"
-        "t = VQQL(env=functools.partial(room, max_decisions=40),"
-        " vq={'num_prototypes': 256, 'max_iterations': 2}, num_agents=6, trials=6, gather_trials=2, processes=2,"
-        " progress=False, tensorboard=False, seed=3, fused=False)\n"
+        "run = RunSpec(env=functools.partial(room, max_decisions=40), vq={'num_prototypes': 256, 'max_iterations': 2},"
+        " processes=2, progress=False, tensorboard=False, seed=3, fused=False)\n"
+        "t = VQQL(run, num_agents=6, trials=6, gather_trials=2)\n"
         "r = t.fit()\n"
         "print(json.dumps(r.final))\n"
     )

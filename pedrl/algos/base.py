@@ -8,7 +8,8 @@ VQQL run). A phase reads top to bottom as:
 3. learn Q tables from scratch over its prototypes, trial after trial,
 4. log the learning curve and write a checkpoint.
 
-Subclasses say what the phases are and how states are quantized; this class does the rest once.
+Subclasses say what the phases are and how states are quantized; this class does the rest once, on the run every
+learner shares (:mod:`pedrl.algos.run`: the rooms, the trial loop, the logs, the checkpoints and resume).
 
 All ``R`` learning processes (the paper averages 20) run in lock-step in one tensor program: process ``r`` owns
 the tables ``q_values[r]`` and ``E = rooms_per_process`` rooms whose agents all learn into them. With the
@@ -19,9 +20,7 @@ decision (and larger tensor batches), at the price of learning from several room
 from __future__ import annotations
 
 import math
-import time
-from collections.abc import Callable, Mapping, Sequence
-from functools import partial
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -36,46 +35,32 @@ from pedrl.algos.fitting import (
     fit_plain_quantizer,
     fit_quantizers,
 )
-from pedrl.algos.mix import merge_gathered, room_of_trial
-from pedrl.algos.phase import Phase, TrainResult
-from pedrl.algos.records import RunRecord, final_figures, interactive, report_phase
-from pedrl.algos.restore import load_resume
-from pedrl.common.checks import (
-    check_bool,
-    check_choice,
-    check_device,
-    check_epsilons,
-    check_integer,
-    check_memory,
-    check_number,
-)
-from pedrl.configs import TrainingRoom
-from pedrl.io.files import remove_temporaries_in
+from pedrl.algos.mix import merge_gathered
+from pedrl.algos.phase import Phase
+from pedrl.algos.records import RunRecord
+from pedrl.algos.restore import RestoredState, restore_state
+from pedrl.algos.run import LearningRun, RunSpec, open_resume
+from pedrl.common.checks import check_choice, check_epsilons, check_memory, check_number
 from pedrl.rl import LinearSchedule, zeros_q_values
 from pedrl.rl.policy import TabularPolicy
 from pedrl.sim import RoomEnv
-from pedrl.trial.crowd import choose_path, run_crowd
+from pedrl.trial.crowd import run_crowd
 from pedrl.trial.loop import Learner
 from pedrl.trial.rollout import Gathered, TrialStats, check_finite, gather
-from pedrl.trial.walking import WalkingLog
 from pedrl.vq import Quantizer
 from pedrl.vq.encoder import VOID_DRAWS, VOID_FEATURES, EncoderSettings, StateEncoder
 from pedrl.vq.factored import check_factor_slots
-from pedrl.vq.settings import VQSettings
 
 TABLES = ("agent", "process")
 """Values of ``algo.tables``: one Q table per learning agent (the paper), or one per process shared by its agents."""
 
 
-class Trainer:
-    """Base class of the paper's trainers.
+class Trainer(LearningRun):
+    """Base class of the paper's trainers: a :class:`pedrl.algos.run.LearningRun` whose phases each fit a quantizer
+    and learn tables over it.
 
     Args:
-        env: a callable building the room, ``env(num_replicas=, num_agents=, device=)`` (a ``functools.partial`` of
-            :class:`pedrl.sim.RoomEnv`, as Hydra's ``_partial_`` gives).
-        vq: quantizer settings.
-        processes: R, independent learning processes run in lock-step.
-        rooms_per_process: E, rooms whose agents share their process's tables.
+        run: what the run is (rooms, processes, device, seed, folder, checkpoints, logging).
         alpha: learning rate of equation 1.
         gamma: discount of equation 1.
         epsilon_start: initial exploration rate (Table 3: 0.4).
@@ -88,33 +73,16 @@ class Trainer:
         tables: ``"agent"`` (the paper's independent learners: one table per learning agent, ``A = N``) or
             ``"process"`` (one table per learning process, shared by all its agents, ``A = 1``: N times more
             experience per table and entry; evaluation then drives every agent with it).
-        checkpoint_every: also write ``last.safetensors`` every this many trials inside a phase (0: only at the
-            end of each phase).
-        device: ``"cpu"`` or ``"cuda"``.
-        seed: the run's seed; phase ``i`` seeds its generators from ``(seed, i)``.
-        run_dir: where outputs go.
-        tensorboard: write TensorBoard events.
-        walking_probes: free-walking probes of the learned policy over the run (:class:`pedrl.trial.walking.WalkingLog`;
-            0: none).
-        progress: show a progress bar.
-        run_config: the resolved run config, stored in checkpoints and compared on resume.
-        mix: rooms of other scenarios that take turns with each phase's room, trial by trial
-            (:mod:`pedrl.algos.mix`); their states are gathered too, and they learn into the same tables.
-        home: the label of the phase's own room in ``learning_curve.csv`` and TensorBoard (its scenario's name).
-        fused: run each trial as one compiled pass per process (:mod:`pedrl.trial.fused`: on the CPU, the processes
-            in parallel over the threads), or as the torch loop, the reference (False); None: the fused pass
-            wherever it can run. True is refused in one line, before any compute, for a room it cannot run.
+
+    Phase ``i`` seeds its generators from ``(run.seed, i)``.
     """
 
     name = "base"
 
     def __init__(
         self,
+        run: RunSpec,
         *,
-        env: Callable[..., RoomEnv],
-        vq: VQSettings | Mapping[str, Any],
-        processes: int = 20,
-        rooms_per_process: int = 1,
         alpha: float = 0.35,
         gamma: float = 0.91,
         epsilon_start: float = 0.4,
@@ -123,24 +91,8 @@ class Trainer:
         void_features: str = "zero",
         void_draws: str = "trial",
         tables: str = "process",
-        checkpoint_every: int = 0,
-        device: str | torch.device = "cpu",
-        seed: int = 0,
-        run_dir: str | Path = ".",
-        tensorboard: bool = True,
-        walking_probes: int = 0,
-        progress: bool = True,
-        run_config: Mapping[str, Any] | None = None,
-        mix: Sequence[TrainingRoom] = (),
-        home: str = "room",
-        fused: bool | None = None,
     ) -> None:
-        self.vq = vq if isinstance(vq, VQSettings) else VQSettings.from_config(vq)
-        check_integer("processes", processes, minimum=1)
-        check_integer("rooms_per_process", rooms_per_process, minimum=1)
-        check_integer("checkpoint_every", checkpoint_every, minimum=0)
-        check_bool("progress", progress)
-        check_bool("logger.tensorboard", tensorboard)
+        super().__init__(run)
         check_number("alpha", alpha, low=0.0, high=1.0, low_open=True)
         check_number("gamma", gamma, low=0.0, high=1.0)
         check_epsilons(epsilon_start, epsilon_end)
@@ -148,28 +100,15 @@ class Trainer:
         check_choice("void_features", void_features, VOID_FEATURES)
         check_choice("void_draws", void_draws, VOID_DRAWS)
         check_choice("tables", tables, TABLES)
-        self.device = check_device(device)
-        self.env_factory, self.processes, self.rooms_per_process, self.tables = (
-            env,
-            processes,
-            rooms_per_process,
-            tables,
-        )
+        self.tables = tables
         self.alpha, self.gamma, self.epsilon_decay_fraction = alpha, gamma, epsilon_decay_fraction
         self.epsilon_start, self.epsilon_end = epsilon_start, epsilon_end
-        self.checkpoint_every, self.seed, self.run_dir = checkpoint_every, seed, Path(run_dir)
-        self.tensorboard, self.progress, self.config = tensorboard, progress, dict(run_config or {})
-        self.generator = torch.Generator(device=self.device)
         self._envs: dict[int, RoomEnv] = {}
         for num_agents in sorted({phase.num_agents for phase in self.phases()}):
             self.env_for(num_agents)  # validates the phases and the room parameters before any compute
         self.feature_weights()  # validates the neighbour weights before any compute
         room = next(iter(self._envs.values()))
-        self.home, self.mix = home, list(mix)
-        replicas = self.processes * self.rooms_per_process  # the same env settings: the same observations and actions
-        self._mix_envs = [e.factory(num_replicas=replicas, num_agents=e.num_agents, device=self.device) for e in mix]
-        choose_path([*self._envs.values(), *self._mix_envs], None, fused)  # fused=true refused before any compute
-        self.fused = fused
+        self.trial_path()  # fused=true refused before any compute
         self.encoder_settings = EncoderSettings.for_room(
             room,
             void_features=void_features,
@@ -185,7 +124,8 @@ class Trainer:
             "algo.gather_trials or env.max_decisions",
         )
         check_gathering_yield(self)
-        self.walking = WalkingLog(walking_probes, sum(p.trials for p in self.phases()), room.params, self.env_factory)
+        self.log_walking(sum(p.trials for p in self.phases()), room)
+        self._summaries: list[dict[str, Any]] = []
 
     # ------------------------------------------------------------------ what subclasses define
     def phases(self) -> list[Phase]:
@@ -273,114 +213,82 @@ class Trainer:
         default; IT-VQQL follows the previous iteration's tables, IN-VQQL the previous stage's replicated)."""
         return None
 
-    # ------------------------------------------------------------------ the loop
-    def fit(self, *, resume_from: str | Path | None = None) -> TrainResult:
-        """Run every phase (or the rest of them, when resuming) and return the final figures."""
+    # ------------------------------------------------------------------ the run's hooks
+    def own_rooms(self) -> list[RoomEnv]:
+        return list(self._envs.values())
+
+    def resume(self, path: str | Path) -> RestoredState:
+        return restore_state(self, open_resume(self, path))
+
+    def summaries(self) -> list[dict[str, Any]]:
+        return self._summaries
+
+    def learn(self, record: RunRecord, resumed: RestoredState | None) -> TrialStats | None:
+        """Every phase from the first or from ``resumed`` on: its quantizer and tables (resumed mid-phase,
+        continued, or gathered and fitted anew), then its trials in turn in every room."""
         phases = self.phases()
-        remove_temporaries_in(self.run_dir / "checkpoints")  # left by a process killed while writing a checkpoint
-        # --- where to start: the first phase, or after the checkpoint resumed from
-        resumed = load_resume(self, resume_from) if resume_from is not None else None
-        before = resumed.wall_time_s if resumed is not None else 0.0
-        record = RunRecord(self.run_dir, tensorboard=self.tensorboard, config=self.config, wall_time_before=before)
         start, first_trial, previous, distortion = 0, 0, None, math.nan
         if resumed is not None:
             start = resumed.position + 1 if resumed.phase_complete else resumed.position
             first_trial = 0 if resumed.phase_complete else resumed.trial
             previous = (resumed.quantizer, resumed.q_values) if resumed.phase_complete else None
             distortion = resumed.distortion
-            if start == len(phases):
-                finished = (resumed.wall_time_s, resumed.final, resumed.summaries)
-                return TrainResult.finished(self.run_dir, record.checkpoint_path, *finished)
-        global_trial = sum(p.trials for p in phases[:start]) + first_trial
-        record.open(global_trial, resumed=resumed is not None)
-        summaries: list[dict[str, Any]] = list(resumed.summaries) if resumed is not None else []
+        global_trial = resumed.global_trial if resumed is not None else 0
+        self._summaries = list(resumed.summaries) if resumed is not None else []
         stats: TrialStats | None = None
-        try:
-            for position in range(start, len(phases)):
-                phase = phases[position]
-                env = self.env_for(phase.num_agents)
-                # --- 1. the phase's quantizer and tables: resumed mid-phase, continued, or gathered and fitted anew
-                if position == start and first_trial > 0:
-                    quantizer, q_values = resumed.quantizer, resumed.q_values
-                    self.generator.set_state(resumed.rng_trainer)
-                    env.generator.set_state(resumed.rng_env)
+        for position in range(start, len(phases)):
+            phase = phases[position]
+            env = self.env_for(phase.num_agents)
+            if position == start and first_trial > 0:
+                quantizer, q_values = resumed.quantizer, resumed.q_values
+                self.generator.set_state(resumed.rng_trainer)
+                env.generator.set_state(resumed.rng_env)
+            else:
+                first_trial = 0
+                self._seed_phase(phase, env)
+                if not (self.continues_previous(phase) and previous is not None):
+                    quantizer, q_values, distortion = self._new_tables(phase, env, previous, record, global_trial)
                 else:
-                    first_trial = 0
-                    self._seed_phase(phase, env)
-                    if not (self.continues_previous(phase) and previous is not None):
-                        quantizer, q_values, distortion = self._new_tables(
-                            phase, env, previous, summaries, record, global_trial
-                        )
-                    else:
-                        quantizer, q_values = previous
-                save = partial(self._save, record, phase, quantizer, q_values, distortion, summaries, env)
-                # --- 2. learn from the phase's trials (in turn in every room), with a checkpoint every
-                #        checkpoint_every trials
-                policy = self.policy(quantizer, q_values)
-                rooms = self.rooms(env)
-                stats, global_trial = self._learn(phase, rooms, policy, first_trial, global_trial, record, save)
-                # --- 3. the phase's checkpoint, iter_XXXX and last
-                save(phase.trials, stats, iteration=True)
-                previous = (quantizer, q_values)
-                record.logger.flush()
-        finally:
-            record.close()
-        final = final_figures(stats) if stats is not None else {}
-        return TrainResult(final, self.run_dir, record.checkpoint_path, record.wall_time(), summaries)
+                    quantizer, q_values = previous
+            self._tables, self._distortion = (quantizer, q_values), distortion
+            self._policy = self.policy(quantizer, q_values)
+            schedule = self.epsilon_schedule(phase)
+            stats, global_trial = self.run_trials(
+                phase,
+                self.rooms(env),
+                first_trial,
+                global_trial,
+                record,
+                epsilon=lambda trial, _, at=schedule: at(trial),
+                policy=self._policy,
+            )
+            previous = (quantizer, q_values)
+            record.logger.flush()
+        return stats
 
-    def _new_tables(self, phase, env, previous, summaries, record, global_trial) -> tuple[Any, torch.Tensor, float]:
+    def learn_trial(self, env: RoomEnv, room: int, epsilon: float, bar: tqdm) -> TrialStats:
+        return self._trial(env, self._policy, epsilon=epsilon, learn=True)
+
+    def check_trial(self, phase: Phase, trial: int, stats: TrialStats) -> None:
+        check_finite(phase.index, trial, stats, self._policy.q_values, last=trial + 1 == phase.trials)
+
+    def state_tensors(self) -> dict[str, torch.Tensor]:
+        return self.policy(*self._tables).tensors()
+
+    def state_metadata(self, global_trial: int) -> dict[str, Any]:
+        return {"distortion": self._distortion}
+
+    def _new_tables(self, phase, env, previous, record, global_trial) -> tuple[Any, torch.Tensor, float]:
         """Gather the phase's states (following the previous tables, or a random walk), fit its quantizer, and make
-        its first tables; the phase's summary goes to ``summaries`` and TensorBoard (at ``global_trial``, the
+        its first tables; the phase's summary goes to the run's summaries and TensorBoard (at ``global_trial``, the
         phase's first)."""
         gathered = self.gather(phase, env, previous)
         quantizer, distortion = self.fit_quantizers(phase, gathered, previous[0] if previous else None)
         q_values = self.initial_q_values(phase, quantizer, previous, env.num_actions)
-        summaries.append(
+        self._summaries.append(
             record.log_phase(phase, global_trial, gathered, quantizer.num_prototypes, distortion, q_values)
         )
         return quantizer, q_values, distortion
-
-    def _learn(self, phase, rooms, policy, first_trial, global_trial, record, save) -> tuple[TrialStats, int]:
-        """Trials ``first_trial .. phase.trials - 1`` of ``phase``, each in its turn's room of ``rooms`` (labels and
-        rooms, :meth:`rooms`) and logged; ``save(trial, stats, iteration)`` writes a checkpoint. Returns the last
-        trial's statistics and the next global trial."""
-        schedule = self.epsilon_schedule(phase)
-        description = f"{self.name} phase {phase.index}/{len(self.phases())} ({phase.num_agents} agents)"
-        tic = time.perf_counter()
-        bar = tqdm(
-            range(first_trial, phase.trials),
-            desc=description,
-            disable=not (self.progress and interactive()),
-            leave=False,
-        )
-        stats = None
-        for trial in bar:
-            epsilon = schedule(trial)
-            trial_tic = time.perf_counter()
-            label, env = rooms[room_of_trial(trial, phase.trials, len(rooms))]
-            stats = self._trial(env, policy, epsilon=epsilon, learn=True)
-            check_finite(phase.index, trial, stats, policy.q_values, last=trial + 1 == phase.trials)
-            rate = stats.agent_decisions / (time.perf_counter() - trial_tic)
-            record.log_trial(
-                phase,
-                trial,
-                global_trial,
-                epsilon,
-                stats,
-                rate,
-                room=label,
-                agents=env.num_agents,
-                per_room=bool(self.mix),
-                walking=self.walking.measure(global_trial, policy),
-            )
-            global_trial += 1
-            bar.set_postfix(success=f"{stats.success_rate.mean():.2f}", eps=f"{epsilon:.3f}")
-            if self.checkpoint_every and (trial + 1) % self.checkpoint_every == 0 and trial + 1 < phase.trials:
-                save(trial + 1, stats, iteration=False)
-        bar.close()
-        if self.progress and not interactive():
-            report_phase(description, phase.trials - first_trial, tic, stats)
-        return stats, global_trial
 
     # ------------------------------------------------------------------ the parts of a phase
     def gather(self, phase: Phase, env: RoomEnv, previous: tuple[Any, torch.Tensor] | None) -> Gathered:
@@ -439,12 +347,6 @@ class Trainer:
         )
         return run_crowd(env, learner, fused=self.fused).stats
 
-    def trial_path(self) -> tuple[str, str | None]:
-        """Where this trainer's trials run, ``"fused"`` or ``"torch"`` (a seed gives other numbers on each), and why
-        not on the fused one (None when they do): what a resume must keep (:func:`pedrl.algos.restore.load_resume`)."""
-        name, why_not = choose_path([*self._envs.values(), *self._mix_envs], None, self.fused)
-        return name, why_not
-
     def env_for(self, num_agents: int) -> RoomEnv:
         """The trainer's ``P E`` rooms with ``num_agents`` agents (built once)."""
         if num_agents not in self._envs:
@@ -455,36 +357,8 @@ class Trainer:
             )
         return self._envs[num_agents]
 
-    def rooms(self, env: RoomEnv) -> list[tuple[str, RoomEnv]]:
-        """The labelled rooms a phase whose own room is ``env`` trains in: ``env``, then the ``mix`` rooms. These
-        draw from ``env``'s generator, so that one stream (``rng/env`` in a checkpoint) drives every room."""
-        for room in self._mix_envs:
-            room.generator = env.generator
-        return [(self.home, env), *((entry.label, room) for entry, room in zip(self.mix, self._mix_envs, strict=True))]
-
     # ------------------------------------------------------------------ bookkeeping
     def _seed_phase(self, phase: Phase, env: RoomEnv) -> None:
         phase_seed = self.seed * 10_007 + phase.index
         self.generator.manual_seed(phase_seed)
         env.reset(seed=phase_seed + 1)
-
-    def _save(self, record, phase, quantizer, q_values, distortion, summaries, env, trial, stats, iteration) -> None:
-        """Write the checkpoint of ``phase`` after ``trial`` trials (:meth:`RunRecord.save`)."""
-        tensors = {
-            **self.policy(quantizer, q_values).tensors(),
-            "rng/trainer": self.generator.get_state(),
-            "rng/env": env.generator.get_state(),
-        }
-        metadata = {
-            "algo": self.name,
-            "iteration": phase.index,
-            "trial": trial,
-            "phase_complete": trial >= phase.trials,
-            "agents": phase.num_agents,
-            "distortion": distortion,
-            "summaries": summaries,
-            "encoder": self.encoder_settings.to_metadata(),
-            "final": final_figures(stats) if stats is not None else {},
-            "trial_path": self.trial_path()[0],
-        }
-        record.save(tensors, metadata, phase, iteration=iteration)

@@ -29,16 +29,15 @@ import torch
 from tqdm.auto import tqdm
 
 from pedrl.algos.dqn_learning import DeepQLearner
-from pedrl.algos.dqn_restore import load_dqn_resume
-from pedrl.algos.mix import room_of_trial
-from pedrl.algos.phase import MAX_TRIALS, Phase, TrainResult
-from pedrl.algos.records import RunRecord, final_figures, interactive, report_phase
+from pedrl.algos.dqn_restore import ResumedDQN, load_dqn_resume
+from pedrl.algos.phase import MAX_TRIALS, Phase
+from pedrl.algos.records import RunRecord
+from pedrl.algos.run import LearningRun, RunSpec
 from pedrl.common.checks import (
     LARGE_RUN_S,
     YEAR_S,
     check_bool,
     check_choice,
-    check_device,
     check_epsilons,
     check_integer,
     check_memory,
@@ -46,8 +45,6 @@ from pedrl.common.checks import (
     check_trials_per_iteration,
     duration,
 )
-from pedrl.configs import TrainingRoom
-from pedrl.io.files import remove_temporaries_in
 from pedrl.rl import LinearSchedule
 from pedrl.rl.deep_q import DoubleDQN, DQNSettings
 from pedrl.rl.network import QNetwork, check_hidden, head_outputs
@@ -55,11 +52,9 @@ from pedrl.rl.neural import NeuralPolicy, input_width
 from pedrl.rl.qtable import NUM_ACTIONS
 from pedrl.rl.replay import ReplayBuffer
 from pedrl.sim import RoomEnv
-from pedrl.trial.crowd import choose_path, run_crowd
-from pedrl.trial.rollout import gather
-from pedrl.trial.walking import WalkingLog
+from pedrl.trial.crowd import run_crowd
+from pedrl.trial.rollout import TrialStats, gather
 from pedrl.vq.encoder import EncoderSettings, StateEncoder
-from pedrl.vq.settings import VQSettings
 
 MAX_BATCH: Final = 1 << 20
 """Largest ``batch_size`` (transitions per process and step)."""
@@ -82,7 +77,7 @@ MIN_STD: Final = 1e-3
 """A feature whose spread on the random walk is below this (a constant) is standardised by 1 instead."""
 
 
-class DQN:
+class DQN(LearningRun):
     """Double DQN with a target network and a replay memory per learning process (module docstring).
 
     Args:
@@ -110,18 +105,17 @@ class DQN:
         reward_scale: rewards are multiplied by this before they are learned (Q-values in these units).
         max_grad_norm: each process's gradient is clipped to this norm.
         epsilon_start, epsilon_end, epsilon_decay_fraction: the exploration schedule over the run's trials.
-        env, mix, home, vq, processes, rooms_per_process, checkpoint_every, device, seed, run_dir, tensorboard,
-            walking_probes, progress, run_config, fused: as :class:`pedrl.algos.base.Trainer`'s (of ``vq`` only
-            ``distance_transform`` is read: the inputs are the states as the tables' quantizer sees them).
+        run: what the run is (of ``run.vq`` only ``distance_transform`` is read: the inputs are the states as the
+            tables' quantizer sees them).
     """
 
     name = "dqn"
+    phase_word = "iteration"
 
     def __init__(
         self,
+        run: RunSpec,
         *,
-        env: Callable[..., RoomEnv],
-        vq: VQSettings | Mapping[str, Any],
         num_agents: int = 20,
         trials: int = 200,
         iterations: int = 1,
@@ -144,27 +138,14 @@ class DQN:
         epsilon_start: float = 1.0,
         epsilon_end: float = 0.05,
         epsilon_decay_fraction: float = 0.5,
-        processes: int = 1,
-        rooms_per_process: int = 1,
-        checkpoint_every: int = 0,
-        device: str | torch.device = "cpu",
-        seed: int = 0,
-        run_dir: str | Path = ".",
-        tensorboard: bool = True,
-        walking_probes: int = 0,
-        progress: bool = True,
-        run_config: Mapping[str, Any] | None = None,
-        mix: Sequence[TrainingRoom] = (),
-        home: str = "room",
-        fused: bool | None = None,
     ) -> None:
-        if (vq.factors if isinstance(vq, VQSettings) else (vq or {}).get("factors")) is not None:  # a table's key
+        if run.vq.factors is not None:  # a table's key
             raise ValueError(
                 "vq.factors is invalid with algo=dqn: the network reads the whole state (of the vq group it reads "
                 "distance_transform only); use algo=vqql or algo=it_vqql for a factored table"
             )
-        self.vq = vq if isinstance(vq, VQSettings) else VQSettings.from_config(vq)  # every other key checked
         _check_settings(locals())
+        super().__init__(run)
         self.num_agents, self.trials, self.iterations, self.gather_trials = (
             num_agents,
             trials,
@@ -176,16 +157,8 @@ class DQN:
         self.settings = DQNSettings(gamma, batch_size, learning_starts, train_every, gradient_steps, target_every,
                                     reward_scale, max_grad_norm, replay_balance == "room", n_step)  # fmt: skip
         self.schedule = LinearSchedule(epsilon_start, epsilon_end, max(1, round(epsilon_decay_fraction * trials)))
-        self.processes, self.rooms_per_process, self.checkpoint_every = processes, rooms_per_process, checkpoint_every
-        self.device, self.seed, self.run_dir = check_device(device), seed, Path(run_dir)
-        self.tensorboard, self.progress, self.config = tensorboard, progress, dict(run_config or {})
-        self.generator = torch.Generator(device=self.device)
-        replicas = processes * rooms_per_process
-        self.env = env(num_replicas=replicas, num_agents=num_agents, device=self.device)
-        self.home, self.mix = home, list(mix)
-        self._mix_envs = [e.factory(num_replicas=replicas, num_agents=e.num_agents, device=self.device) for e in mix]
-        self.fused = fused
-        self.walking = WalkingLog(walking_probes, trials, self.env.params, env)
+        self.env = self.env_factory(num_replicas=run.replicas, num_agents=num_agents, device=self.device)
+        self.log_walking(trials, self.env)
         self.path, why_not = self.trial_path()  # fused=true refused before any compute
         self.encoder_settings = EncoderSettings.for_room(
             self.env, distance_transform=self.vq.distance_transform
@@ -208,10 +181,8 @@ class DQN:
             for i in range(self.iterations)
         ]
 
-    def trial_path(self) -> tuple[str, str | None]:
-        """``("fused", None)``: the compiled kernels step every room; else ``("torch", why)``. One line for
-        ``fused=true`` where they cannot."""
-        return tuple(choose_path([self.env, *self._mix_envs], None, self.fused))
+    def own_rooms(self) -> list[RoomEnv]:
+        return [self.env]
 
     def memory_needs(self) -> dict[str, float]:
         """Estimated bytes of the largest allocations: the replay memory, the networks with Adam's moments (online,
@@ -261,39 +232,61 @@ class DQN:
                 flush=True,
             )
 
-    def rooms(self) -> list[tuple[str, RoomEnv]]:
-        """The labelled rooms the run trains in: its own, then the ``mix`` rooms (drawing from its generator)."""
-        for room in self._mix_envs:
-            room.generator = self.env.generator
-        return [(self.home, self.env), *((e.label, room) for e, room in zip(self.mix, self._mix_envs, strict=True))]
+    # ------------------------------------------------------------------ the run's hooks
+    def resume(self, path: str | Path) -> ResumedDQN:
+        return load_dqn_resume(self, path)
 
-    # ------------------------------------------------------------------ the run
-    def fit(self, *, resume_from: str | Path | None = None) -> TrainResult:
-        """Gather, then learn every iteration (or the rest of them, when resuming); returns the final figures."""
-        phases = self.phases()
-        remove_temporaries_in(self.run_dir / "checkpoints")
-        resumed = load_dqn_resume(self, resume_from) if resume_from is not None else None
-        record = RunRecord(self.run_dir, tensorboard=self.tensorboard, config=self.config,
-                           wall_time_before=resumed.wall_time_s if resumed else 0.0)  # fmt: skip
-        if resumed is not None and resumed.done:
-            return TrainResult.finished(self.run_dir, record.checkpoint_path, resumed.wall_time_s, resumed.final, [])
+    def summaries(self) -> list[dict[str, Any]]:
+        return [self.summary]
+
+    def learn(self, record: RunRecord, resumed: ResumedDQN | None) -> TrialStats | None:
+        """Start (gather, standardise, build) or continue ``resumed``, then the iterations' trials from there on."""
+        if resumed is None:
+            self.start()
+            record.logger.log_scalars(0, {f"dqn/{key}": value for key, value in self.summary.items()})
+        else:
+            self.policy, self.update, self.buffer = resumed.policy, resumed.update, resumed.buffer
+            self.generator.set_state(resumed.rng_trainer)
+            self.env.generator.set_state(resumed.rng_env)
         start = resumed.global_trial if resumed is not None else 0
-        record.open(start, resumed=resumed is not None)
-        stats = None
-        try:
-            if resumed is None:
-                self.start()
-                record.logger.log_scalars(0, {f"dqn/{key}": value for key, value in self.summary.items()})
-            else:
-                self.policy, self.update, self.buffer = resumed.policy, resumed.update, resumed.buffer
-                self.generator.set_state(resumed.rng_trainer)
-                self.env.generator.set_state(resumed.rng_env)
-            stats = self._learn(phases, start, record)
-        finally:
-            record.close()
-        final = final_figures(stats) if stats is not None else dict(resumed.final if resumed else {})
-        return TrainResult(final, self.run_dir, record.checkpoint_path, record.wall_time(), [self.summary])
+        stats, global_trial = None, 0
+        rooms = self.rooms(self.env)
+        for phase in self.phases():
+            first = min(phase.trials, max(0, start - global_trial))  # trials of the phase done before the resume
+            global_trial += first
+            if first == phase.trials:
+                continue
+            stats, global_trial = self.run_trials(phase, rooms, first, global_trial, record,
+                                              epsilon=lambda _, at: self.schedule(at), policy=self.policy)  # fmt: skip
+            record.logger.flush()
+        return stats
 
+    def learn_trial(self, env: RoomEnv, room: int, epsilon: float, bar: tqdm) -> TrialStats:
+        self._driver = DeepQLearner(self.policy, epsilon=epsilon, generator=self.generator, update=self.update,
+                                    buffer=self.buffer, room=room)  # fmt: skip
+        return run_crowd(env, self._driver, fused=self.fused, progress=_decisions_on(bar)).stats
+
+    def check_trial(self, phase: Phase, trial: int, stats: TrialStats) -> None:
+        if not (bool(torch.isfinite(stats.episodic_return).all()) and bool(torch.isfinite(self._driver.loss).all())):
+            raise ValueError(
+                f"iteration {phase.index}, trial {trial}: the returns or the loss turned inf or NaN: lower "
+                "algo.learning_rate or algo.reward_scale"
+            )
+
+    def log_trial(self, record: RunRecord, global_trial: int) -> None:
+        record.logger.log_spread(global_trial, "losses/q_loss", self._driver.loss.double())
+        record.logger.log_scalars(global_trial, {"dqn/gradient_steps": self.update.updates,
+                                                 "dqn/replay_size": self.buffer.size})  # fmt: skip
+
+    def state_tensors(self) -> dict[str, torch.Tensor]:
+        """The network, the target network, Adam's state and the replay memory: everything a resume needs."""
+        return {**self.policy.tensors(), **self.update.tensors(), **self.buffer.tensors()}
+
+    def state_metadata(self, global_trial: int) -> dict[str, Any]:
+        return {"global_trial": global_trial, "updates": self.update.updates, "decisions": self.update.decisions,
+                "distortion": math.nan}  # fmt: skip
+
+    # ------------------------------------------------------------------ the parts of a run
     def start(self) -> None:
         """A new run: seed, gather the random walk's states, standardise by them, build the network, the memory
         and the update."""
@@ -303,7 +296,7 @@ class DQN:
         gathered = [
             gather(room, encoder, None, trials=self.gather_trials, epsilon=1.0, processes=self.processes,
                    generator=self.generator)
-            for _, room in self.rooms()
+            for _, room in self.rooms(self.env)
         ]  # fmt: skip
         states = torch.cat([part.states for part in gathered])
         mean, std = states.mean(0), states.std(0)
@@ -328,80 +321,6 @@ class DQN:
                             rooms_per_process=self.rooms_per_process,
                             neighbour_velocity=self.neighbour_velocity)  # fmt: skip
 
-    def _learn(self, phases: list[Phase], start: int, record: RunRecord):
-        """The trials from global trial ``start`` on, each logged, with the checkpoints."""
-        stats, global_trial = None, 0
-        rooms = self.rooms()
-        for phase in phases:
-            first = max(0, start - global_trial)
-            global_trial += first
-            if first >= phase.trials:
-                continue
-            description = f"dqn iteration {phase.index}/{len(phases)} ({phase.num_agents} agents)"
-            tic = time.perf_counter()
-            bar = tqdm(range(first, phase.trials), desc=description, disable=not (self.progress and interactive()),
-                       leave=False)  # fmt: skip
-            for trial in bar:
-                epsilon = self.schedule(global_trial)
-                index = room_of_trial(trial, phase.trials, len(rooms))
-                label, room = rooms[index]
-                trial_tic = time.perf_counter()
-                driver = DeepQLearner(self.policy, epsilon=epsilon, generator=self.generator, update=self.update,
-                                      buffer=self.buffer, room=index)  # fmt: skip
-                stats = run_crowd(room, driver, fused=self.fused, progress=_decisions_on(bar)).stats
-                self._check_finite(phase, trial, stats, driver.loss)
-                rate = stats.agent_decisions / (time.perf_counter() - trial_tic)
-                walking = self.walking.measure(global_trial, self.policy)
-                record.log_trial(phase, trial, global_trial, epsilon, stats, rate, room=label, agents=room.num_agents,
-                                 per_room=bool(self.mix), walking=walking)  # fmt: skip
-                record.logger.log_spread(global_trial, "losses/q_loss", driver.loss.double())
-                record.logger.log_scalars(global_trial, {"dqn/gradient_steps": self.update.updates,
-                                                         "dqn/replay_size": self.buffer.size})  # fmt: skip
-                global_trial += 1
-                bar.set_postfix(success=f"{stats.success_rate.mean():.2f}", eps=f"{epsilon:.3f}")
-                done = trial + 1 == phase.trials
-                if done or (self.checkpoint_every and (trial + 1) % self.checkpoint_every == 0):
-                    self._save(record, phase, trial + 1, global_trial, stats, iteration=done)
-            bar.close()
-            if self.progress and not interactive():
-                report_phase(description, phase.trials - first, tic, stats)
-            record.logger.flush()
-        return stats
-
-    @staticmethod
-    def _check_finite(phase: Phase, trial: int, stats, loss: torch.Tensor) -> None:
-        if not (bool(torch.isfinite(stats.episodic_return).all()) and bool(torch.isfinite(loss).all())):
-            raise ValueError(
-                f"iteration {phase.index}, trial {trial}: the returns or the loss turned inf or NaN: lower "
-                "algo.learning_rate or algo.reward_scale"
-            )
-
-    def _save(self, record: RunRecord, phase: Phase, trial: int, global_trial: int, stats, *, iteration: bool) -> None:
-        """Write the checkpoint after ``trial`` trials of ``phase`` (everything a resume needs, the memory included)."""
-        tensors = {
-            **self.policy.tensors(),
-            **self.update.tensors(),
-            **self.buffer.tensors(),
-            "rng/trainer": self.generator.get_state(),
-            "rng/env": self.env.generator.get_state(),
-        }
-        metadata = {
-            "algo": self.name,
-            "iteration": phase.index,
-            "trial": trial,
-            "phase_complete": trial >= phase.trials,
-            "agents": phase.num_agents,
-            "global_trial": global_trial,
-            "updates": self.update.updates,
-            "decisions": self.update.decisions,
-            "distortion": math.nan,
-            "summaries": [self.summary],
-            "encoder": self.encoder_settings.to_metadata(),
-            "final": final_figures(stats) if stats is not None else {},
-            "trial_path": self.path,
-        }
-        record.save(tensors, metadata, phase, iteration=iteration)
-
 
 def _decisions_on(bar: tqdm) -> Callable[[int, int], None] | None:
     """A trial's progress callback that shows its decisions and the agents left on ``bar`` about once a second (a
@@ -421,7 +340,7 @@ def _decisions_on(bar: tqdm) -> Callable[[int, int], None] | None:
 def _check_settings(settings: Mapping[str, Any]) -> None:
     """One line for the first of a DQN's ``settings`` (its constructor's arguments) that is out of range."""
     check_trials_per_iteration(settings["trials"], settings["iterations"], maximum=MAX_TRIALS)
-    for key in ("num_agents", "train_every", "target_every", "processes", "rooms_per_process"):
+    for key in ("num_agents", "train_every", "target_every"):
         check_integer(key, settings[key], minimum=1)
     check_integer("gather_trials", settings["gather_trials"], minimum=1, maximum=MAX_TRIALS)
     check_integer("gradient_steps", settings["gradient_steps"], minimum=1, maximum=MAX_GRADIENT_STEPS)
@@ -438,7 +357,4 @@ def _check_settings(settings: Mapping[str, Any]) -> None:
     check_number("max_grad_norm", settings["max_grad_norm"], low=0.0, low_open=True, high=1e9)
     check_epsilons(settings["epsilon_start"], settings["epsilon_end"])
     check_number("epsilon_decay_fraction", settings["epsilon_decay_fraction"], low=0.0, high=1.0, low_open=True)
-    check_integer("checkpoint_every", settings["checkpoint_every"], minimum=0)
     check_bool("neighbour_velocity", settings["neighbour_velocity"])
-    check_bool("progress", settings["progress"])
-    check_bool("logger.tensorboard", settings["tensorboard"])

@@ -10,9 +10,8 @@ from typing import Any
 
 import torch
 
-from pedrl.algos.restore import config_mismatch
-from pedrl.configs import check_stored_config, current_form
-from pedrl.io import CheckpointError, load_checkpoint
+from pedrl.algos.run import open_resume
+from pedrl.io import CheckpointError
 from pedrl.policy_files import RNG_KEYS, check_rng_state
 from pedrl.rl.deep_q import DoubleDQN
 from pedrl.rl.network import head_outputs
@@ -33,6 +32,7 @@ class ResumedDQN:
     rng_env: torch.Tensor
     wall_time_s: float
     final: dict[str, float] = field(default_factory=dict)
+    summaries: list[dict[str, Any]] = field(default_factory=list)
 
 
 def load_dqn_resume(trainer: Any, path: str | Path) -> ResumedDQN:
@@ -41,18 +41,8 @@ def load_dqn_resume(trainer: Any, path: str | Path) -> ResumedDQN:
     Raises:
         CheckpointError: one line naming the file and what is wrong.
     """
-    checkpoint = load_checkpoint(path, device=trainer.device)
+    checkpoint = open_resume(trainer, path)
     meta, where = checkpoint.metadata, f"checkpoint {str(path)!r}"
-    if meta.get("algo") != trainer.name:
-        raise CheckpointError(f"{where} was written by algo={meta.get('algo')!r}, not {trainer.name!r}")
-    mismatch = config_mismatch(current_form(check_stored_config(checkpoint)), trainer.config)
-    if mismatch:
-        raise CheckpointError(f"{where} comes from an incompatible configuration: {mismatch}")
-    if meta.get("trial_path") != trainer.path:
-        raise CheckpointError(
-            f"{where} ran its trials on the {meta.get('trial_path')} path and this resume would run them on the "
-            f"{trainer.path} path: a seed gives other numbers on each; resume where the run started"
-        )
     try:
         global_trial, done = _progress(trainer, meta)
         tensors = checkpoint.tensors
@@ -79,7 +69,7 @@ def load_dqn_resume(trainer: Any, path: str | Path) -> ResumedDQN:
     summaries = meta.get("summaries") or [{}]
     trainer.summary = dict(summaries[0]) if isinstance(summaries[0], dict) else {}
     return ResumedDQN(global_trial, done, policy, update, buffer, rng[0], rng[1], float(meta.get("wall_time_s", 0.0)),
-                      {k: float(v) for k, v in (meta.get("final") or {}).items()})  # fmt: skip
+                      {k: float(v) for k, v in (meta.get("final") or {}).items()}, [trainer.summary])  # fmt: skip
 
 
 def _progress(trainer: Any, meta: dict[str, Any]) -> tuple[int, bool]:

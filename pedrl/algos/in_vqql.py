@@ -10,10 +10,10 @@ import torch
 from pedrl.algos.base import Trainer
 from pedrl.algos.it_vqql import _budgets
 from pedrl.algos.phase import Phase, staged_phases
+from pedrl.algos.run import RunSpec
 from pedrl.rl.qtable import empty_tables
 from pedrl.sim.sensing import feature_indices
 from pedrl.vq import UnionQuantizer
-from pedrl.vq.settings import VQSettings
 
 PAPER_STAGES = (1, 2, 3, 4, 5, 6, 7, 8, 10, 20)
 
@@ -50,13 +50,14 @@ class INVQQL(Trainer):
         trials_growth: when ``trials`` is one number, stage ``i`` learns ``trials * trials_growth**(i-1)`` trials.
         gather_trials: trials recorded per stage for the quantizer.
         gather_epsilon: exploration while gathering from stage 2 on (stage 1 is a random walk).
-        **common: the keyword arguments of :class:`pedrl.algos.base.Trainer`.
+        run, **common: the run and the keyword arguments of :class:`pedrl.algos.base.Trainer`.
     """
 
     name = "in_vqql"
 
     def __init__(
         self,
+        run: RunSpec,
         *,
         stages: Sequence[int] = PAPER_STAGES,
         trials: int | Sequence[int] = 1000,
@@ -69,14 +70,13 @@ class INVQQL(Trainer):
         self.trial_budgets = _budgets("trials", trials, len(self.stages), trials_growth)
         self.gather_trials = gather_trials
         self.gather_epsilon = gather_epsilon
-        vq = common.get("vq")
-        if (vq.factors if isinstance(vq, VQSettings) else (vq or {}).get("factors")) is not None:
+        if run.vq.factors is not None:
             raise ValueError(
                 "vq.factors is invalid with algo=in_vqql: a factored table reads any number of neighbours by its "
                 "shared neighbour factor, which is what IN-VQQL's projection and union are for; use algo=vqql or "
                 "algo=it_vqql"
             )
-        super().__init__(**common)
+        super().__init__(run, **common)
 
     def phases(self) -> list[Phase]:
         return staged_phases(

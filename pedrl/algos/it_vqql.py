@@ -10,6 +10,7 @@ import torch
 
 from pedrl.algos.base import Trainer
 from pedrl.algos.phase import MAX_TRIALS, Phase, staged_phases
+from pedrl.algos.run import RunSpec
 from pedrl.common.checks import check_bool, check_integer, check_number
 from pedrl.vq import FactoredQuantizer, ProcessQuantizers
 
@@ -38,13 +39,14 @@ class ITVQQL(Trainer):
             taking old table ``a mod A_old``; one quantizer per process maps process by process.
         void_features: empty neighbour slots filled with random valid values before quantization (section 5.1),
             so the quantizer always sees full states; ``"zero"`` leaves them at 0.
-        **common: the keyword arguments of :class:`pedrl.algos.base.Trainer`.
+        run, **common: the run and the keyword arguments of :class:`pedrl.algos.base.Trainer`.
     """
 
     name = "it_vqql"
 
     def __init__(
         self,
+        run: RunSpec,
         *,
         num_agents: int | Sequence[int] = 20,
         iterations: int = 15,
@@ -63,7 +65,7 @@ class ITVQQL(Trainer):
         self.gather_trials = gather_trials
         self.gather_epsilon = gather_epsilon
         self.value_transfer = check_bool("value_transfer", value_transfer)
-        super().__init__(void_features=void_features, **common)
+        super().__init__(run, void_features=void_features, **common)
 
     def phases(self) -> list[Phase]:
         agents = self.agents_per_iteration

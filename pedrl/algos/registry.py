@@ -12,10 +12,10 @@ from typing import Any, Final
 
 from omegaconf import DictConfig, OmegaConf
 
-from pedrl.algos.base import Trainer, VQSettings
 from pedrl.algos.dqn import DQN
 from pedrl.algos.in_vqql import INVQQL
 from pedrl.algos.it_vqql import ITVQQL
+from pedrl.algos.run import RUN_KEYS, LearningRun, RunSpec
 from pedrl.algos.vqql import VQQL
 from pedrl.common.checks import MAX_SEED, check_integer
 from pedrl.configs import (
@@ -28,12 +28,13 @@ from pedrl.configs import (
     mix_rooms,
 )
 from pedrl.scenarios import inline_geometry
+from pedrl.vq.settings import VQSettings
 
 __all__ = [
     "ENV_CLASSES",
     "ENV_RUN_ARGUMENTS",
+    "RUN_KEYS",
     "TRAINER_CLASSES",
-    "TRAINER_RUN_ARGUMENTS",
     "build_trainer",
     "check_names_no_code",
     "env_factory",
@@ -41,7 +42,7 @@ __all__ = [
     "vq_settings",
 ]
 
-TRAINER_CLASSES: Final[dict[str, type[Trainer] | type[DQN]]] = {
+TRAINER_CLASSES: Final[dict[str, type[LearningRun]]] = {
     "pedrl.algos.VQQL": VQQL,
     "pedrl.algos.vqql.VQQL": VQQL,
     "pedrl.algos.ITVQQL": ITVQQL,
@@ -55,33 +56,15 @@ TRAINER_CLASSES: Final[dict[str, type[Trainer] | type[DQN]]] = {
 assert set(TRAINER_CLASSES) == set(ALGO_TARGETS) and all(
     ALGO_TARGETS[target] == cls.name for target, cls in TRAINER_CLASSES.items()
 )
-TRAINER_RUN_ARGUMENTS: Final = (
-    "env",
-    "mix",
-    "home",
-    "vq",
-    "processes",
-    "rooms_per_process",
-    "checkpoint_every",
-    "device",
-    "seed",
-    "run_dir",
-    "tensorboard",
-    "walking_probes",
-    "progress",
-    "run_config",
-    "fused",
-)
-"""Trainer arguments that come from other parts of the config than ``algo``."""
 
 
-def trainer_class(algo: Mapping[str, Any]) -> tuple[type[Trainer], dict[str, Any]]:
+def trainer_class(algo: Mapping[str, Any]) -> tuple[type[LearningRun], dict[str, Any]]:
     """The trainer class named by ``algo._target_`` and its settings from the ``algo`` config.
 
     Raises:
         ValueError: one line, for a key the trainer does not take.
     """
-    settings = config_settings("algo", algo, TRAINER_CLASSES, supplied=TRAINER_RUN_ARGUMENTS)
+    settings = config_settings("algo", algo, TRAINER_CLASSES, supplied=RUN_KEYS)
     return TRAINER_CLASSES[algo["_target_"]], settings
 
 
@@ -93,8 +76,9 @@ def vq_settings(vq: Mapping[str, Any]) -> dict[str, Any]:
     return dict(vq)
 
 
-def build_trainer(cfg: DictConfig, run_dir: str | Path, *, files: bool = True) -> Trainer:
-    """Build the trainer of ``cfg.algo`` with the room of ``cfg.env``; validates every value first.
+def build_trainer(cfg: DictConfig, run_dir: str | Path, *, files: bool = True) -> LearningRun:
+    """Build the trainer of ``cfg.algo`` on the run the rest of ``cfg`` describes (a :class:`RunSpec`: the room of
+    ``cfg.env``, the mix, processes, device, seed, ...); validates every value first.
 
     Only the known room and trainer classes are built (:mod:`pedrl.algos.registry`): a config names no code, so
     a ``_target_`` other than theirs, anywhere, is refused, and nothing is instantiated from a config node.
@@ -111,8 +95,7 @@ def build_trainer(cfg: DictConfig, run_dir: str | Path, *, files: bool = True) -
     home = str(scenario.get("name", "paper_room"))
     mix = mix_rooms(config["env"], config.get("mix"), home=home, files=files)
     config["mix"] = [room.config for room in mix]  # a WKT file's text, not its name; null is []
-    return trainer(
-        **settings,
+    run = RunSpec(
         env=env_factory(config["env"], config.get("scenario"), files=files),
         mix=mix,
         home=home,
@@ -129,6 +112,7 @@ def build_trainer(cfg: DictConfig, run_dir: str | Path, *, files: bool = True) -
         run_config=config,
         fused=config.get("fused"),
     )
+    return trainer(run, **settings)
 
 
 def _check_top_level(cfg: DictConfig) -> None:

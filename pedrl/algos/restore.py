@@ -14,13 +14,12 @@ import json
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import torch
 
-from pedrl.configs import HISTORICAL_VALUES, check_stored_config, current_form
-from pedrl.io import Checkpoint, CheckpointError, load_checkpoint
+from pedrl.configs import HISTORICAL_VALUES
+from pedrl.io import Checkpoint, CheckpointError
 from pedrl.policy_files import RNG_KEYS, check_rng_state, check_run_metadata, check_tensor_names
 from pedrl.rl import in_huge_pages
 from pedrl.rl.policy import QUANTIZER_PREFIX, rebuild_quantizer
@@ -47,6 +46,8 @@ class RestoredState:
         distortion: the phase's quantizer distortion.
         wall_time_s: wall time of the run up to the checkpoint (s), over every segment.
         final: final figures, stored once the last phase is complete (empty otherwise, and in older files).
+        global_trial: trials of the run done, over every phase.
+        done: the last phase is complete (nothing is left to run).
     """
 
     position: int
@@ -61,10 +62,12 @@ class RestoredState:
     distortion: float
     wall_time_s: float = 0.0
     final: dict[str, float] = field(default_factory=dict)
+    global_trial: int = 0
+    done: bool = False
 
 
 def restore_state(trainer: TrainerView, checkpoint: Checkpoint) -> RestoredState:
-    """Validate ``checkpoint`` (its stored config already checked, :func:`load_resume`) against ``trainer`` and
+    """Validate ``checkpoint`` (its header already checked, :func:`pedrl.algos.run.open_resume`) against ``trainer`` and
     rebuild its quantizer and tables; the generator states of a mid-phase checkpoint must fit the trainer's device.
 
     Args:
@@ -100,6 +103,8 @@ def restore_state(trainer: TrainerView, checkpoint: Checkpoint) -> RestoredState
         distortion=float(meta.get("distortion", math.nan)),
         wall_time_s=float(meta.get("wall_time_s", 0.0)),
         final={key: float(value) for key, value in meta.get("final", {}).items()},
+        global_trial=sum(p.trials for p in trainer.phases()[:position]) + trial,
+        done=trial == phase.trials and position == len(trainer.phases()) - 1,
     )
 
 
@@ -196,25 +201,3 @@ def short_json(value: Any, limit: int = 80) -> str:
     """``value`` as JSON, cut to ``limit`` characters: a room's WKT text may run to megabytes."""
     text = json.dumps(value)
     return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
-
-
-def load_resume(trainer: TrainerView, path: str | Path) -> RestoredState:
-    """Read and validate the checkpoint ``trainer`` continues from: written by the same algorithm, from a config
-    that differs only in :data:`RESUME_INDEPENDENT` keys, and every value checked (:func:`restore_state`)."""
-    checkpoint = load_checkpoint(path, device=trainer.device)
-    meta = checkpoint.metadata
-    if meta.get("algo") != trainer.name:
-        raise CheckpointError(
-            f"checkpoint {str(path)!r} was written by algo={meta.get('algo')!r}, not {trainer.name!r}"
-        )
-    mismatch = config_mismatch(current_form(check_stored_config(checkpoint)), trainer.config)
-    if mismatch:
-        raise CheckpointError(f"checkpoint {str(path)!r} comes from an incompatible configuration: {mismatch}")
-    started, (now, why) = meta.get("trial_path"), trainer.trial_path()
-    if started is not None and started != now:  # e.g. PEDRL_NO_NUMBA set, or another device, since the run started
-        raise CheckpointError(
-            f"checkpoint {str(path)!r} ran its trials on the {started} path and this resume would run them on the {now}"
-            f" path ({why or 'the fused trial can run here'}): a seed gives other numbers on each; resume where the"
-            " run started (unset PEDRL_NO_NUMBA, the same device and fused)"
-        )
-    return restore_state(trainer, checkpoint)

@@ -7,6 +7,7 @@ from typing import Any
 
 from pedrl.algos.base import Trainer
 from pedrl.algos.phase import MAX_TRIALS, Phase
+from pedrl.algos.run import RunSpec
 from pedrl.common.checks import check_trials_per_iteration
 from pedrl.rl import LinearSchedule
 
@@ -25,13 +26,14 @@ class VQQL(Trainer):
         iterations: blocks the trials are split into, each ending with a checkpoint.
         gather_trials: random-walk trials recorded for the quantizer.
         alpha: learning rate (the paper's VQQL baseline: 0.25).
-        **common: the keyword arguments of :class:`pedrl.algos.base.Trainer`.
+        run, **common: the run and the keyword arguments of :class:`pedrl.algos.base.Trainer`.
     """
 
     name = "vqql"
 
     def __init__(
         self,
+        run: RunSpec,
         *,
         num_agents: int = 20,
         trials: int = 3000,
@@ -45,7 +47,7 @@ class VQQL(Trainer):
         self.iterations = iterations
         self.gather_trials = gather_trials
         check_trials_per_iteration(trials, iterations, maximum=MAX_TRIALS)
-        super().__init__(alpha=alpha, **common)
+        super().__init__(run, alpha=alpha, **common)
 
     def phases(self) -> list[Phase]:
         block, extra = divmod(self.trials, self.iterations)

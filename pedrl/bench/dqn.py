@@ -31,15 +31,16 @@ def measure(*, quick: bool, trials: int) -> list[dict]:
     """Agent-decisions per second of the DQN learning and acting (module docstring)."""
     import torch
 
-    from pedrl.algos import DQN
+    from pedrl.algos import DQN, RunSpec
     from pedrl.algos.dqn_learning import DeepQLearner
     from pedrl.configs import env_factory
     from pedrl.trial.crowd import run_crowd
 
     agents, rooms = (20, 2) if quick else (80, 8)
-    trainer = DQN(env=env_factory(ROOM, {"name": "paper_room"}), vq=PLAIN, num_agents=agents,
-                      gather_trials=1, rooms_per_process=rooms, progress=False, tensorboard=False,
-                      buffer_size=100_000, **NETWORK)  # fmt: skip
+    run = RunSpec(env=env_factory(ROOM, {"name": "paper_room"}), vq=PLAIN, processes=1, rooms_per_process=rooms,
+                  progress=False,
+                  tensorboard=False)  # fmt: skip
+    trainer = DQN(run, num_agents=agents, gather_trials=1, buffer_size=100_000, **NETWORK)
     trainer.start()
     rows = []
     for learner, learn in (("dqn learning", True), ("dqn acting", False)):

@@ -19,7 +19,7 @@ module it loaded, all checked to lie in the tree). Everything below :func:`measu
 commit with a learning loop (6e692c4) already had (``VQQL``, ``gather``, ``fit_quantizer``, ``run_trial``), with the
 few later names looked up where they exist: the rooms of ``pedrl.scenarios.paper_room`` (a plain
 ``functools.partial(RoomEnv)`` before the scenarios came), ``env_for`` (``_env`` before), ``zeros_q_values``
-(``torch.zeros`` before).
+(``torch.zeros`` before), ``RunSpec`` (the trainer's own keywords before).
 """
 
 from __future__ import annotations
@@ -74,24 +74,28 @@ def matmul_peak(device: str = "cpu", *, size: int | None = None, repeats: int = 
 
 def measure(*, rooms: Sequence[int], trials: int, quick: bool, device: str) -> list[dict]:
     """Agent-decisions per second of the VQQL loop (``run_trial``) at R = 20, N = 20, for each E in ``rooms``."""
+    import pedrl.algos
     from pedrl.algos import VQQL
 
     prototypes = QUICK_PROTOTYPES if quick else PROTOTYPES
     rooms_of, zeros = _room_factory(), _zeros_q_values()
     rows = []
     for rooms_per_process in rooms:
-        trainer = VQQL(
+        run = dict(
             env=rooms_of,
             vq={"num_prototypes": prototypes, "max_iterations": 3, "max_states": 100_000},
-            num_agents=AGENTS,
-            trials=1,
-            gather_trials=2,  # 2 x 20 agents x 200 decisions: enough states per process for K = 4096
             processes=PROCESSES,
             rooms_per_process=rooms_per_process,
             device=device,
             progress=False,
             tensorboard=False,
         )
+        # 2 x 20 agents x 200 decisions gathered: enough states per process for K = 4096
+        learning = dict(num_agents=AGENTS, trials=1, gather_trials=2)
+        if hasattr(pedrl.algos, "RunSpec"):  # the run's keys in a record (a tree from before: the trainer's keywords)
+            trainer = VQQL(pedrl.algos.RunSpec(**run), **learning)
+        else:
+            trainer = VQQL(**run, **learning)
         env = (trainer.env_for if hasattr(trainer, "env_for") else trainer._env)(AGENTS)  # before env_for: _env
         env.reset(seed=0)
         phase = trainer.phases()[0]

@@ -42,7 +42,7 @@ ROOM: dict[str, Any] = {
 
 def measure(*, quick: bool, trials: int, tables: tuple[str, ...] = ("plain", "factored")) -> list[dict]:
     """Agent-decisions per second of the fused learning trial with each of ``tables`` (module docstring)."""
-    from pedrl.algos import ITVQQL
+    from pedrl.algos import ITVQQL, RunSpec
     from pedrl.configs import env_factory
 
     agents, processes, rooms = (20, 2, 2) if quick else (80, 8, 8)
@@ -51,20 +51,16 @@ def measure(*, quick: bool, trials: int, tables: tuple[str, ...] = ("plain", "fa
         (name, vq) for name, vq in (("plain", PLAIN), ("factored", {**PLAIN, "factors": FACTORS})) if name in tables
     ]
     for table, vq in chosen:
-        trainer = ITVQQL(
+        run = RunSpec(
             env=env_factory(ROOM, {"name": "paper_room"}),
             vq=vq,
-            num_agents=agents,
-            iterations=1,
-            trials=1,
-            gather_trials=1,
-            void_features="zero",
             processes=processes,
             rooms_per_process=rooms,
             fused=True,
             progress=False,
             tensorboard=False,
         )
+        trainer = ITVQQL(run, num_agents=agents, iterations=1, trials=1, gather_trials=1, void_features="zero")
         env = trainer.env_for(agents)
         env.reset(seed=0)
         phase = trainer.phases()[0]

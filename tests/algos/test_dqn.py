@@ -74,11 +74,19 @@ def test_dqn_other_seed_other_numbers(train_config, tmp_path):
 
 
 @pytest.mark.parametrize(
-    "inputs", [(), ("algo.neighbour_velocity=true",), ("algo.n_step=3",)], ids=["state", "neighbour_velocity", "n_step"]
+    ("inputs", "stop_after"),
+    [((), 9), ((), 12), (("algo.neighbour_velocity=true",), 9), (("algo.n_step=3",), 9)],
+    ids=["state", "state_second_iteration", "neighbour_velocity", "n_step"],
 )
-def test_dqn_killed_mid_run_resumes_to_the_same_network_memory_and_curve(inputs, train_config, tmp_path, monkeypatch):
+def test_dqn_killed_mid_run_resumes_to_the_same_network_memory_and_curve(
+    inputs, stop_after, train_config, tmp_path, monkeypatch
+):
+    """Two iterations of 7 trials, a checkpoint every 3: killed after 9 trials it resumes from the first iteration's
+    end; after 12, from the middle of the second (trial 3 of 7), which it continues, not restarts."""
     overrides = (*DQN, "checkpoint_every=3", "algo.trials=14", *inputs)
-    assert_resume_equals_uninterrupted(train_config, overrides, tmp_path, monkeypatch, stop_after=9, tensors="all")
+    assert_resume_equals_uninterrupted(
+        train_config, overrides, tmp_path, monkeypatch, stop_after=stop_after, tensors="all"
+    )
 
 
 def test_a_network_that_reads_the_neighbours_velocities_keeps_them_in_its_file_and_acts_on_them(train_config, tmp_path):

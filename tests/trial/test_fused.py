@@ -339,17 +339,17 @@ def test_a_walker_that_senses_no_neighbour_learns_on_both_paths(algo, tmp_path):
     it did before the encoder refused it; -1 is refused by the room and the encoder alike, in one line."""
     import functools
 
-    from pedrl.algos import INVQQL, ITVQQL
+    from pedrl.algos import INVQQL, ITVQQL, RunSpec
 
     paper = paper_room(width=12.0, length=12.0, door_width=3.0)
     room = functools.partial(paper.room, max_decisions=30, num_neighbours=0)
-    common = dict(env=room, vq={"num_prototypes": 32, "max_iterations": 2}, trials=2, gather_trials=2, processes=2,
-                  progress=False, tensorboard=False, seed=1, run_dir=tmp_path)  # fmt: skip
     for fused_path in (True, False):
+        run = RunSpec(env=room, vq={"num_prototypes": 32, "max_iterations": 2}, processes=2, progress=False,
+                      tensorboard=False, seed=1, run_dir=tmp_path, fused=fused_path)  # fmt: skip
         if algo == "it_vqql":
-            trainer = ITVQQL(**common, iterations=2, num_agents=4, fused=fused_path)
+            trainer = ITVQQL(run, trials=2, gather_trials=2, iterations=2, num_agents=4)
         else:
-            trainer = INVQQL(**common, stages=[1, 2], fused=fused_path)
+            trainer = INVQQL(run, trials=2, gather_trials=2, stages=[1, 2])
         assert trainer.encoder_settings.num_features == 3 + 2 * 2
         result = trainer.fit()
         assert 0.0 <= result.final["success_rate_mean"] <= 1.0

@@ -83,21 +83,19 @@ def test_sequential_collision_rule_on_cuda_equals_the_cpu_on_a_hand_built_scene(
 
 def test_a_training_trial_runs_on_cuda_and_learns_like_the_cpu():
 
-    from pedrl.algos import VQQL
+    from pedrl.algos import VQQL, RunSpec
 
     rates = {}
     for device in ("cpu", "cuda"):
-        trainer = VQQL(
+        run = RunSpec(
             env=paper_room(width=8.0, length=10.0, door_width=1.5).room,
             vq={"num_prototypes": 32, "max_iterations": 3},
-            num_agents=4,
-            trials=1,
-            gather_trials=1,
             processes=4,
             device=device,
             progress=False,
             tensorboard=False,
         )
+        trainer = VQQL(run, num_agents=4, trials=1, gather_trials=1)
         env = trainer.env_for(4)
         env.reset(seed=0)
         phase = trainer.phases()[0]
