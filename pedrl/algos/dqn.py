@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any, Final
 
@@ -77,10 +78,11 @@ MIN_STD: Final = 1e-3
 """A feature whose spread on the random walk is below this (a constant) is standardised by 1 instead."""
 
 
-class DQN(LearningRun):
-    """Double DQN with a target network and a replay memory per learning process (module docstring).
+@dataclass(frozen=True)
+class DQNConfig:
+    """The settings of ``algo=dqn`` (each an ``algo`` key), every value checked when the record is made.
 
-    Args:
+    Attributes:
         num_agents: learning agents per room.
         trials: total learning trials.
         iterations: blocks the trials are split into, each ending with a checkpoint ``iter_XXXX``.
@@ -105,65 +107,82 @@ class DQN(LearningRun):
         reward_scale: rewards are multiplied by this before they are learned (Q-values in these units).
         max_grad_norm: each process's gradient is clipped to this norm.
         epsilon_start, epsilon_end, epsilon_decay_fraction: the exploration schedule over the run's trials.
+    """
+
+    num_agents: int = 20
+    trials: int = 200
+    iterations: int = 1
+    gather_trials: int = 2
+    hidden: Sequence[int] = (256, 256)
+    head: str = "joint"
+    neighbour_velocity: bool = False
+    learning_rate: float = 5e-4
+    gamma: float = 0.91
+    n_step: int = 1
+    batch_size: int = 256
+    buffer_size: int = 100_000
+    replay_balance: str = "none"
+    learning_starts: int = 5_000
+    train_every: int = 1
+    gradient_steps: int = 1
+    target_every: int = 500
+    reward_scale: float = 0.1
+    max_grad_norm: float = 10.0
+    epsilon_start: float = 1.0
+    epsilon_end: float = 0.05
+    epsilon_decay_fraction: float = 0.5
+
+    def __post_init__(self) -> None:
+        _check_settings({item.name: getattr(self, item.name) for item in fields(self)})
+        object.__setattr__(self, "hidden", tuple(self.hidden))
+
+    def update(self) -> DQNSettings:
+        """The settings of the update (:class:`pedrl.rl.deep_q.DQNSettings`)."""
+        return DQNSettings(self.gamma, self.batch_size, self.learning_starts, self.train_every, self.gradient_steps,
+                           self.target_every, self.reward_scale, self.max_grad_norm, self.replay_balance == "room",
+                           self.n_step)  # fmt: skip
+
+
+class DQN(LearningRun):
+    """Double DQN with a target network and a replay memory per learning process (module docstring).
+
+    Args:
         run: what the run is (of ``run.vq`` only ``distance_transform`` is read: the inputs are the states as the
             tables' quantizer sees them).
+        **settings: the keys of :class:`DQNConfig`.
     """
 
     name = "dqn"
     phase_word = "iteration"
+    settings_class = DQNConfig
 
-    def __init__(
-        self,
-        run: RunSpec,
-        *,
-        num_agents: int = 20,
-        trials: int = 200,
-        iterations: int = 1,
-        gather_trials: int = 2,
-        hidden: Sequence[int] = (256, 256),
-        head: str = "joint",
-        neighbour_velocity: bool = False,
-        learning_rate: float = 5e-4,
-        gamma: float = 0.91,
-        n_step: int = 1,
-        batch_size: int = 256,
-        buffer_size: int = 100_000,
-        replay_balance: str = "none",
-        learning_starts: int = 5_000,
-        train_every: int = 1,
-        gradient_steps: int = 1,
-        target_every: int = 500,
-        reward_scale: float = 0.1,
-        max_grad_norm: float = 10.0,
-        epsilon_start: float = 1.0,
-        epsilon_end: float = 0.05,
-        epsilon_decay_fraction: float = 0.5,
-    ) -> None:
+    def __init__(self, run: RunSpec, **settings: Any) -> None:
         if run.vq.factors is not None:  # a table's key
             raise ValueError(
                 "vq.factors is invalid with algo=dqn: the network reads the whole state (of the vq group it reads "
                 "distance_transform only); use algo=vqql or algo=it_vqql for a factored table"
             )
-        _check_settings(locals())
+        algo = DQNConfig(**settings)
         super().__init__(run)
+        self.algo = algo
         self.num_agents, self.trials, self.iterations, self.gather_trials = (
-            num_agents,
-            trials,
-            iterations,
-            gather_trials,
+            algo.num_agents,
+            algo.trials,
+            algo.iterations,
+            algo.gather_trials,
         )
-        self.learning_rate, self.buffer_size, self.hidden = learning_rate, buffer_size, tuple(hidden)
-        self.head, self.neighbour_velocity = head, neighbour_velocity
-        self.settings = DQNSettings(gamma, batch_size, learning_starts, train_every, gradient_steps, target_every,
-                                    reward_scale, max_grad_norm, replay_balance == "room", n_step)  # fmt: skip
-        self.schedule = LinearSchedule(epsilon_start, epsilon_end, max(1, round(epsilon_decay_fraction * trials)))
-        self.env = self.env_factory(num_replicas=run.replicas, num_agents=num_agents, device=self.device)
-        self.log_walking(trials, self.env)
+        self.learning_rate, self.buffer_size, self.hidden = algo.learning_rate, algo.buffer_size, algo.hidden
+        self.head, self.neighbour_velocity = algo.head, algo.neighbour_velocity
+        self.settings = algo.update()
+        decay = max(1, round(algo.epsilon_decay_fraction * algo.trials))
+        self.schedule = LinearSchedule(algo.epsilon_start, algo.epsilon_end, decay)
+        self.env = self.env_factory(num_replicas=run.replicas, num_agents=algo.num_agents, device=self.device)
+        self.log_walking(algo.trials, self.env)
         self.path, why_not = self.trial_path()  # fused=true refused before any compute
         self.encoder_settings = EncoderSettings.for_room(
             self.env, distance_transform=self.vq.distance_transform
         ).spanning(self.mix)
-        self.width = input_width(self.encoder_settings, neighbour_velocity=neighbour_velocity)
+        self.width = input_width(self.encoder_settings, neighbour_velocity=algo.neighbour_velocity)
         check_memory(
             self.memory_needs(),
             device=self.device,
@@ -338,7 +357,7 @@ def _decisions_on(bar: tqdm) -> Callable[[int, int], None] | None:
 
 
 def _check_settings(settings: Mapping[str, Any]) -> None:
-    """One line for the first of a DQN's ``settings`` (its constructor's arguments) that is out of range."""
+    """One line for the first of a DQN's ``settings`` (the keys of :class:`DQNConfig`) that is out of range."""
     check_trials_per_iteration(settings["trials"], settings["iterations"], maximum=MAX_TRIALS)
     for key in ("num_agents", "train_every", "target_every"):
         check_integer(key, settings[key], minimum=1)

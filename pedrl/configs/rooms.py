@@ -115,7 +115,11 @@ def config_settings(
 
 
 def setting_names(cls: type) -> list[str]:
-    """Keyword parameters of ``cls``, following ``**kwargs`` up to the base classes' constructors."""
+    """The fields of ``cls.settings_class`` (a learner whose settings are a record), else the keyword parameters of
+    ``cls``, following ``**kwargs`` up to the base classes' constructors."""
+    record = getattr(cls, "settings_class", None)
+    if record is not None:
+        return [item.name for item in fields(record)]
     names: list[str] = []
     for klass in cls.__mro__:
         if "__init__" not in vars(klass) or klass is object:
