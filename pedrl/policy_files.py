@@ -45,8 +45,16 @@ from pedrl.configs import (
     stored_value,
 )
 from pedrl.io import Checkpoint, CheckpointError, load_checkpoint
-from pedrl.rl.neural import NeuralPolicy, neural_from_tensors
-from pedrl.rl.policy import POLICY_KIND, TabularPolicy, check_policy_file, from_tensors
+from pedrl.rl.neural import NEURAL_LEARNER, NeuralPolicy, neural_from_tensors
+from pedrl.rl.policy import (
+    POLICY_KIND,
+    POLICY_READERS,
+    TABLE_LEARNER,
+    LearnedPolicy,
+    TabularPolicy,
+    check_policy_file,
+    from_tensors,
+)
 from pedrl.sim import RoomEnv
 from pedrl.vq.encoder import EncoderSettings, StateEncoder
 from pedrl.vq.factored import FactoredQuantizer, factor_specs
@@ -54,7 +62,6 @@ from pedrl.vq.quantizer import ProcessQuantizers
 
 RNG_KEYS: Final = ("rng/trainer", "rng/env")
 """Generator states a training checkpoint holds (to resume mid-phase)."""
-LearnedPolicy = TabularPolicy | NeuralPolicy
 """What :func:`load_policy` returns: tables over a quantizer, or a Q-network (``algo=dqn``)."""
 _ROOMS: weakref.WeakKeyDictionary[LearnedPolicy, Callable[..., RoomEnv]] = weakref.WeakKeyDictionary()
 """The room factory each loaded policy was checked against: :func:`room_factory` reuses it (building a stored room
@@ -118,7 +125,8 @@ def load_policy(
         algo = ALGO_TARGETS[config["algo"]["_target_"]]
         metadata = {"algo": algo, "config": config, "source": str(path)}
         room = factory(num_replicas=1, num_agents=1, device=device)
-        if algo == "dqn":  # a network: its file is checked by what it must hold, the rest (optimizer, memory) ignored
+        if stored_learner(checkpoint.metadata, algo) == NEURAL_LEARNER:
+            # a network: its file is checked by what it must hold, the rest (optimizer, memory) ignored
             if not exported:
                 check_run_metadata(checkpoint.metadata, config)
             settings = _network_settings(
@@ -138,6 +146,16 @@ def load_policy(
         raise CheckpointError(f"{where}: {first_line(err)}") from None
     _ROOMS[policy] = factory
     return policy
+
+
+def stored_learner(meta: Mapping[str, Any], algo: str) -> str:
+    """The learner of a file (the key of its reader, :data:`pedrl.rl.policy.POLICY_READERS`): its metadata's
+    ``learner``, or in a file written before the key that of its algorithm (``dqn``: a network; any other: tables).
+    One line for an unknown one."""
+    learner = meta.get("learner", NEURAL_LEARNER if algo == "dqn" else TABLE_LEARNER)
+    if learner not in POLICY_READERS:
+        raise ValueError(f"metadata learner={shown(learner)} is unknown: allowed: {', '.join(POLICY_READERS)}")
+    return learner
 
 
 def export_policy(

@@ -42,7 +42,7 @@ from pedrl.algos.restore import RestoredState, restore_state
 from pedrl.algos.run import LearningRun, RunSpec, open_resume
 from pedrl.common.checks import check_choice, check_epsilons, check_memory, check_number
 from pedrl.rl import LinearSchedule, zeros_q_values
-from pedrl.rl.policy import TabularPolicy
+from pedrl.rl.policy import TABLE_LEARNER, TabularPolicy
 from pedrl.sim import RoomEnv
 from pedrl.trial.crowd import run_crowd
 from pedrl.trial.loop import Learner
@@ -78,6 +78,7 @@ class Trainer(LearningRun):
     """
 
     name = "base"
+    learner = TABLE_LEARNER
 
     def __init__(
         self,

@@ -49,7 +49,7 @@ from pedrl.common.checks import (
 from pedrl.rl import LinearSchedule
 from pedrl.rl.deep_q import DoubleDQN, DQNSettings
 from pedrl.rl.network import QNetwork, check_hidden, head_outputs
-from pedrl.rl.neural import NeuralPolicy, input_width
+from pedrl.rl.neural import NEURAL_LEARNER, NeuralPolicy, input_width
 from pedrl.rl.qtable import NUM_ACTIONS
 from pedrl.rl.replay import ReplayBuffer
 from pedrl.sim import RoomEnv
@@ -153,6 +153,7 @@ class DQN(LearningRun):
     """
 
     name = "dqn"
+    learner = NEURAL_LEARNER
     phase_word = "iteration"
     settings_class = DQNConfig
 

@@ -149,6 +149,8 @@ class LearningRun:
     """
 
     name = "base"
+    learner = ""
+    """The learner of the run's policy (:data:`pedrl.rl.policy.POLICY_READERS`), stored in every checkpoint."""
     phase_word = "phase"
     """What a phase is called in the progress lines (``iteration`` for a network's blocks of trials)."""
 
@@ -306,6 +308,7 @@ class LearningRun:
         tensors = {**self.state_tensors(), **rng}
         metadata = {
             "algo": self.name,
+            "learner": self.learner,
             "iteration": phase.index,
             "trial": trial,
             "phase_complete": trial >= phase.trials,

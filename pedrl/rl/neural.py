@@ -10,14 +10,20 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Final
+from typing import Any, ClassVar, Final
 
 import torch
 
 from pedrl.common.checks import check_number
-from pedrl.io import CheckpointError, load_checkpoint, save_checkpoint
 from pedrl.rl.network import QNetwork, head_of, head_outputs, layer_widths
-from pedrl.rl.policy import FILE_KEYS, POLICY_KIND, POLICY_VERSION, PolicyController, TableLayout, check_observations
+from pedrl.rl.policy import (
+    PolicyController,
+    TableLayout,
+    check_observations,
+    read_policy_file,
+    register_learner,
+    write_policy_file,
+)
 from pedrl.rl.qtable import NUM_ACTIONS
 from pedrl.vq.encoder import EncoderSettings, StateEncoder
 
@@ -25,11 +31,12 @@ NETWORK_PREFIX: Final = "network"
 INPUT_KEYS: Final = ("inputs/mean", "inputs/std")
 """The standardisation of the prepared features: ``(F,)`` float32 each."""
 NEURAL_LEARNER: Final = "neural"
-"""``learner`` of a neural policy file's metadata (a file of tables has none)."""
+"""``learner`` of a neural policy file's metadata."""
 
 
 class NeuralPolicy:
-    """Acts epsilon-greedily on ``network``'s Q-values of the agents' prepared, standardised observations.
+    """Acts epsilon-greedily on ``network``'s Q-values of the agents' prepared, standardised observations (a
+    :class:`pedrl.rl.policy.LearnedPolicy` of learner :data:`NEURAL_LEARNER`).
 
     Args:
         encoder: prepares observations (:meth:`pedrl.vq.StateEncoder.prepare`; it holds no quantizer).
@@ -40,6 +47,8 @@ class NeuralPolicy:
         neighbour_velocity: the network also reads each neighbour slot's velocity in the goal frame (the room's
             ``info["neighbour_velocity"]``, m/s, 0 in empty slots; ``algo.neighbour_velocity``).
     """
+
+    learner: ClassVar[str] = NEURAL_LEARNER
 
     def __init__(
         self,
@@ -195,35 +204,18 @@ class NeuralPolicy:
         return {**self.network.tensors(NETWORK_PREFIX), INPUT_KEYS[0]: self.mean, INPUT_KEYS[1]: self.std}
 
     def save(self, path: str | Path) -> Path:
-        """Write the network and its standardisation, with their metadata, to ``path`` (atomically; safetensors)."""
-        tensors = {name: tensor.contiguous() for name, tensor in self.tensors().items()}
-        metadata = {
-            **{key: value for key, value in self.metadata.items() if key not in FILE_KEYS},
-            "kind": POLICY_KIND,
-            "policy_version": POLICY_VERSION,
-            "learner": NEURAL_LEARNER,
-            "encoder": self.encoder.settings.to_metadata(),
-        }
-        save_checkpoint(Path(path), tensors=tensors, metadata=metadata)
-        return Path(path)
+        """Write the network and its standardisation, with their metadata, to ``path``
+        (:func:`pedrl.rl.policy.write_policy_file`)."""
+        return write_policy_file(self, path)
 
     @classmethod
     def load(cls, path: str | Path, *, device: str | torch.device = "cpu") -> NeuralPolicy:
-        """Read a neural policy file written by :meth:`save`: nothing in it is executed, and every tensor is checked.
+        """Read a neural policy file written by :meth:`save` (:func:`pedrl.rl.policy.read_policy_file`).
 
         Raises:
             CheckpointError: one line naming the file and what is wrong.
         """
-        checkpoint = load_checkpoint(path, device=device)
-        meta = checkpoint.metadata
-        if meta.get("kind") != POLICY_KIND or meta.get("learner") != NEURAL_LEARNER:
-            raise CheckpointError(f"{str(path)!r} is not an exported neural policy: export one with pedrl-export")
-        try:
-            settings = EncoderSettings.from_metadata(meta.get("encoder") or {})
-            carried = {key: value for key, value in meta.items() if key not in (*FILE_KEYS, "learner")}
-            return neural_from_tensors(settings, checkpoint.tensors, num_actions=NUM_ACTIONS, metadata=carried)
-        except ValueError as err:
-            raise CheckpointError(f"policy {str(path)!r}: {err}") from None
+        return read_policy_file(path, device=device, learner=cls.learner)
 
 
 def neural_from_tensors(
@@ -265,3 +257,6 @@ class NeuralController(PolicyController):
 
     stepped = True
     """Run by :func:`pedrl.trial.crowd.run_crowd` in a :class:`~pedrl.trial.stepped.CompiledRoom` where it can."""
+
+
+register_learner(NEURAL_LEARNER, neural_from_tensors)

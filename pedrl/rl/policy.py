@@ -14,9 +14,9 @@ A room with more agents than were learned reuses the tables: with ``A = 20``, ag
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any, Final
+from typing import Any, ClassVar, Final, Protocol, runtime_checkable
 
 import torch
 
@@ -29,8 +29,10 @@ POLICY_KIND: Final = "pedrl-policy"
 """``kind`` of an exported policy file's metadata (a training checkpoint has none)."""
 POLICY_VERSION: Final = 1
 """``policy_version`` of the files this pedrl writes and reads."""
-FILE_KEYS: Final = ("format", "format_version", "pedrl_version", "kind", "policy_version", "encoder")
+FILE_KEYS: Final = ("format", "format_version", "pedrl_version", "kind", "policy_version", "learner", "encoder")
 """Metadata keys a policy file writes itself; the others are the policy's own ``metadata``."""
+TABLE_LEARNER: Final = "table"
+"""``learner`` of a policy file of tables (files written before the key have none and are read as tables)."""
 QUANTIZER_PREFIX: Final = "quantizer"
 QUANTIZER_DTYPES: Final = {
     "mean": torch.float32,
@@ -41,6 +43,102 @@ QUANTIZER_DTYPES: Final = {
     "slots": torch.int64,
 }
 """dtype of every quantizer tensor, by the last part of its name (``process000/part3.prototypes``)."""
+
+
+@runtime_checkable
+class LearnedPolicy(Protocol):
+    """What ``pedrl-eval``, ``pedrl-validate``, the PettingZoo adapter, the tools and ``pedrl-export`` take of a
+    learned policy, whatever learned it (:class:`TabularPolicy` and :class:`pedrl.rl.NeuralPolicy` are two).
+
+    A policy acts on the room's observations (``act``, or as a controller of the evaluation engine), carries plain
+    ``metadata``, names its ``learner`` (the key of its file reader, :data:`POLICY_READERS`), and gives its state as
+    named tensors (``tensors``), which :func:`write_policy_file` writes and :func:`read_policy_file` reads back.
+    """
+
+    learner: ClassVar[str]
+    metadata: dict[str, Any]
+    encoder: StateEncoder
+
+    @property
+    def num_processes(self) -> int: ...
+
+    @property
+    def num_actions(self) -> int: ...
+
+    @property
+    def device(self) -> torch.device: ...
+
+    def act(
+        self, obs: torch.Tensor, info: Mapping[str, Any], *, epsilon: float = 0.0, generator: torch.Generator | None
+    ) -> torch.Tensor: ...
+
+    def controller(self, epsilon: float = 0.0, generator: torch.Generator | None = None) -> Any: ...
+
+    def check(self, num_actions: int | None = None) -> None: ...
+
+    def tensors(self) -> dict[str, torch.Tensor]: ...
+
+    def save(self, path: str | Path) -> Path: ...
+
+
+PolicyReader = Callable[..., LearnedPolicy]
+"""``reader(settings, tensors, *, num_actions, metadata)``: a checked policy from a file's encoder settings, tensors
+and carried metadata (one-line ``ValueError`` otherwise)."""
+POLICY_READERS: Final[dict[str, PolicyReader]] = {}
+"""The file reader of each ``learner`` (:func:`register_learner`)."""
+
+
+def register_learner(learner: str, reader: PolicyReader) -> None:
+    """Make policy files of ``learner`` readable by :func:`read_policy_file` (and so by :func:`pedrl.load_policy`)."""
+    POLICY_READERS[learner] = reader
+
+
+def write_policy_file(policy: LearnedPolicy, path: str | Path) -> Path:
+    """Write ``policy``'s tensors, its encoder settings, its learner and its metadata to ``path`` (atomically;
+    safetensors): the one policy file of every learner."""
+    tensors = {name: tensor.contiguous() for name, tensor in policy.tensors().items()}
+    metadata = {
+        **{key: value for key, value in policy.metadata.items() if key not in FILE_KEYS},
+        "kind": POLICY_KIND,
+        "policy_version": POLICY_VERSION,
+        "learner": policy.learner,
+        "encoder": policy.encoder.settings.to_metadata(),
+    }
+    save_checkpoint(Path(path), tensors=tensors, metadata=metadata)
+    return Path(path)
+
+
+def read_policy_file(
+    path: str | Path, *, device: str | torch.device = "cpu", learner: str | None = None
+) -> LearnedPolicy:
+    """Read a policy file of :func:`write_policy_file` (``pedrl-export``) with its learner's reader: nothing in it is
+    executed, and every tensor and setting is checked. ``learner``: accept only that learner's files.
+
+    Raises:
+        CheckpointError: one line naming the file and what is wrong.
+    """
+    checkpoint = load_checkpoint(path, device=device)
+    meta = checkpoint.metadata
+    if meta.get("kind") != POLICY_KIND:
+        raise CheckpointError(
+            f"{str(path)!r} is not an exported policy (metadata kind={meta.get('kind')!r}, must be "
+            f"{POLICY_KIND!r}): export a training checkpoint with pedrl-export, or load it with pedrl.load_policy"
+        )
+    found = meta.get("learner", TABLE_LEARNER)
+    if found not in POLICY_READERS:
+        raise CheckpointError(
+            f"policy {str(path)!r}: metadata learner={found!r} is unknown: allowed: {', '.join(POLICY_READERS)}"
+        )
+    if learner is not None and found != learner:
+        raise CheckpointError(
+            f"{str(path)!r} is a policy of learner {found!r}, not {learner!r}: load it with pedrl.load_policy"
+        )
+    try:
+        settings = check_policy_header(meta)
+        carried = {key: value for key, value in meta.items() if key not in FILE_KEYS}
+        return POLICY_READERS[found](settings, checkpoint.tensors, num_actions=NUM_ACTIONS, metadata=carried)
+    except ValueError as err:
+        raise CheckpointError(f"policy {str(path)!r}: {err}") from None
 
 
 class TableLayout:
@@ -78,7 +176,8 @@ class TableLayout:
 
 
 class TabularPolicy:
-    """Acts epsilon-greedily on learned tables ``q_values (P, A, K, U)`` over ``encoder``'s state ids.
+    """Acts epsilon-greedily on learned tables ``q_values (P, A, K, U)`` over ``encoder``'s state ids (a
+    :class:`LearnedPolicy` of learner :data:`TABLE_LEARNER`).
 
     Args:
         encoder: observation -> state id (its quantizer has K prototypes per process).
@@ -86,6 +185,8 @@ class TabularPolicy:
         rooms_per_process: E of the agent-to-table rule (module docstring); 1 for a loaded policy.
         metadata: plain values carried with the policy (the algorithm, the room it learned in).
     """
+
+    learner: ClassVar[str] = TABLE_LEARNER
 
     def __init__(
         self,
@@ -210,54 +311,55 @@ class TabularPolicy:
         }
 
     def save(self, path: str | Path) -> Path:
-        """Write the encoder and the tables, with their metadata, to ``path`` (atomically; safetensors)."""
-        tensors = {name: tensor.contiguous() for name, tensor in self.tensors().items()}
-        metadata = {
-            **{key: value for key, value in self.metadata.items() if key not in FILE_KEYS},
-            "kind": POLICY_KIND,
-            "policy_version": POLICY_VERSION,
-            "encoder": self.encoder.settings.to_metadata(),
-        }
-        save_checkpoint(Path(path), tensors=tensors, metadata=metadata)
-        return Path(path)
+        """Write the encoder and the tables, with their metadata, to ``path`` (:func:`write_policy_file`)."""
+        return write_policy_file(self, path)
 
     @classmethod
     def load(cls, path: str | Path, *, device: str | torch.device = "cpu") -> TabularPolicy:
-        """Read a policy file written by :meth:`save` (``pedrl-export``): nothing in it is executed, and every
-        tensor and setting is checked.
+        """Read a policy file of tables written by :meth:`save` (``pedrl-export``; :func:`read_policy_file`).
 
         Raises:
             CheckpointError: one line naming the file and what is wrong.
         """
-        checkpoint = load_checkpoint(path, device=device)
-        meta = checkpoint.metadata
-        if meta.get("kind") != POLICY_KIND:
-            raise CheckpointError(
-                f"{str(path)!r} is not an exported policy (metadata kind={meta.get('kind')!r}, must be "
-                f"{POLICY_KIND!r}): export a training checkpoint with pedrl-export, or load it with pedrl.load_policy"
-            )
-        try:
-            settings = check_policy_file(meta, checkpoint.tensors)
-            carried = {key: value for key, value in meta.items() if key not in FILE_KEYS}
-            return from_tensors(settings, checkpoint.tensors, num_actions=NUM_ACTIONS, metadata=carried)
-        except ValueError as err:
-            raise CheckpointError(f"policy {str(path)!r}: {err}") from None
+        return read_policy_file(path, device=device, learner=cls.learner)
 
 
-def check_policy_file(meta: Mapping[str, Any], tensors: Mapping[str, torch.Tensor]) -> EncoderSettings:
+def check_policy_header(meta: Mapping[str, Any]) -> EncoderSettings:
     """The encoder settings of an exported policy file (``meta`` with ``kind`` :data:`POLICY_KIND`), after a one-line
-    ``ValueError`` for an unknown ``policy_version``, missing or bad ``encoder`` settings, or a tensor other than
-    ``q_values`` and ``quantizer/...`` (the tensors themselves are checked by :func:`from_tensors`)."""
+    ``ValueError`` for an unknown ``policy_version`` or missing or bad ``encoder`` settings."""
     if meta.get("policy_version") != POLICY_VERSION:
         version = meta.get("policy_version")
         raise ValueError(f"metadata policy_version={version!r} is unknown: this pedrl reads {POLICY_VERSION}")
     if "encoder" not in meta:
         raise ValueError("metadata encoder is missing: a policy file stores its encoder settings")
-    settings = EncoderSettings.from_metadata(meta["encoder"])
+    return EncoderSettings.from_metadata(meta["encoder"])
+
+
+def check_policy_file(meta: Mapping[str, Any], tensors: Mapping[str, torch.Tensor]) -> EncoderSettings:
+    """The encoder settings of an exported policy file of tables (:func:`check_policy_header`), after a one-line
+    ``ValueError`` for a tensor other than ``q_values`` and ``quantizer/...`` (the tensors themselves are checked by
+    :func:`from_tensors`)."""
+    settings = check_policy_header(meta)
+    _check_table_names(tensors)
+    return settings
+
+
+def _check_table_names(tensors: Mapping[str, torch.Tensor]) -> None:
     for name in set(tensors) - {"q_values"}:
         if not name.startswith(QUANTIZER_PREFIX + "/"):
             raise ValueError(f"tensor {name} is unknown: allowed: q_values, quantizer/...")
-    return settings
+
+
+def tables_from_file(
+    settings: EncoderSettings,
+    tensors: Mapping[str, torch.Tensor],
+    *,
+    num_actions: int | None = None,
+    metadata: Mapping[str, Any] | None = None,
+) -> TabularPolicy:
+    """The reader of a policy file of tables (:data:`POLICY_READERS`): only ``q_values`` and ``quantizer/...``."""
+    _check_table_names(tensors)
+    return from_tensors(settings, tensors, num_actions=num_actions, metadata=metadata)
 
 
 def check_observations(obs: Any, info: Any, settings: EncoderSettings | None, device: torch.device) -> None:
@@ -353,3 +455,6 @@ def from_tensors(
     policy = TabularPolicy(StateEncoder(settings, quantizer), q_values, metadata=metadata)
     policy.check(num_actions)
     return policy
+
+
+register_learner(TABLE_LEARNER, tables_from_file)

@@ -229,3 +229,32 @@ def test_a_network_file_whose_config_contradicts_its_layers_is_refused(train_con
             with pytest.raises(CheckpointError) as error:
                 pedrl.load_policy(changed)
             assert f"its config's algo.hidden={hidden} disagrees with its network's layers [16, 8]" in str(error.value)
+
+
+def test_a_checkpoint_names_its_learner_and_load_policy_reads_it_by_that_name(train_config, tmp_path):
+    """Every checkpoint stores the learner of its policy (the key of the file reader); load_policy dispatches on it,
+    refuses an unknown one in one line, and reads a checkpoint written before the key by its algorithm."""
+    import json
+
+    from safetensors import safe_open
+    from safetensors.torch import load_file, save_file
+
+    from pedrl.io import CheckpointError
+    from pedrl.io.checkpoint import METADATA_KEY
+
+    train(train_config(*DQN, "algo.trials=2", "algo.iterations=1"), run_dir=tmp_path)
+    path = tmp_path / "checkpoints" / "last.safetensors"
+    assert load_checkpoint(path).metadata["learner"] == "neural"
+
+    def rewrite(change):
+        tensors = load_file(str(path))
+        with safe_open(str(path), framework="pt") as handle:
+            metadata = json.loads(handle.metadata()[METADATA_KEY])
+        change(metadata)
+        save_file(tensors, str(path), metadata={METADATA_KEY: json.dumps(metadata)})
+
+    rewrite(lambda m: m.update(learner="forest"))
+    with pytest.raises(CheckpointError, match="metadata learner='forest' is unknown: allowed: table, neural$"):
+        load_policy(path)
+    rewrite(lambda m: m.pop("learner"))  # as checkpoints were written before the key
+    assert isinstance(load_policy(path), NeuralPolicy)

@@ -139,3 +139,31 @@ def test_bad_arguments_of_act_are_refused_in_one_line(call, error, message):
     with pytest.raises(error, match=message) as caught:
         call(policy, obs, info)
     assert "\n" not in str(caught.value)
+
+
+def test_every_learner_writes_one_policy_file_and_each_reader_takes_only_its_own(tmp_path):
+    """The one writer stores the policy's learner; each class's load reads its own learner's files and refuses
+    another's in one line; an unknown learner is refused; a file of tables written before the key reads as tables."""
+    from pedrl.rl.network import QNetwork
+    from pedrl.rl.neural import NeuralPolicy
+    from pedrl.rl.policy import LearnedPolicy, read_policy_file
+
+    tables, *_ = small_policy()
+    settings = tables.encoder.settings
+    network = QNetwork(1, settings.num_features + settings.num_neighbours, (8,), 81)
+    neural = NeuralPolicy(StateEncoder(settings), network, torch.zeros(settings.num_features),
+                          torch.ones(settings.num_features))  # fmt: skip
+    assert isinstance(tables, LearnedPolicy) and isinstance(neural, LearnedPolicy)
+    paths = {policy.learner: policy.save(tmp_path / f"{policy.learner}.safetensors") for policy in (tables, neural)}
+    assert isinstance(read_policy_file(paths["table"]), TabularPolicy)
+    assert isinstance(read_policy_file(paths["neural"]), NeuralPolicy)
+    with pytest.raises(CheckpointError, match="is a policy of learner 'neural', not 'table': load it with") as err:
+        TabularPolicy.load(paths["neural"])
+    assert "\n" not in str(err.value)
+    with pytest.raises(CheckpointError, match="is a policy of learner 'table', not 'neural'"):
+        NeuralPolicy.load(paths["table"])
+    _rewrite(paths["neural"], lambda t, m: m.update(learner="forest"))
+    with pytest.raises(CheckpointError, match="metadata learner='forest' is unknown: allowed: table, neural"):
+        read_policy_file(paths["neural"])
+    _rewrite(paths["table"], lambda t, m: m.pop("learner"))  # as files of tables were written before the key
+    torch.testing.assert_close(TabularPolicy.load(paths["table"]).q_values, tables.q_values)
