@@ -22,14 +22,14 @@ from pedrl.train import train
 EXPERIMENTS = sorted(p.stem for p in (Path(CONFIG_DIR) / "experiment").glob("*.yaml"))
 PAPER = {"paper_vqql": ("VQQL", 0.25), "paper_it": ("ITVQQL", 0.35), "paper_in": ("INVQQL", 0.35)}
 NAMES = {"pedrl.algos.VQQL": "vqql", "pedrl.algos.ITVQQL": "it_vqql", "pedrl.algos.INVQQL": "in_vqql"}
-NAMES |= {"pedrl.algos.DQN": "dqn"}
+NAMES |= {"pedrl.algos.DQN": "dqn", "pedrl.algos.PPO": "ppo"}
 K_VALUES = [512, 1024, 2048, 4096, 8192, 16384]
 REWARDS = {"paper_vqql": "paper", "paper_it": "paper", "paper_in": "paper", "main": "crowd", "tuned_it": "tuned"}
 REWARDS |= {"main_heading": "tuned"}
 REWARDS |= {"tuned_in": "tuned", "pedestrian": "tuned", "pedestrian_mix": "tuned", "pedestrian_walk": "tuned"}
 REWARDS |= {"pedestrian_lanes": "tuned", "main_factored": "crowd", "pedestrian_walk_factored": "tuned"}
 REWARDS |= {"paper_it_full": "paper", "paper_in_full": "paper", "main_dqn": "crowd", "pedestrian_walk_dqn": "tuned"}
-REWARDS |= {"pedestrian_free_dqn": "walk"}
+REWARDS |= {"pedestrian_free_dqn": "walk", "main_ppo": "crowd", "pedestrian_walk_ppo": "tuned"}
 # the paper_faithful presets and the literal ones they build on
 FAITHFUL = {
     "paper_faithful_vqql": "paper_vqql",

@@ -13,9 +13,9 @@ from tests.conftest import compose_config
 onnxruntime = pytest.importorskip("onnxruntime")
 
 
-def train_dqn(tmp_path_factory, *overrides: str):
-    run = tmp_path_factory.mktemp("dqn")
-    cfg = compose_config("train", ["debug=default", "algo=dqn", "algo.trials=4", "algo.iterations=1", "logger=none",
+def train_dqn(tmp_path_factory, *overrides: str, algo: str = "dqn"):
+    run = tmp_path_factory.mktemp(algo)
+    cfg = compose_config("train", ["debug=default", f"algo={algo}", "algo.trials=4", "algo.iterations=1", "logger=none",
                                    "threads=1", "progress=false", *overrides])  # fmt: skip
     train(cfg, run_dir=run)
     return run / "checkpoints" / "last.safetensors"
@@ -40,7 +40,12 @@ def velocity_checkpoint(tmp_path_factory):
     return train_dqn(tmp_path_factory, "algo.neighbour_velocity=true")
 
 
-@pytest.mark.parametrize("head", ["dqn_checkpoint", "branching_checkpoint", "velocity_checkpoint"])
+@pytest.fixture(scope="module")
+def ppo_checkpoint(tmp_path_factory):
+    return train_dqn(tmp_path_factory, algo="ppo")
+
+
+@pytest.mark.parametrize("head", ["dqn_checkpoint", "branching_checkpoint", "velocity_checkpoint", "ppo_checkpoint"])
 def test_onnx_round_trip_gives_pedrls_values_and_actions(head, request, tmp_path):
     dqn_checkpoint = request.getfixturevalue(head)
     path = _export(dqn_checkpoint, tmp_path / "policy.onnx", "process=1")
@@ -66,6 +71,8 @@ def test_onnx_round_trip_gives_pedrls_values_and_actions(head, request, tmp_path
     assert list(contract["inputs"]) == list(feeds)
     assert contract["observation"]["features"][0] == room.feature_names[0]
     assert len(contract["actions"]["speed"]) * len(contract["actions"]["turn"]) == contract["actions"]["count"] == 81
+    meaning = "the actor's logits" if head == "ppo_checkpoint" else "Q-values"
+    assert contract["outputs"]["q_values"]["meaning"] == meaning and contract["algo"] == policy.metadata["algo"]
 
 
 def test_a_model_of_one_process_of_several_says_whose_replicas_it_agrees_with(dqn_checkpoint, tmp_path):

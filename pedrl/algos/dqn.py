@@ -284,7 +284,7 @@ class DQN(LearningRun):
     def learn_trial(self, env: RoomEnv, room: int, epsilon: float, bar: tqdm) -> TrialStats:
         self._driver = DeepQLearner(self.policy, epsilon=epsilon, generator=self.generator, update=self.update,
                                     buffer=self.buffer, room=room)  # fmt: skip
-        return run_crowd(env, self._driver, fused=self.fused, progress=_decisions_on(bar)).stats
+        return run_crowd(env, self._driver, fused=self.fused, progress=decisions_on(bar)).stats
 
     def check_trial(self, phase: Phase, trial: int, stats: TrialStats) -> None:
         if not (bool(torch.isfinite(stats.episodic_return).all()) and bool(torch.isfinite(self._driver.loss).all())):
@@ -310,25 +310,13 @@ class DQN(LearningRun):
     def start(self) -> None:
         """A new run: seed, gather the random walk's states, standardise by them, build the network, the memory
         and the update."""
-        self.generator.manual_seed(self.seed * 10_007 + 1)
-        self.env.reset(seed=self.seed * 10_007 + 2)
-        encoder = StateEncoder(self.encoder_settings)
-        gathered = [
-            gather(room, encoder, None, trials=self.gather_trials, epsilon=1.0, processes=self.processes,
-                   generator=self.generator)
-            for _, room in self.rooms(self.env)
-        ]  # fmt: skip
-        states = torch.cat([part.states for part in gathered])
-        mean, std = states.mean(0), states.std(0)
-        std = torch.where(std < MIN_STD, 1.0, std)
+        mean, std, self.summary = random_walk_standardisation(self)
         network = QNetwork(self.processes, self.width, self.hidden, self.env.num_actions, head=self.head,
                            generator=self.generator, device=self.device)  # fmt: skip
-        self.policy = self.make_policy(network, mean.float().contiguous(), std.float().contiguous())
+        self.policy = self.make_policy(network, mean, std)
         self.update = DoubleDQN(self.policy, self.settings, self.learning_rate)
         self.buffer = self.make_buffer()
-        self.summary = {"gathered_states": int(states.shape[0]),
-                        "gather_success_rate": sum(p.success_rate for p in gathered) / len(gathered),
-                        "parameters": network.num_parameters}  # fmt: skip
+        self.summary["parameters"] = network.num_parameters
 
     def make_buffer(self) -> ReplayBuffer:
         """An empty replay memory of the run's processes (keeping horizons with n-step returns)."""
@@ -342,7 +330,28 @@ class DQN(LearningRun):
                             neighbour_velocity=self.neighbour_velocity)  # fmt: skip
 
 
-def _decisions_on(bar: tqdm) -> Callable[[int, int], None] | None:
+def random_walk_standardisation(learner: Any) -> tuple[torch.Tensor, torch.Tensor, dict[str, Any]]:
+    """A network learner's start (:class:`DQN`, :class:`pedrl.algos.ppo.PPO`): seed its generators from its run's
+    seed, record the states of ``gather_trials`` random-walk trials in each of its rooms, and return their mean and
+    standard deviation ``(F,)`` (1 where a feature is constant), which standardise the network's inputs, with the
+    summary of the walk."""
+    learner.generator.manual_seed(learner.seed * 10_007 + 1)
+    learner.env.reset(seed=learner.seed * 10_007 + 2)
+    encoder = StateEncoder(learner.encoder_settings)
+    gathered = [
+        gather(room, encoder, None, trials=learner.gather_trials, epsilon=1.0, processes=learner.processes,
+               generator=learner.generator)
+        for _, room in learner.rooms(learner.env)
+    ]  # fmt: skip
+    states = torch.cat([part.states for part in gathered])
+    mean, std = states.mean(0), states.std(0)
+    std = torch.where(std < MIN_STD, 1.0, std)
+    summary = {"gathered_states": int(states.shape[0]),
+               "gather_success_rate": sum(p.success_rate for p in gathered) / len(gathered)}  # fmt: skip
+    return mean.float().contiguous(), std.float().contiguous(), summary
+
+
+def decisions_on(bar: tqdm) -> Callable[[int, int], None] | None:
     """A trial's progress callback that shows its decisions and the agents left on ``bar`` about once a second (a
     trial of many gradient steps is long); None where the bar is off."""
     if bar.disable:

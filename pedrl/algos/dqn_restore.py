@@ -44,7 +44,7 @@ def load_dqn_resume(trainer: Any, path: str | Path) -> ResumedDQN:
     checkpoint = open_resume(trainer, path)
     meta, where = checkpoint.metadata, f"checkpoint {str(path)!r}"
     try:
-        global_trial, done = _progress(trainer, meta)
+        global_trial, done = trial_progress(trainer, meta)
         tensors = checkpoint.tensors
         policy = neural_from_tensors(trainer.encoder_settings, tensors, num_actions=trainer.env.num_actions)
         outputs = head_outputs(trainer.head, trainer.env.num_actions)
@@ -60,10 +60,10 @@ def load_dqn_resume(trainer: Any, path: str | Path) -> ResumedDQN:
         policy.network.requires_grad_(True)
         update = DoubleDQN(policy, trainer.settings, trainer.learning_rate)
         update.load_tensors(tensors)
-        update.updates, update.decisions = _count(meta, "updates"), _count(meta, "decisions")
+        update.updates, update.decisions = checked_count(meta, "updates"), checked_count(meta, "decisions")
         buffer = trainer.make_buffer()
         buffer.load_tensors(tensors)
-        rng = [check_rng_state(name, tensors[name]) if name in tensors else _missing(name) for name in RNG_KEYS]
+        rng = [check_rng_state(name, tensors[name]) if name in tensors else missing_tensor(name) for name in RNG_KEYS]
     except ValueError as err:
         raise CheckpointError(f"{where}: {err}") from None
     summaries = meta.get("summaries") or [{}]
@@ -72,8 +72,9 @@ def load_dqn_resume(trainer: Any, path: str | Path) -> ResumedDQN:
                       {k: float(v) for k, v in (meta.get("final") or {}).items()}, [trainer.summary])  # fmt: skip
 
 
-def _progress(trainer: Any, meta: dict[str, Any]) -> tuple[int, bool]:
-    """The checkpoint's global trial (checked against its iteration and trial) and whether the run is done."""
+def trial_progress(trainer: Any, meta: dict[str, Any]) -> tuple[int, bool]:
+    """The checkpoint's global trial (checked against its iteration and trial) and whether the run is done: the
+    progress of a learner whose iterations are blocks of one run of trials (the DQN's, PPO's)."""
     phases = trainer.phases()
     iteration, trial = meta.get("iteration"), meta.get("trial")
     indices = [phase.index for phase in phases]
@@ -88,12 +89,12 @@ def _progress(trainer: Any, meta: dict[str, Any]) -> tuple[int, bool]:
     return global_trial, global_trial == trainer.trials
 
 
-def _count(meta: dict[str, Any], key: str) -> int:
+def checked_count(meta: dict[str, Any], key: str) -> int:
     value = meta.get(key)
     if isinstance(value, bool) or not isinstance(value, int) or value < 0:
         raise ValueError(f"metadata {key}={value!r} is invalid: must be an integer >= 0")
     return value
 
 
-def _missing(name: str) -> torch.Tensor:
+def missing_tensor(name: str) -> torch.Tensor:
     raise ValueError(f"tensor {name} is missing")

@@ -15,6 +15,7 @@ from omegaconf import DictConfig, OmegaConf
 from pedrl.algos.dqn import DQN
 from pedrl.algos.in_vqql import INVQQL
 from pedrl.algos.it_vqql import ITVQQL
+from pedrl.algos.ppo import PPO
 from pedrl.algos.run import RUN_KEYS, LearningRun, RunSpec
 from pedrl.algos.vqql import VQQL
 from pedrl.common.checks import MAX_SEED, check_integer
@@ -51,6 +52,8 @@ TRAINER_CLASSES: Final[dict[str, type[LearningRun]]] = {
     "pedrl.algos.in_vqql.INVQQL": INVQQL,
     "pedrl.algos.DQN": DQN,
     "pedrl.algos.dqn.DQN": DQN,
+    "pedrl.algos.PPO": PPO,
+    "pedrl.algos.ppo.PPO": PPO,
 }
 """The class of each allowed value of ``algo._target_`` (the keys of :data:`pedrl.configs.ALGO_TARGETS`)."""
 assert set(TRAINER_CLASSES) == set(ALGO_TARGETS) and all(

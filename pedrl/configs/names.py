@@ -23,10 +23,12 @@ ALGO_TARGETS: Final[dict[str, str]] = {
     "pedrl.algos.in_vqql.INVQQL": "in_vqql",
     "pedrl.algos.DQN": "dqn",
     "pedrl.algos.dqn.DQN": "dqn",
+    "pedrl.algos.PPO": "ppo",
+    "pedrl.algos.ppo.PPO": "ppo",
 }
 """Allowed values of ``algo._target_``, with the name of the algorithm each selects."""
 KNOWN_TARGETS: Final = {"env._target_": ENV_CLASSES, "algo._target_": ALGO_TARGETS}
-VOID_FEATURES_DEFAULTS: Final = {"vqql": "zero", "it_vqql": "random", "in_vqql": "zero", "dqn": "zero"}
+VOID_FEATURES_DEFAULTS: Final = {"vqql": "zero", "it_vqql": "random", "in_vqql": "zero", "dqn": "zero", "ppo": "zero"}
 """``algo.void_features`` of each algorithm when its config does not say (IT-VQQL fills void slots, section 5.1)."""
 
 

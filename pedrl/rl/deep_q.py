@@ -10,11 +10,10 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
 
 import torch
 
-from pedrl.rl.network import QNetwork
+from pedrl.rl.network import clip_gradients, load_optimizer_tensors, optimizer_tensors
 from pedrl.rl.neural import NeuralPolicy
 from pedrl.rl.replay import Batch, ReplayBuffer
 
@@ -75,21 +74,13 @@ class DoubleDQN:
         losses = torch.nn.functional.smooth_l1_loss(values, targets, reduction="none").mean(dim=1)  # (P,)
         self.optimizer.zero_grad(set_to_none=True)
         losses.sum().backward()  # the processes share no weight: each gets its own gradient
-        self._clip(network)
+        clip_gradients(network, settings.max_grad_norm)
         self.optimizer.step()
         self.updates += 1
         if self.updates % settings.target_every == 0:
             self.target.load_state_dict(network.state_dict())
         self._sums += torch.stack((losses.detach(), (values.detach() - targets).abs().mean(dim=1)))
         self._summed += 1
-
-    def _clip(self, network: QNetwork) -> None:
-        """Scale each process's gradient to a norm of at most ``max_grad_norm``."""
-        grads = [param.grad for param in network.parameters()]
-        norms = torch.sqrt(sum(grad.pow(2).flatten(1).sum(1) for grad in grads))
-        scale = (self.settings.max_grad_norm / (norms + 1e-6)).clamp_max(1.0)
-        for grad in grads:
-            grad.mul_(scale.view(-1, *([1] * (grad.ndim - 1))))
 
     def take_sums(self) -> tuple[torch.Tensor, torch.Tensor]:
         """``(loss, |TD error|)`` ``(P,)`` each, means over the steps since the last call (0 without a step)."""
@@ -101,29 +92,9 @@ class DoubleDQN:
     # ------------------------------------------------------------------ files
     def tensors(self) -> dict[str, torch.Tensor]:
         """The target network and Adam's state as named tensors (``target/...``, ``optimizer/<i>.<key>``)."""
-        named = dict(self.target.tensors("target"))
-        for index, state in self.optimizer.state_dict()["state"].items():
-            for key, value in state.items():
-                named[f"optimizer/{index}.{key}"] = value.detach().reshape(value.shape)
-        return named
+        return {**self.target.tensors("target"), **optimizer_tensors(self.optimizer)}
 
     def load_tensors(self, tensors: Mapping[str, torch.Tensor]) -> None:
         """Take the target network and Adam's state of :meth:`tensors` (one line for a missing or misshapen one)."""
         self.target.load_tensors(tensors, "target")
-        params = list(self.policy.network.parameters())
-        state: dict[int, dict[str, Any]] = {}
-        for index, param in enumerate(params):
-            entry = {}
-            for key, shape in (("step", ()), ("exp_avg", param.shape), ("exp_avg_sq", param.shape)):
-                name = f"optimizer/{index}.{key}"
-                tensor = tensors.get(name)
-                if tensor is None:
-                    raise ValueError(f"tensor {name} is missing")
-                if tensor.dtype != torch.float32 or tuple(tensor.shape) != tuple(shape):
-                    raise ValueError(
-                        f"tensor {name} is {tensor.dtype} {tuple(tensor.shape)}: must be float32 {tuple(shape)}"
-                    )
-                entry[key] = tensor.clone()
-            state[index] = entry
-        saved = self.optimizer.state_dict()
-        self.optimizer.load_state_dict({"state": state, "param_groups": saved["param_groups"]})
+        load_optimizer_tensors(self.optimizer, self.policy.network.parameters(), tensors)

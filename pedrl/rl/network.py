@@ -17,8 +17,8 @@ at a higher cost per decision.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
-from typing import Final
+from collections.abc import Iterable, Mapping, Sequence
+from typing import Any, Final
 
 import torch
 
@@ -194,3 +194,46 @@ def layer_widths(tensors: Mapping[str, torch.Tensor], prefix: str) -> tuple[int,
         if after[0] != processes or after[1] != before[2]:
             raise ValueError(f"tensors {prefix}/w* are {shapes}: their layers do not chain")
     return processes, (shapes[0][1], *(shape[2] for shape in shapes))
+
+
+# ---------------------------------------------------------------------- what every learner of networks shares
+def clip_gradients(network: QNetwork, max_norm: float) -> None:
+    """Scale each process's gradient of ``network`` to a norm of at most ``max_norm`` (the processes share no
+    weight: each is clipped on its own)."""
+    grads = [param.grad for param in network.parameters()]
+    norms = torch.sqrt(sum(grad.pow(2).flatten(1).sum(1) for grad in grads))
+    scale = (max_norm / (norms + 1e-6)).clamp_max(1.0)
+    for grad in grads:
+        grad.mul_(scale.view(-1, *([1] * (grad.ndim - 1))))
+
+
+def optimizer_tensors(optimizer: torch.optim.Adam) -> dict[str, torch.Tensor]:
+    """Adam's state as named tensors, ``optimizer/<i>.<key>`` for parameter ``i``, for an exact resume."""
+    named = {}
+    for index, state in optimizer.state_dict()["state"].items():
+        for key, value in state.items():
+            named[f"optimizer/{index}.{key}"] = value.detach().reshape(value.shape)
+    return named
+
+
+def load_optimizer_tensors(
+    optimizer: torch.optim.Adam, params: Iterable[torch.Tensor], tensors: Mapping[str, torch.Tensor]
+) -> None:
+    """Give ``optimizer`` (over ``params``, in order) the state of :func:`optimizer_tensors`; one line for a missing
+    or misshapen tensor."""
+    state: dict[int, dict[str, Any]] = {}
+    for index, param in enumerate(params):
+        entry = {}
+        for key, shape in (("step", ()), ("exp_avg", param.shape), ("exp_avg_sq", param.shape)):
+            name = f"optimizer/{index}.{key}"
+            tensor = tensors.get(name)
+            if tensor is None:
+                raise ValueError(f"tensor {name} is missing")
+            if tensor.dtype != torch.float32 or tuple(tensor.shape) != tuple(shape):
+                raise ValueError(
+                    f"tensor {name} is {tensor.dtype} {tuple(tensor.shape)}: must be float32 {tuple(shape)}"
+                )
+            entry[key] = tensor.clone()
+        state[index] = entry
+    saved = optimizer.state_dict()
+    optimizer.load_state_dict({"state": state, "param_groups": saved["param_groups"]})

@@ -1,0 +1,360 @@
+"""PPO: shared-parameter proximal policy optimisation, one actor and one critic per learning process, learned from
+whole trials (:mod:`pedrl.rl.ppo`; CleanRL's ``ppo.py`` is the style anchor).
+
+``algo=ppo`` learns in the rooms, with the observations, actions, rewards, motion models and scenario mixes of the
+other learners, on the learning run they share (:class:`pedrl.algos.run.LearningRun`). A run reads top to bottom as:
+
+1. record the states of a random walk (``gather_trials`` trials) for the standardisation of the inputs (as the DQN);
+2. ``trials`` trials, split into ``iterations`` blocks each ending with a checkpoint: in each, every agent samples
+   its action from its process's actor (its exploration: no epsilon), the trial's decisions are kept whole
+   (:class:`pedrl.rl.ppo.Rollout`), and at its end the actor and critic take ``epochs`` passes of ``minibatches``
+   steps of the clipped objective over them.
+
+The actor's logits are a network of the DQN's kind (:class:`pedrl.rl.network.QNetwork`, one output per action), so
+the learned policy is a :class:`pedrl.rl.NeuralPolicy` that acts on the most probable action: ``pedrl-eval``,
+``pedrl-validate``, the PettingZoo crowd and ``pedrl-export`` (ONNX included) run it as they run the DQN's; the
+critic and Adam's state are in the checkpoints only, for an exact resume.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any, Final
+
+import torch
+from tqdm.auto import tqdm
+
+from pedrl.algos.dqn import decisions_on, random_walk_standardisation
+from pedrl.algos.dqn_restore import checked_count, missing_tensor, trial_progress
+from pedrl.algos.phase import MAX_TRIALS, Phase
+from pedrl.algos.records import RunRecord
+from pedrl.algos.run import LearningRun, RunSpec, open_resume
+from pedrl.common.checks import (
+    check_bool,
+    check_integer,
+    check_memory,
+    check_number,
+    check_trials_per_iteration,
+)
+from pedrl.io import CheckpointError
+from pedrl.policy_files import RNG_KEYS, check_rng_state
+from pedrl.rl.network import QNetwork, check_hidden
+from pedrl.rl.neural import NEURAL_LEARNER, NeuralPolicy, input_width, neural_from_tensors
+from pedrl.rl.ppo import METRICS, PPOSettings, PPOUpdate, Rollout
+from pedrl.sim import RoomEnv
+from pedrl.trial.crowd import run_crowd
+from pedrl.trial.loop import Driver
+from pedrl.trial.rollout import TrialStats
+from pedrl.vq.encoder import EncoderSettings, StateEncoder
+
+MAX_EPOCHS: Final = 1_000
+"""Largest ``epochs`` (passes over a trial's decisions)."""
+MAX_MINIBATCHES: Final = 100_000
+"""Largest ``minibatches`` (steps per pass)."""
+
+
+@dataclass(frozen=True)
+class PPOConfig:
+    """The settings of ``algo=ppo`` (each an ``algo`` key), every value checked when the record is made.
+
+    Attributes:
+        num_agents: learning agents per room.
+        trials: total learning trials (each one update).
+        iterations: blocks the trials are split into, each ending with a checkpoint ``iter_XXXX``.
+        gather_trials: random-walk trials whose states standardise the inputs.
+        hidden: widths of the hidden layers of the actor and of the critic.
+        neighbour_velocity: the networks also read each sensed neighbour's velocity in the goal frame (as the DQN's).
+        learning_rate: Adam's step size.
+        gamma: discount.
+        gae_lambda: the advantage's lambda (1: Monte-Carlo returns minus the value; 0: one-step TD errors).
+        clip_coef: the clipping of the probability ratio, ``c``.
+        value_coef: the weight of the critic's loss.
+        entropy_coef: the weight of the policy's entropy (a bonus).
+        epochs: passes over a trial's decisions.
+        minibatches: gradient steps per pass (each on an equal share of every process's decisions).
+        max_grad_norm: the actor's and the critic's gradients are each clipped to this norm, per process.
+        reward_scale: rewards are learned multiplied by this (values in these units).
+        normalize_advantages: standardise the advantages within each minibatch (CleanRL's default).
+    """
+
+    num_agents: int = 20
+    trials: int = 200
+    iterations: int = 1
+    gather_trials: int = 2
+    hidden: tuple[int, ...] = (256, 256)
+    neighbour_velocity: bool = False
+    learning_rate: float = 3e-4
+    gamma: float = 0.91
+    gae_lambda: float = 0.95
+    clip_coef: float = 0.2
+    value_coef: float = 0.5
+    entropy_coef: float = 0.01
+    epochs: int = 4
+    minibatches: int = 8
+    max_grad_norm: float = 0.5
+    reward_scale: float = 0.1
+    normalize_advantages: bool = True
+
+    def __post_init__(self) -> None:
+        check_trials_per_iteration(self.trials, self.iterations, maximum=MAX_TRIALS)
+        check_integer("num_agents", self.num_agents, minimum=1)
+        check_integer("gather_trials", self.gather_trials, minimum=1, maximum=MAX_TRIALS)
+        object.__setattr__(self, "hidden", check_hidden(self.hidden))
+        check_bool("neighbour_velocity", self.neighbour_velocity)
+        check_number("learning_rate", self.learning_rate, low=0.0, high=1.0, low_open=True)
+        check_number("gamma", self.gamma, low=0.0, high=1.0)
+        check_number("gae_lambda", self.gae_lambda, low=0.0, high=1.0)
+        check_number("clip_coef", self.clip_coef, low=0.0, high=10.0, low_open=True)
+        check_number("value_coef", self.value_coef, low=0.0, high=1e6)
+        check_number("entropy_coef", self.entropy_coef, low=0.0, high=1e6)
+        check_integer("epochs", self.epochs, minimum=1, maximum=MAX_EPOCHS)
+        check_integer("minibatches", self.minibatches, minimum=1, maximum=MAX_MINIBATCHES)
+        check_number("max_grad_norm", self.max_grad_norm, low=0.0, low_open=True, high=1e9)
+        check_number("reward_scale", self.reward_scale, low=0.0, low_open=True, high=1e6)
+        check_bool("normalize_advantages", self.normalize_advantages)
+
+    def update(self) -> PPOSettings:
+        """The settings of the update (:class:`pedrl.rl.ppo.PPOSettings`)."""
+        keys = (item.name for item in fields(PPOSettings))
+        return PPOSettings(**{key: getattr(self, key) for key in keys})
+
+
+class PPOActor(Driver):
+    """PPO in the trial loop: every acting agent samples its action from its process's actor; each decision goes to
+    the trial's :class:`~pedrl.rl.ppo.Rollout` with the action's log-probability and the critic's value."""
+
+    sync_free = True
+    stepped = True
+
+    def __init__(self, policy: NeuralPolicy, critic: QNetwork, *, generator: torch.Generator, reward_scale: float):
+        self.policy, self.critic, self.generator, self.reward_scale = policy, critic, generator, reward_scale
+        self.processes = policy.num_processes
+
+    def begin(self, env: Any, obs: torch.Tensor, info: Any) -> None:
+        self.process, _ = self.policy.layout.of(env.num_replicas, env.num_agents, env.device)
+        self._env, self.rollout = env, Rollout()
+        self._inputs = self._encode(obs, info, env.active.reshape(-1))
+
+    def act(self, env: Any, obs: torch.Tensor, info: Any) -> torch.Tensor:
+        active = env.active.reshape(-1)
+        rows = torch.nonzero(active).squeeze(1)
+        batch = active.shape[0]
+        actions = torch.zeros(batch, dtype=torch.int64, device=active.device)
+        logprobs, values = torch.zeros(batch, device=active.device), torch.zeros(batch, device=active.device)
+        if rows.shape[0]:
+            with torch.no_grad():
+                inputs, process = self._inputs.index_select(0, rows), self.process.index_select(0, rows)
+                log_all = torch.log_softmax(self.policy.values(inputs, process), dim=1)
+                chosen = torch.multinomial(log_all.exp(), 1, generator=self.generator).squeeze(1)
+                actions.index_copy_(0, rows, chosen)
+                logprobs.index_copy_(0, rows, log_all.gather(1, chosen.unsqueeze(1)).squeeze(1))
+                values.index_copy_(0, rows, self.policy.values(inputs, process, network=self.critic).squeeze(1))
+        self._step = dict(inputs=self._inputs, actions=actions, logprobs=logprobs, values=values, valid=active)
+        return actions.view(env.num_replicas, env.num_agents)
+
+    def observe(self, obs, info, reward, terminated, valid) -> None:
+        next_inputs = self._encode(obs, info, valid & ~terminated)
+        ended = valid & (terminated | ~self._env.active.reshape(-1))
+        cut = torch.nonzero(ended & ~terminated).squeeze(1)  # the clock ended these trajectories: bootstrap
+        bootstrap = torch.zeros_like(reward)
+        if cut.shape[0]:
+            with torch.no_grad():
+                value = self.policy.values(next_inputs.index_select(0, cut), self.process.index_select(0, cut),
+                                           network=self.critic)  # fmt: skip
+            bootstrap.index_copy_(0, cut, value.squeeze(1))
+        self.rollout.add(**self._step, rewards=reward * self.reward_scale, terminated=terminated & valid,
+                         ended=ended, bootstrap=bootstrap)  # fmt: skip
+        self._inputs = next_inputs
+
+    def _encode(self, obs: torch.Tensor, info: Any, mask: torch.Tensor) -> torch.Tensor:
+        """Network inputs ``(R N, D)`` of the agents in ``mask``; zeros for the others."""
+        inputs = torch.zeros(mask.shape[0], self.policy.num_inputs, device=obs.device)
+        rows = torch.nonzero(mask).squeeze(1)
+        if rows.shape[0]:
+            inputs.index_copy_(0, rows, self.policy.info_inputs(obs, info, rows))
+        return inputs
+
+
+@dataclass
+class ResumedPPO:
+    """A checked PPO checkpoint: where the run stands and what it continues with."""
+
+    global_trial: int
+    done: bool
+    policy: NeuralPolicy
+    update: PPOUpdate
+    rng_trainer: torch.Tensor
+    rng_env: torch.Tensor
+    wall_time_s: float
+    final: dict[str, float]
+    summaries: list[dict[str, Any]]
+
+
+class PPO(LearningRun):
+    """Shared-parameter PPO (module docstring).
+
+    Args:
+        run: what the run is (of ``run.vq`` only ``distance_transform`` is read, as by the DQN).
+        **settings: the keys of :class:`PPOConfig`.
+    """
+
+    name = "ppo"
+    learner = NEURAL_LEARNER
+    phase_word = "iteration"
+    settings_class = PPOConfig
+
+    def __init__(self, run: RunSpec, **settings: Any) -> None:
+        if run.vq.factors is not None:  # a table's key
+            raise ValueError(
+                "vq.factors is invalid with algo=ppo: the networks read the whole state (of the vq group they read "
+                "distance_transform only); use algo=vqql or algo=it_vqql for a factored table"
+            )
+        algo = PPOConfig(**settings)
+        super().__init__(run)
+        self.algo, self.settings = algo, algo.update()
+        self.num_agents, self.trials, self.iterations, self.gather_trials = (
+            algo.num_agents,
+            algo.trials,
+            algo.iterations,
+            algo.gather_trials,
+        )
+        self.env = self.env_factory(num_replicas=run.replicas, num_agents=algo.num_agents, device=self.device)
+        self.log_walking(algo.trials, self.env)
+        self.path, _ = self.trial_path()  # fused=true refused before any compute
+        self.encoder_settings = EncoderSettings.for_room(
+            self.env, distance_transform=self.vq.distance_transform
+        ).spanning(self.mix)
+        self.width = input_width(self.encoder_settings, neighbour_velocity=algo.neighbour_velocity)
+        check_memory(
+            self.memory_needs(),
+            device=self.device,
+            advice="lower algo.hidden, processes, rooms_per_process, the agents, algo.gather_trials or "
+            "env.max_decisions",
+        )
+
+    # ------------------------------------------------------------------ what a run is
+    def phases(self) -> list[Phase]:
+        """The iterations: equal blocks of the trials (the first ones a trial longer when they do not divide)."""
+        block, extra = divmod(self.trials, self.iterations)
+        return [
+            Phase(i + 1, self.num_agents, block + (1 if i < extra else 0), self.gather_trials, 1.0)
+            for i in range(self.iterations)
+        ]
+
+    def own_rooms(self) -> list[RoomEnv]:
+        return [self.env]
+
+    def memory_needs(self) -> dict[str, float]:
+        """Estimated bytes of the largest allocations: a trial's decisions (inputs and five numbers per agent and
+        decision, twice: as kept and as stacked), the networks with Adam's moments, a decision of the largest room."""
+        rooms = [self.env, *self._mix_envs]
+        rows = max(room.num_replicas * room.num_agents * room.params.max_decisions for room in rooms)
+        widths = (self.width, *self.algo.hidden)
+        weights = sum((a + 1) * b for a, b in zip(widths[:-1], widths[1:], strict=True)) * self.processes * 4
+        gathered = self.gather_trials * sum(r.num_replicas * r.num_agents * r.params.max_decisions for r in rooms)
+        return {
+            "a trial's decisions": 2 * rows * (self.width + 8) * 4,
+            "gathered states": 2 * gathered * self.encoder_settings.num_features * 4,
+            "networks and Adam": 2 * 3 * (weights + (widths[-1] + 1) * (self.env.num_actions + 1) * 4),
+            "room": max(room.step_memory() for room in rooms),
+        }
+
+    # ------------------------------------------------------------------ the run's hooks
+    def start(self) -> None:
+        """A new run: seed, standardise by a random walk, build the actor, the critic and the update."""
+        mean, std, self.summary = random_walk_standardisation(self)
+        build = dict(generator=self.generator, device=self.device)
+        actor = QNetwork(self.processes, self.width, self.algo.hidden, self.env.num_actions, **build)
+        critic = QNetwork(self.processes, self.width, self.algo.hidden, 1, **build)
+        self.policy = self.make_policy(actor, mean, std)
+        self.update = PPOUpdate(actor, critic, self.settings, self.algo.learning_rate)
+        self.summary["parameters"] = actor.num_parameters + critic.num_parameters
+
+    def make_policy(self, actor: QNetwork, mean: torch.Tensor, std: torch.Tensor) -> NeuralPolicy:
+        """The run's policy over ``actor`` (its rooms ``p E .. p E + E - 1`` act with process ``p``'s network)."""
+        return NeuralPolicy(StateEncoder(self.encoder_settings), actor, mean, std,
+                            rooms_per_process=self.rooms_per_process,
+                            neighbour_velocity=self.algo.neighbour_velocity)  # fmt: skip
+
+    def resume(self, path: str | Path) -> ResumedPPO:
+        checkpoint = open_resume(self, path)
+        meta, where = checkpoint.metadata, f"checkpoint {str(path)!r}"
+        try:
+            global_trial, done = trial_progress(self, meta)
+            tensors = checkpoint.tensors
+            policy = neural_from_tensors(self.encoder_settings, tensors, num_actions=self.env.num_actions)
+            expected = (self.processes, (self.width, *self.algo.hidden, self.env.num_actions))
+            if (policy.num_processes, policy.network.widths) != expected or policy.network.head != "joint":
+                raise ValueError(
+                    f"the actor is {policy.num_processes} x {list(policy.network.widths)}: the config makes "
+                    f"{expected[0]} x {list(expected[1])}"
+                )
+            policy = self.make_policy(policy.network, policy.mean, policy.std)
+            policy.network.requires_grad_(True)
+            critic = QNetwork(self.processes, self.width, self.algo.hidden, 1, device=self.device)
+            update = PPOUpdate(policy.network, critic, self.settings, self.algo.learning_rate)
+            update.load_tensors(tensors)
+            update.updates = checked_count(meta, "updates")
+            rng = [check_rng_state(name, tensors[name]) if name in tensors else missing_tensor(name)
+                   for name in RNG_KEYS]  # fmt: skip
+        except ValueError as err:
+            raise CheckpointError(f"{where}: {err}") from None
+        summaries = meta.get("summaries") or [{}]
+        self.summary = dict(summaries[0]) if isinstance(summaries[0], dict) else {}
+        final = {k: float(v) for k, v in (meta.get("final") or {}).items()}
+        return ResumedPPO(global_trial, done, policy, update, rng[0], rng[1], float(meta.get("wall_time_s", 0.0)),
+                          final, [self.summary])  # fmt: skip
+
+    def summaries(self) -> list[dict[str, Any]]:
+        return [self.summary]
+
+    def learn(self, record: RunRecord, resumed: ResumedPPO | None) -> TrialStats | None:
+        """Start or continue ``resumed``, then the iterations' trials from there on, each one update."""
+        if resumed is None:
+            self.start()
+            record.logger.log_scalars(0, {f"ppo/{key}": value for key, value in self.summary.items()})
+        else:
+            self.policy, self.update = resumed.policy, resumed.update
+            self.generator.set_state(resumed.rng_trainer)
+            self.env.generator.set_state(resumed.rng_env)
+        start = resumed.global_trial if resumed is not None else 0
+        stats, global_trial = None, 0
+        rooms = self.rooms(self.env)
+        for phase in self.phases():
+            first = min(phase.trials, max(0, start - global_trial))  # trials of the phase done before the resume
+            global_trial += first
+            if first == phase.trials:
+                continue
+            stats, global_trial = self.run_trials(phase, rooms, first, global_trial, record,
+                                                  epsilon=lambda *_: 0.0, policy=self.policy)  # fmt: skip
+            record.logger.flush()
+        return stats
+
+    def learn_trial(self, env: RoomEnv, room: int, epsilon: float, bar: tqdm) -> TrialStats:
+        driver = PPOActor(self.policy, self.update.critic, generator=self.generator,
+                          reward_scale=self.settings.reward_scale)  # fmt: skip
+        stats = run_crowd(env, driver, fused=self.fused, progress=decisions_on(bar)).stats
+        self._figures = self.update.learn(driver.rollout.stack(), driver.process, self.generator)
+        return stats
+
+    def check_trial(self, phase: Phase, trial: int, stats: TrialStats) -> None:
+        finite = all(bool(torch.isfinite(value).all()) for value in self._figures.values())
+        if not (finite and bool(torch.isfinite(stats.episodic_return).all())):
+            raise ValueError(
+                f"iteration {phase.index}, trial {trial}: the returns or the losses turned inf or NaN: lower "
+                "algo.learning_rate or algo.reward_scale"
+            )
+
+    def log_trial(self, record: RunRecord, global_trial: int) -> None:
+        for name in METRICS:
+            record.logger.log_spread(global_trial, f"ppo/{name}", self._figures[name].double())
+        record.logger.log_scalars(global_trial, {"ppo/gradient_steps": self.update.updates})
+
+    def state_tensors(self) -> dict[str, torch.Tensor]:
+        """The actor (as the policy: ``network/...``, ``inputs/...``), the critic and Adam's state."""
+        return {**self.policy.tensors(), **self.update.tensors()}
+
+    def state_metadata(self, global_trial: int) -> dict[str, Any]:
+        return {"global_trial": global_trial, "updates": self.update.updates, "distortion": math.nan}

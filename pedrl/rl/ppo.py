@@ -1,0 +1,201 @@
+"""Proximal policy optimisation with shared parameters (Schulman et al. 2017; the style of CleanRL's ``ppo.py``): one
+actor and one critic per learning process, shared by all its agents (independent learners with shared parameters,
+as in CrowdRL's crowd), learned from whole trials.
+
+A trial's decisions are kept as :class:`Rollout` (every agent-row of every room at every decision); at its end
+:func:`advantages` gives each decision its generalised advantage (Schulman et al. 2016) and return, and
+:meth:`PPOUpdate.learn` takes ``epochs`` passes of ``minibatches`` gradient steps of the clipped objective
+
+    L = -min(rho A, clip(rho, 1 - c, 1 + c) A) + value_coef (V - R)^2 / 2 - entropy_coef H
+
+with ``rho`` the new over the old probability of the action taken. A walker's trajectory ends where it leaves
+(terminal: no bootstrap) or where the clock cuts its trial (the critic's value of its last observation bootstraps).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import torch
+
+from pedrl.rl.network import QNetwork, clip_gradients, load_optimizer_tensors, optimizer_tensors
+
+
+@dataclass(frozen=True)
+class PPOSettings:
+    """The hyper-parameters of the update (each an ``algo`` key of ``algo=ppo``)."""
+
+    gamma: float
+    gae_lambda: float
+    clip_coef: float
+    value_coef: float
+    entropy_coef: float
+    epochs: int
+    minibatches: int
+    max_grad_norm: float
+    reward_scale: float
+    normalize_advantages: bool = True
+
+
+class Rollout:
+    """One trial's decisions of every row ``(R N)``, in order: what each acting row saw, did and got.
+
+    Attributes (after :meth:`stack`): ``inputs (T, B, D)``, ``actions``, ``logprobs``, ``values``, ``rewards`` (in
+    learned units), ``terminated``, ``ended`` (its trajectory ends here: left, or cut by the clock), ``valid`` (it
+    acted) ``(T, B)``, and ``bootstrap (T, B)``, the critic's value of the observation after a decision the clock
+    cut (0 elsewhere).
+    """
+
+    FIELDS = ("inputs", "actions", "logprobs", "values", "rewards", "terminated", "ended", "valid", "bootstrap")
+
+    def __init__(self) -> None:
+        self.steps: dict[str, list[torch.Tensor]] = {name: [] for name in self.FIELDS}
+
+    def add(self, **step: torch.Tensor) -> None:
+        """One decision's ``(B, ...)`` tensors, one per field."""
+        for name in self.FIELDS:
+            self.steps[name].append(step[name])
+
+    def __len__(self) -> int:
+        return len(self.steps["valid"])
+
+    def stack(self) -> dict[str, torch.Tensor]:
+        """The fields ``(T, B, ...)``."""
+        return {name: torch.stack(parts) for name, parts in self.steps.items()}
+
+
+def advantages(
+    rewards: torch.Tensor,
+    values: torch.Tensor,
+    terminated: torch.Tensor,
+    ended: torch.Tensor,
+    bootstrap: torch.Tensor,
+    *,
+    gamma: float,
+    gae_lambda: float,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Generalised advantages and returns ``(T, B)`` of one trial: ``delta_t = r_t + gamma V_next - V_t`` with
+    ``V_next`` the next decision's value, the ``bootstrap`` where the clock cut the trajectory, 0 where the walker
+    left; ``A_t = delta_t + gamma lambda A_t+1`` within a trajectory. Rows that did not act get 0 (masked later)."""
+    steps = rewards.shape[0]
+    result = torch.zeros_like(rewards)
+    following = torch.zeros_like(rewards[0])  # A_t+1
+    next_value = torch.zeros_like(rewards[0])  # V_t+1
+    for t in range(steps - 1, -1, -1):
+        after = torch.where(terminated[t], 0.0, torch.where(ended[t], bootstrap[t], next_value))
+        delta = rewards[t] + gamma * after - values[t]
+        result[t] = delta + gamma * gae_lambda * torch.where(ended[t], 0.0, following)
+        following, next_value = result[t], values[t]
+    return result, result + values
+
+
+class PPOUpdate:
+    """The actor's and the critic's optimizer and the clipped update (module docstring).
+
+    Args:
+        actor: ``P`` networks giving the 81 actions' logits.
+        critic: ``P`` networks giving one value.
+        settings: the hyper-parameters.
+        learning_rate: Adam's step size.
+    """
+
+    def __init__(self, actor: QNetwork, critic: QNetwork, settings: PPOSettings, learning_rate: float) -> None:
+        self.actor, self.critic, self.settings = actor, critic, settings
+        self.optimizer = torch.optim.Adam([*actor.parameters(), *critic.parameters()], lr=learning_rate, foreach=True)
+        self.updates = 0
+        """Gradient steps taken."""
+
+    def learn(
+        self, rollout: Mapping[str, torch.Tensor], process: torch.Tensor, generator: torch.Generator
+    ) -> dict[str, torch.Tensor]:
+        """``epochs`` passes of ``minibatches`` steps over the acting decisions of ``rollout`` (:meth:`Rollout.stack`),
+        row ``b`` learned by process ``process[b]``'s networks. Each process draws its own permutation of its
+        decisions; a process with fewer decisions than the largest repeats some of its own to fill its share, one with
+        none learns nothing.
+
+        Returns ``(P,)`` means over the steps: ``policy_loss``, ``value_loss``, ``entropy``, ``approx_kl`` (the
+        ``(rho - 1) - log rho`` estimate) and ``clip_fraction``."""
+        settings = self.settings
+        trajectory = (rollout[name] for name in ("rewards", "values", "terminated", "ended", "bootstrap"))
+        adv, returns = advantages(*trajectory, gamma=settings.gamma, gae_lambda=settings.gae_lambda)
+        valid = rollout["valid"]
+        step_of, row_of = torch.nonzero(valid, as_tuple=True)
+        owner = process[row_of]
+        data = {
+            "inputs": rollout["inputs"][step_of, row_of],
+            "actions": rollout["actions"][step_of, row_of],
+            "logprobs": rollout["logprobs"][step_of, row_of],
+            "values": rollout["values"][step_of, row_of],
+            "advantages": adv[step_of, row_of],
+            "returns": returns[step_of, row_of],
+        }
+        processes = self.actor.processes
+        sums = torch.zeros(5, processes, device=valid.device)
+        steps = 0
+        members = [torch.nonzero(owner == p).squeeze(1) for p in range(processes)]
+        width = max(int(m.shape[0]) for m in members)
+        if width == 0:
+            return dict(zip(METRICS, sums, strict=True))
+        self._present = torch.tensor([m.shape[0] > 0 for m in members], device=valid.device).float()
+        for _ in range(settings.epochs):
+            order = torch.stack([_shuffled(m, width, generator) for m in members])  # (P, M)
+            for columns in torch.tensor_split(torch.arange(width, device=order.device), settings.minibatches):
+                if columns.numel() == 0:
+                    continue
+                index = order[:, columns]
+                sums += self._step({name: tensor[index] for name, tensor in data.items()})
+                steps += 1
+        return dict(zip(METRICS, sums / max(steps, 1), strict=True))
+
+    def _step(self, batch: Mapping[str, torch.Tensor]) -> torch.Tensor:
+        """One gradient step of every process on ``batch`` ``(P, b, ...)``; its ``(5, P)`` figures."""
+        settings = self.settings
+        logits = self.actor(batch["inputs"])
+        log_all = torch.log_softmax(logits, dim=2)
+        logprob = log_all.gather(2, batch["actions"].unsqueeze(2)).squeeze(2)
+        entropy = -(log_all.exp() * log_all).sum(2)
+        log_ratio = logprob - batch["logprobs"]
+        ratio = log_ratio.exp()
+        adv = batch["advantages"]
+        if settings.normalize_advantages:
+            adv = (adv - adv.mean(1, keepdim=True)) / (adv.std(1, keepdim=True, unbiased=False) + 1e-8)
+        clipped = ratio.clamp(1.0 - settings.clip_coef, 1.0 + settings.clip_coef)
+        policy_loss = -torch.min(ratio * adv, clipped * adv).mean(1)
+        value = self.critic(batch["inputs"]).squeeze(2)
+        value_loss = 0.5 * (value - batch["returns"]).pow(2).mean(1)
+        loss = policy_loss + settings.value_coef * value_loss - settings.entropy_coef * entropy.mean(1)
+        loss = loss * self._present  # a process that made no decision learns nothing
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.sum().backward()  # the processes share no weight: each gets its own gradient
+        for network in (self.actor, self.critic):
+            clip_gradients(network, settings.max_grad_norm)
+        self.optimizer.step()
+        self.updates += 1
+        with torch.no_grad():
+            kl = ((ratio - 1.0) - log_ratio).mean(1)
+            clip_fraction = ((ratio - 1.0).abs() > settings.clip_coef).float().mean(1)
+        return torch.stack((policy_loss.detach(), value_loss.detach(), entropy.mean(1).detach(), kl, clip_fraction))
+
+    # ------------------------------------------------------------------ files
+    def tensors(self) -> dict[str, torch.Tensor]:
+        """The critic and Adam's state as named tensors (``critic/...``, ``optimizer/<i>.<key>``)."""
+        return {**self.critic.tensors("critic"), **optimizer_tensors(self.optimizer)}
+
+    def load_tensors(self, tensors: Mapping[str, torch.Tensor]) -> None:
+        """Take the critic and Adam's state of :meth:`tensors` (one line for a missing or misshapen one)."""
+        self.critic.load_tensors(tensors, "critic")
+        load_optimizer_tensors(self.optimizer, [*self.actor.parameters(), *self.critic.parameters()], tensors)
+
+
+METRICS = ("policy_loss", "value_loss", "entropy", "approx_kl", "clip_fraction")
+"""The figures of :meth:`PPOUpdate.learn`, logged as ``ppo/<name>``."""
+
+
+def _shuffled(members: torch.Tensor, width: int, generator: torch.Generator) -> torch.Tensor:
+    """``width`` of ``members`` in a random order (each at least once; cycled where ``width`` is larger)."""
+    count = members.shape[0]
+    if count == 0:
+        return torch.zeros(width, dtype=torch.int64, device=members.device)
+    order = members[torch.randperm(count, generator=generator, device=generator.device).to(members.device)]
+    return order.repeat(-(-width // count))[:width]

@@ -1,0 +1,125 @@
+"""algo=ppo, shared-parameter PPO on the learning run every learner shares: it learns, it is reproducible, it
+resumes exactly, its checkpoints are read as networks by every tool, and bad settings are refused in one line."""
+
+import pytest
+import torch
+
+from pedrl.algos.registry import build_trainer
+from pedrl.io import load_checkpoint, read_csv
+from pedrl.policy_files import load_policy, room_factory
+from pedrl.rl.network import QNetwork
+from pedrl.rl.neural import NeuralPolicy
+from pedrl.train import train
+from pedrl.trial.crowd import run_crowd
+from tests.algos.resuming import assert_resume_equals_uninterrupted
+
+# a 10 m room, 4 agents for 40 decisions, actions in the goal frame (the presets'), small networks
+PPO = ("algo=ppo", "algo.num_agents=4", "env.max_decisions=40", "threads=1", "logger=none", "env.action_frame=goal",
+       "env.speed_ratios=[0.0,0.2,0.4,0.6,0.7,0.8,0.9,0.95,1.0]",
+       "env.turn_ratios=[-0.5,-0.25,-0.1,-0.05,0.0,0.05,0.1,0.25,0.5]")  # fmt: skip
+
+
+def _greedy_return(policy: NeuralPolicy, factory, seed: int = 11) -> float:
+    """The mean return of ``policy`` acting on its most probable actions over 16 scenes of ``seed``."""
+    room = factory(num_replicas=16, num_agents=4)
+    room.reset(seed=seed)
+    return float(run_crowd(room, policy.controller(0.0, torch.Generator().manual_seed(0)), fused=None).stats
+                 .episodic_return.mean())  # fmt: skip
+
+
+def test_ppo_learns_to_walk_better_than_its_untrained_actor(train_config, tmp_path):
+    train(train_config(*PPO, "algo.trials=60", "algo.epochs=10"), run_dir=tmp_path)
+    learned = load_policy(tmp_path / "checkpoints" / "last.safetensors")
+    assert isinstance(learned, NeuralPolicy) and learned.metadata["algo"] == "ppo"
+    factory = room_factory(learned)
+    untrained = NeuralPolicy(learned.encoder, QNetwork(1, learned.num_inputs, [32, 32], 81,
+                             generator=torch.Generator().manual_seed(0)), learned.mean, learned.std)  # fmt: skip
+    before, after = _greedy_return(untrained, factory), _greedy_return(learned, factory)
+    assert after > before + 50.0, (before, after)
+
+
+def test_ppo_logs_its_update_and_writes_a_checkpoint_per_iteration(train_config, tmp_path):
+    train(train_config(*PPO, "algo.trials=6", "logger=tensorboard"), run_dir=tmp_path)
+    names = sorted(path.name for path in (tmp_path / "checkpoints").iterdir())
+    assert names == ["iter_0001.safetensors", "iter_0002.safetensors", "last.safetensors"]
+    meta = load_checkpoint(tmp_path / "checkpoints" / "last.safetensors").metadata
+    assert (
+        meta["algo"] == "ppo" and meta["learner"] == "neural" and meta["updates"] == 6 * 4 * 2
+    )  # epochs x minibatches
+    rows = read_csv(tmp_path / "learning_curve.csv")
+    assert len(rows) == 6 and all(float(row["epsilon"]) == 0.0 for row in rows)  # it explores by sampling
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    events = EventAccumulator(str(tmp_path / "tb")).Reload()
+    tags = set(events.Tags()["scalars"])
+    assert {"ppo/policy_loss", "ppo/value_loss", "ppo/entropy", "ppo/approx_kl",
+            "ppo/clip_fraction", "ppo/gradient_steps"} <= tags, sorted(tags)  # fmt: skip
+
+
+def test_ppo_same_seed_same_numbers_other_seed_other_numbers(train_config, tmp_path):
+    for run, seed in (("a", 0), ("b", 0), ("c", 1)):
+        train(train_config(*PPO, "algo.trials=4", "algo.iterations=1", f"seed={seed}"), run_dir=tmp_path / run)
+    a, b, c = (load_checkpoint(tmp_path / run / "checkpoints" / "last.safetensors").tensors for run in "abc")
+    assert a.keys() == b.keys() and all(torch.equal(a[name], b[name]) for name in a)
+    assert not torch.equal(a["network/w0"], c["network/w0"])
+
+
+@pytest.mark.parametrize("stop_after", [4, 7], ids=["first_iteration", "second_iteration"])
+def test_ppo_killed_mid_run_resumes_to_the_same_networks_and_curve(stop_after, train_config, tmp_path, monkeypatch):
+    overrides = (*PPO, "checkpoint_every=2", "algo.trials=10")
+    assert_resume_equals_uninterrupted(
+        train_config, overrides, tmp_path, monkeypatch, stop_after=stop_after, tensors="all"
+    )
+
+
+def test_ppo_resume_refuses_another_network(train_config, tmp_path):
+    train(train_config(*PPO, "algo.trials=2", "algo.iterations=1"), run_dir=tmp_path)
+    with pytest.raises(Exception, match="algo.hidden was"):
+        train(train_config(*PPO, "algo.trials=2", "algo.iterations=1", "algo.hidden=[16]", "resume=true"),
+              run_dir=tmp_path)  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("override", "message"),
+    [
+        ("algo.epochs=0", "epochs=0 is invalid: must be an integer in [1, 1000]"),
+        ("algo.minibatches=0", "minibatches=0 is invalid"),
+        ("algo.clip_coef=0", "clip_coef=0 is invalid"),
+        ("algo.gae_lambda=1.5", "gae_lambda=1.5 is invalid"),
+        ("algo.entropy_coef=-1", "entropy_coef=-1 is invalid"),
+        ("algo.learning_rate=nan", "learning_rate=nan is invalid"),
+        ("algo.hidden=[0]", "hidden=[0] is invalid"),
+        ("algo.normalize_advantages=3", "normalize_advantages=3 is invalid: must be true or false"),
+        ("+algo.batch_size=4", "algo.batch_size is not a setting of pedrl.algos.PPO"),
+        ("vq.per_process=false vq.factors={own:{num_prototypes:8}}", "vq.factors is invalid with algo=ppo"),
+    ],
+)
+def test_ppo_bad_settings_are_one_line_before_any_compute(train_config, tmp_path, override, message):
+    cfg = train_config(*PPO, *override.split())
+    with pytest.raises(ValueError, match=message.replace("[", r"\[").replace("]", r"\]")) as err:
+        build_trainer(cfg, tmp_path)
+    assert "\n" not in str(err.value)
+    assert not (tmp_path / "checkpoints").exists()
+
+
+def test_pedrl_eval_and_validate_run_a_ppo_checkpoint_and_its_exported_file(tmp_path):
+    """The actor is a network of the DQN's kind: pedrl-eval reads the checkpoint and its exported file alike."""
+    import csv
+
+    from pedrl.evaluation import evaluate
+    from pedrl.policy_files import export_policy
+    from tests.conftest import compose_config
+
+    cfg = compose_config("train", ["debug=default", *PPO, "algo.trials=4", "algo.iterations=1", "progress=false"])
+    train(cfg, run_dir=tmp_path / "run")
+    checkpoint = tmp_path / "run" / "checkpoints" / "last.safetensors"
+    exported = export_policy(checkpoint, tmp_path / "policy.safetensors")
+    assert isinstance(NeuralPolicy.load(exported), NeuralPolicy)
+    rows = {}
+    for name, source in (("checkpoint", f"checkpoint={checkpoint}"), ("file", f"policy={exported}")):
+        eval_cfg = compose_config("eval", [source, "agents=[4]", "trials=8", "trials_per_batch=8", "seed=3",
+                                           "animation.enabled=false", "export.trials=0"])  # fmt: skip
+        evaluate(eval_cfg, run_dir=tmp_path / name)
+        with open(tmp_path / name / "scaling.csv") as file:
+            rows[name] = {row["controller"]: row for row in csv.DictReader(file)}
+    assert rows["checkpoint"] == rows["file"] and set(rows["file"]) == {"learned", "greedy"}

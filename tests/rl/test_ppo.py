@@ -1,0 +1,107 @@
+"""The PPO update's parts (:mod:`pedrl.rl.ppo`): generalised advantages on hand-made trajectories, and the clipped
+step moving each process's probabilities the way its advantages say, and no further than the clip."""
+
+import pytest
+import torch
+
+from pedrl.rl.network import QNetwork
+from pedrl.rl.ppo import PPOSettings, PPOUpdate, advantages
+
+
+def _trajectory(rewards, values, *, terminated=(), cut=(), bootstrap=0.0):
+    """One row's trajectory ``(T, 1)``: it ends at its last step, terminal if ``terminated`` holds it, else cut."""
+    steps = len(rewards)
+    column = lambda items: torch.tensor(items, dtype=torch.float32).unsqueeze(1)  # noqa: E731
+    ended = torch.zeros(steps, 1, dtype=torch.bool)
+    ended[-1] = True
+    term = torch.zeros(steps, 1, dtype=torch.bool)
+    for t in terminated:
+        term[t] = True
+    boot = torch.zeros(steps, 1)
+    for t in cut:
+        boot[t] = bootstrap
+    return column(rewards), column(values), term, ended, boot
+
+
+@pytest.mark.parametrize("terminal", [True, False], ids=["left", "cut"])
+def test_advantages_with_lambda_1_are_discounted_returns_minus_values(terminal):
+    """lambda = 1: A_t = sum_k gamma^k r_t+k (+ gamma^(T-t) V_boot where the clock cut it) - V_t; returns A + V."""
+    rewards, values, gamma = [1.0, -2.0, 3.0, 0.5], [0.3, -0.1, 0.7, 2.0], 0.9
+    parts = _trajectory(rewards, values, terminated=[3] if terminal else [], cut=[] if terminal else [3], bootstrap=5.0)
+    adv, returns = advantages(*parts, gamma=gamma, gae_lambda=1.0)
+    tail = 0.0 if terminal else 5.0
+    for t in range(4):
+        expected = sum(gamma**k * rewards[t + k] for k in range(4 - t)) + gamma ** (4 - t) * tail
+        assert adv[t, 0].item() == pytest.approx(expected - values[t], abs=1e-5)
+        assert returns[t, 0].item() == pytest.approx(expected, abs=1e-5)
+
+
+def test_advantages_with_lambda_0_are_one_step_td_errors_and_rows_are_apart():
+    """lambda = 0: A_t = r_t + gamma V_t+1 - V_t; a second row that did nothing (zeros) keeps zero advantages."""
+    rewards, values, gamma = [1.0, 2.0, 3.0], [0.5, 1.5, -1.0], 0.5
+    parts = [torch.cat([p, torch.zeros_like(p)], dim=1) for p in _trajectory(rewards, values, terminated=[2])]
+    adv, _ = advantages(*parts, gamma=gamma, gae_lambda=0.0)
+    expected = [1.0 + 0.5 * 1.5 - 0.5, 2.0 + 0.5 * -1.0 - 1.5, 3.0 - (-1.0)]
+    torch.testing.assert_close(adv[:, 0], torch.tensor(expected))
+    assert not bool(adv[:, 1].any())
+
+
+def _update(processes=2, **changes):
+    settings = dict(gamma=0.9, gae_lambda=0.95, clip_coef=0.2, value_coef=0.5, entropy_coef=0.0, epochs=1,
+                    minibatches=1, max_grad_norm=100.0, reward_scale=1.0, normalize_advantages=False)  # fmt: skip
+    settings |= changes
+    generator = torch.Generator().manual_seed(0)
+    actor = QNetwork(processes, 3, (8,), 5, generator=generator)
+    critic = QNetwork(processes, 3, (8,), 1, generator=generator)
+    return PPOUpdate(actor, critic, PPOSettings(**settings), learning_rate=0.05)
+
+
+def _rollout(update, reward: float, steps: int = 4, rows: int = 2):
+    """Every row takes action 2 at every step of one trajectory, rewarded ``reward`` a step (terminal at its end)."""
+    inputs = torch.randn(steps, rows, 3, generator=torch.Generator().manual_seed(1))
+    with torch.no_grad():
+        process = torch.arange(rows) % update.actor.processes
+        every = update.actor(inputs.reshape(1, -1, 3).expand(update.actor.processes, -1, -1))  # (P, T rows, 5)
+        logits = every.view(-1, steps, rows, 5)[process, :, torch.arange(rows)].transpose(0, 1)  # (T, rows, 5)
+        logprobs = torch.log_softmax(logits, dim=2)[..., 2]
+    ended = torch.zeros(steps, rows, dtype=torch.bool)
+    ended[-1] = True
+    zeros = torch.zeros(steps, rows)
+    return {"inputs": inputs, "actions": torch.full((steps, rows), 2), "logprobs": logprobs, "values": zeros,
+            "rewards": torch.full((steps, rows), reward), "terminated": ended.clone(), "ended": ended,
+            "valid": torch.ones(steps, rows, dtype=torch.bool), "bootstrap": zeros}, process  # fmt: skip
+
+
+@pytest.mark.parametrize(("reward", "direction"), [(1.0, 1), (-1.0, -1)], ids=["good", "bad"])
+def test_a_step_makes_an_action_with_a_positive_advantage_likelier_and_a_negative_one_rarer(reward, direction):
+    update = _update()
+    rollout, process = _rollout(update, reward)
+    before = rollout["logprobs"].clone()
+    update.learn(rollout, process, torch.Generator().manual_seed(0))
+    after, _ = _rollout(update, reward)
+    assert bool((direction * (after["logprobs"] - before) > 0).all())
+
+
+@pytest.mark.parametrize(("clip", "moves"), [(0.2, False), (10.0, True)], ids=["clipped", "within_the_clip"])
+def test_past_the_clip_a_good_action_gets_no_further_push(clip, moves):
+    """Decisions whose probability ratio already exceeds 1 + c (stored probabilities 3 times smaller than now) with a
+    positive advantage give the actor no gradient: it stays as it is; with a wider clip (control) it moves."""
+    update = _update(clip_coef=clip)
+    rollout, process = _rollout(update, 1.0)
+    rollout["logprobs"] -= torch.log(torch.tensor(3.0))
+    actor = [w.clone() for w in update.actor.weights]
+    update.learn(rollout, process, torch.Generator().manual_seed(0))
+    assert moves != all(torch.equal(w, a) for w, a in zip(update.actor.weights, actor, strict=True))
+
+
+def test_a_process_without_decisions_keeps_its_networks():
+    update = _update(processes=2)
+    rollout, process = _rollout(update, 1.0)
+    process = torch.zeros_like(process)  # every row is process 0's
+    second = [w[1].clone() for w in (*update.actor.weights, *update.critic.weights)]
+    first = update.actor.weights[0][0].clone()
+    update.learn(rollout, process, torch.Generator().manual_seed(0))
+    assert all(
+        torch.equal(w[1], s) for w, s in zip((*update.actor.weights, *update.critic.weights), second, strict=True)
+    )
+    assert not torch.equal(update.actor.weights[0][0], first)  # process 0 learned
