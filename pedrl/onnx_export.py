@@ -1,11 +1,11 @@
-"""A learned Q-network as an ONNX model, with its observation and action contract beside it.
+"""A learned network (a Q-network, or PPO's actor) as an ONNX model, with its observation and action contract.
 
-``pedrl-export checkpoint=<a dqn or ppo checkpoint> out=policy.onnx`` writes ``policy.onnx`` and ``policy.onnx.json``. The
-model takes what :class:`pedrl.sim.RoomEnv` gives, nothing prepared: ``obs`` ``(B, F)`` float32 (an agent's deictic
-state, the features in the order ``contract["observation"]["features"]`` names) and ``num_sensed`` ``(B,)`` int64
-(the neighbours sensed), for a network that reads them ``neighbour_velocity`` ``(B, k, 2)`` float32 (the room's
-``info["neighbour_velocity"]``), and returns ``q_values`` ``(B, 81)`` float32 (the Q-values; PPO's actor's logits)
-and ``action`` ``(B,)`` int64 (the best, or most probable, one).
+``pedrl-export checkpoint=<a dqn or ppo checkpoint> out=policy.onnx`` writes ``policy.onnx`` and
+``policy.onnx.json``. The model takes what :class:`pedrl.sim.RoomEnv` gives, nothing prepared: ``obs`` ``(B, F)``
+float32 (an agent's deictic state, the features in the order ``contract["observation"]["features"]`` names) and
+``num_sensed`` ``(B,)`` int64 (the neighbours sensed), for a network that reads them ``neighbour_velocity``
+``(B, k, 2)`` float32 (the room's ``info["neighbour_velocity"]``), and returns ``q_values`` ``(B, 81)`` float32
+(the Q-values; PPO's actor's logits) and ``action`` ``(B,)`` int64 (the best, or most probable, one).
 The distance transform, the standardisation and the neighbour presence flags are inside the graph. The JSON file
 states the contract: the inputs and outputs, the features, the action codec (the action frame, the speed and turn of
 each action), the decision length, and the room settings the network learned in. onnxruntime runs it without torch

@@ -13,8 +13,10 @@ from pedrl.train import train
 from pedrl.trial.crowd import run_crowd
 from tests.algos.resuming import assert_resume_equals_uninterrupted
 
-# a 10 m room, 4 agents for 40 decisions, actions in the goal frame (the presets'), small networks
+# a 10 m room, 4 agents for 40 decisions, actions in the goal frame (the presets'), small networks at a larger step, two
+# iterations (two checkpoints)
 PPO = ("algo=ppo", "algo.num_agents=4", "env.max_decisions=40", "threads=1", "logger=none", "env.action_frame=goal",
+       "algo.hidden=[32,32]", "algo.minibatches=2", "algo.learning_rate=0.002", "algo.iterations=2",
        "env.speed_ratios=[0.0,0.2,0.4,0.6,0.7,0.8,0.9,0.95,1.0]",
        "env.turn_ratios=[-0.5,-0.25,-0.1,-0.05,0.0,0.05,0.1,0.25,0.5]")  # fmt: skip
 
