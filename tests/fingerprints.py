@@ -35,6 +35,7 @@ RUNS = {
         "algo.replay_balance=room",
         "mix=[{name: corridor, length: 24.0, width: 3.0, agents: 4}]",
     ],
+    "ppo": ["algo=ppo", "algo.num_agents=4", "env.max_decisions=40", "algo.trials=4", "algo.hidden=[32,32]"],
     "it_mix": ["algo=it_vqql", "mix=[{name: corridor, length: 24.0, width: 3.0, agents: 4}]"],
 }
 SKIP = {"decisions_per_s", "wall_time_s", "time_s"}

@@ -20,20 +20,18 @@ reference); the network acts in torch between them, on the CPU or ``device=cuda`
 from __future__ import annotations
 
 import math
-import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, fields
-from pathlib import Path
 from typing import Any, Final
 
 import torch
 from tqdm.auto import tqdm
 
 from pedrl.algos.dqn_learning import DeepQLearner
-from pedrl.algos.dqn_restore import ResumedDQN, load_dqn_resume
+from pedrl.algos.networks import NetworkRun, checked_count, decisions_on, random_walk_standardisation
 from pedrl.algos.phase import MAX_TRIALS, Phase
 from pedrl.algos.records import RunRecord
-from pedrl.algos.run import LearningRun, RunSpec
+from pedrl.algos.run import RunSpec
 from pedrl.common.checks import (
     LARGE_RUN_S,
     YEAR_S,
@@ -49,13 +47,12 @@ from pedrl.common.checks import (
 from pedrl.rl import LinearSchedule
 from pedrl.rl.deep_q import DoubleDQN, DQNSettings
 from pedrl.rl.network import QNetwork, check_hidden, head_outputs
-from pedrl.rl.neural import NEURAL_LEARNER, NeuralPolicy, input_width
+from pedrl.rl.neural import NeuralPolicy
 from pedrl.rl.qtable import NUM_ACTIONS
 from pedrl.rl.replay import ReplayBuffer
 from pedrl.sim import RoomEnv
 from pedrl.trial.crowd import run_crowd
-from pedrl.trial.rollout import TrialStats, gather
-from pedrl.vq.encoder import EncoderSettings, StateEncoder
+from pedrl.trial.rollout import TrialStats
 
 MAX_BATCH: Final = 1 << 20
 """Largest ``batch_size`` (transitions per process and step)."""
@@ -74,8 +71,6 @@ REPLAY_BALANCES: Final = ("none", "room")
 """How a batch is drawn from the replay memory (``algo.replay_balance``): uniformly, or every room alike."""
 MAX_N_STEP: Final = 100
 """Largest ``n_step`` (decisions a return sums; the rings keep a horizon in a byte)."""
-MIN_STD: Final = 1e-3
-"""A feature whose spread on the random walk is below this (a constant) is standardised by 1 instead."""
 
 
 @dataclass(frozen=True)
@@ -143,8 +138,9 @@ class DQNConfig:
                            self.n_step)  # fmt: skip
 
 
-class DQN(LearningRun):
-    """Double DQN with a target network and a replay memory per learning process (module docstring).
+class DQN(NetworkRun):
+    """Double DQN with a target network and a replay memory per learning process (module docstring), a
+    :class:`pedrl.algos.networks.NetworkRun`.
 
     Args:
         run: what the run is (of ``run.vq`` only ``distance_transform`` is read: the inputs are the states as the
@@ -153,37 +149,15 @@ class DQN(LearningRun):
     """
 
     name = "dqn"
-    learner = NEURAL_LEARNER
-    phase_word = "iteration"
     settings_class = DQNConfig
 
     def __init__(self, run: RunSpec, **settings: Any) -> None:
-        if run.vq.factors is not None:  # a table's key
-            raise ValueError(
-                "vq.factors is invalid with algo=dqn: the network reads the whole state (of the vq group it reads "
-                "distance_transform only); use algo=vqql or algo=it_vqql for a factored table"
-            )
-        algo = DQNConfig(**settings)
-        super().__init__(run)
-        self.algo = algo
-        self.num_agents, self.trials, self.iterations, self.gather_trials = (
-            algo.num_agents,
-            algo.trials,
-            algo.iterations,
-            algo.gather_trials,
-        )
-        self.learning_rate, self.buffer_size, self.hidden = algo.learning_rate, algo.buffer_size, algo.hidden
-        self.head, self.neighbour_velocity = algo.head, algo.neighbour_velocity
+        super().__init__(run, **settings)
+        algo = self.algo
+        self.learning_rate, self.buffer_size, self.head = algo.learning_rate, algo.buffer_size, algo.head
         self.settings = algo.update()
         decay = max(1, round(algo.epsilon_decay_fraction * algo.trials))
         self.schedule = LinearSchedule(algo.epsilon_start, algo.epsilon_end, decay)
-        self.env = self.env_factory(num_replicas=run.replicas, num_agents=algo.num_agents, device=self.device)
-        self.log_walking(algo.trials, self.env)
-        self.path, why_not = self.trial_path()  # fused=true refused before any compute
-        self.encoder_settings = EncoderSettings.for_room(
-            self.env, distance_transform=self.vq.distance_transform
-        ).spanning(self.mix)
-        self.width = input_width(self.encoder_settings, neighbour_velocity=algo.neighbour_velocity)
         check_memory(
             self.memory_needs(),
             device=self.device,
@@ -193,17 +167,6 @@ class DQN(LearningRun):
         self._check_learning_length()
 
     # ------------------------------------------------------------------ what a run is
-    def phases(self) -> list[Phase]:
-        """The iterations: equal blocks of the trials (the first ones a trial longer when they do not divide)."""
-        block, extra = divmod(self.trials, self.iterations)
-        return [
-            Phase(i + 1, self.num_agents, block + (1 if i < extra else 0), self.gather_trials, 1.0)
-            for i in range(self.iterations)
-        ]
-
-    def own_rooms(self) -> list[RoomEnv]:
-        return [self.env]
-
     def memory_needs(self) -> dict[str, float]:
         """Estimated bytes of the largest allocations: the replay memory, the networks with Adam's moments (online,
         target, two moments: four copies), a batch's activations, and a decision of the largest room."""
@@ -252,34 +215,37 @@ class DQN(LearningRun):
                 flush=True,
             )
 
-    # ------------------------------------------------------------------ the run's hooks
-    def resume(self, path: str | Path) -> ResumedDQN:
-        return load_dqn_resume(self, path)
+    # ------------------------------------------------------------------ the network run's hooks
+    def start(self) -> None:
+        """A new run: seed, gather the random walk's states, standardise by them, build the network, the memory
+        and the update."""
+        mean, std, self.summary = random_walk_standardisation(self)
+        network = QNetwork(self.processes, self.width, self.hidden, self.env.num_actions, head=self.head,
+                           generator=self.generator, device=self.device)  # fmt: skip
+        self.policy = self.make_policy(network, mean, std)
+        self.update = DoubleDQN(self.policy, self.settings, self.learning_rate)
+        self.buffer = self.make_buffer()
+        self.summary["parameters"] = network.num_parameters
 
-    def summaries(self) -> list[dict[str, Any]]:
-        return [self.summary]
+    def make_buffer(self) -> ReplayBuffer:
+        """An empty replay memory of the run's processes (keeping horizons with n-step returns)."""
+        return ReplayBuffer(self.processes, self.buffer_size, self.width, horizons=self.settings.n_step > 1,
+                            device=self.device)  # fmt: skip
 
-    def learn(self, record: RunRecord, resumed: ResumedDQN | None) -> TrialStats | None:
-        """Start (gather, standardise, build) or continue ``resumed``, then the iterations' trials from there on."""
-        if resumed is None:
-            self.start()
-            record.logger.log_scalars(0, {f"dqn/{key}": value for key, value in self.summary.items()})
-        else:
-            self.policy, self.update, self.buffer = resumed.policy, resumed.update, resumed.buffer
-            self.generator.set_state(resumed.rng_trainer)
-            self.env.generator.set_state(resumed.rng_env)
-        start = resumed.global_trial if resumed is not None else 0
-        stats, global_trial = None, 0
-        rooms = self.rooms(self.env)
-        for phase in self.phases():
-            first = min(phase.trials, max(0, start - global_trial))  # trials of the phase done before the resume
-            global_trial += first
-            if first == phase.trials:
-                continue
-            stats, global_trial = self.run_trials(phase, rooms, first, global_trial, record,
-                                              epsilon=lambda _, at: self.schedule(at), policy=self.policy)  # fmt: skip
-            record.logger.flush()
-        return stats
+    def network_shape(self) -> tuple[tuple[int, ...], str]:
+        return (self.width, *self.hidden, head_outputs(self.head, self.env.num_actions)), self.head
+
+    def restore_tensors(self, policy: NeuralPolicy, tensors: dict[str, torch.Tensor], meta: dict[str, Any]):
+        """The update (the target network, Adam's state, its counts) and the replay memory of a checkpoint."""
+        update = DoubleDQN(policy, self.settings, self.learning_rate)
+        update.load_tensors(tensors)
+        update.updates, update.decisions = checked_count(meta, "updates"), checked_count(meta, "decisions")
+        buffer = self.make_buffer()
+        buffer.load_tensors(tensors)
+        return {"update": update, "buffer": buffer}
+
+    def epsilon(self, global_trial: int) -> float:
+        return self.schedule(global_trial)
 
     def learn_trial(self, env: RoomEnv, room: int, epsilon: float, bar: tqdm) -> TrialStats:
         self._driver = DeepQLearner(self.policy, epsilon=epsilon, generator=self.generator, update=self.update,
@@ -305,65 +271,6 @@ class DQN(LearningRun):
     def state_metadata(self, global_trial: int) -> dict[str, Any]:
         return {"global_trial": global_trial, "updates": self.update.updates, "decisions": self.update.decisions,
                 "distortion": math.nan}  # fmt: skip
-
-    # ------------------------------------------------------------------ the parts of a run
-    def start(self) -> None:
-        """A new run: seed, gather the random walk's states, standardise by them, build the network, the memory
-        and the update."""
-        mean, std, self.summary = random_walk_standardisation(self)
-        network = QNetwork(self.processes, self.width, self.hidden, self.env.num_actions, head=self.head,
-                           generator=self.generator, device=self.device)  # fmt: skip
-        self.policy = self.make_policy(network, mean, std)
-        self.update = DoubleDQN(self.policy, self.settings, self.learning_rate)
-        self.buffer = self.make_buffer()
-        self.summary["parameters"] = network.num_parameters
-
-    def make_buffer(self) -> ReplayBuffer:
-        """An empty replay memory of the run's processes (keeping horizons with n-step returns)."""
-        return ReplayBuffer(self.processes, self.buffer_size, self.width, horizons=self.settings.n_step > 1,
-                            device=self.device)  # fmt: skip
-
-    def make_policy(self, network: QNetwork, mean: torch.Tensor, std: torch.Tensor) -> NeuralPolicy:
-        """The run's policy over ``network`` (its rooms ``p E .. p E + E - 1`` act with process ``p``'s network)."""
-        return NeuralPolicy(StateEncoder(self.encoder_settings), network, mean, std,
-                            rooms_per_process=self.rooms_per_process,
-                            neighbour_velocity=self.neighbour_velocity)  # fmt: skip
-
-
-def random_walk_standardisation(learner: Any) -> tuple[torch.Tensor, torch.Tensor, dict[str, Any]]:
-    """A network learner's start (:class:`DQN`, :class:`pedrl.algos.ppo.PPO`): seed its generators from its run's
-    seed, record the states of ``gather_trials`` random-walk trials in each of its rooms, and return their mean and
-    standard deviation ``(F,)`` (1 where a feature is constant), which standardise the network's inputs, with the
-    summary of the walk."""
-    learner.generator.manual_seed(learner.seed * 10_007 + 1)
-    learner.env.reset(seed=learner.seed * 10_007 + 2)
-    encoder = StateEncoder(learner.encoder_settings)
-    gathered = [
-        gather(room, encoder, None, trials=learner.gather_trials, epsilon=1.0, processes=learner.processes,
-               generator=learner.generator)
-        for _, room in learner.rooms(learner.env)
-    ]  # fmt: skip
-    states = torch.cat([part.states for part in gathered])
-    mean, std = states.mean(0), states.std(0)
-    std = torch.where(std < MIN_STD, 1.0, std)
-    summary = {"gathered_states": int(states.shape[0]),
-               "gather_success_rate": sum(p.success_rate for p in gathered) / len(gathered)}  # fmt: skip
-    return mean.float().contiguous(), std.float().contiguous(), summary
-
-
-def decisions_on(bar: tqdm) -> Callable[[int, int], None] | None:
-    """A trial's progress callback that shows its decisions and the agents left on ``bar`` about once a second (a
-    trial of many gradient steps is long); None where the bar is off."""
-    if bar.disable:
-        return None
-    shown_at = [time.monotonic()]
-
-    def show(decisions: int, left: int) -> None:
-        if time.monotonic() - shown_at[0] >= 1.0:
-            shown_at[0] = time.monotonic()
-            bar.set_postfix(decision=decisions, agents_left=left)
-
-    return show
 
 
 def _check_settings(settings: Mapping[str, Any]) -> None:

@@ -47,7 +47,7 @@ class DeepQLearner(Driver):
         self._env = env
         steps = self.update.settings.n_step if self.update is not None else 1
         self._window = NStepWindow(steps, self.update.settings.gamma) if steps > 1 else None
-        self._inputs = self._encode(obs, info, env.active.reshape(-1))
+        self._inputs = self.policy.inputs_of(obs, info, env.active.reshape(-1))
 
     def act(self, env: Any, obs: torch.Tensor, info: Mapping[str, Any]) -> torch.Tensor:
         active = env.active.reshape(-1)
@@ -61,7 +61,7 @@ class DeepQLearner(Driver):
         return actions.view(env.num_replicas, env.num_agents)
 
     def observe(self, obs, info, reward, terminated, valid) -> None:
-        next_inputs = self._encode(obs, info, valid & ~terminated)
+        next_inputs = self.policy.inputs_of(obs, info, valid & ~terminated)
         if self.update is not None:
             scale = self.update.settings.reward_scale
             taken = Batch(self._inputs, self._actions, reward * scale, next_inputs, terminated)
@@ -82,11 +82,3 @@ class DeepQLearner(Driver):
             return super().td_error()
         self.loss, td = self.update.take_sums()
         return td
-
-    def _encode(self, obs: torch.Tensor, info: Mapping[str, Any], mask: torch.Tensor) -> torch.Tensor:
-        """Network inputs ``(R N, D)`` of the agents in ``mask``; zeros for the others."""
-        inputs = torch.zeros(mask.shape[0], self.policy.num_inputs, device=obs.device)
-        rows = torch.nonzero(mask).squeeze(1)
-        if rows.shape[0]:
-            inputs.index_copy_(0, rows, self.policy.info_inputs(obs, info, rows))
-        return inputs

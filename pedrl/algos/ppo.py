@@ -20,17 +20,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
-from pathlib import Path
 from typing import Any, Final
 
 import torch
 from tqdm.auto import tqdm
 
-from pedrl.algos.dqn import decisions_on, random_walk_standardisation
-from pedrl.algos.dqn_restore import checked_count, missing_tensor, trial_progress
+from pedrl.algos.networks import NetworkRun, checked_count, decisions_on, random_walk_standardisation
 from pedrl.algos.phase import MAX_TRIALS, Phase
 from pedrl.algos.records import RunRecord
-from pedrl.algos.run import LearningRun, RunSpec, open_resume
+from pedrl.algos.run import RunSpec
 from pedrl.common.checks import (
     check_bool,
     check_integer,
@@ -38,16 +36,13 @@ from pedrl.common.checks import (
     check_number,
     check_trials_per_iteration,
 )
-from pedrl.io import CheckpointError
-from pedrl.policy_files import RNG_KEYS, check_rng_state
 from pedrl.rl.network import QNetwork, check_hidden
-from pedrl.rl.neural import NEURAL_LEARNER, NeuralPolicy, input_width, neural_from_tensors
+from pedrl.rl.neural import NeuralPolicy
 from pedrl.rl.ppo import METRICS, PPOSettings, PPOUpdate, Rollout
 from pedrl.sim import RoomEnv
 from pedrl.trial.crowd import run_crowd
 from pedrl.trial.loop import Driver
 from pedrl.trial.rollout import TrialStats
-from pedrl.vq.encoder import EncoderSettings, StateEncoder
 
 MAX_EPOCHS: Final = 1_000
 """Largest ``epochs`` (passes over a trial's decisions)."""
@@ -135,7 +130,7 @@ class PPOActor(Driver):
     def begin(self, env: Any, obs: torch.Tensor, info: Any) -> None:
         self.process, _ = self.policy.layout.of(env.num_replicas, env.num_agents, env.device)
         self._env, self.rollout = env, Rollout()
-        self._inputs = self._encode(obs, info, env.active.reshape(-1))
+        self._inputs = self.policy.inputs_of(obs, info, env.active.reshape(-1))
 
     def act(self, env: Any, obs: torch.Tensor, info: Any) -> torch.Tensor:
         active = env.active.reshape(-1)
@@ -155,7 +150,7 @@ class PPOActor(Driver):
         return actions.view(env.num_replicas, env.num_agents)
 
     def observe(self, obs, info, reward, terminated, valid) -> None:
-        next_inputs = self._encode(obs, info, valid & ~terminated)
+        next_inputs = self.policy.inputs_of(obs, info, valid & ~terminated)
         ended = valid & (terminated | ~self._env.active.reshape(-1))
         cut = torch.nonzero(ended & ~terminated).squeeze(1)  # the clock ended these trajectories: bootstrap
         bootstrap = torch.zeros_like(reward)
@@ -168,32 +163,9 @@ class PPOActor(Driver):
                          ended=ended, bootstrap=bootstrap)  # fmt: skip
         self._inputs = next_inputs
 
-    def _encode(self, obs: torch.Tensor, info: Any, mask: torch.Tensor) -> torch.Tensor:
-        """Network inputs ``(R N, D)`` of the agents in ``mask``; zeros for the others."""
-        inputs = torch.zeros(mask.shape[0], self.policy.num_inputs, device=obs.device)
-        rows = torch.nonzero(mask).squeeze(1)
-        if rows.shape[0]:
-            inputs.index_copy_(0, rows, self.policy.info_inputs(obs, info, rows))
-        return inputs
 
-
-@dataclass
-class ResumedPPO:
-    """A checked PPO checkpoint: where the run stands and what it continues with."""
-
-    global_trial: int
-    done: bool
-    policy: NeuralPolicy
-    update: PPOUpdate
-    rng_trainer: torch.Tensor
-    rng_env: torch.Tensor
-    wall_time_s: float
-    final: dict[str, float]
-    summaries: list[dict[str, Any]]
-
-
-class PPO(LearningRun):
-    """Shared-parameter PPO (module docstring).
+class PPO(NetworkRun):
+    """Shared-parameter PPO (module docstring), a :class:`pedrl.algos.networks.NetworkRun`.
 
     Args:
         run: what the run is (of ``run.vq`` only ``distance_transform`` is read, as by the DQN).
@@ -201,50 +173,17 @@ class PPO(LearningRun):
     """
 
     name = "ppo"
-    learner = NEURAL_LEARNER
-    phase_word = "iteration"
     settings_class = PPOConfig
 
     def __init__(self, run: RunSpec, **settings: Any) -> None:
-        if run.vq.factors is not None:  # a table's key
-            raise ValueError(
-                "vq.factors is invalid with algo=ppo: the networks read the whole state (of the vq group they read "
-                "distance_transform only); use algo=vqql or algo=it_vqql for a factored table"
-            )
-        algo = PPOConfig(**settings)
-        super().__init__(run)
-        self.algo, self.settings = algo, algo.update()
-        self.num_agents, self.trials, self.iterations, self.gather_trials = (
-            algo.num_agents,
-            algo.trials,
-            algo.iterations,
-            algo.gather_trials,
-        )
-        self.env = self.env_factory(num_replicas=run.replicas, num_agents=algo.num_agents, device=self.device)
-        self.log_walking(algo.trials, self.env)
-        self.path, _ = self.trial_path()  # fused=true refused before any compute
-        self.encoder_settings = EncoderSettings.for_room(
-            self.env, distance_transform=self.vq.distance_transform
-        ).spanning(self.mix)
-        self.width = input_width(self.encoder_settings, neighbour_velocity=algo.neighbour_velocity)
+        super().__init__(run, **settings)
+        self.settings = self.algo.update()
         check_memory(
             self.memory_needs(),
             device=self.device,
             advice="lower algo.hidden, processes, rooms_per_process, the agents, algo.gather_trials or "
             "env.max_decisions",
         )
-
-    # ------------------------------------------------------------------ what a run is
-    def phases(self) -> list[Phase]:
-        """The iterations: equal blocks of the trials (the first ones a trial longer when they do not divide)."""
-        block, extra = divmod(self.trials, self.iterations)
-        return [
-            Phase(i + 1, self.num_agents, block + (1 if i < extra else 0), self.gather_trials, 1.0)
-            for i in range(self.iterations)
-        ]
-
-    def own_rooms(self) -> list[RoomEnv]:
-        return [self.env]
 
     def memory_needs(self) -> dict[str, float]:
         """Estimated bytes of the largest allocations: a trial's decisions (inputs and five numbers per agent and
@@ -261,76 +200,27 @@ class PPO(LearningRun):
             "room": max(room.step_memory() for room in rooms),
         }
 
-    # ------------------------------------------------------------------ the run's hooks
+    # ------------------------------------------------------------------ the network run's hooks
     def start(self) -> None:
         """A new run: seed, standardise by a random walk, build the actor, the critic and the update."""
         mean, std, self.summary = random_walk_standardisation(self)
         build = dict(generator=self.generator, device=self.device)
-        actor = QNetwork(self.processes, self.width, self.algo.hidden, self.env.num_actions, **build)
-        critic = QNetwork(self.processes, self.width, self.algo.hidden, 1, **build)
+        actor = QNetwork(self.processes, self.width, self.hidden, self.env.num_actions, **build)
+        critic = QNetwork(self.processes, self.width, self.hidden, 1, **build)
         self.policy = self.make_policy(actor, mean, std)
         self.update = PPOUpdate(actor, critic, self.settings, self.algo.learning_rate)
         self.summary["parameters"] = actor.num_parameters + critic.num_parameters
 
-    def make_policy(self, actor: QNetwork, mean: torch.Tensor, std: torch.Tensor) -> NeuralPolicy:
-        """The run's policy over ``actor`` (its rooms ``p E .. p E + E - 1`` act with process ``p``'s network)."""
-        return NeuralPolicy(StateEncoder(self.encoder_settings), actor, mean, std,
-                            rooms_per_process=self.rooms_per_process,
-                            neighbour_velocity=self.algo.neighbour_velocity)  # fmt: skip
+    def restore_tensors(self, policy: NeuralPolicy, tensors: dict[str, torch.Tensor], meta: dict[str, Any]):
+        """The update (the critic, Adam's state, its count) of a checkpoint."""
+        critic = QNetwork(self.processes, self.width, self.hidden, 1, device=self.device)
+        update = PPOUpdate(policy.network, critic, self.settings, self.algo.learning_rate)
+        update.load_tensors(tensors)
+        update.updates = checked_count(meta, "updates")
+        return {"update": update}
 
-    def resume(self, path: str | Path) -> ResumedPPO:
-        checkpoint = open_resume(self, path)
-        meta, where = checkpoint.metadata, f"checkpoint {str(path)!r}"
-        try:
-            global_trial, done = trial_progress(self, meta)
-            tensors = checkpoint.tensors
-            policy = neural_from_tensors(self.encoder_settings, tensors, num_actions=self.env.num_actions)
-            expected = (self.processes, (self.width, *self.algo.hidden, self.env.num_actions))
-            if (policy.num_processes, policy.network.widths) != expected or policy.network.head != "joint":
-                raise ValueError(
-                    f"the actor is {policy.num_processes} x {list(policy.network.widths)}: the config makes "
-                    f"{expected[0]} x {list(expected[1])}"
-                )
-            policy = self.make_policy(policy.network, policy.mean, policy.std)
-            policy.network.requires_grad_(True)
-            critic = QNetwork(self.processes, self.width, self.algo.hidden, 1, device=self.device)
-            update = PPOUpdate(policy.network, critic, self.settings, self.algo.learning_rate)
-            update.load_tensors(tensors)
-            update.updates = checked_count(meta, "updates")
-            rng = [check_rng_state(name, tensors[name]) if name in tensors else missing_tensor(name)
-                   for name in RNG_KEYS]  # fmt: skip
-        except ValueError as err:
-            raise CheckpointError(f"{where}: {err}") from None
-        summaries = meta.get("summaries") or [{}]
-        self.summary = dict(summaries[0]) if isinstance(summaries[0], dict) else {}
-        final = {k: float(v) for k, v in (meta.get("final") or {}).items()}
-        return ResumedPPO(global_trial, done, policy, update, rng[0], rng[1], float(meta.get("wall_time_s", 0.0)),
-                          final, [self.summary])  # fmt: skip
-
-    def summaries(self) -> list[dict[str, Any]]:
-        return [self.summary]
-
-    def learn(self, record: RunRecord, resumed: ResumedPPO | None) -> TrialStats | None:
-        """Start or continue ``resumed``, then the iterations' trials from there on, each one update."""
-        if resumed is None:
-            self.start()
-            record.logger.log_scalars(0, {f"ppo/{key}": value for key, value in self.summary.items()})
-        else:
-            self.policy, self.update = resumed.policy, resumed.update
-            self.generator.set_state(resumed.rng_trainer)
-            self.env.generator.set_state(resumed.rng_env)
-        start = resumed.global_trial if resumed is not None else 0
-        stats, global_trial = None, 0
-        rooms = self.rooms(self.env)
-        for phase in self.phases():
-            first = min(phase.trials, max(0, start - global_trial))  # trials of the phase done before the resume
-            global_trial += first
-            if first == phase.trials:
-                continue
-            stats, global_trial = self.run_trials(phase, rooms, first, global_trial, record,
-                                                  epsilon=lambda *_: 0.0, policy=self.policy)  # fmt: skip
-            record.logger.flush()
-        return stats
+    def epsilon(self, global_trial: int) -> float:
+        return 0.0  # PPO explores by sampling its actor
 
     def learn_trial(self, env: RoomEnv, room: int, epsilon: float, bar: tqdm) -> TrialStats:
         driver = PPOActor(self.policy, self.update.critic, generator=self.generator,

@@ -119,6 +119,15 @@ class NeuralPolicy:
             velocity = None if velocity is None else velocity.index_select(0, rows)
         return self.inputs(flat, num_sensed, info["decision"], velocity)
 
+    def inputs_of(self, obs: torch.Tensor, info: Mapping[str, Any], mask: torch.Tensor) -> torch.Tensor:
+        """Network inputs ``(R N, D)`` of the agents in ``mask (R N,)`` (:meth:`info_inputs`); zeros for the others:
+        what a learner's driver keeps of a decision."""
+        inputs = torch.zeros(mask.shape[0], self.num_inputs, device=obs.device)
+        rows = torch.nonzero(mask).squeeze(1)
+        if rows.shape[0]:
+            inputs.index_copy_(0, rows, self.info_inputs(obs, info, rows))
+        return inputs
+
     def values(self, inputs: torch.Tensor, process: torch.Tensor, *, network: QNetwork | None = None) -> torch.Tensor:
         """Q-values ``(B, U)`` of ``inputs (B, D)``, row ``b`` through process ``process[b]``'s network (of
         ``network``, default this policy's)."""
