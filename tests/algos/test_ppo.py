@@ -91,6 +91,7 @@ def test_ppo_resume_refuses_another_network(train_config, tmp_path):
         ("algo.entropy_coef=-1", "entropy_coef=-1 is invalid"),
         ("algo.learning_rate=nan", "learning_rate=nan is invalid"),
         ("algo.hidden=[0]", "hidden=[0] is invalid"),
+        ("algo.hidden=[65536,65536]", "this run needs about .* GiB of memory .networks and Adam"),
         ("algo.normalize_advantages=3", "normalize_advantages=3 is invalid: must be true or false"),
         ("+algo.batch_size=4", "algo.batch_size is not a setting of pedrl.algos.PPO"),
         ("vq.per_process=false vq.factors={own:{num_prototypes:8}}", "vq.factors is invalid with algo=ppo"),
