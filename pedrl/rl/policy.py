@@ -69,7 +69,12 @@ class LearnedPolicy(Protocol):
     def device(self) -> torch.device: ...
 
     def act(
-        self, obs: torch.Tensor, info: Mapping[str, Any], *, epsilon: float = 0.0, generator: torch.Generator | None
+        self,
+        obs: torch.Tensor,
+        info: Mapping[str, Any],
+        *,
+        epsilon: float = 0.0,
+        generator: torch.Generator | None = None,
     ) -> torch.Tensor: ...
 
     def controller(self, epsilon: float = 0.0, generator: torch.Generator | None = None) -> Any: ...
