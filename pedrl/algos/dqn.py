@@ -20,33 +20,30 @@ reference); the network acts in torch between them, on the CPU or ``device=cuda`
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import Any, Final
 
 import torch
 from tqdm.auto import tqdm
 
 from pedrl.algos.dqn_learning import DeepQLearner
-from pedrl.algos.networks import NetworkRun, checked_count, decisions_on, random_walk_standardisation
-from pedrl.algos.phase import MAX_TRIALS, Phase
+from pedrl.algos.networks import NetworkConfig, NetworkRun, checked_count, decisions_on, random_walk_standardisation
+from pedrl.algos.phase import Phase
 from pedrl.algos.records import RunRecord
 from pedrl.algos.run import RunSpec
 from pedrl.common.checks import (
     LARGE_RUN_S,
     YEAR_S,
-    check_bool,
     check_choice,
     check_epsilons,
     check_integer,
     check_memory,
     check_number,
-    check_trials_per_iteration,
     duration,
 )
 from pedrl.rl import LinearSchedule
 from pedrl.rl.deep_q import DoubleDQN, DQNSettings
-from pedrl.rl.network import QNetwork, check_hidden, head_outputs
+from pedrl.rl.network import QNetwork, head_outputs
 from pedrl.rl.neural import NeuralPolicy
 from pedrl.rl.qtable import NUM_ACTIONS
 from pedrl.rl.replay import ReplayBuffer
@@ -74,21 +71,13 @@ MAX_N_STEP: Final = 100
 
 
 @dataclass(frozen=True)
-class DQNConfig:
-    """The settings of ``algo=dqn`` (each an ``algo`` key), every value checked when the record is made.
+class DQNConfig(NetworkConfig):
+    """The settings of ``algo=dqn`` (each an ``algo`` key): the network learners' (:class:`NetworkConfig`), then its
+    own, every value checked when the record is made.
 
     Attributes:
-        num_agents: learning agents per room.
-        trials: total learning trials.
-        iterations: blocks the trials are split into, each ending with a checkpoint ``iter_XXXX``.
-        gather_trials: random-walk trials whose states standardise the inputs.
-        hidden: widths of the hidden layers.
         head: the network's last layer, ``joint`` (a value per action) or ``branching`` (a state value and an
             advantage per speed and per turn index: :data:`pedrl.rl.network.HEADS`).
-        neighbour_velocity: the network also reads each sensed neighbour's velocity in the goal frame (beside the
-            28 features, which give only its closing speed: :mod:`pedrl.sim.sensing`).
-        learning_rate: Adam's step size.
-        gamma: discount.
         n_step: decisions a transition's return sums before it bootstraps (1: one-step Q-learning; fewer where the
             walker's trial ends before).
         batch_size: transitions per process and gradient step.
@@ -99,20 +88,10 @@ class DQNConfig:
         train_every: decisions between two rounds of gradient steps.
         gradient_steps: gradient steps per round.
         target_every: gradient steps between two copies of the online network into the target network.
-        reward_scale: rewards are multiplied by this before they are learned (Q-values in these units).
-        max_grad_norm: each process's gradient is clipped to this norm.
         epsilon_start, epsilon_end, epsilon_decay_fraction: the exploration schedule over the run's trials.
     """
 
-    num_agents: int = 20
-    trials: int = 200
-    iterations: int = 1
-    gather_trials: int = 2
-    hidden: Sequence[int] = (256, 256)
     head: str = "joint"
-    neighbour_velocity: bool = False
-    learning_rate: float = 5e-4
-    gamma: float = 0.91
     n_step: int = 1
     batch_size: int = 256
     buffer_size: int = 100_000
@@ -121,15 +100,23 @@ class DQNConfig:
     train_every: int = 1
     gradient_steps: int = 1
     target_every: int = 500
-    reward_scale: float = 0.1
-    max_grad_norm: float = 10.0
     epsilon_start: float = 1.0
     epsilon_end: float = 0.05
     epsilon_decay_fraction: float = 0.5
 
     def __post_init__(self) -> None:
-        _check_settings({item.name: getattr(self, item.name) for item in fields(self)})
-        object.__setattr__(self, "hidden", tuple(self.hidden))
+        super().__post_init__()
+        for key in ("train_every", "target_every"):
+            check_integer(key, getattr(self, key), minimum=1)
+        check_integer("gradient_steps", self.gradient_steps, minimum=1, maximum=MAX_GRADIENT_STEPS)
+        head_outputs(self.head, NUM_ACTIONS)
+        check_integer("n_step", self.n_step, minimum=1, maximum=MAX_N_STEP)
+        check_integer("batch_size", self.batch_size, minimum=1, maximum=MAX_BATCH)
+        check_integer("buffer_size", self.buffer_size, minimum=self.batch_size)
+        check_integer("learning_starts", self.learning_starts, minimum=0, maximum=self.buffer_size)
+        check_choice("replay_balance", self.replay_balance, REPLAY_BALANCES)
+        check_epsilons(self.epsilon_start, self.epsilon_end)
+        check_number("epsilon_decay_fraction", self.epsilon_decay_fraction, low=0.0, high=1.0, low_open=True)
 
     def update(self) -> DQNSettings:
         """The settings of the update (:class:`pedrl.rl.deep_q.DQNSettings`)."""
@@ -271,26 +258,3 @@ class DQN(NetworkRun):
     def state_metadata(self, global_trial: int) -> dict[str, Any]:
         return {"global_trial": global_trial, "updates": self.update.updates, "decisions": self.update.decisions,
                 "distortion": math.nan}  # fmt: skip
-
-
-def _check_settings(settings: Mapping[str, Any]) -> None:
-    """One line for the first of a DQN's ``settings`` (the keys of :class:`DQNConfig`) that is out of range."""
-    check_trials_per_iteration(settings["trials"], settings["iterations"], maximum=MAX_TRIALS)
-    for key in ("num_agents", "train_every", "target_every"):
-        check_integer(key, settings[key], minimum=1)
-    check_integer("gather_trials", settings["gather_trials"], minimum=1, maximum=MAX_TRIALS)
-    check_integer("gradient_steps", settings["gradient_steps"], minimum=1, maximum=MAX_GRADIENT_STEPS)
-    check_hidden(settings["hidden"])
-    head_outputs(settings["head"], NUM_ACTIONS)
-    check_number("learning_rate", settings["learning_rate"], low=0.0, high=1.0, low_open=True)
-    check_number("gamma", settings["gamma"], low=0.0, high=1.0)
-    check_integer("n_step", settings["n_step"], minimum=1, maximum=MAX_N_STEP)
-    check_integer("batch_size", settings["batch_size"], minimum=1, maximum=MAX_BATCH)
-    check_integer("buffer_size", settings["buffer_size"], minimum=settings["batch_size"])
-    check_integer("learning_starts", settings["learning_starts"], minimum=0, maximum=settings["buffer_size"])
-    check_choice("replay_balance", settings["replay_balance"], REPLAY_BALANCES)
-    check_number("reward_scale", settings["reward_scale"], low=0.0, low_open=True, high=1e6)
-    check_number("max_grad_norm", settings["max_grad_norm"], low=0.0, low_open=True, high=1e9)
-    check_epsilons(settings["epsilon_start"], settings["epsilon_end"])
-    check_number("epsilon_decay_fraction", settings["epsilon_decay_fraction"], low=0.0, high=1.0, low_open=True)
-    check_bool("neighbour_velocity", settings["neighbour_velocity"])

@@ -12,7 +12,7 @@ trial hooks of the base.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar, Final
@@ -20,12 +20,13 @@ from typing import Any, ClassVar, Final
 import torch
 from tqdm.auto import tqdm
 
-from pedrl.algos.phase import Phase
+from pedrl.algos.phase import MAX_TRIALS, Phase
 from pedrl.algos.records import RunRecord
 from pedrl.algos.run import LearningRun, RunSpec, open_resume
+from pedrl.common.checks import check_bool, check_integer, check_number, check_trials_per_iteration
 from pedrl.io import CheckpointError
 from pedrl.policy_files import RNG_KEYS, check_rng_state
-from pedrl.rl.network import QNetwork
+from pedrl.rl.network import QNetwork, check_hidden
 from pedrl.rl.neural import NEURAL_LEARNER, NeuralPolicy, input_width, neural_from_tensors
 from pedrl.sim import RoomEnv
 from pedrl.trial.rollout import TrialStats, gather
@@ -33,6 +34,48 @@ from pedrl.vq.encoder import EncoderSettings, StateEncoder
 
 MIN_STD: Final = 1e-3
 """A feature whose spread on the random walk is below this (a constant) is standardised by 1 instead."""
+
+
+@dataclass(frozen=True)
+class NetworkConfig:
+    """The ``algo`` keys every network learner has (its record, ``settings_class``, derives from this one and checks
+    its own keys after these), every value checked when the record is made.
+
+    Attributes:
+        num_agents: learning agents per room.
+        trials: total learning trials.
+        iterations: blocks the trials are split into, each ending with a checkpoint ``iter_XXXX``.
+        gather_trials: random-walk trials whose states standardise the inputs.
+        hidden: widths of the hidden layers.
+        neighbour_velocity: the network also reads each sensed neighbour's velocity in the goal frame (beside the
+            28 features, which give only its closing speed: :mod:`pedrl.sim.sensing`).
+        learning_rate: Adam's step size.
+        gamma: discount.
+        reward_scale: rewards are multiplied by this before they are learned (values in these units).
+        max_grad_norm: each process's gradient is clipped to this norm.
+    """
+
+    num_agents: int = 20
+    trials: int = 200
+    iterations: int = 1
+    gather_trials: int = 2
+    hidden: Sequence[int] = (256, 256)
+    neighbour_velocity: bool = False
+    learning_rate: float = 5e-4
+    gamma: float = 0.91
+    reward_scale: float = 0.1
+    max_grad_norm: float = 10.0
+
+    def __post_init__(self) -> None:
+        check_trials_per_iteration(self.trials, self.iterations, maximum=MAX_TRIALS)
+        check_integer("num_agents", self.num_agents, minimum=1)
+        check_integer("gather_trials", self.gather_trials, minimum=1, maximum=MAX_TRIALS)
+        object.__setattr__(self, "hidden", check_hidden(self.hidden))
+        check_bool("neighbour_velocity", self.neighbour_velocity)
+        check_number("learning_rate", self.learning_rate, low=0.0, high=1.0, low_open=True)
+        check_number("gamma", self.gamma, low=0.0, high=1.0)
+        check_number("reward_scale", self.reward_scale, low=0.0, low_open=True, high=1e6)
+        check_number("max_grad_norm", self.max_grad_norm, low=0.0, low_open=True, high=1e9)
 
 
 @dataclass
@@ -57,13 +100,12 @@ class NetworkRun(LearningRun):
     Args:
         run: what the run is (of ``run.vq`` only ``distance_transform`` is read: the inputs are the states as the
             tables' quantizer sees them).
-        **settings: the keys of the learner's ``settings_class`` (with ``num_agents``, ``trials``, ``iterations``,
-            ``gather_trials``, ``hidden`` and ``neighbour_velocity``).
+        **settings: the keys of the learner's ``settings_class`` (a :class:`NetworkConfig`).
     """
 
     learner = NEURAL_LEARNER
     phase_word = "iteration"
-    settings_class: ClassVar[type]
+    settings_class: ClassVar[type[NetworkConfig]]
 
     def __init__(self, run: RunSpec, **settings: Any) -> None:
         if run.vq.factors is not None:  # a table's key

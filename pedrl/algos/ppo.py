@@ -25,8 +25,8 @@ from typing import Any, Final
 import torch
 from tqdm.auto import tqdm
 
-from pedrl.algos.networks import NetworkRun, checked_count, decisions_on, random_walk_standardisation
-from pedrl.algos.phase import MAX_TRIALS, Phase
+from pedrl.algos.networks import NetworkConfig, NetworkRun, checked_count, decisions_on, random_walk_standardisation
+from pedrl.algos.phase import Phase
 from pedrl.algos.records import RunRecord
 from pedrl.algos.run import RunSpec
 from pedrl.common.checks import (
@@ -34,9 +34,8 @@ from pedrl.common.checks import (
     check_integer,
     check_memory,
     check_number,
-    check_trials_per_iteration,
 )
-from pedrl.rl.network import QNetwork, check_hidden
+from pedrl.rl.network import QNetwork
 from pedrl.rl.neural import NeuralPolicy
 from pedrl.rl.ppo import METRICS, PPOSettings, PPOUpdate, Rollout
 from pedrl.sim import RoomEnv
@@ -51,63 +50,39 @@ MAX_MINIBATCHES: Final = 100_000
 
 
 @dataclass(frozen=True)
-class PPOConfig:
-    """The settings of ``algo=ppo`` (each an ``algo`` key), every value checked when the record is made.
+class PPOConfig(NetworkConfig):
+    """The settings of ``algo=ppo`` (each an ``algo`` key): the network learners' (:class:`NetworkConfig`; its
+    ``hidden`` the actor's and the critic's, its ``max_grad_norm`` each network's), then its own, every value checked
+    when the record is made.
 
     Attributes:
-        num_agents: learning agents per room.
-        trials: total learning trials (each one update).
-        iterations: blocks the trials are split into, each ending with a checkpoint ``iter_XXXX``.
-        gather_trials: random-walk trials whose states standardise the inputs.
-        hidden: widths of the hidden layers of the actor and of the critic.
-        neighbour_velocity: the networks also read each sensed neighbour's velocity in the goal frame (as the DQN's).
-        learning_rate: Adam's step size.
-        gamma: discount.
         gae_lambda: the advantage's lambda (1: Monte-Carlo returns minus the value; 0: one-step TD errors).
         clip_coef: the clipping of the probability ratio, ``c``.
         value_coef: the weight of the critic's loss.
         entropy_coef: the weight of the policy's entropy (a bonus).
         epochs: passes over a trial's decisions.
         minibatches: gradient steps per pass (each on an equal share of every process's decisions).
-        max_grad_norm: the actor's and the critic's gradients are each clipped to this norm, per process.
-        reward_scale: rewards are learned multiplied by this (values in these units).
         normalize_advantages: standardise the advantages within each minibatch (CleanRL's default).
     """
 
-    num_agents: int = 20
-    trials: int = 200
-    iterations: int = 1
-    gather_trials: int = 2
-    hidden: tuple[int, ...] = (256, 256)
-    neighbour_velocity: bool = False
     learning_rate: float = 3e-4
-    gamma: float = 0.91
+    max_grad_norm: float = 0.5
     gae_lambda: float = 0.95
     clip_coef: float = 0.2
     value_coef: float = 0.5
     entropy_coef: float = 0.01
     epochs: int = 4
     minibatches: int = 8
-    max_grad_norm: float = 0.5
-    reward_scale: float = 0.1
     normalize_advantages: bool = True
 
     def __post_init__(self) -> None:
-        check_trials_per_iteration(self.trials, self.iterations, maximum=MAX_TRIALS)
-        check_integer("num_agents", self.num_agents, minimum=1)
-        check_integer("gather_trials", self.gather_trials, minimum=1, maximum=MAX_TRIALS)
-        object.__setattr__(self, "hidden", check_hidden(self.hidden))
-        check_bool("neighbour_velocity", self.neighbour_velocity)
-        check_number("learning_rate", self.learning_rate, low=0.0, high=1.0, low_open=True)
-        check_number("gamma", self.gamma, low=0.0, high=1.0)
+        super().__post_init__()
         check_number("gae_lambda", self.gae_lambda, low=0.0, high=1.0)
         check_number("clip_coef", self.clip_coef, low=0.0, high=10.0, low_open=True)
         check_number("value_coef", self.value_coef, low=0.0, high=1e6)
         check_number("entropy_coef", self.entropy_coef, low=0.0, high=1e6)
         check_integer("epochs", self.epochs, minimum=1, maximum=MAX_EPOCHS)
         check_integer("minibatches", self.minibatches, minimum=1, maximum=MAX_MINIBATCHES)
-        check_number("max_grad_norm", self.max_grad_norm, low=0.0, low_open=True, high=1e9)
-        check_number("reward_scale", self.reward_scale, low=0.0, low_open=True, high=1e6)
         check_bool("normalize_advantages", self.normalize_advantages)
 
     def update(self) -> PPOSettings:

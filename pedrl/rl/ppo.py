@@ -137,19 +137,20 @@ class PPOUpdate:
         width = max(int(m.shape[0]) for m in members)
         if width == 0:
             return dict(zip(METRICS, sums, strict=True))
-        self._present = torch.tensor([m.shape[0] > 0 for m in members], device=valid.device).float()
+        present = torch.tensor([m.shape[0] > 0 for m in members], device=valid.device).float()
         for _ in range(settings.epochs):
             order = torch.stack([_shuffled(m, width, generator) for m in members])  # (P, M)
             for columns in torch.tensor_split(torch.arange(width, device=order.device), settings.minibatches):
                 if columns.numel() == 0:
                     continue
                 index = order[:, columns]
-                sums += self._step({name: tensor[index] for name, tensor in data.items()})
+                sums += self._step({name: tensor[index] for name, tensor in data.items()}, present)
                 steps += 1
         return dict(zip(METRICS, sums / max(steps, 1), strict=True))
 
-    def _step(self, batch: Mapping[str, torch.Tensor]) -> torch.Tensor:
-        """One gradient step of every process on ``batch`` ``(P, b, ...)``; its ``(5, P)`` figures."""
+    def _step(self, batch: Mapping[str, torch.Tensor], present: torch.Tensor) -> torch.Tensor:
+        """One gradient step of every process on ``batch`` ``(P, b, ...)``, of those ``present`` (1, else 0) only; its
+        ``(5, P)`` figures."""
         settings = self.settings
         logits = self.actor(batch["inputs"])
         log_all = torch.log_softmax(logits, dim=2)
@@ -165,7 +166,7 @@ class PPOUpdate:
         value = self.critic(batch["inputs"]).squeeze(2)
         value_loss = 0.5 * (value - batch["returns"]).pow(2).mean(1)
         loss = policy_loss + settings.value_coef * value_loss - settings.entropy_coef * entropy.mean(1)
-        loss = loss * self._present  # a process that made no decision learns nothing
+        loss = loss * present  # a process that made no decision learns nothing
         self.optimizer.zero_grad(set_to_none=True)
         loss.sum().backward()  # the processes share no weight: each gets its own gradient
         for network in (self.actor, self.critic):
