@@ -48,10 +48,10 @@ from pedrl.io import Checkpoint, CheckpointError, load_checkpoint
 from pedrl.rl.neural import NEURAL_LEARNER, NeuralPolicy, neural_from_tensors
 from pedrl.rl.policy import (
     POLICY_KIND,
-    POLICY_READERS,
     TABLE_LEARNER,
     LearnedPolicy,
     TabularPolicy,
+    check_learner,
     check_policy_file,
     from_tensors,
 )
@@ -62,7 +62,6 @@ from pedrl.vq.quantizer import ProcessQuantizers
 
 RNG_KEYS: Final = ("rng/trainer", "rng/env")
 """Generator states a training checkpoint holds (to resume mid-phase)."""
-"""What :func:`load_policy` returns: tables over a quantizer, or a Q-network (``algo=dqn``)."""
 _ROOMS: weakref.WeakKeyDictionary[LearnedPolicy, Callable[..., RoomEnv]] = weakref.WeakKeyDictionary()
 """The room factory each loaded policy was checked against: :func:`room_factory` reuses it (building a stored room
 reads its WKT text with shapely, up to 10 MB)."""
@@ -152,10 +151,7 @@ def stored_learner(meta: Mapping[str, Any], algo: str) -> str:
     """The learner of a file (the key of its reader, :data:`pedrl.rl.policy.POLICY_READERS`): its metadata's
     ``learner``, or in a file written before the key that of its algorithm (``dqn``: a network; any other: tables).
     One line for an unknown one."""
-    learner = meta.get("learner", NEURAL_LEARNER if algo == "dqn" else TABLE_LEARNER)
-    if learner not in POLICY_READERS:
-        raise ValueError(f"metadata learner={shown(learner)} is unknown: allowed: {', '.join(POLICY_READERS)}")
-    return learner
+    return check_learner(meta.get("learner", NEURAL_LEARNER if algo == "dqn" else TABLE_LEARNER))
 
 
 def export_policy(

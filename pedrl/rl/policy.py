@@ -20,7 +20,7 @@ from typing import Any, ClassVar, Final, Protocol, runtime_checkable
 
 import torch
 
-from pedrl.common.checks import check_integer, check_number, first_line
+from pedrl.common.checks import check_integer, check_number, first_line, shown
 from pedrl.io import CheckpointError, load_checkpoint, save_checkpoint
 from pedrl.rl.qtable import NUM_ACTIONS, epsilon_greedy, table_rows
 from pedrl.vq.encoder import EncoderSettings, StateEncoder, quantizer_from_state_dict
@@ -98,6 +98,14 @@ def register_learner(learner: str, reader: PolicyReader) -> None:
     POLICY_READERS[learner] = reader
 
 
+def check_learner(learner: Any) -> str:
+    """``learner``, a file's stored learner, if a reader of :data:`POLICY_READERS` takes it; one-line ``ValueError``
+    otherwise (a crafted value of any type included)."""
+    if not isinstance(learner, str) or learner not in POLICY_READERS:
+        raise ValueError(f"metadata learner={shown(learner)} is unknown: allowed: {', '.join(POLICY_READERS)}")
+    return learner
+
+
 def write_policy_file(policy: LearnedPolicy, path: str | Path) -> Path:
     """Write ``policy``'s tensors, its encoder settings, its learner and its metadata to ``path`` (atomically;
     safetensors): the one policy file of every learner."""
@@ -129,11 +137,10 @@ def read_policy_file(
             f"{str(path)!r} is not an exported policy (metadata kind={meta.get('kind')!r}, must be "
             f"{POLICY_KIND!r}): export a training checkpoint with pedrl-export, or load it with pedrl.load_policy"
         )
-    found = meta.get("learner", TABLE_LEARNER)
-    if found not in POLICY_READERS:
-        raise CheckpointError(
-            f"policy {str(path)!r}: metadata learner={found!r} is unknown: allowed: {', '.join(POLICY_READERS)}"
-        )
+    try:
+        found = check_learner(meta.get("learner", TABLE_LEARNER))
+    except ValueError as err:
+        raise CheckpointError(f"policy {str(path)!r}: {err}") from None
     if learner is not None and found != learner:
         raise CheckpointError(
             f"{str(path)!r} is a policy of learner {found!r}, not {learner!r}: load it with pedrl.load_policy"

@@ -256,5 +256,8 @@ def test_a_checkpoint_names_its_learner_and_load_policy_reads_it_by_that_name(tr
     rewrite(lambda m: m.update(learner="forest"))
     with pytest.raises(CheckpointError, match="metadata learner='forest' is unknown: allowed: table, neural$"):
         load_policy(path)
+    rewrite(lambda m: m.update(learner={"a": 1}))  # crafted: not even a name
+    with pytest.raises(CheckpointError, match="metadata learner=.* is unknown: allowed: table, neural$"):
+        load_policy(path)
     rewrite(lambda m: m.pop("learner"))  # as checkpoints were written before the key
     assert isinstance(load_policy(path), NeuralPolicy)

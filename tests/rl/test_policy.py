@@ -165,5 +165,8 @@ def test_every_learner_writes_one_policy_file_and_each_reader_takes_only_its_own
     _rewrite(paths["neural"], lambda t, m: m.update(learner="forest"))
     with pytest.raises(CheckpointError, match="metadata learner='forest' is unknown: allowed: table, neural"):
         read_policy_file(paths["neural"])
+    _rewrite(paths["neural"], lambda t, m: m.update(learner=["neural"]))  # crafted: not even a name
+    with pytest.raises(CheckpointError, match=r"metadata learner=\['neural'\] is unknown: allowed: table, neural"):
+        read_policy_file(paths["neural"])
     _rewrite(paths["table"], lambda t, m: m.pop("learner"))  # as files of tables were written before the key
     torch.testing.assert_close(TabularPolicy.load(paths["table"]).q_values, tables.q_values)
