@@ -5,7 +5,9 @@
 float32 (an agent's deictic state, the features in the order ``contract["observation"]["features"]`` names) and
 ``num_sensed`` ``(B,)`` int64 (the neighbours sensed), for a network that reads them ``neighbour_velocity``
 ``(B, k, 2)`` float32 (the room's ``info["neighbour_velocity"]``), and returns ``q_values`` ``(B, 81)`` float32
-(the Q-values; PPO's actor's logits) and ``action`` ``(B,)`` int64 (the best, or most probable, one).
+(the Q-values; PPO's actor's logits) and ``action`` ``(B,)`` int64 (the best, or most probable, one); a continuous
+policy's model (PPO's ``algo.actions=continuous``) returns ``means`` ``(B, 2)`` (the actor's outputs) and ``command``
+``(B, 2)`` (their squash: the speed ratio and the heading offset from the goal bearing, as ``RoomEnv.step`` takes them).
 The distance transform, the standardisation and the neighbour presence flags are inside the graph. The JSON file
 states the contract: the inputs and outputs, the features, the action codec (the action frame, the speed and turn of
 each action), the decision length, and the room settings the network learned in. onnxruntime runs it without torch
@@ -25,7 +27,7 @@ import torch
 from pedrl.common.checks import check_integer
 from pedrl.io.files import replace_atomically
 from pedrl.rl.network import head_values
-from pedrl.rl.neural import NeuralPolicy
+from pedrl.rl.neural import MAX_OFFSET, SPEED_OVERSHOOT, ContinuousPolicy, NeuralPolicy, squash
 from pedrl.sim.sensing import distance_indices, feature_names
 
 OPSET: Final = 18
@@ -46,7 +48,7 @@ class _Exported(torch.nn.Module):
         self.register_buffer("std", policy.std.detach().cpu().clone())
         self.register_buffer("slots", torch.arange(settings.num_neighbours))
         network = policy.network
-        self.head = network.head
+        self.head, self.continuous = network.head, isinstance(policy, ContinuousPolicy)
         self.weights = [w[process].detach().cpu().clone() for w in network.weights]
         self.biases = [b[process, 0].detach().cpu().clone() for b in network.biases]
         for layer, (weight, bias) in enumerate(zip(self.weights, self.biases, strict=True)):
@@ -67,6 +69,8 @@ class _Exported(torch.nn.Module):
             x = x @ getattr(self, f"w{layer}") + getattr(self, f"b{layer}")
             if layer < last:
                 x = torch.relu(x)
+        if self.continuous:
+            return x, squash(x)
         x = head_values(self.head, x)
         return x, x.argmax(dim=1)
 
@@ -95,6 +99,7 @@ def contract(policy: NeuralPolicy, room: Any, process: int) -> dict[str, Any]:
     config = policy.metadata.get("config", {})
     speeds = [float(v) for v in room.speed_changes.tolist()]
     turns = [float(v) for v in room.turn_changes.tolist()]
+    continuous = isinstance(policy, ContinuousPolicy)
     return {
         "contract_version": CONTRACT_VERSION,
         "producer": "pedrl-export",
@@ -102,7 +107,9 @@ def contract(policy: NeuralPolicy, room: Any, process: int) -> dict[str, Any]:
         "process": process,
         "processes": policy.num_processes,
         "inputs": input_contract(policy),
-        "outputs": {
+        "outputs": command_outputs()
+        if continuous
+        else {
             "q_values": {
                 "dtype": "float32",
                 "shape": ["batch", len(speeds) * len(turns)],
@@ -118,7 +125,9 @@ def contract(policy: NeuralPolicy, room: Any, process: int) -> dict[str, Any]:
             "prepared_inside": "log(1 + d) of every distance (distance_transform=log), standardised, presence flags",
             "distance_transform": settings.distance_transform,
         },
-        "actions": {
+        "actions": command_codec(room)
+        if continuous
+        else {
             "count": len(speeds) * len(turns),
             "index": "speed_index * 9 + turn_index",
             "frame": room.params.action_frame,
@@ -135,6 +144,32 @@ def contract(policy: NeuralPolicy, room: Any, process: int) -> dict[str, Any]:
         },
         "room": config.get("env", {}),
         "scenario": config.get("scenario", {}),
+    }
+
+
+def command_outputs() -> dict[str, Any]:
+    """A continuous policy's outputs: the actor's means and the command they squash into."""
+    return {
+        "means": {"dtype": "float32", "shape": ["batch", 2], "meaning": "the actor's outputs (the Gaussian's means)"},
+        "command": {
+            "dtype": "float32",
+            "shape": ["batch", 2],
+            "meaning": f"[0.5 + {0.5 + SPEED_OVERSHOOT} tanh(means[0]), {MAX_OFFSET!r} tanh(means[1])]: the speed "
+            "ratio (clipped to [0, 1] by the room) and the heading offset from the line to the goal (rad)",
+        },
+    }
+
+
+def command_codec(room: Any) -> dict[str, Any]:
+    """What a continuous policy's command does in ``room`` (RoomEnv.step's float commands, the ``goal`` frame)."""
+    return {
+        "kind": "continuous",
+        "frame": room.params.action_frame,
+        "command": ["speed_ratio", "heading_offset"],
+        "speed_meaning": "the new speed: clip(speed_ratio, 0, 1) * max_speed (m/s)",
+        "turn_meaning": "the new heading: the bearing of the line to the goal + heading_offset (rad)",
+        "max_speed": float(room.params.max_speed),
+        "decision_length_s": float(room.params.decision_length),
     }
 
 
@@ -163,7 +198,7 @@ def export_onnx(policy: NeuralPolicy, room: Any, out: str | Path, *, process: in
                 example,
                 str(path),
                 input_names=names,
-                output_names=["q_values", "action"],
+                output_names=list(command_outputs()) if module.continuous else ["q_values", "action"],
                 dynamic_shapes=tuple({0: batch} for _ in names),
                 opset_version=OPSET,
                 dynamo=True,

@@ -45,9 +45,10 @@ from pedrl.configs import (
     stored_value,
 )
 from pedrl.io import Checkpoint, CheckpointError, load_checkpoint
-from pedrl.rl.neural import NEURAL_LEARNER, NeuralPolicy, neural_from_tensors
+from pedrl.rl.neural import NEURAL_LEARNER, NeuralPolicy
 from pedrl.rl.policy import (
     POLICY_KIND,
+    POLICY_READERS,
     TABLE_LEARNER,
     LearnedPolicy,
     TabularPolicy,
@@ -124,14 +125,16 @@ def load_policy(
         algo = ALGO_TARGETS[config["algo"]["_target_"]]
         metadata = {"algo": algo, "config": config, "source": str(path)}
         room = factory(num_replicas=1, num_agents=1, device=device)
-        if stored_learner(checkpoint.metadata, algo) == NEURAL_LEARNER:
+        learner = stored_learner(checkpoint.metadata, algo)
+        if learner != TABLE_LEARNER:
             # a network: its file is checked by what it must hold, the rest (optimizer, memory) ignored
             if not exported:
                 check_run_metadata(checkpoint.metadata, config)
             settings = _network_settings(
                 EncoderSettings.from_metadata(_stored_encoder(checkpoint.metadata)), config, room
             )
-            policy = neural_from_tensors(settings, checkpoint.tensors, num_actions=room.num_actions, metadata=metadata)
+            read = POLICY_READERS[learner]
+            policy = read(settings, checkpoint.tensors, num_actions=room.num_actions, metadata=metadata)
         else:
             if exported:
                 stored = check_policy_file(checkpoint.metadata, checkpoint.tensors)
@@ -170,7 +173,7 @@ def export_policy(
         check_integer("processes", processes, minimum=1, maximum=policy.num_processes)
         tensors = {name: tensor[:processes].clone() for name, tensor in policy.network.tensors("network").items()}
         tensors.update(zip(("inputs/mean", "inputs/std"), (policy.mean, policy.std), strict=True))
-        policy = neural_from_tensors(policy.encoder.settings, tensors, metadata=policy.metadata)
+        policy = POLICY_READERS[policy.learner](policy.encoder.settings, tensors, metadata=policy.metadata)
     elif processes is not None:
         check_integer("processes", processes, minimum=1, maximum=policy.num_processes)
         quantizer = policy.encoder.quantizer

@@ -7,10 +7,14 @@ import torch
 
 from pedrl.export import export
 from pedrl.policy_files import load_policy, room_factory
+from pedrl.rl.neural import squash
 from pedrl.train import train
 from tests.conftest import compose_config
 
 onnxruntime = pytest.importorskip("onnxruntime")
+
+PPO_GOAL = ("env.action_frame=goal", "env.speed_ratios=[0.0,0.2,0.4,0.6,0.7,0.8,0.9,0.95,1.0]",
+            "env.turn_ratios=[-0.5,-0.25,-0.1,-0.05,0.0,0.05,0.1,0.25,0.5]")  # fmt: skip
 
 
 def train_dqn(tmp_path_factory, *overrides: str, algo: str = "dqn"):
@@ -73,6 +77,35 @@ def test_onnx_round_trip_gives_pedrls_values_and_actions(head, request, tmp_path
     assert len(contract["actions"]["speed"]) * len(contract["actions"]["turn"]) == contract["actions"]["count"] == 81
     meaning = "the actor's logits" if head == "ppo_checkpoint" else "Q-values"
     assert contract["outputs"]["q_values"]["meaning"] == meaning and contract["algo"] == policy.metadata["algo"]
+
+
+@pytest.fixture(scope="module")
+def continuous_checkpoint(tmp_path_factory):
+    return train_dqn(tmp_path_factory, *PPO_GOAL, "algo.actions=continuous", algo="ppo")
+
+
+def test_onnx_round_trip_of_a_continuous_policy_gives_its_means_and_commands(continuous_checkpoint, tmp_path):
+    """PPO's continuous head: the model's means are the actor's and its commands what the policy commands (1e-4)."""
+    path = _export(continuous_checkpoint, tmp_path / "policy.onnx")
+    policy = load_policy(continuous_checkpoint)
+    room = room_factory(policy)(num_replicas=3, num_agents=20)
+    obs, info = room.reset(seed=4)
+    for _ in range(3):
+        obs, _, _, _, info = room.step(policy.act(obs, info))
+    flat, sensed = obs.reshape(-1, obs.shape[-1]), info["num_sensed"].reshape(-1)
+    session = onnxruntime.InferenceSession(str(path))
+    assert [o.name for o in session.get_outputs()] == ["means", "command"]
+    means, command = session.run(None, {"obs": flat.numpy(), "num_sensed": sensed.numpy()})
+    expected = policy.values(policy.info_inputs(obs, info), torch.zeros(flat.shape[0], dtype=torch.int64))
+    inside = room.active.reshape(-1)
+    assert int(inside.sum()) > 20
+    torch.testing.assert_close(torch.from_numpy(means)[inside], expected[inside], atol=1e-4, rtol=1e-4)
+    acted = policy.act(obs, info)[0]  # replica 0 acts with process 0's network, the exported one
+    torch.testing.assert_close(torch.from_numpy(command)[: room.num_agents], acted, atol=1e-4, rtol=1e-4)
+    torch.testing.assert_close(torch.from_numpy(command)[inside], squash(expected)[inside], atol=1e-4, rtol=1e-4)
+    contract = json.loads((tmp_path / "policy.onnx.json").read_text())
+    assert list(contract["outputs"]) == ["means", "command"] and contract["actions"]["kind"] == "continuous"
+    assert contract["actions"]["frame"] == "goal" and contract["algo"] == "ppo"
 
 
 def test_a_model_of_one_process_of_several_says_whose_replicas_it_agrees_with(dqn_checkpoint, tmp_path):

@@ -27,7 +27,8 @@ from pedrl.common.checks import check_bool, check_integer, check_number, check_t
 from pedrl.io import CheckpointError
 from pedrl.policy_files import RNG_KEYS, check_rng_state
 from pedrl.rl.network import QNetwork, check_hidden
-from pedrl.rl.neural import NEURAL_LEARNER, NeuralPolicy, input_width, neural_from_tensors
+from pedrl.rl.neural import NEURAL_LEARNER, NeuralPolicy, input_width
+from pedrl.rl.policy import POLICY_READERS
 from pedrl.sim import RoomEnv
 from pedrl.trial.rollout import TrialStats, gather
 from pedrl.vq.encoder import EncoderSettings, StateEncoder
@@ -106,6 +107,8 @@ class NetworkRun(LearningRun):
     learner = NEURAL_LEARNER
     phase_word = "iteration"
     settings_class: ClassVar[type[NetworkConfig]]
+    policy_class: type[NeuralPolicy] = NeuralPolicy
+    """The class of the learned policy (its ``learner`` is the run's)."""
 
     def __init__(self, run: RunSpec, **settings: Any) -> None:
         if run.vq.factors is not None:  # a table's key
@@ -167,9 +170,9 @@ class NetworkRun(LearningRun):
 
     def make_policy(self, network: QNetwork, mean: torch.Tensor, std: torch.Tensor) -> NeuralPolicy:
         """The run's policy over ``network`` (its rooms ``p E .. p E + E - 1`` act with process ``p``'s network)."""
-        return NeuralPolicy(StateEncoder(self.encoder_settings), network, mean, std,
-                            rooms_per_process=self.rooms_per_process,
-                            neighbour_velocity=self.neighbour_velocity)  # fmt: skip
+        return self.policy_class(StateEncoder(self.encoder_settings), network, mean, std,
+                                 rooms_per_process=self.rooms_per_process,
+                                 neighbour_velocity=self.neighbour_velocity)  # fmt: skip
 
     def learn(self, record: RunRecord, resumed: ResumedNetwork | None) -> TrialStats | None:
         """Start (gather, standardise, build) or continue ``resumed``, then the iterations' trials from there on."""
@@ -208,7 +211,8 @@ class NetworkRun(LearningRun):
         try:
             global_trial, done = trial_progress(self, meta)
             tensors = checkpoint.tensors
-            policy = neural_from_tensors(self.encoder_settings, tensors, num_actions=self.env.num_actions)
+            read = POLICY_READERS[self.learner]
+            policy = read(self.encoder_settings, tensors, num_actions=self.env.num_actions)
             widths, head = self.network_shape()
             if (policy.num_processes, policy.network.widths) != (self.processes, widths):
                 raise ValueError(

@@ -10,10 +10,12 @@ other learners, on the learning run they share (:class:`pedrl.algos.run.Learning
    (:class:`pedrl.rl.ppo.Rollout`), and at its end the actor and critic take ``epochs`` passes of ``minibatches``
    steps of the clipped objective over them.
 
-The actor's logits are a network of the DQN's kind (:class:`pedrl.rl.network.QNetwork`, one output per action), so
-the learned policy is a :class:`pedrl.rl.NeuralPolicy` that acts on the most probable action: ``pedrl-eval``,
-``pedrl-validate``, the PettingZoo crowd and ``pedrl-export`` (ONNX included) run it as they run the DQN's; the
-critic and Adam's state are in the checkpoints only, for an exact resume.
+The actor is a network of the DQN's kind (:class:`pedrl.rl.network.QNetwork`). With ``actions=discrete`` it gives
+one logit per action and the learned policy is a :class:`pedrl.rl.NeuralPolicy` that acts on the most probable one;
+with ``actions=continuous`` it gives the mean of a squashed Gaussian over the ``goal`` frame's speed ratio and heading
+offset (:mod:`pedrl.rl.ppo`), and the learned policy is a :class:`pedrl.rl.ContinuousPolicy` that commands its mean.
+``pedrl-eval``, ``pedrl-validate``, the PettingZoo crowd and ``pedrl-export`` (ONNX included) run either as they run
+the DQN's; the critic, the Gaussian's spread and Adam's state are in the checkpoints only, for an exact resume.
 """
 
 from __future__ import annotations
@@ -31,14 +33,16 @@ from pedrl.algos.records import RunRecord
 from pedrl.algos.run import RunSpec
 from pedrl.common.checks import (
     check_bool,
+    check_choice,
     check_integer,
     check_memory,
     check_number,
 )
 from pedrl.rl.network import QNetwork
-from pedrl.rl.neural import NeuralPolicy
-from pedrl.rl.ppo import METRICS, PPOSettings, PPOUpdate, Rollout
+from pedrl.rl.neural import ContinuousPolicy, NeuralPolicy, squash
+from pedrl.rl.ppo import METRICS, PPOSettings, PPOUpdate, Rollout, gaussian_logprob
 from pedrl.sim import RoomEnv
+from pedrl.sim.actions import COMMAND_WIDTH
 from pedrl.trial.crowd import run_crowd
 from pedrl.trial.loop import Driver
 from pedrl.trial.rollout import TrialStats
@@ -47,6 +51,8 @@ MAX_EPOCHS: Final = 1_000
 """Largest ``epochs`` (passes over a trial's decisions)."""
 MAX_MINIBATCHES: Final = 100_000
 """Largest ``minibatches`` (steps per pass)."""
+ACTION_HEADS: Final = ("discrete", "continuous")
+"""Values of ``actions``: the 81 discrete actions, or a continuous command (module docstring)."""
 
 
 @dataclass(frozen=True)
@@ -63,6 +69,8 @@ class PPOConfig(NetworkConfig):
         epochs: passes over a trial's decisions.
         minibatches: gradient steps per pass (each on an equal share of every process's decisions).
         normalize_advantages: standardise the advantages within each minibatch (CleanRL's default).
+        actions: the action head (:data:`ACTION_HEADS`); ``continuous`` needs ``env.action_frame=goal``.
+        init_std: the continuous head's first standard deviation (of the Gaussian before the squash; learned after).
     """
 
     learning_rate: float = 3e-4
@@ -74,6 +82,8 @@ class PPOConfig(NetworkConfig):
     epochs: int = 4
     minibatches: int = 8
     normalize_advantages: bool = True
+    actions: str = "discrete"
+    init_std: float = 1.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -84,6 +94,8 @@ class PPOConfig(NetworkConfig):
         check_integer("epochs", self.epochs, minimum=1, maximum=MAX_EPOCHS)
         check_integer("minibatches", self.minibatches, minimum=1, maximum=MAX_MINIBATCHES)
         check_bool("normalize_advantages", self.normalize_advantages)
+        check_choice("actions", self.actions, ACTION_HEADS)
+        check_number("init_std", self.init_std, low=0.0, high=10.0, low_open=True)
 
     def update(self) -> PPOSettings:
         """The settings of the update (:class:`pedrl.rl.ppo.PPOSettings`)."""
@@ -98,8 +110,17 @@ class PPOActor(Driver):
     sync_free = True
     stepped = True
 
-    def __init__(self, policy: NeuralPolicy, critic: QNetwork, *, generator: torch.Generator, reward_scale: float):
+    def __init__(
+        self,
+        policy: NeuralPolicy,
+        critic: QNetwork,
+        *,
+        generator: torch.Generator,
+        reward_scale: float,
+        log_std: torch.Tensor | None = None,
+    ):
         self.policy, self.critic, self.generator, self.reward_scale = policy, critic, generator, reward_scale
+        self.log_std = log_std  # the continuous head's (P, 2); None: discrete
         self.processes = policy.num_processes
 
     def begin(self, env: Any, obs: torch.Tensor, info: Any) -> None:
@@ -110,18 +131,30 @@ class PPOActor(Driver):
     def act(self, env: Any, obs: torch.Tensor, info: Any) -> torch.Tensor:
         active = env.active.reshape(-1)
         rows = torch.nonzero(active).squeeze(1)
-        batch = active.shape[0]
-        actions = torch.zeros(batch, dtype=torch.int64, device=active.device)
-        logprobs, values = torch.zeros(batch, device=active.device), torch.zeros(batch, device=active.device)
+        batch, device = active.shape[0], active.device
+        continuous = self.log_std is not None
+        actions = torch.zeros((batch, COMMAND_WIDTH) if continuous else batch, device=device,
+                              dtype=torch.float32 if continuous else torch.int64)  # fmt: skip
+        logprobs, values = torch.zeros(batch, device=device), torch.zeros(batch, device=device)
         if rows.shape[0]:
             with torch.no_grad():
                 inputs, process = self._inputs.index_select(0, rows), self.process.index_select(0, rows)
-                log_all = torch.log_softmax(self.policy.values(inputs, process), dim=1)
-                chosen = torch.multinomial(log_all.exp(), 1, generator=self.generator).squeeze(1)
+                outputs = self.policy.values(inputs, process)
+                if continuous:  # a Gaussian sample around the actor's mean, squashed into the command below
+                    log_std = self.log_std.index_select(0, process)
+                    noise = torch.randn(outputs.shape, generator=self.generator, device=device)
+                    chosen = outputs + log_std.exp() * noise
+                    logprob = gaussian_logprob(chosen, outputs, log_std)
+                else:
+                    log_all = torch.log_softmax(outputs, dim=1)
+                    chosen = torch.multinomial(log_all.exp(), 1, generator=self.generator).squeeze(1)
+                    logprob = log_all.gather(1, chosen.unsqueeze(1)).squeeze(1)
                 actions.index_copy_(0, rows, chosen)
-                logprobs.index_copy_(0, rows, log_all.gather(1, chosen.unsqueeze(1)).squeeze(1))
+                logprobs.index_copy_(0, rows, logprob)
                 values.index_copy_(0, rows, self.policy.values(inputs, process, network=self.critic).squeeze(1))
         self._step = dict(inputs=self._inputs, actions=actions, logprobs=logprobs, values=values, valid=active)
+        if continuous:
+            return squash(actions).view(env.num_replicas, env.num_agents, COMMAND_WIDTH)
         return actions.view(env.num_replicas, env.num_agents)
 
     def observe(self, obs, info, reward, terminated, valid) -> None:
@@ -152,6 +185,15 @@ class PPO(NetworkRun):
 
     def __init__(self, run: RunSpec, **settings: Any) -> None:
         super().__init__(run, **settings)
+        if self.algo.actions == "continuous":
+            for room in [self.env, *self._mix_envs]:
+                if room.params.action_frame != "goal":
+                    raise ValueError(
+                        f"algo.actions=continuous is invalid with env.action_frame={room.params.action_frame!r}: a "
+                        "command sets the speed and the heading from the goal bearing (env.action_frame=goal)"
+                    )
+            self.policy_class, self.learner = ContinuousPolicy, ContinuousPolicy.learner
+        self.outputs = COMMAND_WIDTH if self.algo.actions == "continuous" else self.env.num_actions
         self.settings = self.algo.update()
         check_memory(
             self.memory_needs(),
@@ -171,7 +213,7 @@ class PPO(NetworkRun):
         return {
             "a trial's decisions": 2 * rows * (self.width + 8) * 4,
             "gathered states": 2 * gathered * self.encoder_settings.num_features * 4,
-            "networks and Adam": 2 * 3 * (weights + (widths[-1] + 1) * (self.env.num_actions + 1) * 4),
+            "networks and Adam": 2 * 3 * (weights + (widths[-1] + 1) * (self.outputs + 1) * 4),
             "room": max(room.step_memory() for room in rooms),
         }
 
@@ -180,16 +222,26 @@ class PPO(NetworkRun):
         """A new run: seed, standardise by a random walk, build the actor, the critic and the update."""
         mean, std, self.summary = random_walk_standardisation(self)
         build = dict(generator=self.generator, device=self.device)
-        actor = QNetwork(self.processes, self.width, self.hidden, self.env.num_actions, **build)
+        actor = QNetwork(self.processes, self.width, self.hidden, self.outputs, **build)
         critic = QNetwork(self.processes, self.width, self.hidden, 1, **build)
         self.policy = self.make_policy(actor, mean, std)
-        self.update = PPOUpdate(actor, critic, self.settings, self.algo.learning_rate)
+        self.update = self.make_update(actor, critic)
         self.summary["parameters"] = actor.num_parameters + critic.num_parameters
+
+    def make_update(self, actor: QNetwork, critic: QNetwork) -> PPOUpdate:
+        """The update of ``actor`` and ``critic`` (continuous: with the Gaussian's spread at ``init_std``)."""
+        log_std = None
+        if self.algo.actions == "continuous":
+            log_std = torch.full((self.processes, COMMAND_WIDTH), math.log(self.algo.init_std), device=self.device)
+        return PPOUpdate(actor, critic, self.settings, self.algo.learning_rate, log_std=log_std)
+
+    def network_shape(self) -> tuple[tuple[int, ...], str]:
+        return (self.width, *self.hidden, self.outputs), "joint"
 
     def restore_tensors(self, policy: NeuralPolicy, tensors: dict[str, torch.Tensor], meta: dict[str, Any]):
         """The update (the critic, Adam's state, its count) of a checkpoint."""
         critic = QNetwork(self.processes, self.width, self.hidden, 1, device=self.device)
-        update = PPOUpdate(policy.network, critic, self.settings, self.algo.learning_rate)
+        update = self.make_update(policy.network, critic)
         update.load_tensors(tensors)
         update.updates = checked_count(meta, "updates")
         return {"update": update}
@@ -199,7 +251,7 @@ class PPO(NetworkRun):
 
     def learn_trial(self, env: RoomEnv, room: int, epsilon: float, bar: tqdm) -> TrialStats:
         driver = PPOActor(self.policy, self.update.critic, generator=self.generator,
-                          reward_scale=self.settings.reward_scale)  # fmt: skip
+                          reward_scale=self.settings.reward_scale, log_std=self.update.log_std)  # fmt: skip
         stats = run_crowd(env, driver, fused=self.fused, progress=decisions_on(bar)).stats
         self._figures = self.update.learn(driver.rollout.stack(), driver.process, self.generator)
         return stats
@@ -218,7 +270,8 @@ class PPO(NetworkRun):
         record.logger.log_scalars(global_trial, {"ppo/gradient_steps": self.update.updates})
 
     def state_tensors(self) -> dict[str, torch.Tensor]:
-        """The actor (as the policy: ``network/...``, ``inputs/...``), the critic and Adam's state."""
+        """The actor (as the policy: ``network/...``, ``inputs/...``), the critic, (continuous) the Gaussian's spread
+        and Adam's state."""
         return {**self.policy.tensors(), **self.update.tensors()}
 
     def state_metadata(self, global_trial: int) -> dict[str, Any]:

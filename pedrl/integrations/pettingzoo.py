@@ -39,9 +39,9 @@ except ImportError as error:  # one line naming the fix, the cause chained
     ) from error
 
 from pedrl.common.checks import check_integer, check_number
-from pedrl.rl.neural import NeuralPolicy
+from pedrl.rl.neural import ContinuousPolicy, NeuralPolicy
 from pedrl.rl.policy import TabularPolicy
-from pedrl.sim import NOOP_ACTION, RoomEnv
+from pedrl.sim import NOOP_ACTION, RoomEnv, commands_of
 
 __all__ = ["REGISTRY_ID", "PedestrianParallelEnv", "make_env", "parallel_env", "register"]
 
@@ -121,11 +121,12 @@ class PedestrianParallelEnv(ParallelEnv):
     (m/s), as ``RoomEnv.reset`` takes them (a leading replica axis of 1 is accepted too). Other option keys are
     ignored with a warning (PettingZoo's API test passes arbitrary ones).
 
-    A learned crowd (``crowd``, a :class:`pedrl.rl.TabularPolicy` or a network's :class:`pedrl.rl.NeuralPolicy`, e.g.
-    ``pedrl.load_policy(path)``) drives every agent but the first ``learners``: only ``pedestrian_0 ..
-    pedestrian_{learners-1}`` are PettingZoo agents, and the others act with ``crowd.act`` (exploration
-    ``crowd_epsilon``, drawn from a generator that ``reset(seed)`` reseeds), so that a user's own learner trains among
-    a learned crowd. The episode ends for the caller when none of its agents is left, even if crowd agents still walk.
+    A learned crowd (``crowd``, a :class:`pedrl.rl.TabularPolicy` or a network's :class:`pedrl.rl.NeuralPolicy`, a
+    continuous one's included, e.g. ``pedrl.load_policy(path)``) drives every agent but the first ``learners``: only
+    ``pedestrian_0 .. pedestrian_{learners-1}`` are PettingZoo agents, and the others act with ``crowd.act``
+    (exploration ``crowd_epsilon``, drawn from a generator that ``reset(seed)`` reseeds), so that a user's own learner
+    trains among a learned crowd. The episode ends for the caller when none of its agents is left, even if crowd
+    agents still walk.
 
     ``state()`` is the global state for centralised training: the positions (m) then the velocities (m/s) of all
     ``N`` agents, ``(4 N,)`` float32 as ``[x0, y0, x1, y1, ..., vx0, vy0, ...]``, zero for agents not in ``agents``.
@@ -176,9 +177,15 @@ class PedestrianParallelEnv(ParallelEnv):
                 f"crowd is on {crowd.device} and the room on {env.device}: load it there, "
                 f"pedrl.load_policy(path, device={str(env.device)!r})"
             )
+        if isinstance(crowd, ContinuousPolicy) and env.params.action_frame != "goal":
+            raise ValueError(
+                f"crowd is a continuous policy and the room's env.action_frame={env.params.action_frame!r}: its "
+                "commands need the goal frame (a room of its own config, pedrl.policy_files.room_factory)"
+            )
         if crowd is not None:
             features = crowd.encoder.settings.num_features
-            if features != env.num_features or crowd.num_actions != env.num_actions:
+            discrete = not isinstance(crowd, ContinuousPolicy)
+            if features != env.num_features or (discrete and crowd.num_actions != env.num_actions):
                 raise ValueError(
                     f"crowd reads {features} features and has {crowd.num_actions} actions: the room gives "
                     f"{env.num_features} features and {env.num_actions} actions (num_neighbours, num_walls)"
@@ -242,8 +249,11 @@ class PedestrianParallelEnv(ParallelEnv):
         if not acting:
             return {}, {}, {}, {}, {}
         if self.crowd is not None:
-            crowd = self.crowd.act(*self._last, epsilon=self.crowd_epsilon, generator=self._crowd_generator)
-            room_actions[0, len(self.possible_agents) :] = crowd[0, len(self.possible_agents) :].cpu()
+            crowd = self.crowd.act(*self._last, epsilon=self.crowd_epsilon, generator=self._crowd_generator).cpu()
+            if crowd.is_floating_point():  # a continuous crowd: the learners' actions as the commands they are
+                changes = dict(speed_changes=self.env.speed_changes.cpu(), turn_changes=self.env.turn_changes.cpu())
+                room_actions = commands_of(room_actions, **changes, max_speed=self.env.params.max_speed)
+            room_actions[0, len(self.possible_agents) :] = crowd[0, len(self.possible_agents) :]
         obs, reward, terminated, truncated, info = self.env.step(room_actions)
         self._last = (obs, info)
         rewards = reward[0].cpu().tolist()

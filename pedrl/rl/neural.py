@@ -4,10 +4,15 @@
 generator=)``, ``controller()``, ``save`` and ``metadata``; its state is the network of :mod:`pedrl.rl.network` and
 the standardisation of its inputs. Replica ``i`` of a room acts with process ``(i // E) mod P``'s network (the
 tables' rule, :class:`pedrl.rl.policy.TableLayout`, with one table per process).
+
+:class:`ContinuousPolicy` is its twin with a continuous head (PPO's ``algo.actions=continuous``): the network gives
+two numbers per agent, squashed (:func:`squash`) into the command the room executes as it is (the speed ratio and the
+heading offset from the goal bearing, :data:`pedrl.sim.actions.COMMAND_WIDTH`).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, ClassVar, Final
@@ -25,6 +30,7 @@ from pedrl.rl.policy import (
     write_policy_file,
 )
 from pedrl.rl.qtable import NUM_ACTIONS
+from pedrl.sim.actions import COMMAND_WIDTH
 from pedrl.vq.encoder import EncoderSettings, StateEncoder
 
 NETWORK_PREFIX: Final = "network"
@@ -32,6 +38,14 @@ INPUT_KEYS: Final = ("inputs/mean", "inputs/std")
 """The standardisation of the prepared features: ``(F,)`` float32 each."""
 NEURAL_LEARNER: Final = "neural"
 """``learner`` of a neural policy file's metadata."""
+CONTINUOUS_LEARNER: Final = "continuous"
+"""``learner`` of a continuous policy file's metadata (:class:`ContinuousPolicy`)."""
+MAX_OFFSET: Final = math.pi / 2
+"""Widest heading offset of a continuous command (rad): 90 degrees either side of the goal bearing, as the ``goal``
+frame's widest turns."""
+SPEED_OVERSHOOT: Final = 0.05
+"""The squashed speed ratio spans ``[-0.05, 1.05]`` and the room clips it to ``[0, 1]``: a finite network output
+reaches the top speed, and standing, exactly."""
 
 
 class NeuralPolicy:
@@ -164,8 +178,9 @@ class NeuralPolicy:
         epsilon: float = 0.0,
         generator: torch.Generator | None = None,
     ) -> torch.Tensor:
-        """Actions ``(R, N)`` int64 for observations ``obs (R, N, F)`` and ``info`` (as ``RoomEnv`` returns them), as
-        :meth:`pedrl.rl.TabularPolicy.act`: ``epsilon`` the share of random actions, drawn from ``generator``."""
+        """Actions ``(R, N)`` int64 (a :class:`ContinuousPolicy`'s commands ``(R, N, 2)``) for observations ``obs (R,
+        N, F)`` and ``info`` (as ``RoomEnv`` returns them), as :meth:`pedrl.rl.TabularPolicy.act`: ``epsilon`` the
+        share of random actions, drawn from ``generator``."""
         check_number("epsilon", epsilon, low=0.0, high=1.0)
         check_observations(obs, info, self.encoder.settings, self.device)  # the tables' contract
         if generator is None:
@@ -178,7 +193,8 @@ class NeuralPolicy:
         flat = self.info_inputs(obs, info)
         with torch.no_grad():
             values = self.values(flat, process)
-        return self.choose(values, epsilon, generator).view(replicas, agents)
+        chosen = self.choose(values, epsilon, generator)
+        return chosen.view(replicas, agents, *chosen.shape[1:])
 
     def controller(self, epsilon: float = 0.0, generator: torch.Generator | None = None) -> NeuralController:
         """This policy as a controller of the evaluation engine, with a fixed ``epsilon`` and ``generator``."""
@@ -196,8 +212,7 @@ class NeuralPolicy:
                 f"the network reads {self.num_inputs} inputs: must read {width} ({settings.num_features} features, "
                 f"{settings.num_neighbours} presence flags{velocities})"
             )
-        if num_actions is not None and self.num_actions != num_actions:
-            raise ValueError(f"the network gives {self.num_actions} values: must give {num_actions}, one per action")
+        self.check_outputs(num_actions)
         for name, tensor in zip(INPUT_KEYS, (self.mean, self.std), strict=True):
             if tensor.dtype != torch.float32 or tuple(tensor.shape) != (settings.num_features,):
                 raise ValueError(
@@ -207,6 +222,11 @@ class NeuralPolicy:
                 raise ValueError(f"tensor {name} holds NaN or infinite values: must be finite")
         if not bool((self.std > 0).all()):
             raise ValueError("tensor inputs/std holds values <= 0: must be > 0")
+
+    def check_outputs(self, num_actions: int | None) -> None:
+        """One-line ``ValueError`` unless the network gives ``num_actions`` values (when given)."""
+        if num_actions is not None and self.num_actions != num_actions:
+            raise ValueError(f"the network gives {self.num_actions} values: must give {num_actions}, one per action")
 
     def tensors(self) -> dict[str, torch.Tensor]:
         """The network and the standardisation as named tensors (as files hold them)."""
@@ -236,6 +256,24 @@ def neural_from_tensors(
 ) -> NeuralPolicy:
     """A checked policy from a file's tensors (``network/...`` and ``inputs/...``) and its encoder settings; tensors
     of other names are ignored (a training checkpoint's optimizer, replay memory and target network)."""
+    return _from_tensors(NeuralPolicy, settings, tensors, num_actions=num_actions, metadata=metadata)
+
+
+def continuous_from_tensors(
+    settings: EncoderSettings,
+    tensors: Mapping[str, torch.Tensor],
+    *,
+    num_actions: int | None = None,
+    metadata: Mapping[str, Any] | None = None,
+) -> ContinuousPolicy:
+    """:func:`neural_from_tensors` of a :class:`ContinuousPolicy` (``num_actions``, the room's discrete actions, is
+    not read: its network gives a command)."""
+    return _from_tensors(ContinuousPolicy, settings, tensors, num_actions=None, metadata=metadata)
+
+
+def _from_tensors(cls: type, settings: EncoderSettings, tensors: Mapping[str, torch.Tensor], *,
+                  num_actions: int | None, metadata: Mapping[str, Any] | None) -> Any:  # fmt: skip
+    """A checked ``cls`` (:class:`NeuralPolicy` or :class:`ContinuousPolicy`) of a file's tensors."""
     processes, widths = layer_widths(tensors, NETWORK_PREFIX)
     device = tensors[f"{NETWORK_PREFIX}/w0"].device
     branching = head_outputs("branching", NUM_ACTIONS)
@@ -247,8 +285,8 @@ def neural_from_tensors(
         if name not in tensors:
             raise ValueError(f"tensor {name} is missing")
     velocity = widths[0] == input_width(settings, neighbour_velocity=True)  # the width tells
-    policy = NeuralPolicy(StateEncoder(settings), network, *(tensors[name] for name in INPUT_KEYS), metadata=metadata,
-                          neighbour_velocity=velocity)  # fmt: skip
+    policy = cls(StateEncoder(settings), network, *(tensors[name] for name in INPUT_KEYS), metadata=metadata,
+                 neighbour_velocity=velocity)  # fmt: skip
     policy.check(num_actions)
     return policy
 
@@ -268,4 +306,42 @@ class NeuralController(PolicyController):
     """Run by :func:`pedrl.trial.crowd.run_crowd` in a :class:`~pedrl.trial.stepped.CompiledRoom` where it can."""
 
 
+class ContinuousPolicy(NeuralPolicy):
+    """A :class:`NeuralPolicy` whose network gives a command per agent, not Q-values (a
+    :class:`pedrl.rl.policy.LearnedPolicy` of learner :data:`CONTINUOUS_LEARNER`): it acts with the squashed output
+    (:func:`squash`, the mean of PPO's squashed Gaussian), and with probability ``epsilon`` a uniform command instead
+    (a speed ratio in ``[0, 1]``, an offset within :data:`MAX_OFFSET`). Its ``act`` gives commands ``(R, N, 2)``
+    float32, which :meth:`pedrl.sim.RoomEnv.step` executes in the ``goal`` action frame."""
+
+    learner: ClassVar[str] = CONTINUOUS_LEARNER
+
+    def choose(self, values: torch.Tensor, epsilon: float, generator: torch.Generator) -> torch.Tensor:
+        """Commands ``(B, 2)`` of the network's outputs ``(B, 2)`` (:func:`squash`), a uniform one with probability
+        ``epsilon`` (drawn from ``generator``)."""
+        commands = squash(values)
+        if epsilon > 0:
+            batch = values.shape[0]
+            explore = torch.rand(batch, generator=generator, device=values.device) < epsilon
+            uniform = torch.rand(batch, COMMAND_WIDTH, generator=generator, device=values.device)
+            uniform = torch.stack((uniform[:, 0], MAX_OFFSET * (2 * uniform[:, 1] - 1)), dim=1)
+            commands = torch.where(explore.unsqueeze(1), uniform, commands)
+        return commands
+
+    def check_outputs(self, num_actions: int | None) -> None:
+        """One-line ``ValueError`` unless the network gives a command (``num_actions`` is the room's discrete count,
+        not read)."""
+        if self.num_actions != COMMAND_WIDTH or self.network.head != "joint":
+            raise ValueError(
+                f"the network gives {self.num_actions} values: a continuous policy's gives {COMMAND_WIDTH}"
+            )
+
+
+def squash(outputs: torch.Tensor) -> torch.Tensor:
+    """Commands ``(..., 2)`` of unbounded outputs ``(..., 2)``: ``0.5 + 0.55 tanh(u0)`` (the speed ratio, clipped
+    to ``[0, 1]`` by the room: :data:`SPEED_OVERSHOOT`) and ``MAX_OFFSET tanh(u1)`` (the heading offset, rad)."""
+    bounded = torch.tanh(outputs)
+    return torch.stack((0.5 + (0.5 + SPEED_OVERSHOOT) * bounded[..., 0], MAX_OFFSET * bounded[..., 1]), dim=-1)
+
+
 register_learner(NEURAL_LEARNER, neural_from_tensors)
+register_learner(CONTINUOUS_LEARNER, continuous_from_tensors)

@@ -10,10 +10,16 @@ A trial's decisions are kept as :class:`Rollout` (every agent-row of every room 
 
 with ``rho`` the new over the old probability of the action taken. A walker's trajectory ends where it leaves
 (terminal: no bootstrap) or where the clock cuts its trial (the critic's value of its last observation bootstraps).
+
+Two action heads: the 81 discrete actions (a categorical over the actor's logits), or a continuous command (the
+actor's two outputs are the mean of a Gaussian with a learned, state-independent standard deviation per process,
+``log_std``; a sample ``u`` is squashed into the command, :func:`pedrl.rl.neural.squash`). The squash is fixed, so the
+ratio ``rho`` is taken on ``u`` (its Jacobian cancels) and the entropy is the Gaussian's.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
@@ -41,10 +47,11 @@ class PPOSettings:
 class Rollout:
     """One trial's decisions of every row ``(R N)``, in order: what each acting row saw, did and got.
 
-    Attributes (after :meth:`stack`): ``inputs (T, B, D)``, ``actions``, ``logprobs``, ``values``, ``rewards`` (in
-    learned units), ``terminated``, ``ended`` (its trajectory ends here: left, or cut by the clock), ``valid`` (it
-    acted) ``(T, B)``, and ``bootstrap (T, B)``, the critic's value of the observation after a decision the clock
-    cut (0 elsewhere).
+    Attributes (after :meth:`stack`): ``inputs (T, B, D)``, ``actions`` (``(T, B)`` indices, or the continuous
+    head's Gaussian samples ``(T, B, 2)`` before the squash), ``logprobs``, ``values``, ``rewards`` (in learned
+    units), ``terminated``, ``ended`` (its trajectory ends here: left, or cut by the clock), ``valid`` (it acted)
+    ``(T, B)``, and ``bootstrap (T, B)``, the critic's value of the observation after a decision the clock cut (0
+    elsewhere).
     """
 
     FIELDS = ("inputs", "actions", "logprobs", "values", "rewards", "terminated", "ended", "valid", "bootstrap")
@@ -94,15 +101,26 @@ class PPOUpdate:
     """The actor's and the critic's optimizer and the clipped update (module docstring).
 
     Args:
-        actor: ``P`` networks giving the 81 actions' logits.
+        actor: ``P`` networks giving the 81 actions' logits, or (continuous) the Gaussian's 2 means.
         critic: ``P`` networks giving one value.
         settings: the hyper-parameters.
         learning_rate: Adam's step size.
+        log_std: the continuous head: ``(P, 2)`` the log standard deviations of the Gaussian (learned); None: the
+            discrete head.
     """
 
-    def __init__(self, actor: QNetwork, critic: QNetwork, settings: PPOSettings, learning_rate: float) -> None:
+    def __init__(
+        self,
+        actor: QNetwork,
+        critic: QNetwork,
+        settings: PPOSettings,
+        learning_rate: float,
+        *,
+        log_std: torch.Tensor | None = None,
+    ) -> None:
         self.actor, self.critic, self.settings = actor, critic, settings
-        self.optimizer = torch.optim.Adam([*actor.parameters(), *critic.parameters()], lr=learning_rate, foreach=True)
+        self.log_std = None if log_std is None else torch.nn.Parameter(log_std)
+        self.optimizer = torch.optim.Adam(self.parameters(), lr=learning_rate, foreach=True)
         self.updates = 0
         """Gradient steps taken."""
 
@@ -148,14 +166,24 @@ class PPOUpdate:
                 steps += 1
         return dict(zip(METRICS, sums / max(steps, 1), strict=True))
 
+    def parameters(self) -> list[torch.Tensor]:
+        """What Adam steps: the actor's, the critic's and (continuous) the log standard deviations."""
+        extra = [] if self.log_std is None else [self.log_std]
+        return [*self.actor.parameters(), *self.critic.parameters(), *extra]
+
     def _step(self, batch: Mapping[str, torch.Tensor], present: torch.Tensor) -> torch.Tensor:
         """One gradient step of every process on ``batch`` ``(P, b, ...)``, of those ``present`` (1, else 0) only; its
         ``(5, P)`` figures."""
         settings = self.settings
-        logits = self.actor(batch["inputs"])
-        log_all = torch.log_softmax(logits, dim=2)
-        logprob = log_all.gather(2, batch["actions"].unsqueeze(2)).squeeze(2)
-        entropy = -(log_all.exp() * log_all).sum(2)
+        outputs = self.actor(batch["inputs"])
+        if self.log_std is None:
+            log_all = torch.log_softmax(outputs, dim=2)
+            logprob = log_all.gather(2, batch["actions"].unsqueeze(2)).squeeze(2)
+            entropy = -(log_all.exp() * log_all).sum(2)
+        else:
+            log_std = self.log_std.unsqueeze(1)  # (P, 1, 2)
+            logprob = gaussian_logprob(batch["actions"], outputs, log_std)
+            entropy = (log_std + 0.5 * (1.0 + math.log(2 * math.pi))).sum(2).expand_as(logprob)
         log_ratio = logprob - batch["logprobs"]
         ratio = log_ratio.exp()
         adv = batch["advantages"]
@@ -171,6 +199,8 @@ class PPOUpdate:
         loss.sum().backward()  # the processes share no weight: each gets its own gradient
         for network in (self.actor, self.critic):
             clip_gradients(network, settings.max_grad_norm)
+        if self.log_std is not None:
+            torch.nn.utils.clip_grad_norm_([self.log_std], settings.max_grad_norm, foreach=True)
         self.optimizer.step()
         self.updates += 1
         with torch.no_grad():
@@ -180,13 +210,37 @@ class PPOUpdate:
 
     # ------------------------------------------------------------------ files
     def tensors(self) -> dict[str, torch.Tensor]:
-        """The critic and Adam's state as named tensors (``critic/...``, ``optimizer/<i>.<key>``)."""
-        return {**self.critic.tensors("critic"), **optimizer_tensors(self.optimizer)}
+        """The critic, (continuous) the log standard deviations and Adam's state as named tensors (``critic/...``,
+        ``actor/log_std``, ``optimizer/<i>.<key>``)."""
+        extra = {} if self.log_std is None else {LOG_STD_KEY: self.log_std.detach()}
+        return {**self.critic.tensors("critic"), **extra, **optimizer_tensors(self.optimizer)}
 
     def load_tensors(self, tensors: Mapping[str, torch.Tensor]) -> None:
-        """Take the critic and Adam's state of :meth:`tensors` (one line for a missing or misshapen one)."""
+        """Take the critic, the log standard deviations and Adam's state of :meth:`tensors` (one line for a missing or
+        misshapen one)."""
         self.critic.load_tensors(tensors, "critic")
-        load_optimizer_tensors(self.optimizer, [*self.actor.parameters(), *self.critic.parameters()], tensors)
+        if self.log_std is not None:
+            stored = tensors.get(LOG_STD_KEY)
+            shape = tuple(self.log_std.shape)
+            if stored is None or tuple(stored.shape) != shape or stored.dtype != torch.float32:
+                found = "missing" if stored is None else f"{stored.dtype} {tuple(stored.shape)}"
+                raise ValueError(f"tensor {LOG_STD_KEY} is {found}: must be float32 {shape}")
+            if not bool(torch.isfinite(stored).all()):
+                raise ValueError(f"tensor {LOG_STD_KEY} holds NaN or infinite values: must be finite")
+            with torch.no_grad():
+                self.log_std.copy_(stored)
+        load_optimizer_tensors(self.optimizer, self.parameters(), tensors)
+
+
+LOG_STD_KEY = "actor/log_std"
+"""The continuous head's log standard deviations in a checkpoint (``(P, 2)`` float32)."""
+
+
+def gaussian_logprob(sample: torch.Tensor, mean: torch.Tensor, log_std: torch.Tensor) -> torch.Tensor:
+    """Log-density ``(...)`` of ``sample (..., 2)`` under independent Gaussians of ``mean`` and ``log_std`` (summed
+    over the last axis)."""
+    z = (sample - mean) * torch.exp(-log_std)
+    return (-0.5 * z * z - log_std - 0.5 * math.log(2 * math.pi)).sum(-1)
 
 
 METRICS = ("policy_loss", "value_loss", "entropy", "approx_kl", "clip_fraction")

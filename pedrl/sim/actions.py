@@ -5,6 +5,11 @@ Each torch function with a kernel has its numba twin beside it, one agent at a t
 
 In the paper's ``heading`` frame index 4 of each axis is the no-op, so ``NOOP_ACTION = 40`` keeps speed and heading;
 in the ``goal`` frame an action sets the speed and the heading relative to the bearing of the goal point.
+
+A continuous controller (PPO's continuous head) commands the ``goal`` frame's speed and heading directly: a
+*command* ``(speed ratio, heading offset)`` per agent (:data:`COMMAND_WIDTH`), executed as it is by
+:func:`apply_commands` and its twin :func:`apply_command_kernel`; :func:`commands_of` writes a ``goal``-frame action as
+the command it is.
 """
 
 from __future__ import annotations
@@ -44,6 +49,11 @@ GOAL_SPEED_RATIOS: Final = (0.0, 0.2, 0.4, 0.6, 0.7, 0.8, 0.9, 0.95, 1.0)
 GOAL_TURN_RATIOS: Final = (-0.5, -0.25, -0.1, -0.05, 0.0, 0.05, 0.1, 0.25, 0.5)
 """Headings of the ``goal`` frame's 9 turn indices, relative to the bearing of the goal, as fractions of pi: 0,
 +-9, +-18, +-45 and +-90 degrees (the main job's)."""
+
+
+COMMAND_WIDTH: Final = 2
+"""Numbers of a continuous command: the speed as a fraction of ``max_speed`` (clipped to ``[0, 1]``) and the heading
+relative to the bearing of the goal point (rad, wrapped to ``(-pi, pi]``); the ``goal`` action frame only."""
 
 
 def decode_actions(actions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -120,6 +130,53 @@ def apply_action_kernel(room, active, speed, heading, action, position, target):
         bearing = np.arctan2(target[1] - position[1], target[0] - position[0])
         return min(max(speed_change, np.float32(0.0)), room.max_speed), wrap(bearing + turn_change)
     return min(max(speed + speed_change, np.float32(0.0)), room.max_speed), wrap(heading + turn_change)
+
+
+def apply_commands(
+    *,
+    speeds: torch.Tensor,
+    headings: torch.Tensor,
+    commands: torch.Tensor,
+    max_speed: float,
+    active: torch.Tensor,
+    bearings: torch.Tensor,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Apply one decision's continuous commands (:data:`COMMAND_WIDTH`): ``s <- clip(ratio * max_speed, 0,
+    max_speed)`` and ``theta <- wrap(bearing + offset)``; inactive agents keep their values.
+
+    Args:
+        speeds, headings: ``(R, N)`` (m/s, rad).
+        commands: ``(R, N, 2)`` float32: the speed ratio and the heading offset (rad) of each agent.
+        max_speed: Maximum speed (m/s).
+        active: Agents that act ``(R, N)`` bool.
+        bearings: The world angle ``(R, N)`` (rad) from each agent to its goal point.
+
+    Returns:
+        New ``speeds`` and ``headings`` ``(R, N)``.
+    """
+    new_speeds = (commands[..., 0] * max_speed).clamp(0.0, max_speed)
+    new_headings = wrap_angle(bearings + commands[..., 1])
+    return torch.where(active, new_speeds, speeds), torch.where(active, new_headings, headings)
+
+
+@cached_njit(nogil=True, inline="always")
+def apply_command_kernel(room, active, speed, heading, ratio, offset, position, target):
+    """:func:`apply_commands` of one agent, float32 (``ratio`` and ``offset`` its command; the arguments otherwise as
+    :func:`apply_action_kernel`'s). Returns the new ``(speed, heading)``; an inactive agent keeps its own."""
+    if not active:
+        return speed, heading
+    bearing = np.arctan2(target[1] - position[1], target[0] - position[0])
+    return min(max(ratio * room.max_speed, np.float32(0.0)), room.max_speed), wrap(bearing + offset)
+
+
+def commands_of(actions: torch.Tensor, *, speed_changes: torch.Tensor, turn_changes: torch.Tensor,
+                max_speed: float) -> torch.Tensor:  # fmt: skip
+    """The ``goal``-frame ``actions (...)`` int64 as the commands ``(..., 2)`` float32 that do the same: each speed
+    index's speed over ``max_speed`` and each turn index's heading offset (``speed_changes`` and ``turn_changes``
+    ``(9,)``, a room's)."""
+    speed_index, turn_index = decode_actions(actions.reshape(-1))
+    ratio = speed_changes.index_select(0, speed_index) / max_speed
+    return torch.stack((ratio, turn_changes.index_select(0, turn_index)), dim=-1).view(*actions.shape, COMMAND_WIDTH)
 
 
 def velocities_from(*, speeds: torch.Tensor, headings: torch.Tensor) -> torch.Tensor:

@@ -24,6 +24,7 @@ from pedrl.common.checks import (
 from pedrl.sim.actions import (
     NUM_ACTIONS,
     apply_actions,
+    apply_commands,
     velocities_from,
 )
 from pedrl.sim.geometry import Geometry, X, Y, extent, spawn_counts
@@ -343,7 +344,9 @@ class RoomEnv:
         """Advance every replica by one decision.
 
         Args:
-            actions: Actions ``(R, N)`` int64 in ``[0, 81)``; ignored for inactive agents.
+            actions: Actions ``(R, N)`` int64 in ``[0, 81)``, or in the ``goal`` action frame continuous commands
+                ``(R, N, 2)`` float32 (:func:`pedrl.sim.actions.apply_commands`: the speed ratio and the heading
+                offset from the goal bearing); ignored for inactive agents.
 
         Returns:
             ``obs (R, N, F)`` float32, ``reward (R, N)`` float32, ``terminated (R, N)`` bool (left the room
@@ -359,11 +362,13 @@ class RoomEnv:
 
         Raises:
             RuntimeError: If :meth:`reset` was never called.
-            ValueError: If ``actions`` is not an integer tensor of shape ``(R, N)``.
+            ValueError: If ``actions`` is neither an integer tensor of shape ``(R, N)`` nor, in the ``goal`` frame, a
+                finite float tensor of shape ``(R, N, 2)``.
         """
         if not self._was_reset:
             raise RuntimeError("RoomEnv.step() called before reset()")
-        actions = check_actions(actions, (self.num_replicas, self.num_agents), device=self.device)
+        shape = (self.num_replicas, self.num_agents)
+        actions = check_actions(actions, shape, device=self.device, frame=self.params.action_frame)
         acting = self.active
         targets = self.targets()  # this decision's targets, for the order of action and the progress
 
@@ -414,13 +419,18 @@ class RoomEnv:
 
     def decide(self, actions: torch.Tensor, targets: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """The speeds and headings ``(R, N)`` that ``actions (R, N)`` command (:func:`pedrl.sim.actions.apply_actions`
-        in the room's action frame, towards ``targets`` (None: :meth:`targets`)), before the motion model moves the
-        bodies: what :meth:`step` applies, and what the free-walking probe (:mod:`pedrl.trial.walking`) measures."""
+        in the room's action frame, or the continuous commands ``(R, N, 2)``,
+        :func:`pedrl.sim.actions.apply_commands`, towards ``targets`` (None: :meth:`targets`)), before the motion
+        model moves the bodies: what :meth:`step` applies, and what the free-walking probe
+        (:mod:`pedrl.trial.walking`) measures."""
         targets = self.targets() if targets is None else targets
         bearings = None
         if self.params.action_frame == "goal":
             to_goal = targets - self.positions
             bearings = torch.atan2(to_goal[..., Y], to_goal[..., X])
+        if actions.is_floating_point():
+            return apply_commands(speeds=self.speeds, headings=self.headings, commands=actions,
+                                  max_speed=self.params.max_speed, active=self.active, bearings=bearings)  # fmt: skip
         return apply_actions(
             speeds=self.speeds,
             headings=self.headings,

@@ -11,7 +11,7 @@ from typing import Any, Final
 import torch
 
 from pedrl.common.checks import check_bool, check_choice, check_integer, check_number, check_real, shown
-from pedrl.sim.actions import ACTION_FRAMES, NOOP_INDEX, NUM_SPEED_CHANGES, count_substeps
+from pedrl.sim.actions import ACTION_FRAMES, COMMAND_WIDTH, NOOP_INDEX, NUM_SPEED_CHANGES, count_substeps
 from pedrl.sim.geometry import Geometry, extent
 from pedrl.sim.motion import MOTION_MODELS, MotionModel
 from pedrl.sim.rewards import MAX_DEVIATION_TURN, RewardTable
@@ -277,12 +277,28 @@ def read_option(
     return value
 
 
-def check_actions(actions: Any, shape: tuple[int, int], *, device: torch.device) -> torch.Tensor:
-    """``actions`` as an int64 tensor of ``shape`` on ``device``: an integer tensor, of that shape."""
+def check_actions(actions: Any, shape: tuple[int, int], *, device: torch.device, frame: str) -> torch.Tensor:
+    """``actions`` on ``device``: action indices, an integer tensor of ``shape`` (as int64), or in the ``goal`` action
+    ``frame`` continuous commands, a finite floating tensor of ``shape + (2,)`` (as float32,
+    :data:`pedrl.sim.actions.COMMAND_WIDTH`)."""
     if not isinstance(actions, torch.Tensor):
         raise ValueError(f"actions of type {type(actions).__name__} is invalid: must be a torch.Tensor")
+    if actions.is_floating_point():
+        if frame != "goal":
+            raise ValueError(
+                f"actions.dtype={actions.dtype} is invalid in the {frame!r} action frame: continuous commands need "
+                "env.action_frame=goal (else integer action indices)"
+            )
+        if tuple(actions.shape) != (*shape, COMMAND_WIDTH):
+            wanted = (*shape, COMMAND_WIDTH)
+            raise ValueError(f"actions.shape={tuple(actions.shape)} is invalid: continuous commands must be {wanted}")
+        if not bool(torch.isfinite(actions).all()):
+            raise ValueError("actions hold NaN or infinite commands: every command must be finite")
+        return actions.to(device=device, dtype=torch.float32).contiguous()
     if tuple(actions.shape) != shape:
         raise ValueError(f"actions.shape={tuple(actions.shape)} is invalid: must be {shape}")
-    if actions.is_floating_point() or actions.is_complex() or actions.dtype == torch.bool:
-        raise ValueError(f"actions.dtype={actions.dtype} is invalid: must be an integer dtype (int64)")
+    if actions.is_complex() or actions.dtype == torch.bool:
+        raise ValueError(
+            f"actions.dtype={actions.dtype} is invalid: must be an integer dtype (int64), or float commands"
+        )
     return actions.to(device=device, dtype=torch.int64)

@@ -9,15 +9,17 @@ from typing import NamedTuple
 import numpy as np
 
 from pedrl._numba import cached_njit
-from pedrl.sim.actions import apply_action_kernel, velocity_kernel
+from pedrl.sim.actions import apply_action_kernel, apply_command_kernel, velocity_kernel
 from pedrl.sim.motion.common import PAIR_MARGIN, STOP, KernelMoves
 from pedrl.sim.motion.sequential_kernel import sequential_constants, sequential_room
 from pedrl.sim.motion.sliding_kernel import sliding_constants, sliding_room
 from pedrl.sim.rewards import deviation_kernel, reward_kernel
 
-__all__ = ["ActScratch", "Events", "Work", "act_room", "act_scratch"]
+__all__ = ["NO_COMMANDS", "ActScratch", "Events", "Work", "act_room", "act_scratch"]
 
 _MARGIN = np.float32(PAIR_MARGIN)
+NO_COMMANDS = np.zeros((0, 0, 2), np.float32)
+""":func:`act_room`'s ``commands`` where the agents act by action index."""
 
 
 class Work(NamedTuple):
@@ -101,9 +103,11 @@ def act_scratch(num_agents):
 
 
 @cached_njit(nogil=True)
-def act_room(r, state, actions, room, walls, exits, routes, work, events, scratch):
-    """One decision of room ``r`` (:meth:`pedrl.sim.RoomEnv.step` without the observation): the ``actions``, the
-    move by the room's contact rule, the exits, the clock and the rewards; ``state`` is updated in place.
+def act_room(r, state, actions, commands, room, walls, exits, routes, work, events, scratch):
+    """One decision of room ``r`` (:meth:`pedrl.sim.RoomEnv.step` without the observation): the ``actions`` ``(R,
+    N)`` int64, or where ``commands`` ``(R, N, 2)`` float32 has rows, their continuous commands
+    (:func:`pedrl.sim.actions.apply_command_kernel`; an empty ``(0, 0, 2)`` array otherwise), the move by the room's
+    contact rule, the exits, the clock and the rewards; ``state`` is updated in place.
 
     ``state`` is :class:`pedrl.sim.state.KernelState`, ``room`` :class:`pedrl.sim.params.KernelRoom`, ``walls``
     :class:`pedrl.sim.geometry.Walls`, ``exits`` :class:`pedrl.sim.geometry.Exits`, ``routes``
@@ -122,12 +126,19 @@ def act_room(r, state, actions, room, walls, exits, routes, work, events, scratc
     moved, current = scratch.moved, scratch.current
     zero = np.float32(0.0)
     num_agents = positions.shape[1]
+    continuous = commands.shape[0] > 0
     for i in range(num_agents):
         acting[r, i] = active[r, i]
-        speeds[r, i], headings[r, i] = apply_action_kernel(
-            room, active[r, i], speeds[r, i], headings[r, i], actions[r, i], (positions[r, i, 0], positions[r, i, 1]),
-            (targets[r, i, 0], targets[r, i, 1]),
-        )  # fmt: skip
+        if continuous:
+            speeds[r, i], headings[r, i] = apply_command_kernel(
+                room, active[r, i], speeds[r, i], headings[r, i], commands[r, i, 0], commands[r, i, 1],
+                (positions[r, i, 0], positions[r, i, 1]), (targets[r, i, 0], targets[r, i, 1]),
+            )  # fmt: skip
+        else:
+            speeds[r, i], headings[r, i] = apply_action_kernel(
+                room, active[r, i], speeds[r, i], headings[r, i], actions[r, i],
+                (positions[r, i, 0], positions[r, i, 1]), (targets[r, i, 0], targets[r, i, 1]),
+            )  # fmt: skip
         velocities[r, i, 0], velocities[r, i, 1] = velocity_kernel(speeds[r, i], headings[r, i])
         scratch.deviation[i] = deviation_kernel(
             room, speeds[r, i], headings[r, i], (positions[r, i, 0], positions[r, i, 1]),

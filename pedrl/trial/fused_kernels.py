@@ -128,6 +128,7 @@ def _run_process(
     size = max(num_agents, walls.starts.shape[0])
     distances, indices = np.empty((2, size), np.float32), np.empty((2, size), np.int64)
     no_velocity = np.zeros((0, 0, 0, 2), np.float32)  # the tables read no neighbour velocity
+    no_commands = np.zeros((0, 0, 2), np.float32)  # they act by action index
     buffers = encode_buffers(num_agents, features.shape[2])
     scratch = act_scratch(num_agents)
     errors = np.empty(rooms * num_agents, np.float32)
@@ -163,7 +164,7 @@ def _run_process(
         for r in range(first, first + rooms):
             for i in range(num_agents):
                 work.draws[r, i] = next_uniform(streams, r)  # the order of the movers
-            act_room(r, state, actions, room, walls, exits, routes, work, events, scratch)
+            act_room(r, state, actions, no_commands, room, walls, exits, routes, work, events, scratch)
             if record and ((steps + 1) % trace.every == 0 or not active[r].any()):
                 _record(r, (steps + trace.every) // trace.every, state, acting, trace)
             if random_void and learning.void_each_decision:

@@ -23,9 +23,10 @@ from numba import prange
 
 from pedrl._numba import cached_njit
 from pedrl.sim import RoomEnv
+from pedrl.sim.room_checks import check_actions
 from pedrl.sim.sensing_kernel import room_search, sense_room
 from pedrl.sim.state import KernelState, RoomState
-from pedrl.sim.step_kernel import Events, Work, act_room, act_scratch
+from pedrl.sim.step_kernel import NO_COMMANDS, Events, Work, act_room, act_scratch
 from pedrl.sim.streams import next_uniform, seed_streams
 from pedrl.trial.fused import room_inputs
 
@@ -33,13 +34,13 @@ __all__ = ["CompiledRoom", "step_rooms"]
 
 
 @cached_njit(nogil=True, parallel=True)
-def step_rooms(first, state, actions, room, walls, exits, routes, work, events, features, num_sensed, velocity,
-               streams):  # fmt: skip
+def step_rooms(first, state, actions, commands, room, walls, exits, routes, work, events, features, num_sensed,
+               velocity, streams):  # fmt: skip
     """One decision of every room in parallel (``first``: the rooms' first observation instead, after a reset):
-    act (:func:`~pedrl.sim.step_kernel.act_room`: the ``actions`` ``(R, N)``, the move, the exits, the clock, the
-    rewards into ``events``), then sense the agents still in each room into ``features (R, N, F)``,
-    ``num_sensed (R, N)`` and ``velocity (R, N, k, 2)`` (:func:`~pedrl.sim.sensing_kernel.sense_room`). ``state`` is
-    updated in place."""
+    act (:func:`~pedrl.sim.step_kernel.act_room`: the ``actions`` ``(R, N)`` or, where it has rows, the continuous
+    ``commands`` ``(R, N, 2)``, the move, the exits, the clock, the rewards into ``events``), then sense the agents
+    still in each room into ``features (R, N, F)``, ``num_sensed (R, N)`` and ``velocity (R, N, k, 2)``
+    (:func:`~pedrl.sim.sensing_kernel.sense_room`). ``state`` is updated in place."""
     rooms, num_agents = actions.shape
     size = max(num_agents, walls.starts.shape[0])
     for r in prange(rooms):
@@ -49,7 +50,7 @@ def step_rooms(first, state, actions, room, walls, exits, routes, work, events, 
             scratch = act_scratch(num_agents)
             for i in range(num_agents):
                 work.draws[r, i] = next_uniform(streams, r)  # the order of the movers
-            act_room(r, state, actions, room, walls, exits, routes, work, events, scratch)
+            act_room(r, state, actions, commands, room, walls, exits, routes, work, events, scratch)
             present = events.in_room
         sense_room(r, state, present, walls, room.num_neighbours, room.num_walls, room_search(room), features,
                    num_sensed, distances, indices, velocity)  # fmt: skip
@@ -77,6 +78,7 @@ class CompiledRoom:
         self._num_sensed = np.zeros((rooms, agents), np.int64)
         self._velocity = np.zeros((rooms, agents, env.params.num_neighbours, 2), np.float32)
         self._actions = np.zeros((rooms, agents), np.int64)
+        self._commands = NO_COMMANDS
         self._streams = np.empty(rooms, np.uint64)
         self._state = None
         self._slots = torch.arange(env.params.num_neighbours)
@@ -106,10 +108,18 @@ class CompiledRoom:
         self, actions: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, dict[str, Any]]:
         """One decision of every room: ``(obs, reward, terminated, truncated, info)`` as
-        :meth:`pedrl.sim.RoomEnv.step` gives them (copies: the next decision does not change them)."""
+        :meth:`pedrl.sim.RoomEnv.step` gives them (copies: the next decision does not change them), for ``actions``
+        as that step takes them (action indices or continuous commands, checked as it checks them)."""
         if self._state is None:
             raise RuntimeError("CompiledRoom.step() called before reset()")
-        self._actions[:] = actions.detach().cpu().numpy()
+        env = self.env
+        actions = check_actions(actions, (env.num_replicas, env.num_agents), device=torch.device("cpu"),
+                                frame=env.params.action_frame)  # fmt: skip
+        if actions.is_floating_point():
+            self._commands = actions.numpy()
+        else:
+            self._commands = NO_COMMANDS
+            self._actions[:] = actions.numpy()
         self._run(first=False)
         self._publish(1)
         events = self._events
@@ -126,8 +136,8 @@ class CompiledRoom:
 
     def _run(self, *, first: bool) -> None:
         inputs = self._inputs
-        step_rooms(first, self._state, self._actions, inputs.room, inputs.walls, inputs.exits, inputs.routes,
-                   self._work, self._events, self._features, self._num_sensed, self._velocity,
+        step_rooms(first, self._state, self._actions, self._commands, inputs.room, inputs.walls, inputs.exits,
+                   inputs.routes, self._work, self._events, self._features, self._num_sensed, self._velocity,
                    self._streams)  # fmt: skip
 
     def _observation(self) -> tuple[torch.Tensor, Mapping[str, Any]]:

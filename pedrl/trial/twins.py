@@ -119,7 +119,7 @@ def check_twins(
     report's :meth:`~TwinReport.failures` lists what exceeds ``tolerances``."""
     from pedrl.rl.kernels import td_batch, td_scratch, td_set_batch
     from pedrl.sim.sensing_kernel import room_search, sense_room
-    from pedrl.sim.step_kernel import Events, Work, act_room, act_scratch
+    from pedrl.sim.step_kernel import NO_COMMANDS, Events, Work, act_room, act_scratch
     from pedrl.vq.encode_kernel import pack_encoder
     from pedrl.vq.factored_kernel import pack_factored
 
@@ -143,8 +143,8 @@ def check_twins(
         work.draws[:] = torch.rand(acting.shape, generator=_copy(env.generator)).numpy()  # the step's own draws
         state = env.state.clone().arrays()
         for r in range(rooms):
-            act_room(r, state, actions.numpy(), inputs.room, inputs.walls, inputs.exits, inputs.routes, work, events,
-                     scratch)  # fmt: skip
+            act_room(r, state, actions.numpy(), NO_COMMANDS, inputs.room, inputs.walls, inputs.exits, inputs.routes,
+                     work, events, scratch)  # fmt: skip
         obs, reward, terminated, _, info = env.step(actions)
         _compare_step(report, env, state, events, acting, reward, terminated, info)
         # ---- sense: from the torch state after the step

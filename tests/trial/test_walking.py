@@ -41,6 +41,16 @@ class Fixed:
         return torch.full(obs.shape[:2], self.action, dtype=torch.int64)
 
 
+class Commanded:
+    """A walker that gives one continuous command, whatever it sees: the speed ratio and the heading offset (rad)."""
+
+    def __init__(self, ratio: float, offset: float) -> None:
+        self.command = torch.tensor([ratio, offset])
+
+    def act(self, env, obs, info):
+        return self.command.expand(*obs.shape[:2], 2).clone()
+
+
 def test_the_greedy_walker_walks_the_corridor_straight_in_the_analytic_decisions():
     probe = probe_walking(GreedyDoorController, PARAMS, settings=SMALL)
     # it starts a body radius and 5 cm from the closed end: 39.75 m at 1.34 m/s a decision
@@ -57,8 +67,10 @@ def test_the_greedy_walker_walks_the_corridor_straight_in_the_analytic_decisions
     [
         (Fixed(8, 7), 45.0, 1.0),  # the control of the issue: top speed, always 45 degrees off the bearing
         (Fixed(4, 4), 0.0, 0.7),  # straight on at 0.7 of the top speed
+        (Commanded(1.0, math.pi / 4), 45.0, 1.0),  # the same walkers by continuous command
+        (Commanded(0.7, 0.0), 0.0, 0.7),
     ],
-    ids=["45-degrees", "slow"],
+    ids=["45-degrees", "slow", "45-degrees-commanded", "slow-commanded"],
 )
 def test_a_walker_that_turns_off_the_bearing_or_slows_fails(walker, offset, speed):
     probe = probe_walking(lambda: walker, PARAMS, settings=SMALL)
@@ -67,6 +79,26 @@ def test_a_walker_that_turns_off_the_bearing_or_slows_fails(walker, offset, spee
     assert probe.speed_ratio == pytest.approx(speed, abs=1e-4)
     assert probe.corridor.decisions > probe.greedy_corridor.decisions
     assert not probe.passed()
+
+
+def test_a_continuous_policy_that_commands_top_speed_straight_passes():
+    """A continuous policy whose network gives (3, 0) whatever it sees: its squash commands a speed ratio above 1
+    (the room clips it to the top speed) and no offset, so it walks as the greedy walker does."""
+    from pedrl.rl import ContinuousPolicy
+    from pedrl.rl.network import QNetwork
+    from pedrl.vq.encoder import EncoderSettings, StateEncoder
+
+    settings = EncoderSettings(num_neighbours=PARAMS.num_neighbours, num_walls=PARAMS.num_walls, max_distance=40.0,
+                               max_speed=PARAMS.max_speed)  # fmt: skip
+    network = QNetwork(1, settings.num_features + settings.num_neighbours, [8], 2)
+    with torch.no_grad():
+        for weight in network.weights:
+            weight.zero_()
+        network.biases[-1].copy_(torch.tensor([3.0, 0.0]).expand_as(network.biases[-1]))
+    policy = ContinuousPolicy(StateEncoder(settings), network, torch.zeros(settings.num_features),
+                              torch.ones(settings.num_features))  # fmt: skip
+    probe = probe_walking(lambda: policy.controller(), PARAMS, settings=SMALL)
+    assert probe.straight == 1.0 and probe.speed_ratio == pytest.approx(1.0) and probe.passed()
 
 
 def test_a_walker_that_never_arrives_fails_with_an_infinite_ratio():
