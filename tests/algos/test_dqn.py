@@ -254,10 +254,14 @@ def test_a_checkpoint_names_its_learner_and_load_policy_reads_it_by_that_name(tr
         save_file(tensors, str(path), metadata={METADATA_KEY: json.dumps(metadata)})
 
     rewrite(lambda m: m.update(learner="forest"))
-    with pytest.raises(CheckpointError, match="metadata learner='forest' is unknown: allowed: table, neural$"):
+    allowed = "allowed: table, neural, continuous$"
+    with pytest.raises(CheckpointError, match=f"metadata learner='forest' is unknown: {allowed}"):
         load_policy(path)
     rewrite(lambda m: m.update(learner={"a": 1}))  # crafted: not even a name
-    with pytest.raises(CheckpointError, match="metadata learner=.* is unknown: allowed: table, neural$"):
+    with pytest.raises(CheckpointError, match=f"metadata learner=.* is unknown: {allowed}"):
+        load_policy(path)
+    rewrite(lambda m: m.update(learner="continuous"))  # another kind's reader: it checks what the network gives
+    with pytest.raises(CheckpointError, match="the network gives 81 values: a continuous policy's gives 2$"):
         load_policy(path)
     rewrite(lambda m: m.pop("learner"))  # as checkpoints were written before the key
     assert isinstance(load_policy(path), NeuralPolicy)

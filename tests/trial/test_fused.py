@@ -122,7 +122,7 @@ def test_the_feature_check_fails_on_a_wrong_feature():
 
 def fused_step(env: RoomEnv, actions: torch.Tensor, draws: torch.Tensor) -> tuple[tuple, tuple]:
     """One decision of every room by ``act_room`` from ``env``'s state: the state and the events after it."""
-    from pedrl.sim.step_kernel import Events, Work, act_room, act_scratch
+    from pedrl.sim.step_kernel import NO_COMMANDS, Events, Work, act_room, act_scratch
 
     rooms, agents = env.num_replicas, env.num_agents
     state = env.state.clone().arrays()
@@ -131,8 +131,8 @@ def fused_step(env: RoomEnv, actions: torch.Tensor, draws: torch.Tensor) -> tupl
     events = Events.allocate(rooms, agents)
     scratch, inputs = act_scratch(agents), fused.room_inputs(env)
     for r in range(rooms):
-        act_room(r, state, actions.numpy(), inputs.room, inputs.walls, inputs.exits, inputs.routes, work, events,
-                 scratch)  # fmt: skip
+        act_room(r, state, actions.numpy(), NO_COMMANDS, inputs.room, inputs.walls, inputs.exits, inputs.routes,
+                 work, events, scratch)  # fmt: skip
     return state, events
 
 

@@ -220,7 +220,7 @@ def test_the_tolerances_are_the_declared_ones():
 )
 def test_invariants_hold_after_every_kernel_step(seed, name, contact, fast):
     """Bodies apart, clear of walls, inside the room, speeds in range, after every decision of the kernel path."""
-    from pedrl.sim.step_kernel import Events, Work, act_room, act_scratch
+    from pedrl.sim.step_kernel import NO_COMMANDS, Events, Work, act_room, act_scratch
 
     env = room(name, contact)
     env.reset(seed=seed)
@@ -235,7 +235,7 @@ def test_invariants_hold_after_every_kernel_step(seed, name, contact, fast):
             actions = torch.where(torch.rand(shape, generator=generator) < 0.7, 8 * 9 + actions % 9, actions)
         work.draws[:] = torch.rand(shape, generator=generator).numpy()
         for r in range(shape[0]):
-            act_room(r, state, actions.numpy(), inputs.room, inputs.walls, inputs.exits, inputs.routes, work, events,
-                     scratch)  # fmt: skip
+            act_room(r, state, actions.numpy(), NO_COMMANDS, inputs.room, inputs.walls, inputs.exits, inputs.routes,
+                     work, events, scratch)  # fmt: skip
         env.load_state(RoomState.from_arrays(state).clone())
         check_state(env)
