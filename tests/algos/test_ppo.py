@@ -119,19 +119,16 @@ def test_ppo_bad_settings_are_one_line_before_any_compute(train_config, tmp_path
     assert not (tmp_path / "checkpoints").exists()
 
 
-def test_pedrl_eval_and_validate_run_a_ppo_checkpoint_and_its_exported_file(tmp_path):
-    """The actor is a network of the DQN's kind: pedrl-eval reads the checkpoint and its exported file alike."""
+def _eval_checkpoint_and_export(checkpoint, tmp_path):
+    """``pedrl-eval`` of ``checkpoint`` and of its exported policy file on the same scenes: the file and the rows of
+    each (by controller)."""
     import csv
 
     from pedrl.evaluation import evaluate
     from pedrl.policy_files import export_policy
     from tests.conftest import compose_config
 
-    cfg = compose_config("train", ["debug=default", *PPO, "algo.trials=4", "algo.iterations=1", "progress=false"])
-    train(cfg, run_dir=tmp_path / "run")
-    checkpoint = tmp_path / "run" / "checkpoints" / "last.safetensors"
     exported = export_policy(checkpoint, tmp_path / "policy.safetensors")
-    assert isinstance(NeuralPolicy.load(exported), NeuralPolicy)
     rows = {}
     for name, source in (("checkpoint", f"checkpoint={checkpoint}"), ("file", f"policy={exported}")):
         eval_cfg = compose_config("eval", [source, "agents=[4]", "trials=8", "trials_per_batch=8", "seed=3",
@@ -139,6 +136,17 @@ def test_pedrl_eval_and_validate_run_a_ppo_checkpoint_and_its_exported_file(tmp_
         evaluate(eval_cfg, run_dir=tmp_path / name)
         with open(tmp_path / name / "scaling.csv") as file:
             rows[name] = {row["controller"]: row for row in csv.DictReader(file)}
+    return exported, rows
+
+
+def test_pedrl_eval_runs_a_ppo_checkpoint_and_its_exported_file(tmp_path):
+    """The actor is a network of the DQN's kind: pedrl-eval reads the checkpoint and its exported file alike."""
+    from tests.conftest import compose_config
+
+    cfg = compose_config("train", ["debug=default", *PPO, "algo.trials=4", "algo.iterations=1", "progress=false"])
+    train(cfg, run_dir=tmp_path / "run")
+    exported, rows = _eval_checkpoint_and_export(tmp_path / "run" / "checkpoints" / "last.safetensors", tmp_path)
+    assert isinstance(NeuralPolicy.load(exported), NeuralPolicy)
     assert rows["checkpoint"] == rows["file"] and set(rows["file"]) == {"learned", "greedy"}
 
 
@@ -212,20 +220,7 @@ def test_a_continuous_crowd_drives_the_pettingzoo_room(continuous_run):
 
 
 def test_pedrl_eval_runs_a_continuous_checkpoint_and_its_exported_file(continuous_run, tmp_path):
-    import csv
-
-    from pedrl.evaluation import evaluate
-    from pedrl.policy_files import export_policy
-    from tests.conftest import compose_config
-
     checkpoint = continuous_run / "checkpoints" / "last.safetensors"
-    exported = export_policy(checkpoint, tmp_path / "policy.safetensors")
+    exported, rows = _eval_checkpoint_and_export(checkpoint, tmp_path)
     assert isinstance(ContinuousPolicy.load(exported), ContinuousPolicy)
-    rows = {}
-    for name, source in (("checkpoint", f"checkpoint={checkpoint}"), ("file", f"policy={exported}")):
-        eval_cfg = compose_config("eval", [source, "agents=[4]", "trials=8", "trials_per_batch=8", "seed=3",
-                                           "animation.enabled=false", "export.trials=0"])  # fmt: skip
-        evaluate(eval_cfg, run_dir=tmp_path / name)
-        with open(tmp_path / name / "scaling.csv") as file:
-            rows[name] = {row["controller"]: row for row in csv.DictReader(file)}
     assert rows["checkpoint"] == rows["file"] and float(rows["file"]["learned"]["fails_pct"]) < 50
