@@ -189,6 +189,8 @@ PRETRAINED: Final = {
     "pedestrian_walk": "experiment=pedestrian_walk, seed 0, the tables of its first learning process",
     "pedestrian_free": "experiment=pedestrian_free_dqn, seed 0, its network (one learning process); beside it "
     "pedestrian_free.onnx and its contract pedestrian_free.onnx.json (pedrl-export out=....onnx)",
+    "main_ppo": "experiment=main_ppo (PPO's continuous head), seed 0, its actor: the paper room's best crowd; "
+    "beside it main_ppo.onnx and its contract main_ppo.onnx.json",
 }
 """The policy files shipped with pedrl (``pedrl/policies/<name>.safetensors``), to try evaluation, validation and the
 PettingZoo adapter without training first."""

@@ -9,12 +9,14 @@ import pedrl
 from pedrl.configs import HISTORICAL_VALUES
 from pedrl.io import load_checkpoint
 from pedrl.policy_files import PRETRAINED
+from pedrl.rl import ContinuousPolicy
 from pedrl.trial.crowd import run_crowd
 from tests.conftest import compose_config
 
 
 def blank(policy):
-    """The control: the same policy with its values zeroed (a table's rows, a network's last layer)."""
+    """The control: the same policy with its values zeroed (a table's rows, a network's last layer; a continuous
+    network's last layer set to command standing)."""
     if isinstance(policy, pedrl.TabularPolicy):
         return pedrl.TabularPolicy(policy.encoder, torch.zeros_like(policy.q_values), metadata=policy.metadata)
     network = policy.network.twin()
@@ -22,7 +24,9 @@ def blank(policy):
     with torch.no_grad():
         network.weights[-1].zero_()
         network.biases[-1].zero_()
-    return pedrl.NeuralPolicy(policy.encoder, network, policy.mean, policy.std, metadata=policy.metadata)
+        if isinstance(policy, ContinuousPolicy):
+            network.biases[-1][..., 0] = -3.0  # a speed ratio below 0: standing, as a zeroed Q-network's action 0
+    return type(policy)(policy.encoder, network, policy.mean, policy.std, metadata=policy.metadata)
 
 
 @pytest.mark.parametrize("name", sorted(PRETRAINED))
@@ -48,21 +52,23 @@ def test_an_unknown_shipped_policy_is_refused_in_one_line():
         pedrl.pretrained("mian")
 
 
-def test_the_shipped_network_has_its_onnx_model_and_contract_beside_it():
+@pytest.mark.parametrize("name", ["pedestrian_free", "main_ppo"])
+def test_a_shipped_network_has_its_onnx_model_and_contract_beside_it(name):
     onnxruntime = pytest.importorskip("onnxruntime")
-    path = pedrl.pretrained("pedestrian_free")
+    path = pedrl.pretrained(name)
     model, contract = path.with_suffix(".onnx"), path.with_suffix(".onnx.json")
     assert model.is_file() and contract.is_file()
     policy = pedrl.load_policy(path)
     room = pedrl.room_factory(policy)(num_replicas=2, num_agents=20)
     obs, info = room.reset(seed=3)
     flat, sensed = obs.reshape(-1, obs.shape[-1]), info["num_sensed"].reshape(-1)
-    q_values, action = onnxruntime.InferenceSession(str(model)).run(
+    values, chosen = onnxruntime.InferenceSession(str(model)).run(
         None, {"obs": flat.numpy(), "num_sensed": sensed.numpy()}
     )
     expected = policy.values(policy.inputs(flat, sensed, 0), torch.zeros(flat.shape[0], dtype=torch.int64))
-    torch.testing.assert_close(torch.from_numpy(q_values), expected, atol=1e-4, rtol=1e-4)
-    assert bool((torch.from_numpy(action) == expected.argmax(1)).all())
+    torch.testing.assert_close(torch.from_numpy(values), expected, atol=1e-4, rtol=1e-4)
+    acted = policy.act(obs, info).reshape(flat.shape[0], -1).squeeze(1)  # actions (B,), or commands (B, 2)
+    torch.testing.assert_close(torch.from_numpy(chosen), acted, atol=1e-4, rtol=0)
 
 
 def _leaves(config: dict, prefix: str = "") -> set[str]:
@@ -81,10 +87,15 @@ def _leaves(config: dict, prefix: str = "") -> set[str]:
 def test_every_key_added_since_a_shipped_policy_was_trained_has_the_value_of_its_time(name):
     """A key of today's config that a shipped file's stored config lacks must be in HISTORICAL_VALUES: else resuming
     or comparing such a file reads the key as absent (resume refuses it) or as today's default. The control: a key
-    added after every shipped file (env.reward_deviation) is found."""
+    added after a shipped file (env.reward_deviation, taken out of its stored config) is found."""
     stored = load_checkpoint(pedrl.pretrained(name)).metadata["config"]
-    algo = "dqn" if stored["algo"]["_target_"].endswith("DQN") else "it_vqql"
-    today = OmegaConf.to_container(compose_config("train", [f"algo={algo}"]), resolve=True)
-    added = {key for key in _leaves(today) - _leaves(stored) if not key.startswith("env.motion.")}
-    assert added <= set(HISTORICAL_VALUES), sorted(added - set(HISTORICAL_VALUES))
-    assert "env.reward_deviation" in added  # the control: without its entry, this file would fail the check
+    algo = {"DQN": "dqn", "PPO": "ppo"}.get(stored["algo"]["_target_"].rsplit(".", 1)[-1], "it_vqql")
+    today = _leaves(OmegaConf.to_container(compose_config("train", [f"algo={algo}"]), resolve=True))
+
+    def added(config: dict) -> set[str]:
+        return {key for key in today - _leaves(config) if not key.startswith("env.motion.")}
+
+    assert added(stored) <= set(HISTORICAL_VALUES), sorted(added(stored) - set(HISTORICAL_VALUES))
+    # the control: a key the file's config lacks is found (a file trained before env.reward_deviation lacks it)
+    older = {**stored, "env": {key: value for key, value in stored["env"].items() if key != "reward_deviation"}}
+    assert "env.reward_deviation" in added(older)
