@@ -26,7 +26,8 @@ def blank(policy):
         network.biases[-1].zero_()
         if isinstance(policy, ContinuousPolicy):
             network.biases[-1][..., 0] = -3.0  # a speed ratio below 0: standing, as a zeroed Q-network's action 0
-    return type(policy)(policy.encoder, network, policy.mean, policy.std, metadata=policy.metadata)
+    return type(policy)(policy.encoder, network, policy.mean, policy.std, metadata=policy.metadata,
+                        neighbour_velocity=policy.neighbour_velocity)  # fmt: skip
 
 
 @pytest.mark.parametrize("name", sorted(PRETRAINED))
@@ -52,7 +53,7 @@ def test_an_unknown_shipped_policy_is_refused_in_one_line():
         pedrl.pretrained("mian")
 
 
-@pytest.mark.parametrize("name", ["pedestrian_free", "main_ppo"])
+@pytest.mark.parametrize("name", ["pedestrian_free", "main_ppo", "pedestrian_walk_ppo"])
 def test_a_shipped_network_has_its_onnx_model_and_contract_beside_it(name):
     onnxruntime = pytest.importorskip("onnxruntime")
     path = pedrl.pretrained(name)
@@ -62,10 +63,11 @@ def test_a_shipped_network_has_its_onnx_model_and_contract_beside_it(name):
     room = pedrl.room_factory(policy)(num_replicas=2, num_agents=20)
     obs, info = room.reset(seed=3)
     flat, sensed = obs.reshape(-1, obs.shape[-1]), info["num_sensed"].reshape(-1)
-    values, chosen = onnxruntime.InferenceSession(str(model)).run(
-        None, {"obs": flat.numpy(), "num_sensed": sensed.numpy()}
-    )
-    expected = policy.values(policy.inputs(flat, sensed, 0), torch.zeros(flat.shape[0], dtype=torch.int64))
+    feeds = {"obs": flat.numpy(), "num_sensed": sensed.numpy()}
+    if policy.neighbour_velocity:
+        feeds["neighbour_velocity"] = info["neighbour_velocity"].reshape(flat.shape[0], -1, 2).numpy()
+    values, chosen = onnxruntime.InferenceSession(str(model)).run(None, feeds)
+    expected = policy.values(policy.info_inputs(obs, info), torch.zeros(flat.shape[0], dtype=torch.int64))
     torch.testing.assert_close(torch.from_numpy(values), expected, atol=1e-4, rtol=1e-4)
     acted = policy.act(obs, info).reshape(flat.shape[0], -1).squeeze(1)  # actions (B,), or commands (B, 2)
     torch.testing.assert_close(torch.from_numpy(chosen), acted, atol=1e-4, rtol=0)
