@@ -185,7 +185,8 @@ class PPO(NetworkRun):
 
     def __init__(self, run: RunSpec, **settings: Any) -> None:
         super().__init__(run, **settings)
-        if self.algo.actions == "continuous":
+        self.continuous = self.algo.actions == "continuous"
+        if self.continuous:
             for room in [self.env, *self._mix_envs]:
                 if room.params.action_frame != "goal":
                     raise ValueError(
@@ -193,7 +194,7 @@ class PPO(NetworkRun):
                         "command sets the speed and the heading from the goal bearing (env.action_frame=goal)"
                     )
             self.policy_class, self.learner = ContinuousPolicy, ContinuousPolicy.learner
-        self.outputs = COMMAND_WIDTH if self.algo.actions == "continuous" else self.env.num_actions
+        self.outputs = COMMAND_WIDTH if self.continuous else self.env.num_actions
         self.settings = self.algo.update()
         check_memory(
             self.memory_needs(),
@@ -231,7 +232,7 @@ class PPO(NetworkRun):
     def make_update(self, actor: QNetwork, critic: QNetwork) -> PPOUpdate:
         """The update of ``actor`` and ``critic`` (continuous: with the Gaussian's spread at ``init_std``)."""
         log_std = None
-        if self.algo.actions == "continuous":
+        if self.continuous:
             log_std = torch.full((self.processes, COMMAND_WIDTH), math.log(self.algo.init_std), device=self.device)
         return PPOUpdate(actor, critic, self.settings, self.algo.learning_rate, log_std=log_std)
 

@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from pedrl.rl.network import QNetwork
-from pedrl.rl.ppo import PPOSettings, PPOUpdate, advantages
+from pedrl.rl.ppo import PPOSettings, PPOUpdate, advantages, gaussian_logprob
 
 
 def _trajectory(rewards, values, *, terminated=(), cut=(), bootstrap=0.0):
@@ -46,14 +46,15 @@ def test_advantages_with_lambda_0_are_one_step_td_errors_and_rows_are_apart():
     assert not bool(adv[:, 1].any())
 
 
-def _update(processes=2, **changes):
+def _update(processes=2, outputs=5, log_std=None, **changes):
+    """An update of small networks (``outputs`` of the actor; with ``log_std``, the continuous head's)."""
     settings = dict(gamma=0.9, gae_lambda=0.95, clip_coef=0.2, value_coef=0.5, entropy_coef=0.0, epochs=1,
                     minibatches=1, max_grad_norm=100.0, reward_scale=1.0, normalize_advantages=False)  # fmt: skip
     settings |= changes
     generator = torch.Generator().manual_seed(0)
-    actor = QNetwork(processes, 3, (8,), 5, generator=generator)
+    actor = QNetwork(processes, 3, (8,), outputs, generator=generator)
     critic = QNetwork(processes, 3, (8,), 1, generator=generator)
-    return PPOUpdate(actor, critic, PPOSettings(**settings), learning_rate=0.05)
+    return PPOUpdate(actor, critic, PPOSettings(**settings), learning_rate=0.05, log_std=log_std)
 
 
 def _rollout(update, reward: float, steps: int = 4, rows: int = 2):
@@ -105,3 +106,41 @@ def test_a_process_without_decisions_keeps_its_networks():
         torch.equal(w[1], s) for w, s in zip((*update.actor.weights, *update.critic.weights), second, strict=True)
     )
     assert not torch.equal(update.actor.weights[0][0], first)  # process 0 learned
+
+
+# ---------------------------------------------------------------------- the continuous head
+def test_the_gaussian_log_density_is_torchs_normal():
+    generator = torch.Generator().manual_seed(3)
+    mean, log_std = torch.randn(5, 2, generator=generator), 0.3 * torch.randn(5, 2, generator=generator)
+    sample = mean + torch.randn(5, 2, generator=generator)
+    expected = torch.distributions.Normal(mean, log_std.exp()).log_prob(sample).sum(-1)
+    torch.testing.assert_close(gaussian_logprob(sample, mean, log_std), expected)
+
+
+@pytest.mark.parametrize(("reward", "direction"), [(1.0, 1), (-1.0, -1)], ids=["good", "bad"])
+def test_a_continuous_step_moves_the_mean_towards_a_good_command_and_away_from_a_bad_one(reward, direction):
+    """Every row's sample lies 0.5 above the actor's mean on both outputs; a positive advantage moves the means
+    towards it (the log-density of the sample rises), a negative one away; the spread is learned too."""
+    update = _update(processes=1, outputs=2, log_std=torch.zeros(1, 2))
+    steps, rows = 4, 3
+    inputs = torch.randn(steps, rows, 3, generator=torch.Generator().manual_seed(1))
+
+    def density(sample):
+        with torch.no_grad():
+            mean = update.actor(inputs.reshape(1, -1, 3)).view(steps, rows, 2)
+            return gaussian_logprob(sample, mean, update.log_std.view(1, 1, 2)), mean
+
+    _, mean = density(torch.zeros(steps, rows, 2))
+    sample = mean + 0.5
+    before, _ = density(sample)
+    ended = torch.zeros(steps, rows, dtype=torch.bool)
+    ended[-1] = True
+    zeros = torch.zeros(steps, rows)
+    rollout = {"inputs": inputs, "actions": sample, "logprobs": before, "values": zeros,
+               "rewards": torch.full((steps, rows), reward), "terminated": ended.clone(), "ended": ended,
+               "valid": torch.ones(steps, rows, dtype=torch.bool), "bootstrap": zeros}  # fmt: skip
+    spread = update.log_std.detach().clone()
+    update.learn(rollout, torch.zeros(rows, dtype=torch.int64), torch.Generator().manual_seed(0))
+    after, _ = density(sample)
+    assert bool((direction * (after - before) > 0).all())
+    assert not torch.equal(update.log_std.detach(), spread)
