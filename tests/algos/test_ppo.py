@@ -153,26 +153,26 @@ def test_pedrl_eval_runs_a_ppo_checkpoint_and_its_exported_file(tmp_path):
 # ---------------------------------------------------------------------- the continuous head
 @pytest.fixture(scope="module")
 def continuous_run(tmp_path_factory):
-    """A continuous PPO run of 120 trials (about 20 s): its folder."""
+    """A continuous PPO run of 40 trials of one process of 8 rooms (about 5 s): its folder."""
     from tests.conftest import compose_config
 
     run = tmp_path_factory.mktemp("continuous")
-    cfg = compose_config("train", [*PPO, "algo.trials=120", "algo.epochs=10", "algo.actions=continuous",
-                                   "progress=false"])  # fmt: skip
+    cfg = compose_config("train", [*PPO, "algo.trials=40", "algo.epochs=10", "algo.actions=continuous",
+                                   "processes=1", "rooms_per_process=8", "progress=false"])  # fmt: skip
     train(cfg, run_dir=run)
     return run
 
 
 def test_continuous_ppo_learns_to_walk_better_than_its_untrained_actor(continuous_run):
     """The untrained actor walks at half the top speed straight at the goal (its outputs near 0); the learned one
-    earns more (measured 85 against 47, the greedy walker 91)."""
+    earns far more (measured 126 against 43; the greedy walker 91)."""
     learned = load_policy(continuous_run / "checkpoints" / "last.safetensors")
     assert isinstance(learned, ContinuousPolicy) and learned.metadata["algo"] == "ppo"
     untrained = ContinuousPolicy(learned.encoder, QNetwork(1, learned.num_inputs, [32, 32], 2,
                                  generator=torch.Generator().manual_seed(0)), learned.mean, learned.std)  # fmt: skip
     factory = room_factory(learned)
     before, after = _greedy_return(untrained, factory), _greedy_return(learned, factory)
-    assert after > before + 25.0, (before, after)
+    assert after > before + 50.0, (before, after)
 
 
 def test_a_continuous_checkpoint_holds_its_spread_and_acts_by_commands(continuous_run):
