@@ -13,6 +13,7 @@ from pedrl.sim import RoomEnv, commands_of
 from pedrl.sim.actions import NUM_ACTIONS
 from pedrl.sim.controllers import GreedyDoorController
 from pedrl.trial.stepped import CompiledRoom
+from tests.sim.test_contact import check_bodies
 from tests.sim.test_continuous import continuous
 
 needs_numba = pytest.mark.skipif(not numba_available(), reason="numba is off (PEDRL_NO_NUMBA)")
@@ -75,8 +76,9 @@ def test_commands_are_clipped_to_the_top_speed_and_wrapped():
 
 @needs_numba
 def test_commanded_walkers_keep_the_physical_invariants():
-    """The greedy walker's commands with noise, in the compiled room: no body faster than the top speed, nobody
-    through a wall (all still inside the room's extent or gone through the door), and the crowd empties the room."""
+    """The greedy walker's commands with noise, some asking for more than the top speed, in the compiled room: after
+    every decision no overlap, nobody on or through a wall, nobody faster than the top speed
+    (:func:`tests.sim.test_contact.check_bodies`), and the crowd empties the room."""
     env = CompiledRoom(continuous(num_replicas=2, num_agents=20, max_decisions=200))
     obs, info = env.reset(seed=2)
     greedy = GreedyDoorController(epsilon=0.0)
@@ -86,8 +88,9 @@ def test_commanded_walkers_keep_the_physical_invariants():
             break
         commands = as_commands(env, greedy.act(env, obs, info))
         commands = commands + 0.05 * torch.randn(commands.shape, generator=generator)
+        start, acting = env.positions.clone(), env.active.clone()
         obs, _, _, _, info = env.step(commands)
-        assert float(env.speeds.max()) <= env.params.max_speed + 1e-5
+        check_bodies(env.env, start, acting)
     assert not bool(env.active.any())
 
 
