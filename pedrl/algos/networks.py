@@ -27,7 +27,7 @@ from pedrl.common.checks import check_bool, check_integer, check_number, check_t
 from pedrl.io import CheckpointError
 from pedrl.policy_files import RNG_KEYS, check_rng_state
 from pedrl.rl.network import QNetwork, check_hidden
-from pedrl.rl.neural import NEURAL_LEARNER, NeuralPolicy, input_width
+from pedrl.rl.neural import NeuralPolicy, input_width
 from pedrl.rl.policy import POLICY_READERS
 from pedrl.sim import RoomEnv
 from pedrl.trial.rollout import TrialStats, gather
@@ -104,11 +104,15 @@ class NetworkRun(LearningRun):
         **settings: the keys of the learner's ``settings_class`` (a :class:`NetworkConfig`).
     """
 
-    learner = NEURAL_LEARNER
     phase_word = "iteration"
     settings_class: ClassVar[type[NetworkConfig]]
     policy_class: type[NeuralPolicy] = NeuralPolicy
     """The class of the learned policy (its ``learner`` is the run's)."""
+
+    @property
+    def learner(self) -> str:  # type: ignore[override]
+        """The learner of the run's policy: its class's (``neural``, or ``continuous``)."""
+        return self.policy_class.learner
 
     def __init__(self, run: RunSpec, **settings: Any) -> None:
         if run.vq.factors is not None:  # a table's key

@@ -193,7 +193,7 @@ class PPO(NetworkRun):
                         f"algo.actions=continuous is invalid with env.action_frame={room.params.action_frame!r}: a "
                         "command sets the speed and the heading from the goal bearing (env.action_frame=goal)"
                     )
-            self.policy_class, self.learner = ContinuousPolicy, ContinuousPolicy.learner
+            self.policy_class = ContinuousPolicy
         self.outputs = COMMAND_WIDTH if self.continuous else self.env.num_actions
         self.settings = self.algo.update()
         check_memory(

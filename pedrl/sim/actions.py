@@ -108,12 +108,10 @@ def apply_actions(
     # index_select: plain indexing opens a parallel region for a few thousand indices already
     speed_change = speed_changes.index_select(0, speed_index).view_as(speeds)
     turn_change = turn_changes.index_select(0, turn_index).view_as(headings)
-    if bearings is None:
-        new_speeds = (speeds + speed_change).clamp_(0.0, max_speed)
-        new_headings = wrap_angle(headings + turn_change)
-    else:
-        new_speeds = speed_change.clamp(0.0, max_speed)
-        new_headings = wrap_angle(bearings + turn_change)
+    if bearings is not None:
+        return _toward_goal(speeds, headings, speed_change, turn_change, bearings, max_speed, active)
+    new_speeds = (speeds + speed_change).clamp_(0.0, max_speed)
+    new_headings = wrap_angle(headings + turn_change)
     return torch.where(active, new_speeds, speeds), torch.where(active, new_headings, headings)
 
 
@@ -127,8 +125,7 @@ def apply_action_kernel(room, active, speed, heading, action, position, target):
         return speed, heading
     speed_change, turn_change = room.speed_changes[action // NUM_TURNS], room.turn_changes[action % NUM_TURNS]
     if room.goal_frame:
-        bearing = np.arctan2(target[1] - position[1], target[0] - position[0])
-        return min(max(speed_change, np.float32(0.0)), room.max_speed), wrap(bearing + turn_change)
+        return _toward_goal_kernel(room, speed_change, turn_change, position, target)
     return min(max(speed + speed_change, np.float32(0.0)), room.max_speed), wrap(heading + turn_change)
 
 
@@ -154,9 +151,22 @@ def apply_commands(
     Returns:
         New ``speeds`` and ``headings`` ``(R, N)``.
     """
-    new_speeds = (commands[..., 0] * max_speed).clamp(0.0, max_speed)
-    new_headings = wrap_angle(bearings + commands[..., 1])
-    return torch.where(active, new_speeds, speeds), torch.where(active, new_headings, headings)
+    return _toward_goal(speeds, headings, commands[..., 0] * max_speed, commands[..., 1], bearings, max_speed, active)
+
+
+def _toward_goal(
+    speeds: torch.Tensor,
+    headings: torch.Tensor,
+    new_speeds: torch.Tensor,
+    offsets: torch.Tensor,
+    bearings: torch.Tensor,
+    max_speed: float,
+    active: torch.Tensor,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The ``goal`` frame's decision, of an action and of a command alike: the speed ``new_speeds`` (m/s) clipped to
+    ``[0, max_speed]`` and the heading ``bearings + offsets`` wrapped, for the ``active`` agents."""
+    new_headings = wrap_angle(bearings + offsets)
+    return torch.where(active, new_speeds.clamp(0.0, max_speed), speeds), torch.where(active, new_headings, headings)
 
 
 @cached_njit(nogil=True, inline="always")
@@ -165,8 +175,15 @@ def apply_command_kernel(room, active, speed, heading, ratio, offset, position, 
     :func:`apply_action_kernel`'s). Returns the new ``(speed, heading)``; an inactive agent keeps its own."""
     if not active:
         return speed, heading
+    return _toward_goal_kernel(room, ratio * room.max_speed, offset, position, target)
+
+
+@cached_njit(nogil=True, inline="always")
+def _toward_goal_kernel(room, speed, offset, position, target):
+    """:func:`_toward_goal` of one agent: the speed (m/s) clipped to the room's top speed, the heading ``offset``
+    from the bearing of ``target`` seen from ``position``."""
     bearing = np.arctan2(target[1] - position[1], target[0] - position[0])
-    return min(max(ratio * room.max_speed, np.float32(0.0)), room.max_speed), wrap(bearing + offset)
+    return min(max(speed, np.float32(0.0)), room.max_speed), wrap(bearing + offset)
 
 
 def commands_of(actions: torch.Tensor, *, speed_changes: torch.Tensor, turn_changes: torch.Tensor,
