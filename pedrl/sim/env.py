@@ -38,7 +38,7 @@ from pedrl.sim.motion import (
     move_agents_sliding,
 )
 from pedrl.sim.params import RoomParams
-from pedrl.sim.rewards import commanded_deviation, compute_rewards
+from pedrl.sim.rewards import commanded_deviation, compute_rewards, unpriced_in_company
 from pedrl.sim.room_checks import (
     check_actions,
     check_area,
@@ -376,8 +376,11 @@ class RoomEnv:
         speeds, headings = self.decide(actions, targets)
         table = self.params.rewards
         deviation = (
-            commanded_deviation(
-                speeds, headings, self.positions, targets, self.params.max_speed, self.params.deviation_turn
+            unpriced_in_company(
+                commanded_deviation(
+                    speeds, headings, self.positions, targets, self.params.max_speed, self.params.deviation_turn
+                ),
+                self.positions, acting, self.params.deviation_radius,
             )  # fmt: skip
             if table.deviation
             else None

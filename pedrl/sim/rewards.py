@@ -28,8 +28,10 @@ __all__ = [
     "RewardTable",
     "commanded_deviation",
     "compute_rewards",
+    "crowded_kernel",
     "deviation_kernel",
     "reward_kernel",
+    "unpriced_in_company",
 ]
 
 MAX_REWARD: Final = 1e6
@@ -38,6 +40,8 @@ over up to ``max_decisions`` decisions (bounded by ``max|r| / (1 - gamma)`` and 
 keeps them about 20 orders of magnitude below float32's 3.4e38 (``reward_goal=1e38`` learned inf and NaN tables)."""
 MAX_DEVIATION_TURN: Final = 10.0
 """Largest ``deviation_turn`` (the weight of the heading part of the deviation price) accepted."""
+MAX_DEVIATION_RADIUS: Final = 1000.0
+"""Largest ``deviation_radius`` (m) accepted."""
 SETTING_PREFIX: Final = "reward_"
 """A reward ``x`` of the table is the room's setting ``reward_x``."""
 
@@ -157,6 +161,21 @@ def commanded_deviation(
     return (1.0 - speeds / max_speed) + wrap_angle(headings - bearings).abs() / np.float32(np.pi) * turn
 
 
+def unpriced_in_company(
+    deviation: torch.Tensor, positions: torch.Tensor, present: torch.Tensor, radius: float
+) -> torch.Tensor:
+    """``deviation`` ``(R, N)`` where no other ``present`` agent of the room stands within ``radius`` m of the agent
+    (its centre, ``positions`` ``(R, N, 2)`` before the decision), 0 where one does: the room's
+    ``deviation_radius``, a price on deviating from the greedy walker's velocity only where a walker is free to walk
+    it. ``radius`` 0: ``deviation`` unchanged."""
+    if radius <= 0:
+        return deviation
+    gaps = (positions.unsqueeze(2) - positions.unsqueeze(1)).square().sum(dim=-1)  # squared, as the kernel compares
+    near = (gaps <= radius * radius) & present.unsqueeze(1)  # j stands near i
+    near = near & ~torch.eye(positions.shape[1], dtype=torch.bool, device=positions.device)
+    return torch.where(near.any(dim=-1), torch.zeros_like(deviation), deviation)
+
+
 @cached_njit(nogil=True, inline="always")
 def deviation_kernel(room, speed, heading, position, target):
     """:func:`commanded_deviation` of one agent, float32 (``position`` and ``target`` ``(x, y)``, m); 0 where the room
@@ -167,6 +186,20 @@ def deviation_kernel(room, speed, heading, position, target):
     return (np.float32(1.0) - speed / room.max_speed) + abs(wrap(heading - bearing)) / np.float32(
         np.pi
     ) * room.deviation_turn
+
+
+@cached_njit(nogil=True, inline="always")
+def crowded_kernel(room, r, i, positions, present):
+    """Whether another ``present`` agent of room ``r`` stands within the room's ``deviation_radius`` of agent ``i``
+    (:func:`unpriced_in_company` of one agent; False where the radius is 0)."""
+    radius = room.deviation_radius
+    if radius <= 0:
+        return False
+    x, y = positions[r, i, 0], positions[r, i, 1]
+    for j in range(positions.shape[1]):
+        if j != i and present[r, j] and (positions[r, j, 0] - x) ** 2 + (positions[r, j, 1] - y) ** 2 <= radius * radius:
+            return True
+    return False
 
 
 @cached_njit(nogil=True, inline="always")

@@ -13,7 +13,7 @@ from pedrl.sim.actions import apply_action_kernel, apply_command_kernel, velocit
 from pedrl.sim.motion.common import PAIR_MARGIN, STOP, KernelMoves
 from pedrl.sim.motion.sequential_kernel import sequential_constants, sequential_room
 from pedrl.sim.motion.sliding_kernel import sliding_constants, sliding_room
-from pedrl.sim.rewards import deviation_kernel, reward_kernel
+from pedrl.sim.rewards import crowded_kernel, deviation_kernel, reward_kernel
 
 __all__ = ["NO_COMMANDS", "ActScratch", "Events", "Work", "act_room", "act_scratch"]
 
@@ -144,6 +144,8 @@ def act_room(r, state, actions, commands, room, walls, exits, routes, work, even
             room, speeds[r, i], headings[r, i], (positions[r, i, 0], positions[r, i, 1]),
             (targets[r, i, 0], targets[r, i, 1]),
         )  # fmt: skip
+        if scratch.deviation[i] != zero and crowded_kernel(room, r, i, positions, active):
+            scratch.deviation[i] = zero
         old_x[i], old_y[i] = positions[r, i, 0], positions[r, i, 1]
         priority[i] = work.draws[r, i]
         if room.door_first:  # metres dominate, the uniform draw breaks ties

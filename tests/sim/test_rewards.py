@@ -21,9 +21,12 @@ from pedrl.sim.rewards import (
     RewardTable,
     commanded_deviation,
     compute_rewards,
+    crowded_kernel,
     deviation_kernel,
     reward_kernel,
+    unpriced_in_company,
 )
+from pedrl.trial.stepped import CompiledRoom
 
 
 def test_reward_priority_goal_then_wall_then_agent_then_default():
@@ -125,6 +128,54 @@ def test_the_deviation_prices_a_command_off_top_speed_straight_at_the_goal():
     _, turned, _, _, info = half.step(torch.full_like(greedy, 8 * 9 + 7))  # the turn priced at half
     plain = info["crashed_agent"] | info["crashed_wall"] | info["reached"]
     torch.testing.assert_close(turned[~plain], torch.full_like(turned[~plain], -1.0 - 8.0 * 0.125))
+
+
+def test_the_deviation_radius_prices_a_free_walker_alone():
+    """Analytic: with deviation_radius 2, the pair 1.5 m apart deviates for free, the walker 5 m from both pays, an
+    absent agent neither counts as company nor is priced beyond what it is given; radius 0 leaves the price as it is;
+    a bad radius gets one line."""
+    positions = torch.tensor([[[0.0, 0.0], [1.5, 0.0], [0.0, 5.0], [0.5, 0.0]]])
+    deviation = torch.full((1, 4), 0.5)
+    present = torch.tensor([[True, True, True, False]])
+    priced = unpriced_in_company(deviation, positions, present, radius=2.0)
+    torch.testing.assert_close(priced, torch.tensor([[0.0, 0.0, 0.5, 0.0]]))  # the absent one: only agent 0 near it
+    alone = unpriced_in_company(deviation, positions, torch.tensor([[True, False, True, False]]), radius=2.0)
+    torch.testing.assert_close(alone, torch.tensor([[0.5, 0.0, 0.5, 0.0]]))  # agent 0 alone once agent 1 left
+    assert unpriced_in_company(deviation, positions, present, radius=0.0) is deviation
+    with pytest.raises(ValueError, match=r"^deviation_radius=-1 is invalid: must be a number in \[0, 1000\]"):
+        paper_room().room(num_agents=2, deviation_radius=-1)
+
+
+@pytest.mark.skipif(not numba_available(), reason="numba")
+def test_the_deviation_radius_prices_alike_in_torch_and_in_the_kernels():
+    """The twins: crowded_kernel is unpriced_in_company's test, agent by agent, over random crowds of 2 rooms x 25
+    agents (some absent) and radii; in the compiled room a radius that takes in the whole room prices nothing (the
+    rewards of a room without the price), one below any gap between bodies prices everything (the rewards of radius
+    0), with the random draws the same."""
+    env = paper_room(width=10.0, length=12.0).room(num_agents=2, reward_deviation=-1.0, deviation_radius=1.0)
+    generator = torch.Generator().manual_seed(0)
+    positions = torch.rand(2, 25, 2, generator=generator) * 10
+    present = torch.rand(2, 25, generator=generator) < 0.8
+    for radius in (0.5, 1.0, 1.5):
+        room = env.params.kernel_room(env)._replace(deviation_radius=np.float32(radius))
+        unpriced = unpriced_in_company(torch.ones(2, 25), positions, present, radius) == 0
+        got = [[crowded_kernel(room, r, i, positions.numpy(), present.numpy()) for i in range(25)] for r in range(2)]
+        assert torch.equal(torch.tensor(got), unpriced) and 5 < int(unpriced.sum()) < 45, radius
+
+    def rewards(deviation: float, radius: float) -> list[torch.Tensor]:
+        compiled = CompiledRoom(paper_room(width=10.0, length=12.0).room(
+            num_replicas=2, num_agents=12, action_frame="goal", reward_deviation=deviation, deviation_radius=radius,
+            speed_ratios=[0, 0.2, 0.4, 0.6, 0.7, 0.8, 0.9, 0.95, 1],
+            turn_ratios=[-0.5, -0.25, -0.1, -0.05, 0, 0.05, 0.1, 0.25, 0.5],
+        ))  # fmt: skip
+        compiled.reset(seed=3)
+        generator = torch.Generator().manual_seed(1)
+        return [compiled.step(torch.randint(0, 81, (2, 12), generator=generator))[1] for _ in range(6)]
+
+    free, everywhere = rewards(0.0, 0.0), rewards(-2.0, 0.0)
+    assert all(torch.equal(a, b) for a, b in zip(rewards(-2.0, 100.0), free, strict=True))
+    assert all(torch.equal(a, b) for a, b in zip(rewards(-2.0, 0.01), everywhere, strict=True))
+    assert not all(torch.equal(a, b) for a, b in zip(free, everywhere, strict=True))
 
 
 @pytest.mark.skipif(not numba_available(), reason="numba")
