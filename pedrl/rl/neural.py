@@ -237,6 +237,16 @@ class NeuralPolicy:
         (:func:`pedrl.rl.policy.write_policy_file`)."""
         return write_policy_file(self, path)
 
+    def kernel_reason(self, env: Any) -> str | None:
+        """None: the network acts in torch between the compiled steps of any room the kernels run
+        (:class:`pedrl.trial.stepped.CompiledRoom`; the room's own reasons aside)."""
+        return None
+
+    def kernel_arrays(self) -> None:
+        """None: the fused trial reads no network; its controller is ``stepped``
+        (:meth:`kernel_reason`)."""
+        return None
+
     @classmethod
     def load(cls, path: str | Path, *, device: str | torch.device = "cpu") -> NeuralPolicy:
         """Read a neural policy file written by :meth:`save` (:func:`pedrl.rl.policy.read_policy_file`).

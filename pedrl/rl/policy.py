@@ -14,16 +14,19 @@ A room with more agents than were learned reuses the tables: with ``A = 20``, ag
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any, ClassVar, Final, Protocol, runtime_checkable
+from typing import Any, ClassVar, Final, NamedTuple, Protocol, runtime_checkable
 
+import numpy as np
 import torch
 
 from pedrl.common.checks import check_integer, check_number, first_line, shown
 from pedrl.io import CheckpointError, load_checkpoint, save_checkpoint
 from pedrl.rl.qtable import NUM_ACTIONS, epsilon_greedy, table_rows
 from pedrl.vq.encoder import EncoderSettings, StateEncoder, quantizer_from_state_dict
+from pedrl.vq.quantizer import Quantizer
 
 POLICY_KIND: Final = "pedrl-policy"
 """``kind`` of an exported policy file's metadata (a training checkpoint has none)."""
@@ -53,6 +56,10 @@ class LearnedPolicy(Protocol):
     A policy acts on the room's observations (``act``, or as a controller of the evaluation engine), carries plain
     ``metadata``, names its ``learner`` (the key of its file reader, :data:`POLICY_READERS`), and gives its state as
     named tensors (``tensors``), which :func:`write_policy_file` writes and :func:`read_policy_file` reads back.
+    It hands itself to the compiled trial: ``kernel_reason(env)`` says why the fused trial cannot run it in ``env``
+    (None where it can, the room's own reasons aside), and ``kernel_arrays()`` gives what the fused trial reads of
+    it, packed once per quantizer (:class:`KernelArrays`), or None for a policy that acts in torch between compiled
+    steps of the room (a network: :class:`pedrl.trial.stepped.CompiledRoom`).
     """
 
     learner: ClassVar[str]
@@ -84,6 +91,23 @@ class LearnedPolicy(Protocol):
     def tensors(self) -> dict[str, torch.Tensor]: ...
 
     def save(self, path: str | Path) -> Path: ...
+
+    def kernel_reason(self, env: Any) -> str | None: ...
+
+    def kernel_arrays(self) -> KernelArrays | None: ...
+
+
+class KernelArrays(NamedTuple):
+    """A policy as the fused trial reads it (:meth:`TabularPolicy.kernel_arrays`): its quantizer packed for the
+    encoding kernels (:func:`pedrl.vq.encode_kernel.pack_encoder`, a stub of one prototype under a factored table),
+    a factored quantizer's arrays (:func:`pedrl.vq.factored_kernel.pack_factored`, a stub of no slots otherwise), the
+    encoder's settings as the kernels read them, and the tables ``(P A K, U)`` as a view of the policy's own (the
+    learning trial updates them in place)."""
+
+    encoder: Any
+    factored: Any
+    settings: Any
+    table: np.ndarray
 
 
 PolicyReader = Callable[..., LearnedPolicy]
@@ -187,6 +211,16 @@ class TableLayout:
         return self._cache[key]
 
 
+@functools.lru_cache(maxsize=8)
+def one_state_encoder(settings: EncoderSettings) -> StateEncoder:
+    """An encoder of one state (a single zero prototype) for ``settings``, built once per settings: what the fused
+    trial's encoding arrays hold where no plain quantizer is read (the greedy walker's trial, a factored table)."""
+    width = settings.num_features
+    return StateEncoder(
+        settings, Quantizer(mean=torch.zeros(width), std=torch.ones(width), prototypes=torch.zeros(1, width))
+    )
+
+
 class TabularPolicy:
     """Acts epsilon-greedily on learned tables ``q_values (P, A, K, U)`` over ``encoder``'s state ids (a
     :class:`LearnedPolicy` of learner :data:`TABLE_LEARNER`).
@@ -235,6 +269,39 @@ class TabularPolicy:
     @property
     def device(self) -> torch.device:
         return self.q_values.device
+
+    def kernel_reason(self, env: Any) -> str | None:
+        """Why the fused trial cannot run these tables in ``env`` (one phrase), or None (the room's own reasons
+        aside: :func:`pedrl.trial.crowd.choose_path`)."""
+        if self.device.type != "cpu":
+            return f"on {self.device.type}: it runs on the CPU"
+        settings = self.encoder.settings
+        if (env.params.num_neighbours, env.params.num_walls) != (settings.num_neighbours, settings.num_walls):
+            return "in a room that senses other neighbour or wall slots than the encoder reads"
+        quantizer = self.encoder.quantizer
+        if quantizer is None:
+            return "with an encoder that has no quantizer"
+        parts = getattr(quantizer, "num_processes", self.num_processes)
+        if parts != self.num_processes or quantizer.num_prototypes != self.q_values.shape[2]:
+            return "with tables that do not match the quantizer (processes or prototypes)"
+        if self.q_values.dtype != torch.float32 or not self.q_values.is_contiguous():
+            return "with tables that are not contiguous float32"
+        return None
+
+    def kernel_arrays(self) -> KernelArrays:
+        """These tables as the fused trial reads them (:class:`KernelArrays`; the quantizer packed once, however
+        many policies share it)."""
+        from pedrl.vq.encode_kernel import pack_encoder
+        from pedrl.vq.factored_kernel import pack_factored
+
+        factored = pack_factored(self.encoder)
+        plain = one_state_encoder(self.encoder.settings) if factored.num_slots else self.encoder
+        return KernelArrays(
+            pack_encoder(plain, self.num_processes),
+            factored,
+            self.encoder.settings.kernel(),
+            self.q_values.view(-1, self.num_actions).numpy(),
+        )
 
     def rows(
         self,

@@ -380,7 +380,9 @@ class RoomEnv:
                 commanded_deviation(
                     speeds, headings, self.positions, targets, self.params.max_speed, self.params.deviation_turn
                 ),
-                self.positions, acting, self.params.deviation_radius,
+                self.positions,
+                acting,
+                self.params.deviation_radius,
             )  # fmt: skip
             if table.deviation
             else None

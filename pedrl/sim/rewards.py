@@ -195,9 +195,9 @@ def crowded_kernel(room, r, i, positions, present):
     radius = room.deviation_radius
     if radius <= 0:
         return False
-    x, y = positions[r, i, 0], positions[r, i, 1]
+    x, y, reach = positions[r, i, 0], positions[r, i, 1], radius * radius
     for j in range(positions.shape[1]):
-        if j != i and present[r, j] and (positions[r, j, 0] - x) ** 2 + (positions[r, j, 1] - y) ** 2 <= radius * radius:
+        if j != i and present[r, j] and (positions[r, j, 0] - x) ** 2 + (positions[r, j, 1] - y) ** 2 <= reach:
             return True
     return False
 

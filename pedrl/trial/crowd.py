@@ -29,7 +29,7 @@ import torch
 
 from pedrl._numba import numba_available
 from pedrl.common.recording import Recording
-from pedrl.rl.policy import PolicyController, TabularPolicy
+from pedrl.rl.policy import LearnedPolicy, PolicyController
 from pedrl.sim import RoomEnv
 from pedrl.sim.controllers import GreedyDoorController
 from pedrl.trial.fused import FusedTrace, Progress, record_trial_fused, run_trial_fused
@@ -122,8 +122,11 @@ def _reason(env: RoomEnv, controller: Any, *, record: bool, placed: bool) -> str
         if record or placed:
             return "a learning trial recorded or from placed agents"
         return _policy_reason(env, controller.policy)
-    if getattr(controller, "stepped", False):
-        return "a network's trial from placed agents" if placed else _room_reason(env)
+    if getattr(controller, "stepped", False):  # acts in torch between compiled decisions (a network)
+        if placed:
+            return "a network's trial from placed agents"
+        policy = getattr(controller, "policy", None)
+        return _room_reason(env) if policy is None else _policy_reason(env, policy)
     if isinstance(controller, PolicyController):
         return _policy_reason(env, controller.policy)
     if type(controller) is GreedyDoorController:
@@ -131,22 +134,10 @@ def _reason(env: RoomEnv, controller: Any, *, record: bool, placed: bool) -> str
     return f"with a {type(controller).__name__} (it runs learned policies and the greedy walker)"
 
 
-def _policy_reason(env: RoomEnv, policy: TabularPolicy) -> str | None:
-    """Why the fused trial cannot run ``policy`` in ``env`` (one phrase), or None when it can."""
-    if policy.device.type != "cpu":
-        return f"on {policy.device.type}: it runs on the CPU"
-    settings = policy.encoder.settings
-    if (env.params.num_neighbours, env.params.num_walls) != (settings.num_neighbours, settings.num_walls):
-        return "in a room that senses other neighbour or wall slots than the encoder reads"
-    quantizer = policy.encoder.quantizer
-    if quantizer is None:
-        return "with an encoder that has no quantizer"
-    parts = getattr(quantizer, "num_processes", policy.num_processes)
-    if parts != policy.num_processes or quantizer.num_prototypes != policy.q_values.shape[2]:
-        return "with tables that do not match the quantizer (processes or prototypes)"
-    if policy.q_values.dtype != torch.float32 or not policy.q_values.is_contiguous():
-        return "with tables that are not contiguous float32"
-    return _room_reason(env)
+def _policy_reason(env: RoomEnv, policy: LearnedPolicy) -> str | None:
+    """Why the fused trial cannot run ``policy`` in ``env`` (one phrase), or None when it can: the policy's own
+    reasons (:meth:`~pedrl.rl.policy.TabularPolicy.kernel_reason`), then the room's."""
+    return policy.kernel_reason(env) or _room_reason(env)
 
 
 def _room_reason(env: RoomEnv) -> str | None:

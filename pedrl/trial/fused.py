@@ -21,7 +21,7 @@ import numpy as np
 import torch
 
 from pedrl._numba import numba
-from pedrl.rl.policy import PolicyController, TabularPolicy
+from pedrl.rl.policy import PolicyController, TabularPolicy, one_state_encoder
 from pedrl.sim import RoomEnv
 from pedrl.sim.geometry import Exits, Walls
 from pedrl.sim.params import KernelRoom
@@ -29,8 +29,7 @@ from pedrl.sim.spawning import Routes
 from pedrl.sim.state import KernelState, RoomState
 from pedrl.trial.loop import Learner
 from pedrl.trial.stats import TOTALS, Totals, TrialStats
-from pedrl.vq.encoder import EncoderSettings, StateEncoder
-from pedrl.vq.quantizer import Quantizer
+from pedrl.vq.encoder import EncoderSettings
 
 __all__ = ["FusedTrace", "RoomInputs", "record_trial_fused", "room_inputs", "run_trial_fused", "set_kernel_threads"]
 
@@ -131,9 +130,7 @@ def _walker_policy(env: RoomEnv) -> TabularPolicy:
 @functools.lru_cache(maxsize=8)
 def _walker_policy_for(settings: EncoderSettings, num_actions: int) -> TabularPolicy:
     """:func:`_walker_policy`, built (and its quantizer packed) once per room settings, not once per batch."""
-    width = settings.num_features
-    quantizer = Quantizer(mean=torch.zeros(width), std=torch.ones(width), prototypes=torch.zeros(1, width))
-    return TabularPolicy(StateEncoder(settings, quantizer), torch.zeros(1, 1, 1, num_actions))
+    return TabularPolicy(one_state_encoder(settings), torch.zeros(1, 1, 1, num_actions))
 
 
 class RoomInputs(NamedTuple):
@@ -164,8 +161,6 @@ def _launch(env, policy, epsilon, generator, learn, alpha, gamma, *, record, gre
     from pedrl.sim.step_kernel import Events, Work
     from pedrl.sim.streams import seed_streams
     from pedrl.trial.fused_kernels import Learning, Observed, Trace, fused_trial
-    from pedrl.vq.encode_kernel import pack_encoder
-    from pedrl.vq.factored_kernel import pack_factored
 
     set_kernel_threads(torch.get_num_threads())
     if reset:
@@ -188,8 +183,8 @@ def _launch(env, policy, epsilon, generator, learn, alpha, gamma, *, record, gre
     part = max(1, PROGRESS_EVERY // (rooms * agents)) if progress is not None else 2**62
     learning = Learning(np.float32(epsilon), learn, np.float32(alpha), np.float32(gamma),
                         settings.void_draws == "decision", greedy, np.int64(part))  # fmt: skip
-    factored = pack_factored(None if greedy else policy.encoder)
-    packed = pack_encoder(_walker_policy(env).encoder if factored.num_slots else policy.encoder, policy.num_processes)
+    packed = policy.kernel_arrays()
+    factored = packed.factored
     inputs = room_inputs(env)
     scratch = (
         Work.allocate(rooms, agents, env.num_substeps),
@@ -197,8 +192,8 @@ def _launch(env, policy, epsilon, generator, learn, alpha, gamma, *, record, gre
         Observed.allocate(rooms, agents, env.num_features, int(factored.num_slots)),
         np.zeros((rooms, agents, 3 * settings.num_neighbours + 1 if random_void else 1), np.float32),
     )
-    arrays = (packed.arrays, packed.tree, packed.pruned, settings.kernel(), factored)
-    table, rows = policy.q_values.view(-1, policy.num_actions).numpy(), base_rows.view(rooms, agents).numpy()
+    arrays = (packed.encoder.arrays, packed.encoder.tree, packed.encoder.pruned, packed.settings, factored)
+    table, rows = packed.table, base_rows.view(rooms, agents).numpy()
     room_of = process.view(rooms, agents)[:, 0].contiguous().numpy()
     while True:  # one call, or parts of one trial (the same numbers)
         fused_trial(group, state, inputs.room, inputs.walls, inputs.exits, inputs.routes, *arrays, learning, table,

@@ -120,8 +120,6 @@ def check_twins(
     from pedrl.rl.kernels import td_batch, td_scratch, td_set_batch
     from pedrl.sim.sensing_kernel import room_search, sense_room
     from pedrl.sim.step_kernel import NO_COMMANDS, Events, Work, act_room, act_scratch
-    from pedrl.vq.encode_kernel import pack_encoder
-    from pedrl.vq.factored_kernel import pack_factored
 
     report = TwinReport(other=[])
     rooms, agents, params = env.num_replicas, env.num_agents, env.params
@@ -131,7 +129,8 @@ def check_twins(
     work, scratch = Work.allocate(rooms, agents, env.num_substeps), act_scratch(agents)
     events = Events.allocate(rooms, agents)
     factored = policy.encoder.num_slots is not None
-    encoder = pack_factored(policy.encoder) if factored else pack_encoder(policy.encoder, policy.num_processes)
+    packed = policy.kernel_arrays()
+    encoder = packed.factored if factored else packed.encoder
     process = policy.layout.of(rooms, agents, env.device)[0].view(rooms, agents)[:, 0].tolist()
     angles = _angle_columns(env)
     table = policy.q_values.view(-1, policy.num_actions)

@@ -170,3 +170,26 @@ def test_every_learner_writes_one_policy_file_and_each_reader_takes_only_its_own
         read_policy_file(paths["neural"])
     _rewrite(paths["table"], lambda t, m: m.pop("learner"))  # as files of tables were written before the key
     torch.testing.assert_close(TabularPolicy.load(paths["table"]).q_values, tables.q_values)
+
+
+def test_a_policy_hands_itself_to_the_compiled_trial():
+    """Tables give the fused trial their arrays, the quantizer packed once however many policies share it, the
+    tables a view that sees updates in place; a network gives none (it acts between compiled steps); each names why
+    the fused trial cannot run it where it cannot (on another device, tables that do not match the quantizer)."""
+    from pedrl.rl.network import QNetwork
+    from pedrl.rl.neural import NeuralPolicy
+
+    tables, env, *_ = small_policy()
+    arrays = tables.kernel_arrays()
+    again = TabularPolicy(tables.encoder, tables.q_values).kernel_arrays()
+    assert again.encoder is arrays.encoder and arrays.factored.num_slots == 0
+    tables.q_values[1, 2, 3, 4] = 123.0
+    assert arrays.table.shape == (2 * 5 * 6, 81) and arrays.table[((1 * 5 + 2) * 6 + 3), 4] == 123.0
+    assert tables.kernel_reason(env) is None
+    mismatched = TabularPolicy(tables.encoder, torch.zeros(2, 5, 7, 81))
+    assert mismatched.kernel_reason(env) == "with tables that do not match the quantizer (processes or prototypes)"
+    settings = tables.encoder.settings
+    network = QNetwork(1, settings.num_features + settings.num_neighbours, (8,), 81)
+    neural = NeuralPolicy(StateEncoder(settings), network, torch.zeros(settings.num_features),
+                          torch.ones(settings.num_features))  # fmt: skip
+    assert neural.kernel_arrays() is None and neural.kernel_reason(env) is None
