@@ -33,15 +33,19 @@ ifndef SEED
 SEED := $(shell python3 -c 'import random; print(random.randrange(2**32))')
 endif
 
-# one test process per core (pytest-xdist; JOBS=1: one process, the tests in one order)
+# one test process per core (pytest-xdist; JOBS=1: one process, the tests in one order); numba's two largest kernels
+# are compiled first, in two processes at once (tests/warm_kernels.py), so that the test processes load them from
+# numba's cache instead of each compiling its own
 JOBS ?= $(shell nproc 2>/dev/null || echo 1)
 
 test: setup ## the fast test suite (not slow), one process per core, in a random order whose seed it prints
 	@echo "test order: --randomly-seed=$(SEED) (rerun this order: make test SEED=$(SEED) JOBS=$(JOBS))"
+	$(PY) -m tests.warm_kernels
 	OMP_NUM_THREADS=1 $(PY) -m pytest -q -p randomly --randomly-seed=$(SEED) -n $(JOBS) -m "not slow" $(ARGS)
 
 test-all: setup ## every test, slow ones included, in a random order whose seed it prints
 	@echo "test order: --randomly-seed=$(SEED) (rerun this order: make test-all SEED=$(SEED) JOBS=$(JOBS))"
+	$(PY) -m tests.warm_kernels
 	OMP_NUM_THREADS=1 $(PY) -m pytest -q -p randomly --randomly-seed=$(SEED) -n $(JOBS) $(ARGS)
 
 lint: setup ## ruff check and format check
