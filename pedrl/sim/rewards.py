@@ -19,6 +19,7 @@ import torch
 from pedrl._numba import cached_njit
 from pedrl.common.checks import check_number
 from pedrl.sim.geometry import wrap_angle
+from pedrl.sim.pairs import close_pairs
 from pedrl.sim.sensing_kernel import wrap
 
 __all__ = [
@@ -170,10 +171,15 @@ def unpriced_in_company(
     it. ``radius`` 0: ``deviation`` unchanged."""
     if radius <= 0:
         return deviation
-    gaps = (positions.unsqueeze(2) - positions.unsqueeze(1)).square().sum(dim=-1)  # squared, as the kernel compares
-    near = (gaps <= radius * radius) & present.unsqueeze(1)  # j stands near i
-    near = near & ~torch.eye(positions.shape[1], dtype=torch.bool, device=positions.device)
-    return torch.where(near.any(dim=-1), torch.zeros_like(deviation), deviation)
+    # the close pairs in linear memory (pedrl.sim.pairs), found below a limit a hair over the radius; the kernel's
+    # test, a squared gap at most radius ** 2 in float32, then decides
+    room, i, j = close_pairs(positions, radius * (1.0 + 1e-6))
+    near = (positions[room, i] - positions[room, j]).square().sum(dim=-1) <= radius * radius
+    room, i, j = room[near], i[near], j[near]
+    crowded = torch.zeros_like(present)
+    crowded[room[present[room, j]], i[present[room, j]]] = True  # j stands near i
+    crowded[room[present[room, i]], j[present[room, i]]] = True  # and i near j
+    return torch.where(crowded, torch.zeros_like(deviation), deviation)
 
 
 @cached_njit(nogil=True, inline="always")

@@ -149,9 +149,9 @@ def test_the_deviation_radius_prices_a_free_walker_alone():
 @pytest.mark.skipif(not numba_available(), reason="numba")
 def test_the_deviation_radius_prices_alike_in_torch_and_in_the_kernels():
     """The twins: crowded_kernel is unpriced_in_company's test, agent by agent, over random crowds of 2 rooms x 25
-    agents (some absent) and radii; in the compiled room a radius that takes in the whole room prices nothing (the
-    rewards of a room without the price), one below any gap between bodies prices everything (the rewards of radius
-    0), with the random draws the same."""
+    agents (some absent) and radii, and over one of 600; in the compiled room a radius that takes in the whole room
+    prices nothing (the rewards of a room without the price), one below any gap between bodies prices everything (the
+    rewards of radius 0), with the random draws the same."""
     env = paper_room(width=10.0, length=12.0).room(num_agents=2, reward_deviation=-1.0, deviation_radius=1.0)
     generator = torch.Generator().manual_seed(0)
     positions = torch.rand(2, 25, 2, generator=generator) * 10
@@ -161,6 +161,13 @@ def test_the_deviation_radius_prices_alike_in_torch_and_in_the_kernels():
         unpriced = unpriced_in_company(torch.ones(2, 25), positions, present, radius) == 0
         got = [[crowded_kernel(room, r, i, positions.numpy(), present.numpy()) for i in range(25)] for r in range(2)]
         assert torch.equal(torch.tensor(got), unpriced) and 5 < int(unpriced.sum()) < 45, radius
+    # a crowd of 600, where the torch function finds its pairs through grids of cells (pedrl.sim.pairs)
+    positions = torch.rand(1, 600, 2, generator=generator) * 60
+    present = torch.rand(1, 600, generator=generator) < 0.8
+    unpriced = unpriced_in_company(torch.ones(1, 600), positions, present, 1.5) == 0
+    room = env.params.kernel_room(env)._replace(deviation_radius=np.float32(1.5))
+    got = [[crowded_kernel(room, 0, i, positions.numpy(), present.numpy()) for i in range(600)]]
+    assert torch.equal(torch.tensor(got), unpriced) and 100 < int(unpriced.sum()) < 500
 
     def rewards(deviation: float, radius: float) -> list[torch.Tensor]:
         compiled = CompiledRoom(paper_room(width=10.0, length=12.0).room(
