@@ -27,6 +27,7 @@ HISTORICAL_VALUES: Final = {
     "env.reward_deviation": 0.0,
     "env.deviation_turn": 1.0,
     "env.deviation_radius": 0.0,
+    "env.deviation_gate": "company",
     "algo.value_transfer": False,
     "algo.head": "joint",
     "algo.replay_balance": "none",

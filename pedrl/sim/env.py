@@ -383,6 +383,9 @@ class RoomEnv:
                 self.positions,
                 acting,
                 self.params.deviation_radius,
+                oncoming=(velocities_from(speeds=speeds, headings=headings), targets)
+                if self.params.deviation_gate == "oncoming"
+                else None,
             )  # fmt: skip
             if table.deviation
             else None

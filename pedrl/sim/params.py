@@ -183,6 +183,10 @@ class RoomParams:
         deviation_radius: Price that deviation only where no other walker of the room stands within this distance
             (m, in ``[0, MAX_DEVIATION_RADIUS]``) of the deciding walker: a walker in company deviates for free, a
             free walker pays (:func:`pedrl.sim.rewards.unpriced_in_company`); 0 (the default): priced everywhere.
+        deviation_gate: Who within that radius frees a walker from the price
+            (:data:`pedrl.sim.rewards.DEVIATION_GATES`): ``"company"`` (the default), any other walker; ``"oncoming"``,
+            only one ahead of it on the line to its goal that commands a velocity against that line, so that walkers
+            going the same way pay as a free walker does.
         compile_sensing: Run the sensing through ``torch.compile`` (inductor; needs a C++ compiler on CPU). Off by
             default: about a third of the sensing saved for 10 to 30 s of compilation per process, and features that
             differ from the eager ones in the last bits (docs/configuration.md).
@@ -224,6 +228,7 @@ class RoomParams:
     reward_deviation: float = setting(ANY, kernel(np.float32), REWARD_DEFAULTS["reward_deviation"])
     deviation_turn: float = setting(ANY, kernel(np.float32), 1.0)
     deviation_radius: float = setting(ANY, kernel(np.float32), 0.0)
+    deviation_gate: str = setting(ANY, kernel(lambda gate: gate == "oncoming", "deviation_oncoming"), "company")
     compile_sensing: bool = setting(only(False), host("the fast path senses in its own kernel"), False)
     action_frame: str = setting(ANY, kernel(lambda frame: frame == "goal", "goal_frame"), "heading")
     # every model but Simultaneous (Stop only with axis-aligned walls: RoomEnv.fast_path_reason); its time_step

@@ -29,6 +29,7 @@ __all__ = [
     "RewardTable",
     "commanded_deviation",
     "compute_rewards",
+    "DEVIATION_GATES",
     "crowded_kernel",
     "deviation_kernel",
     "reward_kernel",
@@ -43,6 +44,9 @@ MAX_DEVIATION_TURN: Final = 10.0
 """Largest ``deviation_turn`` (the weight of the heading part of the deviation price) accepted."""
 MAX_DEVIATION_RADIUS: Final = 1000.0
 """Largest ``deviation_radius`` (m) accepted."""
+DEVIATION_GATES: Final = ("company", "oncoming")
+"""Values of ``deviation_gate``: who, within ``deviation_radius``, frees a walker from the deviation price (any other
+walker, or only one ahead of it on the line to its goal that commands a velocity against that line)."""
 SETTING_PREFIX: Final = "reward_"
 """A reward ``x`` of the table is the room's setting ``reward_x``."""
 
@@ -163,12 +167,20 @@ def commanded_deviation(
 
 
 def unpriced_in_company(
-    deviation: torch.Tensor, positions: torch.Tensor, present: torch.Tensor, radius: float
+    deviation: torch.Tensor,
+    positions: torch.Tensor,
+    present: torch.Tensor,
+    radius: float,
+    *,
+    oncoming: tuple[torch.Tensor, torch.Tensor] | None = None,
 ) -> torch.Tensor:
     """``deviation`` ``(R, N)`` where no other ``present`` agent of the room stands within ``radius`` m of the agent
     (its centre, ``positions`` ``(R, N, 2)`` before the decision), 0 where one does: the room's
     ``deviation_radius``, a price on deviating from the greedy walker's velocity only where a walker is free to walk
-    it. ``radius`` 0: ``deviation`` unchanged."""
+    it. ``radius`` 0: ``deviation`` unchanged. With ``oncoming`` = ``(velocities, targets)`` ``(R, N, 2)`` (the
+    decision's commanded velocities and goal points; ``deviation_gate="oncoming"``) only an oncoming walker frees
+    agent ``i``: one within the radius, ahead of it (``(p_j - p_i) . (t_i - p_i) > 0``) and commanding a velocity
+    against its line to its goal (``v_j . (t_i - p_i) < 0``); walkers going its way do not."""
     if radius <= 0:
         return deviation
     # the close pairs in linear memory (pedrl.sim.pairs), found below a limit a hair over the radius; the kernel's
@@ -176,10 +188,28 @@ def unpriced_in_company(
     room, i, j = close_pairs(positions, radius * (1.0 + 1e-6))
     near = (positions[room, i] - positions[room, j]).square().sum(dim=-1) <= radius * radius
     room, i, j = room[near], i[near], j[near]
+    frees_i, frees_j = present[room, j], present[room, i]  # j near i frees i, i near j frees j
+    if oncoming is not None:
+        velocities, targets = oncoming
+        frees_i = frees_i & _oncoming(positions, velocities, targets, room, i, j)
+        frees_j = frees_j & _oncoming(positions, velocities, targets, room, j, i)
     crowded = torch.zeros_like(present)
-    crowded[room[present[room, j]], i[present[room, j]]] = True  # j stands near i
-    crowded[room[present[room, i]], j[present[room, i]]] = True  # and i near j
+    crowded[room[frees_i], i[frees_i]] = True
+    crowded[room[frees_j], j[frees_j]] = True
     return torch.where(crowded, torch.zeros_like(deviation), deviation)
+
+
+def _oncoming(
+    positions: torch.Tensor, velocities: torch.Tensor, targets: torch.Tensor, room: torch.Tensor, i: torch.Tensor,
+    j: torch.Tensor,
+) -> torch.Tensor:  # fmt: skip
+    """Whether agent ``j`` is oncoming for agent ``i`` (pairs ``(room, i, j)``): ahead of ``i`` on its line to its
+    goal and commanding a velocity against it; the kernel's sums, component by component."""
+    line = targets[room, i] - positions[room, i]
+    gap = positions[room, j] - positions[room, i]
+    velocity = velocities[room, j]
+    ahead = gap[:, 0] * line[:, 0] + gap[:, 1] * line[:, 1] > 0
+    return ahead & (velocity[:, 0] * line[:, 0] + velocity[:, 1] * line[:, 1] < 0)
 
 
 @cached_njit(nogil=True, inline="always")
@@ -195,15 +225,25 @@ def deviation_kernel(room, speed, heading, position, target):
 
 
 @cached_njit(nogil=True, inline="always")
-def crowded_kernel(room, r, i, positions, present):
-    """Whether another ``present`` agent of room ``r`` stands within the room's ``deviation_radius`` of agent ``i``
-    (:func:`unpriced_in_company` of one agent; False where the radius is 0)."""
+def crowded_kernel(room, r, i, positions, present, velocities, targets):
+    """Whether another ``present`` agent of room ``r`` frees agent ``i`` from the deviation price
+    (:func:`unpriced_in_company` of one agent): it stands within the room's ``deviation_radius`` of ``i``, and under
+    the ``oncoming`` gate is ahead of ``i`` on its line to its goal (``targets``) commanding a velocity
+    (``velocities``) against that line; False where the radius is 0."""
     radius = room.deviation_radius
     if radius <= 0:
         return False
     x, y, reach = positions[r, i, 0], positions[r, i, 1], radius * radius
+    line_x, line_y = targets[r, i, 0] - x, targets[r, i, 1] - y
     for j in range(positions.shape[1]):
-        if j != i and present[r, j] and (positions[r, j, 0] - x) ** 2 + (positions[r, j, 1] - y) ** 2 <= reach:
+        if j == i or not present[r, j]:
+            continue
+        gap_x, gap_y = positions[r, j, 0] - x, positions[r, j, 1] - y
+        if gap_x**2 + gap_y**2 > reach:
+            continue
+        if not room.deviation_oncoming:
+            return True
+        if gap_x * line_x + gap_y * line_y > 0 and velocities[r, j, 0] * line_x + velocities[r, j, 1] * line_y < 0:
             return True
     return False
 

@@ -144,8 +144,6 @@ def act_room(r, state, actions, commands, room, walls, exits, routes, work, even
             room, speeds[r, i], headings[r, i], (positions[r, i, 0], positions[r, i, 1]),
             (targets[r, i, 0], targets[r, i, 1]),
         )  # fmt: skip
-        if scratch.deviation[i] != zero and crowded_kernel(room, r, i, positions, active):
-            scratch.deviation[i] = zero
         old_x[i], old_y[i] = positions[r, i, 0], positions[r, i, 1]
         priority[i] = work.draws[r, i]
         if room.door_first:  # metres dominate, the uniform draw breaks ties
@@ -153,6 +151,9 @@ def act_room(r, state, actions, commands, room, walls, exits, routes, work, even
             priority[i] = distance + priority[i] * np.float32(1e-3)
         present[r, i] = active[r, i]
         blocked[r, i] = cut_wall[r, i] = cut_body[r, i] = reached[r, i] = False
+    for i in range(num_agents):  # after every command is set: the oncoming gate reads the others' velocities
+        if scratch.deviation[i] != zero and crowded_kernel(room, r, i, positions, active, velocities, targets):
+            scratch.deviation[i] = zero
     order[r, :] = np.argsort(priority)
     if contact == STOP:
         per_substep = np.float32(length / substeps)

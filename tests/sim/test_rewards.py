@@ -146,28 +146,62 @@ def test_the_deviation_radius_prices_a_free_walker_alone():
         paper_room().room(num_agents=2, deviation_radius=-1)
 
 
+def test_only_an_oncoming_walker_frees_a_walker_under_the_oncoming_gate():
+    """Analytic, in a corridor along x (goals at x = +-20, radius 4 m): A (walking east) and B (1 m ahead of it,
+    walking west) meet and deviate for free; C (3.5 m behind A, walking east, B out of its reach) is company under the
+    company gate but pays under the oncoming one; once A turns round (walks west) B pays (A ahead of it goes its way)
+    and C goes free (A ahead of it comes at it); D, alone, pays under both; a bad gate gets one line."""
+    positions = torch.tensor([[[0.0, 0.0], [1.0, 0.0], [-3.5, 0.0], [0.0, 30.0]]])
+    east, west = [20.0, 0.0], [-20.0, 0.0]
+    targets = torch.tensor([[east, west, east, [0.0, 50.0]]])
+    velocities = torch.tensor([[[1.3, 0.0], [-1.3, 0.0], [1.3, 0.0], [0.0, 1.3]]])
+    deviation, present = torch.full((1, 4), 0.5), torch.ones(1, 4, dtype=torch.bool)
+    company = unpriced_in_company(deviation, positions, present, radius=4.0)
+    torch.testing.assert_close(company, torch.tensor([[0.0, 0.0, 0.0, 0.5]]))
+    oncoming = unpriced_in_company(deviation, positions, present, radius=4.0, oncoming=(velocities, targets))
+    torch.testing.assert_close(oncoming, torch.tensor([[0.0, 0.0, 0.5, 0.5]]))  # C follows A: nobody comes at C
+    turned = velocities.clone()
+    turned[0, 0] = torch.tensor([-1.3, 0.0])  # A walks west, away from its goal
+    after = unpriced_in_company(deviation, positions, present, radius=4.0, oncoming=(turned, targets))
+    torch.testing.assert_close(after, torch.tensor([[0.0, 0.5, 0.0, 0.5]]))  # B still comes at A
+    with pytest.raises(ValueError, match=r"^deviation_gate='ahead' is invalid: must be one of"):
+        paper_room().room(num_agents=2, deviation_gate="ahead")
+
+
 @pytest.mark.skipif(not numba_available(), reason="numba")
 def test_the_deviation_radius_prices_alike_in_torch_and_in_the_kernels():
-    """The twins: crowded_kernel is unpriced_in_company's test, agent by agent, over random crowds of 2 rooms x 25
-    agents (some absent) and radii, and over one of 600; in the compiled room a radius that takes in the whole room
+    """The twins: crowded_kernel is unpriced_in_company's test, agent by agent, under both gates, over random crowds
+    of 2 rooms x 25 agents (some absent, random velocities and goals) and radii, and over one of 600; in the compiled
+    room a radius that takes in the whole room
     prices nothing (the rewards of a room without the price), one below any gap between bodies prices everything (the
     rewards of radius 0), with the random draws the same."""
     env = paper_room(width=10.0, length=12.0).room(num_agents=2, reward_deviation=-1.0, deviation_radius=1.0)
     generator = torch.Generator().manual_seed(0)
     positions = torch.rand(2, 25, 2, generator=generator) * 10
     present = torch.rand(2, 25, generator=generator) < 0.8
-    for radius in (0.5, 1.0, 1.5):
-        room = env.params.kernel_room(env)._replace(deviation_radius=np.float32(radius))
-        unpriced = unpriced_in_company(torch.ones(2, 25), positions, present, radius) == 0
-        got = [[crowded_kernel(room, r, i, positions.numpy(), present.numpy()) for i in range(25)] for r in range(2)]
-        assert torch.equal(torch.tensor(got), unpriced) and 5 < int(unpriced.sum()) < 45, radius
+    velocities, targets = torch.randn(2, 25, 2, generator=generator), torch.rand(2, 25, 2, generator=generator) * 10
+
+    def kernel_unpriced(room, positions, present, velocities, targets):
+        arrays = (positions.numpy(), present.numpy(), velocities.numpy(), targets.numpy())
+        rooms, agents = present.shape
+        return torch.tensor([[crowded_kernel(room, r, i, *arrays) for i in range(agents)] for r in range(rooms)])
+
+    for radius, oncoming in itertools.product((0.5, 1.0, 1.5, 3.0), (False, True)):
+        room = env.params.kernel_room(env)._replace(deviation_radius=np.float32(radius), deviation_oncoming=oncoming)
+        gate = (velocities, targets) if oncoming else None
+        unpriced = unpriced_in_company(torch.ones(2, 25), positions, present, radius, oncoming=gate) == 0
+        got = kernel_unpriced(room, positions, present, velocities, targets)
+        assert torch.equal(got, unpriced) and 2 < int(unpriced.sum()) < 50, (radius, oncoming)
     # a crowd of 600, where the torch function finds its pairs through grids of cells (pedrl.sim.pairs)
     positions = torch.rand(1, 600, 2, generator=generator) * 60
     present = torch.rand(1, 600, generator=generator) < 0.8
-    unpriced = unpriced_in_company(torch.ones(1, 600), positions, present, 1.5) == 0
-    room = env.params.kernel_room(env)._replace(deviation_radius=np.float32(1.5))
-    got = [[crowded_kernel(room, 0, i, positions.numpy(), present.numpy()) for i in range(600)]]
-    assert torch.equal(torch.tensor(got), unpriced) and 100 < int(unpriced.sum()) < 500
+    velocities, targets = torch.randn(1, 600, 2, generator=generator), torch.rand(1, 600, 2, generator=generator) * 60
+    for oncoming in (False, True):
+        gate = (velocities, targets) if oncoming else None
+        unpriced = unpriced_in_company(torch.ones(1, 600), positions, present, 1.5, oncoming=gate) == 0
+        room = env.params.kernel_room(env)._replace(deviation_radius=np.float32(1.5), deviation_oncoming=oncoming)
+        got = kernel_unpriced(room, positions, present, velocities, targets)
+        assert torch.equal(got, unpriced) and 40 < int(unpriced.sum()) < 500, oncoming
 
     def rewards(deviation: float, radius: float) -> list[torch.Tensor]:
         compiled = CompiledRoom(paper_room(width=10.0, length=12.0).room(

@@ -100,12 +100,21 @@ def test_the_continuous_motion_matches_through_whole_trials(name, contact):
         assert report.decisions >= 10 and report.agent_decisions > 100  # real trials
 
 
-@pytest.mark.parametrize(("frame", "motion"), [("goal", "continuous"), ("heading", "step")])
-def test_the_deviation_reward_matches_through_whole_trials(frame, motion):
-    """reward_deviation, the price of a command off the greedy walker's velocity, on both paths."""
-    policy = scenario_policies("bottleneck")["shared"]
+@pytest.mark.parametrize(
+    ("name", "frame", "motion", "gate"),
+    [
+        ("bottleneck", "goal", "continuous", {}),
+        ("bottleneck", "heading", "step", {}),
+        ("bottleneck", "goal", "continuous", {"deviation_radius": 2.0}),
+        ("corridor", "goal", "continuous", {"deviation_radius": 2.0, "deviation_gate": "oncoming"}),
+    ],
+)
+def test_the_deviation_reward_matches_through_whole_trials(name, frame, motion, gate):
+    """reward_deviation, the price of a command off the greedy walker's velocity, on both paths; also priced only
+    where nobody stands within 2 m, and (in the counterflow corridor) only where no oncoming walker does."""
+    policy = scenario_policies(name)["shared"]
     policy.q_values.normal_(generator=torch.Generator().manual_seed(1))
-    report = check_twins(room("bottleneck", "yield", frame, motion, reward_deviation=-5.0), policy, seed=7)
+    report = check_twins(room(name, "yield", frame, motion, reward_deviation=-5.0, **gate), policy, seed=7)
     assert report.failures() == []
     assert report.decisions >= 10 and report.agent_decisions > 100
 
