@@ -23,13 +23,13 @@ from pedrl.sim.pairs import close_pairs
 from pedrl.sim.sensing_kernel import wrap
 
 __all__ = [
+    "DEVIATION_GATES",
     "MAX_REWARD",
     "REWARD_DEFAULTS",
     "SETTING_PREFIX",
     "RewardTable",
     "commanded_deviation",
     "compute_rewards",
-    "DEVIATION_GATES",
     "crowded_kernel",
     "deviation_kernel",
     "reward_kernel",
