@@ -117,6 +117,12 @@ def _healing_cache_class() -> type:
     from numba.core.caching import FunctionCache
 
     class HealingCache(FunctionCache):
+        def __init__(self, py_func: Callable[..., Any]) -> None:
+            super().__init__(py_func)
+            # numba dates a cache by its kernel's own file: a kernel inlined from another module (a reward, a
+            # gate) left a caller's cache that still ran the old code; the stamp also dates every kernel module
+            self._cache_file._source_stamp = (self._cache_file._source_stamp, kernel_sources_stamp())
+
         def load_overload(self, sig: Any, target_context: Any) -> Any:
             try:
                 loaded = super().load_overload(sig, target_context)
@@ -149,6 +155,25 @@ def _healing_cache_class() -> type:
             compiled_done(f"{self._py_func.__module__}.{self._py_func.__qualname__}")
 
     return HealingCache
+
+
+@functools.cache
+def kernel_sources_stamp() -> tuple[tuple[str, int, int], ...]:
+    """The modification time and size of every pedrl module that defines numba kernels (``@cached_njit``), by path
+    within the package: part of every kernel's cache stamp, so that editing any kernel module compiles every kernel
+    again (numba itself dates a cache by the kernel's own file only, not by the kernels of other modules it calls)."""
+    root = os.path.dirname(os.path.abspath(__file__))
+    stamps = []
+    for folder, _, names in sorted(os.walk(root)):
+        for name in sorted(names):
+            path = os.path.join(folder, name)
+            if name.endswith(".py") and path != os.path.abspath(__file__):
+                with open(path, encoding="utf-8") as source:
+                    if "@cached_njit" not in source.read():
+                        continue
+                stat = os.stat(path)
+                stamps.append((os.path.relpath(path, root), stat.st_mtime_ns, stat.st_size))
+    return tuple(stamps)
 
 
 def compiled_done(kernel: str) -> None:

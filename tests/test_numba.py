@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from pedrl._numba import COMPILED, COMPILING, numba_available
+from pedrl._numba import COMPILED, COMPILING, kernel_sources_stamp, numba_available
 
 pytestmark = pytest.mark.skipif(not numba_available(), reason="numba is off (PEDRL_NO_NUMBA)")
 
@@ -20,9 +20,10 @@ print(greedy_kernel(q_values, torch.tensor([1, 0, 1]), torch.zeros(3)).tolist())
 """
 
 
-def run_kernels(cache_dir) -> subprocess.CompletedProcess:
+def run_kernels(cache_dir, prelude: str = "") -> subprocess.CompletedProcess:
     env = {**os.environ, "NUMBA_CACHE_DIR": str(cache_dir), "OMP_NUM_THREADS": "1"}
-    return subprocess.run([sys.executable, "-c", SCRIPT], env=env, capture_output=True, text=True, timeout=300)
+    script = prelude + SCRIPT
+    return subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
 
 
 def test_a_corrupt_kernel_cache_is_rebuilt_with_one_line(tmp_path):
@@ -46,6 +47,23 @@ def test_a_corrupt_kernel_cache_is_rebuilt_with_one_line(tmp_path):
     again = run_kernels(tmp_path)  # the rewritten cache loads: no notice
     assert again.returncode == 0 and again.stdout.strip() == "[0, 1, 0]"
     assert again.stderr.strip() == "", again.stderr
+
+
+def test_an_edited_kernel_module_compiles_every_kernel_again(tmp_path):
+    """numba dates a cache by its kernel's own file; a kernel that inlines another module's (the step kernel the
+    reward's) kept running the old code after that module was edited. The stamp of every kernel's cache also dates
+    every kernel module: a warm cache is silent, and the same cache under another stamp of those modules (an edit,
+    simulated) compiles the kernels again."""
+    modules = {path.replace(os.sep, "/") for path, _, _ in kernel_sources_stamp()}
+    assert {"sim/rewards.py", "sim/step_kernel.py", "rl/kernels.py"} <= modules
+    assert "common/checks.py" not in modules  # no kernels there
+    assert run_kernels(tmp_path).returncode == 0
+    warm = run_kernels(tmp_path)
+    assert warm.returncode == 0 and warm.stderr.strip() == "", warm.stderr
+    edited = "import pedrl._numba\npedrl._numba.kernel_sources_stamp = lambda: (('sim/rewards.py', 1, 1),)\n"
+    again = run_kernels(tmp_path, prelude=edited)
+    assert again.returncode == 0 and again.stdout.strip() == "[0, 1, 0]"
+    assert again.stderr.startswith(COMPILING.split("{")[0]), again.stderr
 
 
 # A tiny kernel of its own module (numba caches a function of a file only), compiled in well under a second.
