@@ -172,9 +172,8 @@ def test_only_an_oncoming_walker_frees_a_walker_under_the_oncoming_gate():
 def test_the_deviation_radius_prices_alike_in_torch_and_in_the_kernels():
     """The twins: crowded_kernel is unpriced_in_company's test, agent by agent, under both gates, over random crowds
     of 2 rooms x 25 agents (some absent, random velocities and goals) and radii, and over one of 600; in the compiled
-    room a radius that takes in the whole room
-    prices nothing (the rewards of a room without the price), one below any gap between bodies prices everything (the
-    rewards of radius 0), with the random draws the same."""
+    room a radius that takes in the whole room prices nothing (the rewards of a room without the price), one below any
+    gap between bodies prices everything (the rewards of radius 0), with the random draws the same."""
     env = paper_room(width=10.0, length=12.0).room(num_agents=2, reward_deviation=-1.0, deviation_radius=1.0)
     generator = torch.Generator().manual_seed(0)
     positions = torch.rand(2, 25, 2, generator=generator) * 10
