@@ -374,23 +374,18 @@ class RoomEnv:
 
         # ---- decide: new speeds and headings
         speeds, headings = self.decide(actions, targets)
-        table = self.params.rewards
-        deviation = (
-            unpriced_in_company(
-                commanded_deviation(
-                    speeds, headings, self.positions, targets, self.params.max_speed, self.params.deviation_turn
-                ),
+        commanded = velocities_from(speeds=speeds, headings=headings)
+        table, params = self.params.rewards, self.params
+        deviation = None
+        if table.deviation:
+            deviation = unpriced_in_company(
+                commanded_deviation(speeds, headings, self.positions, targets, params.max_speed, params.deviation_turn),
                 self.positions,
                 acting,
-                self.params.deviation_radius,
-                oncoming=(velocities_from(speeds=speeds, headings=headings), targets)
-                if self.params.deviation_gate == "oncoming"
-                else None,
-            )  # fmt: skip
-            if table.deviation
-            else None
-        )
-        movement, speeds, velocities = self._move(acting, speeds, headings, targets)
+                params.deviation_radius,
+                oncoming=(commanded, targets) if params.deviation_gate == "oncoming" else None,
+            )
+        movement, speeds, velocities = self._move(acting, speeds, headings, commanded, targets)
         progress = self._goal_distance(self.positions, targets) - self._goal_distance(movement.positions, targets)
 
         # ---- end of trial: door, then the clock
@@ -453,11 +448,15 @@ class RoomEnv:
     # ------------------------------------------------------------------ internals
 
     def _move(
-        self, acting: torch.Tensor, speeds: torch.Tensor, headings: torch.Tensor, targets: torch.Tensor
+        self,
+        acting: torch.Tensor,
+        speeds: torch.Tensor,
+        headings: torch.Tensor,
+        velocities: torch.Tensor,
+        targets: torch.Tensor,
     ) -> tuple[Movement, torch.Tensor, torch.Tensor]:
-        """Move the ``acting`` agents at the new ``speeds`` and ``headings``, sub-stepped, by the motion model: the
-        movement, and the speeds and velocities after it."""
-        velocities = velocities_from(speeds=speeds, headings=headings)
+        """Move the ``acting`` agents at the new ``speeds`` and ``headings`` (their ``velocities``), sub-stepped, by
+        the motion model: the movement, and the speeds and velocities after it."""
         bodies = dict(positions=self.positions, velocities=velocities, active=acting)
         model, constants = self.motion, self.motion_constants
         if model.rule == "sequential":
