@@ -28,6 +28,10 @@ HISTORICAL_VALUES: Final = {
     "env.deviation_turn": 1.0,
     "env.deviation_radius": 0.0,
     "env.deviation_gate": "company",
+    "env.reward_passing": 0.0,
+    "env.passing_radius": 4.0,
+    "env.passing_band": 0.8,
+    "env.passing_side": "either",
     "algo.value_transfer": False,
     "algo.head": "joint",
     "algo.replay_balance": "none",
@@ -42,7 +46,7 @@ HISTORICAL_VALUES: Final = {
 """Keys added after checkpoints were first written, with the value the runs of older checkpoints had (one table per
 agent, raw distances and void fillings drawn at every encode came before their keys; every trial ran the torch loop
 before the fused one; the neural learner's first networks had the joint head, a uniform memory and the 28 features
-alone and one-step returns; no run paid for deviation before its key)."""
+alone and one-step returns; no run paid for deviation or passing before its key)."""
 MAX_CONFIG_DEPTH: Final = 16
 """Deepest nesting of a stored config (a run's config is 4 deep: ``scenario.exits[0][1]``)."""
 MAX_CONFIG_STRING: Final = 4096

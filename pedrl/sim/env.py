@@ -38,7 +38,7 @@ from pedrl.sim.motion import (
     move_agents_sliding,
 )
 from pedrl.sim.params import RoomParams
-from pedrl.sim.rewards import commanded_deviation, compute_rewards, unpriced_in_company
+from pedrl.sim.rewards import commanded_deviation, compute_rewards, unpriced_in_company, wrong_side_passing
 from pedrl.sim.room_checks import (
     check_actions,
     check_area,
@@ -385,6 +385,12 @@ class RoomEnv:
                 params.deviation_radius,
                 oncoming=(commanded, targets) if params.deviation_gate == "oncoming" else None,
             )
+        passing = None
+        if table.passing:
+            passing = wrong_side_passing(
+                self.positions, commanded, targets, acting, params.passing_radius, params.passing_band,
+                params.passing_side,
+            )  # fmt: skip
         movement, speeds, velocities = self._move(acting, speeds, headings, commanded, targets)
         progress = self._goal_distance(self.positions, targets) - self._goal_distance(movement.positions, targets)
 
@@ -410,6 +416,7 @@ class RoomEnv:
             acting=acting,
             progress=progress,
             deviation=deviation,
+            passing=passing,
         )
         observation = self._observe(observers=in_room, sensed=in_room)
         info = self._info(

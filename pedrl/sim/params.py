@@ -27,7 +27,7 @@ import torch
 from pedrl.sim.actions import DEFAULT_SPEED_RATIOS, DEFAULT_TURN_RATIOS
 from pedrl.sim.motion import CONTACT_MODELS, Continuous, Headway, MotionModel, Slide, Stop, Yield
 from pedrl.sim.motion.common import STEERING_NAMES, neighbour_search, steering_constant
-from pedrl.sim.rewards import REWARD_DEFAULTS, RewardTable
+from pedrl.sim.rewards import PASSING_SIDES, REWARD_DEFAULTS, RewardTable
 from pedrl.sim.room_checks import check_substeps, check_time_steps, checked_settings
 
 __all__ = [
@@ -187,6 +187,16 @@ class RoomParams:
             (:data:`pedrl.sim.rewards.DEVIATION_GATES`): ``"company"`` (the default), any other walker; ``"oncoming"``,
             only one ahead of it on the line to its goal that commands a velocity against that line, so that walkers
             going the same way pay as a free walker does.
+        reward_passing: Reward per decision in which an oncoming walker within ``passing_radius`` ahead of the agent
+            is on the wrong side of its line to its goal (``<= 0``; 0, the default, and the paper: none;
+            :func:`pedrl.sim.rewards.wrong_side_passing`).
+        passing_radius: How far ahead (m, in ``[0, MAX_DEVIATION_RADIUS]``; 4, the default) an oncoming walker
+            counts for ``reward_passing``.
+        passing_band: How far off the agent's line to its goal (m, in ``[0, MAX_DEVIATION_RADIUS]``; 0.8, the
+            default) an oncoming walker must be, on the side ``passing_side`` asks, for ``reward_passing`` not to be
+            paid.
+        passing_side: That side (:data:`pedrl.sim.rewards.PASSING_SIDES`): ``"either"`` (the default), ``"right"``
+            (the agent keeps right: the oncoming walker on its left) or ``"left"``.
         compile_sensing: Run the sensing through ``torch.compile`` (inductor; needs a C++ compiler on CPU). Off by
             default: about a third of the sensing saved for 10 to 30 s of compilation per process, and features that
             differ from the eager ones in the last bits (docs/configuration.md).
@@ -229,6 +239,10 @@ class RoomParams:
     deviation_turn: float = setting(ANY, kernel(np.float32), 1.0)
     deviation_radius: float = setting(ANY, kernel(np.float32), 0.0)
     deviation_gate: str = setting(ANY, kernel(lambda gate: gate == "oncoming", "deviation_oncoming"), "company")
+    reward_passing: float = setting(ANY, kernel(np.float32), REWARD_DEFAULTS["reward_passing"])
+    passing_radius: float = setting(ANY, kernel(np.float32), 4.0)
+    passing_band: float = setting(ANY, kernel(np.float32), 0.8)
+    passing_side: str = setting(ANY, kernel(PASSING_SIDES.index), "either")
     compile_sensing: bool = setting(only(False), host("the fast path senses in its own kernel"), False)
     action_frame: str = setting(ANY, kernel(lambda frame: frame == "goal", "goal_frame"), "heading")
     # every model but Simultaneous (Stop only with axis-aligned walls: RoomEnv.fast_path_reason); its time_step

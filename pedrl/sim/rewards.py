@@ -25,6 +25,7 @@ from pedrl.sim.sensing_kernel import wrap
 __all__ = [
     "DEVIATION_GATES",
     "MAX_REWARD",
+    "PASSING_SIDES",
     "REWARD_DEFAULTS",
     "SETTING_PREFIX",
     "RewardTable",
@@ -32,8 +33,10 @@ __all__ = [
     "compute_rewards",
     "crowded_kernel",
     "deviation_kernel",
+    "passing_kernel",
     "reward_kernel",
     "unpriced_in_company",
+    "wrong_side_passing",
 ]
 
 MAX_REWARD: Final = 1e6
@@ -47,6 +50,10 @@ MAX_DEVIATION_RADIUS: Final = 1000.0
 DEVIATION_GATES: Final = ("company", "oncoming")
 """Values of ``deviation_gate``: who, within ``deviation_radius``, frees a walker from the deviation price (any other
 walker, or only one ahead of it on the line to its goal that commands a velocity against that line)."""
+PASSING_SIDES: Final = ("either", "right", "left")
+"""Values of ``passing_side``: where an oncoming walker within ``passing_radius`` ahead must be, ``passing_band`` m or
+more off the deciding walker's line to its goal, for ``reward_passing`` not to be paid: on either side, on its left
+(the walker keeps right), on its right (it keeps left)."""
 SETTING_PREFIX: Final = "reward_"
 """A reward ``x`` of the table is the room's setting ``reward_x``."""
 
@@ -79,6 +86,11 @@ class RewardTable:
             (:func:`commanded_deviation`, in ``[0, 1 + deviation_turn]``). Where the motion model caps what any
             command walks (a queue), decisions that walk alike differ by it, and the straight one at top speed is the
             best.
+        passing: Per decision in which an oncoming walker (one within ``passing_radius`` m ahead of the agent on its
+            line to its goal, commanding a velocity against that line) is on that line's wrong side of
+            ``passing_band``: nearer than that to the line (``passing_side="either"``), or not that far to its left
+            (``"right"``: keep right, the norm Chen et al. 2017 taught by such a price) or to its right (``"left"``)
+            (added to the above; at most 0; 0, the default, and in the paper: none; :func:`wrong_side_passing`).
     """
 
     goal: float = _reward(100.0)
@@ -87,6 +99,7 @@ class RewardTable:
     default: float = _reward(-1.0)
     progress: float = _reward(1.0, low=0.0)
     deviation: float = _reward(0.0, high=0.0)
+    passing: float = _reward(0.0, high=0.0)
 
     def __post_init__(self) -> None:
         for item in fields(self):
@@ -119,12 +132,13 @@ def compute_rewards(
     acting: torch.Tensor,
     progress: torch.Tensor | None = None,
     deviation: torch.Tensor | None = None,
+    passing: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Reward of each agent for one decision.
 
     ``goal`` if it reached the door, else ``crash_wall`` if it hit a wall, else ``crash_agent`` if it hit an
-    agent, else ``default``; plus ``table.progress * progress`` and ``table.deviation * deviation``; 0 for agents that
-    did not act (inactive at the start of the decision).
+    agent, else ``default``; plus ``table.progress * progress``, ``table.deviation * deviation`` and ``table.passing``
+    where ``passing``; 0 for agents that did not act (inactive at the start of the decision).
 
     Args:
         table: The reward values.
@@ -135,6 +149,7 @@ def compute_rewards(
         progress: How much closer to its goal point the decision brought each agent ``(R, N)`` (m); None: no
             progress term.
         deviation: :func:`commanded_deviation` of each agent's decision ``(R, N)``; None: no deviation term.
+        passing: :func:`wrong_side_passing` of each agent's decision ``(R, N)`` bool; None: no passing term.
 
     Returns:
         Rewards ``(R, N)`` float32.
@@ -147,6 +162,8 @@ def compute_rewards(
         reward = reward + torch.where(acting, table.progress * progress, 0.0)
     if table.deviation and deviation is not None:
         reward = reward + torch.where(acting, table.deviation * deviation, 0.0)
+    if table.passing and passing is not None:
+        reward = reward + torch.where(acting & passing, table.passing, 0.0)
     return reward
 
 
@@ -212,6 +229,40 @@ def _oncoming(
     return ahead & (velocity[:, 0] * line[:, 0] + velocity[:, 1] * line[:, 1] < 0)
 
 
+def wrong_side_passing(
+    positions: torch.Tensor,
+    velocities: torch.Tensor,
+    targets: torch.Tensor,
+    present: torch.Tensor,
+    radius: float,
+    band: float,
+    side: str,
+) -> torch.Tensor:
+    """Whether an oncoming walker is on the wrong side of each agent ``(R, N)`` bool (``reward_passing``'s
+    decisions): another ``present`` agent ``j`` within ``radius`` m of agent ``i`` (centres ``positions`` ``(R, N,
+    2)`` before the decision), ahead of it on its line to its goal point (``targets``) and commanding a velocity
+    (``velocities``, the decision's) against that line, whose signed distance from that line (``> 0``: to its left)
+    is under ``band`` in size (``side="either"``), under ``band`` (``"right"``: ``i`` keeps ``j`` on its left) or
+    over ``-band`` (``"left"``). ``radius`` 0: False everywhere."""
+    wrong = torch.zeros_like(present)
+    if radius <= 0:
+        return wrong
+    room, i, j = close_pairs(positions, radius * (1.0 + 1e-6))
+    near = (positions[room, i] - positions[room, j]).square().sum(dim=-1) <= radius * radius
+    room, i, j = room[near], i[near], j[near]
+    for a, b in ((i, j), (j, i)):  # j for i, then i for j
+        line = targets[room, a] - positions[room, a]
+        gap = positions[room, b] - positions[room, a]
+        facing = present[room, a] & present[room, b] & _oncoming(positions, velocities, targets, room, a, b)
+        lateral = (line[:, 0] * gap[:, 1] - line[:, 1] * gap[:, 0]) / torch.sqrt(line[:, 0] * line[:, 0] + line[:, 1] * line[:, 1])
+        if side == "either":
+            facing = facing & (lateral.abs() < band)
+        else:
+            facing = facing & ((lateral < band) if side == "right" else (lateral > -band))
+        wrong[room[facing], a[facing]] = True
+    return wrong
+
+
 @cached_njit(nogil=True, inline="always")
 def deviation_kernel(room, speed, heading, position, target):
     """:func:`commanded_deviation` of one agent, float32 (``position`` and ``target`` ``(x, y)``, m); 0 where the room
@@ -249,10 +300,37 @@ def crowded_kernel(room, r, i, positions, present, velocities, targets):
 
 
 @cached_njit(nogil=True, inline="always")
-def reward_kernel(room, acting, reached, crashed_wall, crashed_agent, start, end, target, deviation):
+def passing_kernel(room, r, i, positions, present, velocities, targets):
+    """:func:`wrong_side_passing` of agent ``i`` of room ``r`` (the room's ``passing_radius``, ``passing_band`` and
+    ``passing_side``, the index of :data:`PASSING_SIDES`); False where the room prices no passing."""
+    radius = room.passing_radius
+    if room.reward_passing == 0 or radius <= 0 or not present[r, i]:
+        return False
+    x, y, reach, band = positions[r, i, 0], positions[r, i, 1], radius * radius, room.passing_band
+    line_x, line_y = targets[r, i, 0] - x, targets[r, i, 1] - y
+    length = np.sqrt(line_x * line_x + line_y * line_y)
+    for j in range(positions.shape[1]):
+        if j == i or not present[r, j]:
+            continue
+        gap_x, gap_y = positions[r, j, 0] - x, positions[r, j, 1] - y
+        if gap_x**2 + gap_y**2 > reach:
+            continue
+        if gap_x * line_x + gap_y * line_y <= 0 or velocities[r, j, 0] * line_x + velocities[r, j, 1] * line_y >= 0:
+            continue  # behind, or going i's way
+        lateral = (line_x * gap_y - line_y * gap_x) / length
+        if room.passing_side == 0 and abs(lateral) < band:
+            return True
+        if (room.passing_side == 1 and lateral < band) or (room.passing_side == 2 and lateral > -band):
+            return True
+    return False
+
+
+@cached_njit(nogil=True, inline="always")
+def reward_kernel(room, acting, reached, crashed_wall, crashed_agent, start, end, target, deviation, passing):
     """:func:`compute_rewards` of one agent, float32: ``room`` is :class:`pedrl.sim.params.KernelRoom` (its
     ``reward_<name>`` entries), the flags bools, ``start`` and ``end`` the agent's centre before and after the decision
-    and ``target`` its goal point, each ``(x, y)`` (m), ``deviation`` its decision's :func:`deviation_kernel`."""
+    and ``target`` its goal point, each ``(x, y)`` (m), ``deviation`` its decision's :func:`deviation_kernel` and
+    ``passing`` its :func:`passing_kernel`."""
     if not acting:
         return np.float32(0.0)
     value = room.reward_default
@@ -267,4 +345,6 @@ def reward_kernel(room, acting, reached, crashed_wall, crashed_agent, start, end
     value = value + room.reward_progress * (before - after)
     if room.reward_deviation != 0:
         value = value + room.reward_deviation * deviation
+    if passing:
+        value = value + room.reward_passing
     return value

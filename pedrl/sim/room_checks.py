@@ -14,7 +14,13 @@ from pedrl.common.checks import check_bool, check_choice, check_integer, check_n
 from pedrl.sim.actions import ACTION_FRAMES, COMMAND_WIDTH, NOOP_INDEX, NUM_SPEED_CHANGES, count_substeps
 from pedrl.sim.geometry import Geometry, extent
 from pedrl.sim.motion import MOTION_MODELS, MotionModel
-from pedrl.sim.rewards import DEVIATION_GATES, MAX_DEVIATION_RADIUS, MAX_DEVIATION_TURN, RewardTable
+from pedrl.sim.rewards import (
+    DEVIATION_GATES,
+    MAX_DEVIATION_RADIUS,
+    MAX_DEVIATION_TURN,
+    PASSING_SIDES,
+    RewardTable,
+)
 from pedrl.sim.routing import MAX_QUEUE_WEIGHT
 
 OPTION_KEYS: Final = ("positions", "headings", "speeds", "replicas")
@@ -215,6 +221,9 @@ def checked_settings(params: Any) -> dict[str, Any]:
         "deviation_radius", params.deviation_radius, low=0.0, high=MAX_DEVIATION_RADIUS
     )
     checked["deviation_gate"] = check_choice("deviation_gate", params.deviation_gate, DEVIATION_GATES)
+    for name in ("passing_radius", "passing_band"):
+        checked[name] = check_number(name, getattr(params, name), low=0.0, high=MAX_DEVIATION_RADIUS)
+    checked["passing_side"] = check_choice("passing_side", params.passing_side, PASSING_SIDES)
     substep = check_substep_length(params.substep_length, radius)
     checked["substep_length"] = None if params.substep_length is None else substep
     checked["motion"] = check_motion(params.motion)

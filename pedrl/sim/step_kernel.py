@@ -13,7 +13,7 @@ from pedrl.sim.actions import apply_action_kernel, apply_command_kernel, velocit
 from pedrl.sim.motion.common import PAIR_MARGIN, STOP, KernelMoves
 from pedrl.sim.motion.sequential_kernel import sequential_constants, sequential_room
 from pedrl.sim.motion.sliding_kernel import sliding_constants, sliding_room
-from pedrl.sim.rewards import crowded_kernel, deviation_kernel, reward_kernel
+from pedrl.sim.rewards import crowded_kernel, deviation_kernel, passing_kernel, reward_kernel
 
 __all__ = ["NO_COMMANDS", "ActScratch", "Events", "Work", "act_room", "act_scratch"]
 
@@ -90,6 +90,7 @@ class ActScratch(NamedTuple):
     current: np.ndarray
     rank_of: np.ndarray
     deviation: np.ndarray
+    passing: np.ndarray
 
 
 @cached_njit(nogil=True)
@@ -99,7 +100,8 @@ def act_scratch(num_agents):
                       np.empty(num_agents, np.float32), np.empty(num_agents, np.float32),
                       np.empty(num_agents, np.bool_), np.empty(num_agents, np.bool_),
                       np.empty((num_agents, 2), np.float32),
-                      np.empty(num_agents, np.int64), np.zeros(num_agents, np.float32))  # fmt: skip
+                      np.empty(num_agents, np.int64), np.zeros(num_agents, np.float32),
+                      np.zeros(num_agents, np.bool_))  # fmt: skip
 
 
 @cached_njit(nogil=True)
@@ -151,9 +153,10 @@ def act_room(r, state, actions, commands, room, walls, exits, routes, work, even
             priority[i] = distance + priority[i] * np.float32(1e-3)
         present[r, i] = active[r, i]
         blocked[r, i] = cut_wall[r, i] = cut_body[r, i] = reached[r, i] = False
-    for i in range(num_agents):  # after every command is set: the oncoming gate reads the others' velocities
+    for i in range(num_agents):  # after every command is set: the oncoming walkers' tests read the others' velocities
         if scratch.deviation[i] != zero and crowded_kernel(room, r, i, positions, active, velocities, targets):
             scratch.deviation[i] = zero
+        scratch.passing[i] = passing_kernel(room, r, i, positions, active, velocities, targets)
     order[r, :] = np.argsort(priority)
     if contact == STOP:
         per_substep = np.float32(length / substeps)
@@ -196,7 +199,7 @@ def act_room(r, state, actions, commands, room, walls, exits, routes, work, even
         goal[r, i] = reached[r, i] and _own_exit(r, i, new_x, new_y, exit_index, routes, exits.goals)
         reward[r, i] = reward_kernel(
             room, acting[r, i], goal[r, i], crashed_wall[r, i], crashed_agent[r, i], (old_x[i], old_y[i]),
-            (new_x, new_y), (targets[r, i, 0], targets[r, i, 1]), scratch.deviation[i],
+            (new_x, new_y), (targets[r, i, 0], targets[r, i, 1]), scratch.deviation[i], scratch.passing[i],
         )  # fmt: skip
         positions[r, i, 0], positions[r, i, 1] = new_x, new_y
         if routes.waypoints.shape[2] > 0:

@@ -17,14 +17,17 @@ from pedrl.scenarios import paper_room
 from pedrl.sim.controllers import GreedyDoorController
 from pedrl.sim.params import RoomParams
 from pedrl.sim.rewards import (
+    PASSING_SIDES,
     REWARD_DEFAULTS,
     RewardTable,
     commanded_deviation,
     compute_rewards,
     crowded_kernel,
     deviation_kernel,
+    passing_kernel,
     reward_kernel,
     unpriced_in_company,
+    wrong_side_passing,
 )
 from pedrl.trial.stepped import CompiledRoom
 
@@ -168,6 +171,64 @@ def test_only_an_oncoming_walker_frees_a_walker_under_the_oncoming_gate():
         paper_room().room(num_agents=2, deviation_gate="ahead")
 
 
+def test_the_passing_price_finds_an_oncoming_walker_on_the_wrong_side():
+    """Analytic, in a corridor along x (radius 4 m, band 0.8 m): A walks east; B, 2 m ahead walking west, is 0.5 m to
+    A's left (and A 0.5 m to B's left); C, 3 m ahead walking west, is 1 m to A's right (A 1 m to C's right); D walks
+    east 2 m behind A. Under ``either`` A and B pay (0.5 m apart), C does not (1 m); under ``right`` C pays too (A is
+    on its right, not its left); under ``left`` A and B pay (each has the other on its left) and C does not; D, with
+    nobody coming at it within 4 m, never pays; nor does anyone with the radius 0; once B walks east (its goal still
+    west) A stops paying for it and B still pays for A."""
+    positions = torch.tensor([[[0.0, 0.0], [2.0, 0.5], [3.0, -1.0], [-2.0, 0.0]]])
+    targets = torch.tensor([[[20.0, 0.0], [-20.0, 0.5], [-20.0, -1.0], [20.0, 0.0]]])
+    velocities = torch.tensor([[[1.3, 0.0], [-1.3, 0.0], [-1.3, 0.0], [1.3, 0.0]]])
+    present = torch.ones(1, 4, dtype=torch.bool)
+    expected = {"either": [True, True, False, False], "right": [True, True, True, False],
+                "left": [True, True, False, False]}  # fmt: skip
+    for side, wrong in expected.items():
+        got = wrong_side_passing(positions, velocities, targets, present, 4.0, 0.8, side)
+        assert got.tolist() == [wrong], side
+    assert not wrong_side_passing(positions, velocities, targets, present, 0.0, 0.8, "right").any()
+    turned = velocities.clone()
+    turned[0, 1, 0] = 1.3  # B walks east, A's way
+    got = wrong_side_passing(positions, turned, targets, present, 4.0, 0.8, "either")
+    assert got.tolist() == [[False, True, False, False]]  # A no longer pays for B; A still comes at B
+    env = paper_room().room(num_agents=4, reward_passing=-2.0)
+    table = env.params.rewards
+    flags = torch.zeros(1, 4, dtype=torch.bool)
+    priced = compute_rewards(table=table, reached=flags, crashed_wall=flags, crashed_agent=flags,
+                             acting=torch.tensor([[True, True, True, False]]),
+                             passing=torch.tensor([[True, False, True, True]]))  # fmt: skip
+    torch.testing.assert_close(priced, torch.tensor([[-3.0, -1.0, -3.0, 0.0]]))  # the time cost -1, then -2
+    with pytest.raises(ValueError, match=r"^passing_side='middle' is invalid: must be one of"):
+        paper_room().room(num_agents=2, passing_side="middle")
+    with pytest.raises(ValueError, match=r"^passing_band=-1 is invalid: must be a number in \[0, 1000\]"):
+        paper_room().room(num_agents=2, passing_band=-1)
+    with pytest.raises(ValueError, match=r"^reward_passing=1 is invalid: must be a number in \[-1e\+06, 0\]"):
+        RewardTable(passing=1)
+
+
+@pytest.mark.skipif(not numba_available(), reason="numba")
+def test_the_passing_price_is_alike_in_torch_and_in_the_kernel():
+    """The twins: passing_kernel is wrong_side_passing, agent by agent, for each side and several radii and bands,
+    over random crowds of 2 rooms x 25 agents (some absent, random velocities and goals) and one of 600."""
+    env = paper_room(width=10.0, length=12.0).room(num_agents=2, reward_passing=-1.0)
+    generator = torch.Generator().manual_seed(0)
+    for rooms, agents, size in ((2, 25, 10.0), (1, 600, 60.0)):
+        positions = torch.rand(rooms, agents, 2, generator=generator) * size
+        present = torch.rand(rooms, agents, generator=generator) < 0.8
+        velocities = torch.randn(rooms, agents, 2, generator=generator)
+        targets = torch.rand(rooms, agents, 2, generator=generator) * size
+        arrays = (positions.numpy(), present.numpy(), velocities.numpy(), targets.numpy())
+        for (side_index, side), radius, band in itertools.product(enumerate(PASSING_SIDES), (1.5, 4.0), (0.3, 0.8)):
+            room = env.params.kernel_room(env)._replace(
+                passing_radius=np.float32(radius), passing_band=np.float32(band), passing_side=side_index
+            )
+            expected = wrong_side_passing(positions, velocities, targets, present, radius, band, side)
+            got = torch.tensor([[passing_kernel(room, r, i, *arrays) for i in range(agents)] for r in range(rooms)])
+            assert torch.equal(got, expected), (agents, side, radius, band)
+            assert 0 < int(expected.sum()) < int(present.sum()), (agents, side, radius, band)
+
+
 @pytest.mark.skipif(not numba_available(), reason="numba")
 def test_the_deviation_radius_prices_alike_in_torch_and_in_the_kernels():
     """The twins: crowded_kernel is unpriced_in_company's test, agent by agent, under both gates, over random crowds
@@ -220,10 +281,10 @@ def test_the_deviation_radius_prices_alike_in_torch_and_in_the_kernels():
 
 @pytest.mark.skipif(not numba_available(), reason="numba")
 def test_the_kernel_is_the_torch_function_of_one_agent():
-    """The twins agree on every combination of flags, with progress and the deviation price."""
+    """The twins agree on every combination of flags, with progress, the deviation price and the passing price."""
     env = paper_room(width=10.0, length=12.0).room(
         num_agents=2, reward_goal=100.0, reward_crash_wall=-15.5, reward_crash_agent=-4.25, reward_progress=1.5,
-        reward_deviation=-2.5, deviation_turn=0.25,
+        reward_deviation=-2.5, deviation_turn=0.25, reward_passing=-1.75,
     )  # fmt: skip
     room = env.params.kernel_room(env)
     flags = torch.tensor(list(itertools.product([False, True], repeat=4))).T.reshape(4, 1, 16)
@@ -233,6 +294,7 @@ def test_the_kernel_is_the_torch_function_of_one_agent():
     progress = torch.hypot(*(start - target).unbind(-1)) - torch.hypot(*(end - target).unbind(-1))
     speed, heading = torch.rand(1, 16, generator=generator) * 2.5, (torch.rand(1, 16, generator=generator) - 0.5) * 6
     deviation = commanded_deviation(speed, heading, start, target, env.params.max_speed, env.params.deviation_turn)
+    passing = torch.rand(1, 16, generator=generator) < 0.5
     expected = compute_rewards(
         table=env.params.rewards,
         reached=reached,
@@ -241,6 +303,7 @@ def test_the_kernel_is_the_torch_function_of_one_agent():
         acting=acting,
         progress=progress,
         deviation=deviation,
+        passing=passing,
     )
     point = lambda values, i: (np.float32(values[0, i, 0]), np.float32(values[0, i, 1]))  # noqa: E731
     got = [
@@ -249,6 +312,7 @@ def test_the_kernel_is_the_torch_function_of_one_agent():
             point(start, i), point(end, i), point(target, i),
             deviation_kernel(room, np.float32(speed[0, i]), np.float32(heading[0, i]), point(start, i),
                              point(target, i)),
+            passing[0, i].item(),
         )
         for i in range(16)
     ]  # fmt: skip

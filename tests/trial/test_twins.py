@@ -107,11 +107,13 @@ def test_the_continuous_motion_matches_through_whole_trials(name, contact):
         ("bottleneck", "heading", "step", {}),
         ("bottleneck", "goal", "continuous", {"deviation_radius": 2.0}),
         ("corridor", "goal", "continuous", {"deviation_radius": 2.0, "deviation_gate": "oncoming"}),
+        ("corridor", "goal", "continuous", {"reward_passing": -3.0, "passing_side": "right", "passing_band": 0.5}),
     ],
 )
 def test_the_deviation_reward_matches_through_whole_trials(name, frame, motion, gate):
     """reward_deviation, the price of a command off the greedy walker's velocity, on both paths; also priced only
-    where nobody stands within 2 m, and (in the counterflow corridor) only where no oncoming walker does."""
+    where nobody stands within 2 m, and (in the counterflow corridor) only where no oncoming walker does; with it the
+    price of passing an oncoming walker on the wrong side."""
     policy = scenario_policies(name)["shared"]
     policy.q_values.normal_(generator=torch.Generator().manual_seed(1))
     report = check_twins(room(name, "yield", frame, motion, reward_deviation=-5.0, **gate), policy, seed=7)
