@@ -254,7 +254,8 @@ def wrong_side_passing(
         line = targets[room, a] - positions[room, a]
         gap = positions[room, b] - positions[room, a]
         facing = present[room, a] & present[room, b] & _oncoming(positions, velocities, targets, room, a, b)
-        lateral = (line[:, 0] * gap[:, 1] - line[:, 1] * gap[:, 0]) / torch.sqrt(line[:, 0] * line[:, 0] + line[:, 1] * line[:, 1])
+        length = torch.sqrt(line[:, 0] * line[:, 0] + line[:, 1] * line[:, 1])
+        lateral = (line[:, 0] * gap[:, 1] - line[:, 1] * gap[:, 0]) / length
         if side == "either":
             facing = facing & (lateral.abs() < band)
         else:
