@@ -71,6 +71,8 @@ class PPOConfig(NetworkConfig):
         normalize_advantages: standardise the advantages within each minibatch (CleanRL's default).
         actions: the action head (:data:`ACTION_HEADS`); ``continuous`` needs ``env.action_frame=goal``.
         init_std: the continuous head's first standard deviation (of the Gaussian before the squash; learned after).
+        heading_prior: the weight of the continuous head's pull of its mean heading towards the goal bearing in every
+            state (:mod:`pedrl.rl.ppo`; 0: none; only with ``actions=continuous``).
     """
 
     learning_rate: float = 3e-4
@@ -84,6 +86,7 @@ class PPOConfig(NetworkConfig):
     normalize_advantages: bool = True
     actions: str = "discrete"
     init_std: float = 1.0
+    heading_prior: float = 0.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -96,6 +99,12 @@ class PPOConfig(NetworkConfig):
         check_bool("normalize_advantages", self.normalize_advantages)
         check_choice("actions", self.actions, ACTION_HEADS)
         check_number("init_std", self.init_std, low=0.0, high=10.0, low_open=True)
+        check_number("heading_prior", self.heading_prior, low=0.0, high=1e6)
+        if self.heading_prior and self.actions != "continuous":
+            raise ValueError(
+                f"algo.heading_prior={self.heading_prior!r} is invalid with algo.actions={self.actions}: the pull of"
+                " the mean heading needs the continuous head (algo.actions=continuous), or heading_prior 0"
+            )
 
     def update(self) -> PPOSettings:
         """The settings of the update (:class:`pedrl.rl.ppo.PPOSettings`)."""

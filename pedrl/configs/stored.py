@@ -37,6 +37,7 @@ HISTORICAL_VALUES: Final = {
     "algo.replay_balance": "none",
     "algo.neighbour_velocity": False,
     "algo.n_step": 1,
+    "algo.heading_prior": 0.0,
     "algo.tables": "agent",
     "algo.void_draws": "decision",
     "vq.distance_transform": "none",

@@ -6,7 +6,7 @@ A trial's decisions are kept as :class:`Rollout` (every agent-row of every room 
 :func:`advantages` gives each decision its generalised advantage (Schulman et al. 2016) and return, and
 :meth:`PPOUpdate.learn` takes ``epochs`` passes of ``minibatches`` gradient steps of the clipped objective
 
-    L = -min(rho A, clip(rho, 1 - c, 1 + c) A) + value_coef (V - R)^2 / 2 - entropy_coef H
+    L = -min(rho A, clip(rho, 1 - c, 1 + c) A) + value_coef (V - R)^2 / 2 - entropy_coef H [+ heading_prior mu_h^2]
 
 with ``rho`` the new over the old probability of the action taken. A walker's trajectory ends where it leaves
 (terminal: no bootstrap) or where the clock cuts its trial (the critic's value of its last observation bootstraps).
@@ -14,7 +14,11 @@ with ``rho`` the new over the old probability of the action taken. A walker's tr
 Two action heads: the 81 discrete actions (a categorical over the actor's logits), or a continuous command (the
 actor's two outputs are the mean of a Gaussian with a learned, state-independent standard deviation per process,
 ``log_std``; a sample ``u`` is squashed into the command, :func:`pedrl.rl.neural.squash`). The squash is fixed, so the
-ratio ``rho`` is taken on ``u`` (its Jacobian cancels) and the entropy is the Gaussian's.
+ratio ``rho`` is taken on ``u`` (its Jacobian cancels) and the entropy is the Gaussian's. With ``heading_prior`` the
+continuous head's mean heading ``mu_h`` (before the squash: 0 is the goal bearing) is pulled towards the goal bearing
+in every state: the mean term of a KL divergence to a default policy that walks straight at the goal (KL-regularised
+RL, Todorov 2007; Galashov et al. 2019), so that the actor turns off the goal bearing only where the advantages pay
+for it, where others are, and not where their signal is too weak to pin the heading down, alone.
 """
 
 from __future__ import annotations
@@ -42,6 +46,7 @@ class PPOSettings:
     max_grad_norm: float
     reward_scale: float
     normalize_advantages: bool = True
+    heading_prior: float = 0.0
 
 
 class Rollout:
@@ -194,6 +199,8 @@ class PPOUpdate:
         value = self.critic(batch["inputs"]).squeeze(2)
         value_loss = 0.5 * (value - batch["returns"]).pow(2).mean(1)
         loss = policy_loss + settings.value_coef * value_loss - settings.entropy_coef * entropy.mean(1)
+        if self.log_std is not None and settings.heading_prior:
+            loss = loss + settings.heading_prior * outputs[..., 1].square().mean(1)
         loss = loss * present  # a process that made no decision learns nothing
         self.optimizer.zero_grad(set_to_none=True)
         loss.sum().backward()  # the processes share no weight: each gets its own gradient

@@ -105,6 +105,8 @@ def test_ppo_resume_refuses_another_network(train_config, tmp_path):
         ("vq.per_process=false vq.factors={own:{num_prototypes:8}}", "vq.factors is invalid with algo=ppo"),
         ("algo.actions=beta", "actions='beta' is invalid"),
         ("algo.init_std=0", "init_std=0 is invalid"),
+        ("algo.heading_prior=-1", "heading_prior=-1 is invalid"),
+        ("algo.heading_prior=1", "algo.heading_prior=1 is invalid with algo.actions=discrete"),
         (
             "algo.actions=continuous env.action_frame=heading env.speed_ratios=[-1,-0.5,-0.25,-0.1,0,0.1,0.25,0.5,1]",
             "algo.actions=continuous is invalid with env.action_frame",
