@@ -43,6 +43,7 @@ from pedrl.rl.neural import ContinuousPolicy, NeuralPolicy, squash
 from pedrl.rl.ppo import METRICS, PPOSettings, PPOUpdate, Rollout, gaussian_logprob
 from pedrl.sim import RoomEnv
 from pedrl.sim.actions import COMMAND_WIDTH
+from pedrl.sim.rewards import MAX_DEVIATION_RADIUS, unpriced_in_company
 from pedrl.trial.crowd import run_crowd
 from pedrl.trial.loop import Driver
 from pedrl.trial.rollout import TrialStats
@@ -73,6 +74,7 @@ class PPOConfig(NetworkConfig):
         init_std: the continuous head's first standard deviation (of the Gaussian before the squash; learned after).
         heading_prior: the weight of the continuous head's pull of its mean heading towards the goal bearing in every
             state (:mod:`pedrl.rl.ppo`; 0: none; only with ``actions=continuous``).
+        prior_radius: that pull only on decisions with no other walker within this many m (0: on every decision).
     """
 
     learning_rate: float = 3e-4
@@ -87,6 +89,7 @@ class PPOConfig(NetworkConfig):
     actions: str = "discrete"
     init_std: float = 1.0
     heading_prior: float = 0.0
+    prior_radius: float = 0.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -100,6 +103,7 @@ class PPOConfig(NetworkConfig):
         check_choice("actions", self.actions, ACTION_HEADS)
         check_number("init_std", self.init_std, low=0.0, high=10.0, low_open=True)
         check_number("heading_prior", self.heading_prior, low=0.0, high=1e6)
+        check_number("prior_radius", self.prior_radius, low=0.0, high=MAX_DEVIATION_RADIUS)
         if self.heading_prior and self.actions != "continuous":
             raise ValueError(
                 f"algo.heading_prior={self.heading_prior!r} is invalid with algo.actions={self.actions}: the pull of"
@@ -127,9 +131,11 @@ class PPOActor(Driver):
         generator: torch.Generator,
         reward_scale: float,
         log_std: torch.Tensor | None = None,
+        prior_radius: float = 0.0,
     ):
         self.policy, self.critic, self.generator, self.reward_scale = policy, critic, generator, reward_scale
         self.log_std = log_std  # the continuous head's (P, 2); None: discrete
+        self.prior_radius = prior_radius  # > 0: mark the decisions with nobody within it, for the heading prior
         self.processes = policy.num_processes
 
     def begin(self, env: Any, obs: torch.Tensor, info: Any) -> None:
@@ -161,7 +167,13 @@ class PPOActor(Driver):
                 actions.index_copy_(0, rows, chosen)
                 logprobs.index_copy_(0, rows, logprob)
                 values.index_copy_(0, rows, self.policy.values(inputs, process, network=self.critic).squeeze(1))
-        self._step = dict(inputs=self._inputs, actions=actions, logprobs=logprobs, values=values, valid=active)
+        alone = active
+        if self.prior_radius > 0:  # nobody within the radius: the decision the deviation price's gate leaves priced
+            company = unpriced_in_company(torch.ones_like(env.active, dtype=torch.float32), env.positions, env.active,
+                                          self.prior_radius) == 0  # fmt: skip
+            alone = active & ~company.reshape(-1)
+        self._step = dict(inputs=self._inputs, actions=actions, logprobs=logprobs, values=values, valid=active,
+                          alone=alone)  # fmt: skip
         if continuous:
             return squash(actions).view(env.num_replicas, env.num_agents, COMMAND_WIDTH)
         return actions.view(env.num_replicas, env.num_agents)
@@ -261,7 +273,8 @@ class PPO(NetworkRun):
 
     def learn_trial(self, env: RoomEnv, room: int, epsilon: float, bar: tqdm) -> TrialStats:
         driver = PPOActor(self.policy, self.update.critic, generator=self.generator,
-                          reward_scale=self.settings.reward_scale, log_std=self.update.log_std)  # fmt: skip
+                          reward_scale=self.settings.reward_scale, log_std=self.update.log_std,
+                          prior_radius=self.algo.prior_radius)  # fmt: skip
         stats = run_crowd(env, driver, fused=self.fused, progress=decisions_on(bar)).stats
         self._figures = self.update.learn(driver.rollout.stack(), driver.process, self.generator)
         return stats

@@ -38,6 +38,7 @@ HISTORICAL_VALUES: Final = {
     "algo.neighbour_velocity": False,
     "algo.n_step": 1,
     "algo.heading_prior": 0.0,
+    "algo.prior_radius": 0.0,
     "algo.tables": "agent",
     "algo.void_draws": "decision",
     "vq.distance_transform": "none",

@@ -18,7 +18,8 @@ ratio ``rho`` is taken on ``u`` (its Jacobian cancels) and the entropy is the Ga
 continuous head's mean heading ``mu_h`` (before the squash: 0 is the goal bearing) is pulled towards the goal bearing
 in every state: the mean term of a KL divergence to a default policy that walks straight at the goal (KL-regularised
 RL, Todorov 2007; Galashov et al. 2019), so that the actor turns off the goal bearing only where the advantages pay
-for it, where others are, and not where their signal is too weak to pin the heading down, alone.
+for it, where others are, and not where their signal is too weak to pin the heading down, alone. A rollout's optional
+``alone`` field restricts the pull to the decisions it marks (``algo.prior_radius``: nobody within that radius).
 """
 
 from __future__ import annotations
@@ -55,11 +56,22 @@ class Rollout:
     Attributes (after :meth:`stack`): ``inputs (T, B, D)``, ``actions`` (``(T, B)`` indices, or the continuous
     head's Gaussian samples ``(T, B, 2)`` before the squash), ``logprobs``, ``values``, ``rewards`` (in learned
     units), ``terminated``, ``ended`` (its trajectory ends here: left, or cut by the clock), ``valid`` (it acted)
-    ``(T, B)``, and ``bootstrap (T, B)``, the critic's value of the observation after a decision the clock cut (0
-    elsewhere).
+    ``(T, B)``, ``bootstrap (T, B)``, the critic's value of the observation after a decision the clock cut (0
+    elsewhere), and ``alone (T, B)``, the decisions the heading prior pulls.
     """
 
-    FIELDS = ("inputs", "actions", "logprobs", "values", "rewards", "terminated", "ended", "valid", "bootstrap")
+    FIELDS = (
+        "inputs",
+        "actions",
+        "logprobs",
+        "values",
+        "rewards",
+        "terminated",
+        "ended",
+        "valid",
+        "bootstrap",
+        "alone",
+    )
 
     def __init__(self) -> None:
         self.steps: dict[str, list[torch.Tensor]] = {name: [] for name in self.FIELDS}
@@ -152,6 +164,7 @@ class PPOUpdate:
             "values": rollout["values"][step_of, row_of],
             "advantages": adv[step_of, row_of],
             "returns": returns[step_of, row_of],
+            "alone": rollout.get("alone", valid)[step_of, row_of].float(),  # a rollout without it: every decision
         }
         processes = self.actor.processes
         sums = torch.zeros(5, processes, device=valid.device)
@@ -200,7 +213,7 @@ class PPOUpdate:
         value_loss = 0.5 * (value - batch["returns"]).pow(2).mean(1)
         loss = policy_loss + settings.value_coef * value_loss - settings.entropy_coef * entropy.mean(1)
         if self.log_std is not None and settings.heading_prior:
-            loss = loss + settings.heading_prior * outputs[..., 1].square().mean(1)
+            loss = loss + settings.heading_prior * (outputs[..., 1].square() * batch["alone"]).mean(1)
         loss = loss * present  # a process that made no decision learns nothing
         self.optimizer.zero_grad(set_to_none=True)
         loss.sum().backward()  # the processes share no weight: each gets its own gradient

@@ -146,11 +146,12 @@ def test_a_continuous_step_moves_the_mean_towards_a_good_command_and_away_from_a
     assert not torch.equal(update.log_std.detach(), spread)
 
 
-@pytest.mark.parametrize("prior", [0.0, 1.0], ids=["without", "with"])
-def test_the_heading_prior_pulls_the_mean_heading_towards_the_goal_bearing(prior):
+@pytest.mark.parametrize(("prior", "alone"), [(0.0, True), (1.0, True), (1.0, False)], ids=["without", "with", "gated"])
+def test_the_heading_prior_pulls_the_mean_heading_towards_the_goal_bearing(prior, alone):
     """Decisions without advantage (every reward and value 0): the clipped objective has nothing to learn, so without
     the prior the actor stays as it is (the control); with it one step takes the rows' mean headings (output 1, before
-    the squash) nearer to 0, the goal bearing: their mean square more than halves."""
+    the squash) nearer to 0, the goal bearing: their mean square more than halves; on decisions the rollout does not
+    mark ``alone`` (a walker in company under ``algo.prior_radius``) it pulls nothing."""
     update = _update(processes=1, outputs=2, log_std=torch.zeros(1, 2), heading_prior=prior)
     steps, rows = 4, 3
     inputs = torch.randn(steps, rows, 3, generator=torch.Generator().manual_seed(1))
@@ -165,10 +166,10 @@ def test_the_heading_prior_pulls_the_mean_heading_towards_the_goal_bearing(prior
     zeros = torch.zeros(steps, rows)
     rollout = {"inputs": inputs, "actions": before.clone(), "logprobs": zeros, "values": zeros, "rewards": zeros,
                "terminated": ended.clone(), "ended": ended, "valid": torch.ones(steps, rows, dtype=torch.bool),
-               "bootstrap": zeros}  # fmt: skip
+               "bootstrap": zeros, "alone": torch.full((steps, rows), alone)}  # fmt: skip
     actor = [w.clone() for w in update.actor.weights]
     update.learn(rollout, torch.zeros(rows, dtype=torch.int64), torch.Generator().manual_seed(0))
-    if prior:
+    if prior and alone:
         assert means()[..., 1].square().mean() < 0.5 * before[..., 1].square().mean()
     else:
         assert all(torch.equal(w, a) for w, a in zip(update.actor.weights, actor, strict=True))
