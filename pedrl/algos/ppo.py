@@ -43,7 +43,7 @@ from pedrl.rl.neural import ContinuousPolicy, NeuralPolicy, squash
 from pedrl.rl.ppo import METRICS, PPOSettings, PPOUpdate, Rollout, gaussian_logprob
 from pedrl.sim import RoomEnv
 from pedrl.sim.actions import COMMAND_WIDTH
-from pedrl.sim.rewards import MAX_DEVIATION_RADIUS, unpriced_in_company
+from pedrl.sim.rewards import MAX_DEVIATION_RADIUS, in_company
 from pedrl.trial.crowd import run_crowd
 from pedrl.trial.loop import Driver
 from pedrl.trial.rollout import TrialStats
@@ -168,10 +168,8 @@ class PPOActor(Driver):
                 logprobs.index_copy_(0, rows, logprob)
                 values.index_copy_(0, rows, self.policy.values(inputs, process, network=self.critic).squeeze(1))
         alone = active
-        if self.prior_radius > 0:  # nobody within the radius: the decision the deviation price's gate leaves priced
-            company = unpriced_in_company(torch.ones_like(env.active, dtype=torch.float32), env.positions, env.active,
-                                          self.prior_radius) == 0  # fmt: skip
-            alone = active & ~company.reshape(-1)
+        if self.prior_radius > 0:  # nobody within the radius: the decisions the heading prior pulls
+            alone = active & ~in_company(env.positions, env.active, self.prior_radius).reshape(-1)
         self._step = dict(inputs=self._inputs, actions=actions, logprobs=logprobs, values=values, valid=active,
                           alone=alone)  # fmt: skip
         if continuous:

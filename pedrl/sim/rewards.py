@@ -33,6 +33,7 @@ __all__ = [
     "compute_rewards",
     "crowded_kernel",
     "deviation_kernel",
+    "in_company",
     "passing_kernel",
     "reward_kernel",
     "unpriced_in_company",
@@ -200,11 +201,7 @@ def unpriced_in_company(
     against its line to its goal (``v_j . (t_i - p_i) < 0``); walkers going its way do not."""
     if radius <= 0:
         return deviation
-    # the close pairs in linear memory (pedrl.sim.pairs), found below a limit a hair over the radius; the kernel's
-    # test, a squared gap at most radius ** 2 in float32, then decides
-    room, i, j = close_pairs(positions, radius * (1.0 + 1e-6))
-    near = (positions[room, i] - positions[room, j]).square().sum(dim=-1) <= radius * radius
-    room, i, j = room[near], i[near], j[near]
+    room, i, j = _pairs_within(positions, radius)
     frees_i, frees_j = present[room, j], present[room, i]  # j near i frees i, i near j frees j
     if oncoming is not None:
         velocities, targets = oncoming
@@ -214,6 +211,21 @@ def unpriced_in_company(
     crowded[room[frees_i], i[frees_i]] = True
     crowded[room[frees_j], j[frees_j]] = True
     return torch.where(crowded, torch.zeros_like(deviation), deviation)
+
+
+def in_company(positions: torch.Tensor, present: torch.Tensor, radius: float) -> torch.Tensor:
+    """Whether another ``present`` agent stands within ``radius`` m of each agent ``(R, N)`` bool (the company gate
+    of :func:`unpriced_in_company`; False everywhere for ``radius`` 0)."""
+    return unpriced_in_company(torch.ones(present.shape, device=positions.device), positions, present, radius) == 0
+
+
+def _pairs_within(positions: torch.Tensor, radius: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The pairs ``(room, i, j)`` of centres at most ``radius`` apart: found in linear memory (pedrl.sim.pairs) below a
+    limit a hair over the radius, then decided by the kernels' test, a squared gap at most ``radius ** 2`` in
+    float32."""
+    room, i, j = close_pairs(positions, radius * (1.0 + 1e-6))
+    near = (positions[room, i] - positions[room, j]).square().sum(dim=-1) <= radius * radius
+    return room[near], i[near], j[near]
 
 
 def _oncoming(
@@ -247,9 +259,7 @@ def wrong_side_passing(
     wrong = torch.zeros_like(present)
     if radius <= 0:
         return wrong
-    room, i, j = close_pairs(positions, radius * (1.0 + 1e-6))
-    near = (positions[room, i] - positions[room, j]).square().sum(dim=-1) <= radius * radius
-    room, i, j = room[near], i[near], j[near]
+    room, i, j = _pairs_within(positions, radius)
     for a, b in ((i, j), (j, i)):  # j for i, then i for j
         line = targets[room, a] - positions[room, a]
         gap = positions[room, b] - positions[room, a]

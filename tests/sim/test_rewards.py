@@ -24,6 +24,7 @@ from pedrl.sim.rewards import (
     compute_rewards,
     crowded_kernel,
     deviation_kernel,
+    in_company,
     passing_kernel,
     reward_kernel,
     unpriced_in_company,
@@ -62,7 +63,8 @@ def test_the_rewards_have_one_default_set():
     """The table, the room's settings and conf/env/room.yaml hold the same defaults: a second set anywhere fails."""
     assert RewardTable().settings() == REWARD_DEFAULTS == RoomParams().rewards.settings()
     assert REWARD_DEFAULTS == {"reward_goal": 100.0, "reward_crash_wall": -15.0, "reward_crash_agent": -4.0,
-                               "reward_default": -1.0, "reward_progress": 1.0, "reward_deviation": 0.0}  # fmt: skip
+                               "reward_default": -1.0, "reward_progress": 1.0, "reward_deviation": 0.0,
+                               "reward_passing": 0.0}  # fmt: skip
     room = OmegaConf.load(Path(CONFIG_DIR) / "env" / "room.yaml")
     assert {name: float(room[name]) for name in REWARD_DEFAULTS} == REWARD_DEFAULTS
     defaults = {name: RoomParams.__dataclass_fields__[name].default for name in REWARD_DEFAULTS}
@@ -145,6 +147,8 @@ def test_the_deviation_radius_prices_a_free_walker_alone():
     alone = unpriced_in_company(deviation, positions, torch.tensor([[True, False, True, False]]), radius=2.0)
     torch.testing.assert_close(alone, torch.tensor([[0.5, 0.0, 0.5, 0.0]]))  # agent 0 alone once agent 1 left
     assert unpriced_in_company(deviation, positions, present, radius=0.0) is deviation
+    assert in_company(positions, present, 2.0).tolist() == [[True, True, False, True]]  # agent 2 alone
+    assert not in_company(positions, present, 0.0).any()
     with pytest.raises(ValueError, match=r"^deviation_radius=-1 is invalid: must be a number in \[0, 1000\]"):
         paper_room().room(num_agents=2, deviation_radius=-1)
 
