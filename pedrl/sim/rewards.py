@@ -287,6 +287,13 @@ def deviation_kernel(room, speed, heading, position, target):
 
 
 @cached_njit(nogil=True, inline="always")
+def _oncoming_kernel(gap_x, gap_y, line_x, line_y, velocity):
+    """:func:`_oncoming` of one pair: the other agent, ``gap`` from the deciding one, is ahead of it on its ``line``
+    to its goal and its ``velocity`` ``(2,)`` points against that line."""
+    return gap_x * line_x + gap_y * line_y > 0 and velocity[0] * line_x + velocity[1] * line_y < 0
+
+
+@cached_njit(nogil=True, inline="always")
 def crowded_kernel(room, r, i, positions, present, velocities, targets):
     """Whether another ``present`` agent of room ``r`` frees agent ``i`` from the deviation price
     (:func:`unpriced_in_company` of one agent): it stands within the room's ``deviation_radius`` of ``i``, and under
@@ -303,9 +310,7 @@ def crowded_kernel(room, r, i, positions, present, velocities, targets):
         gap_x, gap_y = positions[r, j, 0] - x, positions[r, j, 1] - y
         if gap_x**2 + gap_y**2 > reach:
             continue
-        if not room.deviation_oncoming:
-            return True
-        if gap_x * line_x + gap_y * line_y > 0 and velocities[r, j, 0] * line_x + velocities[r, j, 1] * line_y < 0:
+        if not room.deviation_oncoming or _oncoming_kernel(gap_x, gap_y, line_x, line_y, velocities[r, j]):
             return True
     return False
 
@@ -326,7 +331,7 @@ def passing_kernel(room, r, i, positions, present, velocities, targets):
         gap_x, gap_y = positions[r, j, 0] - x, positions[r, j, 1] - y
         if gap_x**2 + gap_y**2 > reach:
             continue
-        if gap_x * line_x + gap_y * line_y <= 0 or velocities[r, j, 0] * line_x + velocities[r, j, 1] * line_y >= 0:
+        if not _oncoming_kernel(gap_x, gap_y, line_x, line_y, velocities[r, j]):
             continue  # behind, or going i's way
         lateral = (line_x * gap_y - line_y * gap_x) / length
         if room.passing_side == 0 and abs(lateral) < band:
