@@ -55,6 +55,8 @@ PASSING_SIDES: Final = ("either", "right", "left")
 """Values of ``passing_side``: where an oncoming walker within ``passing_radius`` ahead must be, ``passing_band`` m or
 more off the deciding walker's line to its goal, for ``reward_passing`` not to be paid: on either side, on its left
 (the walker keeps right), on its right (it keeps left)."""
+_EITHER, _RIGHT, _LEFT = (PASSING_SIDES.index(side) for side in ("either", "right", "left"))
+"""The kernels' ``passing_side``, its index in :data:`PASSING_SIDES`."""
 SETTING_PREFIX: Final = "reward_"
 """A reward ``x`` of the table is the room's setting ``reward_x``."""
 
@@ -201,22 +203,32 @@ def unpriced_in_company(
     against its line to its goal (``v_j . (t_i - p_i) < 0``); walkers going its way do not."""
     if radius <= 0:
         return deviation
+    crowded = in_company(positions, present, radius, oncoming=oncoming)
+    return torch.where(crowded, torch.zeros_like(deviation), deviation)
+
+
+def in_company(
+    positions: torch.Tensor,
+    present: torch.Tensor,
+    radius: float,
+    *,
+    oncoming: tuple[torch.Tensor, torch.Tensor] | None = None,
+) -> torch.Tensor:
+    """Whether another ``present`` agent stands within ``radius`` m of each agent ``(R, N)`` bool (with ``oncoming``,
+    an oncoming one): the gate of :func:`unpriced_in_company`, and the heading prior's; False everywhere for
+    ``radius`` 0."""
+    crowded = torch.zeros_like(present)
+    if radius <= 0:
+        return crowded
     room, i, j = _pairs_within(positions, radius)
     frees_i, frees_j = present[room, j], present[room, i]  # j near i frees i, i near j frees j
     if oncoming is not None:
         velocities, targets = oncoming
         frees_i = frees_i & _oncoming(positions, velocities, targets, room, i, j)
         frees_j = frees_j & _oncoming(positions, velocities, targets, room, j, i)
-    crowded = torch.zeros_like(present)
     crowded[room[frees_i], i[frees_i]] = True
     crowded[room[frees_j], j[frees_j]] = True
-    return torch.where(crowded, torch.zeros_like(deviation), deviation)
-
-
-def in_company(positions: torch.Tensor, present: torch.Tensor, radius: float) -> torch.Tensor:
-    """Whether another ``present`` agent stands within ``radius`` m of each agent ``(R, N)`` bool (the company gate
-    of :func:`unpriced_in_company`; False everywhere for ``radius`` 0)."""
-    return unpriced_in_company(torch.ones(present.shape, device=positions.device), positions, present, radius) == 0
+    return crowded
 
 
 def _pairs_within(positions: torch.Tensor, radius: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -334,9 +346,10 @@ def passing_kernel(room, r, i, positions, present, velocities, targets):
         if not _oncoming_kernel(gap_x, gap_y, line_x, line_y, velocities[r, j]):
             continue  # behind, or going i's way
         lateral = (line_x * gap_y - line_y * gap_x) / length
-        if room.passing_side == 0 and abs(lateral) < band:
+        side = room.passing_side
+        if (side == _EITHER and abs(lateral) < band) or (side == _RIGHT and lateral < band):
             return True
-        if (room.passing_side == 1 and lateral < band) or (room.passing_side == 2 and lateral > -band):
+        if side == _LEFT and lateral > -band:
             return True
     return False
 
