@@ -27,7 +27,7 @@ import torch
 from pedrl.common.checks import check_integer
 from pedrl.io.files import replace_atomically
 from pedrl.rl.network import head_values
-from pedrl.rl.neural import MAX_OFFSET, SPEED_OVERSHOOT, ContinuousPolicy, NeuralPolicy, squash
+from pedrl.rl.neural import MAX_OFFSET, SPEED_OVERSHOOT, ContinuousPolicy, NeuralPolicy, command_means, squash
 from pedrl.sim.sensing import distance_indices, feature_names
 
 OPSET: Final = 18
@@ -47,6 +47,7 @@ class _Exported(torch.nn.Module):
         self.register_buffer("mean", policy.mean.detach().cpu().clone())
         self.register_buffer("std", policy.std.detach().cpu().clone())
         self.register_buffer("slots", torch.arange(settings.num_neighbours))
+        self.company_column = settings.num_features
         network = policy.network
         self.head, self.continuous = network.head, isinstance(policy, ContinuousPolicy)
         self.weights = [w[process].detach().cpu().clone() for w in network.weights]
@@ -63,13 +64,14 @@ class _Exported(torch.nn.Module):
         parts = [(prepared - self.mean) / self.std, present]
         if neighbour_velocity is not None:
             parts.append(neighbour_velocity.flatten(1))
-        x = torch.cat(parts, dim=1)
+        x = inputs = torch.cat(parts, dim=1)
         last = len(self.weights) - 1
         for layer in range(last + 1):
             x = x @ getattr(self, f"w{layer}") + getattr(self, f"b{layer}")
             if layer < last:
                 x = torch.relu(x)
         if self.continuous:
+            x = command_means(x, inputs, self.company_column)
             return x, squash(x)
         x = head_values(self.head, x)
         return x, x.argmax(dim=1)

@@ -43,6 +43,9 @@ CONTINUOUS_LEARNER: Final = "continuous"
 MAX_OFFSET: Final = math.pi / 2
 """Widest heading offset of a continuous command (rad): 90 degrees either side of the goal bearing, as the ``goal``
 frame's widest turns."""
+COMPANY_WIDTH: Final = COMMAND_WIDTH + 1
+"""Outputs of a continuous network with a company heading (``algo.company_heading``): the speed, the heading alone
+and the heading's term added where another walker is sensed (:func:`command_means`)."""
 SPEED_OVERSHOOT: Final = 0.05
 """The squashed speed ratio spans ``[-0.05, 1.05]`` and the room clips it to ``[0, 1]``: a finite network output
 reaches the top speed, and standing, exactly."""
@@ -321,9 +324,18 @@ class ContinuousPolicy(NeuralPolicy):
     :class:`pedrl.rl.policy.LearnedPolicy` of learner :data:`CONTINUOUS_LEARNER`): it acts with the squashed output
     (:func:`squash`, the mean of PPO's squashed Gaussian), and with probability ``epsilon`` a uniform command instead
     (a speed ratio in ``[0, 1]``, an offset within :data:`MAX_OFFSET`). Its ``act`` gives commands ``(R, N, 2)``
-    float32, which :meth:`pedrl.sim.RoomEnv.step` executes in the ``goal`` action frame."""
+    float32, which :meth:`pedrl.sim.RoomEnv.step` executes in the ``goal`` action frame. A network of
+    :data:`COMPANY_WIDTH` outputs has a company heading (:func:`command_means`)."""
 
     learner: ClassVar[str] = CONTINUOUS_LEARNER
+
+    def values(self, inputs: torch.Tensor, process: torch.Tensor, *, network: QNetwork | None = None) -> torch.Tensor:
+        """The Gaussian's means ``(B, 2)`` of ``inputs (B, D)`` (:func:`command_means`); another ``network``'s
+        outputs (the critic's values) as they are."""
+        outputs = super().values(inputs, process, network=network)
+        if network is not None and network is not self.network:
+            return outputs
+        return command_means(outputs, inputs, self.encoder.settings.num_features)
 
     def choose(self, values: torch.Tensor, epsilon: float, generator: torch.Generator) -> torch.Tensor:
         """Commands ``(B, 2)`` of the network's outputs ``(B, 2)`` (:func:`squash`), a uniform one with probability
@@ -340,10 +352,25 @@ class ContinuousPolicy(NeuralPolicy):
     def check_outputs(self, num_actions: int | None) -> None:
         """One-line ``ValueError`` unless the network gives a command (``num_actions`` is the room's discrete count,
         not read)."""
-        if self.num_actions != COMMAND_WIDTH or self.network.head != "joint":
+        if self.num_actions not in (COMMAND_WIDTH, COMPANY_WIDTH) or self.network.head != "joint":
             raise ValueError(
-                f"the network gives {self.num_actions} values: a continuous policy's gives {COMMAND_WIDTH}"
+                f"the network gives {self.num_actions} values: a continuous policy's gives {COMMAND_WIDTH} (or "
+                f"{COMPANY_WIDTH} with a company heading)"
             )
+
+
+def command_means(outputs: torch.Tensor, inputs: torch.Tensor, company_column: int) -> torch.Tensor:
+    """The Gaussian's means ``(..., 2)`` of a continuous network's ``outputs`` for its ``inputs (..., D)``: the outputs
+    themselves where they are two; of :data:`COMPANY_WIDTH` outputs ``(u_speed, u_alone, u_company)``, the speed and
+    the heading ``u_alone + c u_company``, ``c`` the input ``company_column`` (the nearest neighbour slot's presence
+    flag: 1 where the walker senses another, 0 alone). The heading alone is then one output of the network, which the
+    heading prior pulls towards the goal bearing (:mod:`pedrl.rl.ppo`), and what the walker learns of others goes into
+    the company term, which only acts where someone is sensed: the decomposition that lets a walker head straight
+    alone and deviate in company."""
+    if outputs.shape[-1] == COMMAND_WIDTH:
+        return outputs
+    company = inputs[..., company_column]
+    return torch.stack((outputs[..., 0], outputs[..., 1] + company * outputs[..., 2]), dim=-1)
 
 
 def squash(outputs: torch.Tensor) -> torch.Tensor:

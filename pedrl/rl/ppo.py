@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import torch
 
 from pedrl.rl.network import QNetwork, clip_gradients, load_optimizer_tensors, optimizer_tensors
+from pedrl.rl.neural import command_means
 
 
 @dataclass(frozen=True)
@@ -124,6 +125,8 @@ class PPOUpdate:
         learning_rate: Adam's step size.
         log_std: the continuous head: ``(P, 2)`` the log standard deviations of the Gaussian (learned); None: the
             discrete head.
+        company_column: the continuous head: the input column of the company flag of an actor with a company heading
+            (:func:`pedrl.rl.neural.command_means`).
     """
 
     def __init__(
@@ -134,8 +137,10 @@ class PPOUpdate:
         learning_rate: float,
         *,
         log_std: torch.Tensor | None = None,
+        company_column: int = 0,
     ) -> None:
         self.actor, self.critic, self.settings = actor, critic, settings
+        self.company_column = company_column
         self.log_std = None if log_std is None else torch.nn.Parameter(log_std)
         self.optimizer = torch.optim.Adam(self.parameters(), lr=learning_rate, foreach=True)
         self.updates = 0
@@ -193,12 +198,13 @@ class PPOUpdate:
         """One gradient step of every process on ``batch`` ``(P, b, ...)``, of those ``present`` (1, else 0) only; its
         ``(5, P)`` figures."""
         settings = self.settings
-        outputs = self.actor(batch["inputs"])
+        raw = self.actor(batch["inputs"])
         if self.log_std is None:
-            log_all = torch.log_softmax(outputs, dim=2)
+            log_all = torch.log_softmax(raw, dim=2)
             logprob = log_all.gather(2, batch["actions"].unsqueeze(2)).squeeze(2)
             entropy = -(log_all.exp() * log_all).sum(2)
         else:
+            outputs = command_means(raw, batch["inputs"], self.company_column)
             log_std = self.log_std.unsqueeze(1)  # (P, 1, 2)
             logprob = gaussian_logprob(batch["actions"], outputs, log_std)
             entropy = (log_std + 0.5 * (1.0 + math.log(2 * math.pi))).sum(2).expand_as(logprob)
@@ -213,7 +219,8 @@ class PPOUpdate:
         value_loss = 0.5 * (value - batch["returns"]).pow(2).mean(1)
         loss = policy_loss + settings.value_coef * value_loss - settings.entropy_coef * entropy.mean(1)
         if self.log_std is not None and settings.heading_prior:
-            loss = loss + settings.heading_prior * (outputs[..., 1].square() * batch["alone"]).mean(1)
+            # the heading alone (a company heading's first term): what the walker commands where nobody is sensed
+            loss = loss + settings.heading_prior * (raw[..., 1].square() * batch["alone"]).mean(1)
         loss = loss * present  # a process that made no decision learns nothing
         self.optimizer.zero_grad(set_to_none=True)
         loss.sum().backward()  # the processes share no weight: each gets its own gradient
