@@ -5,6 +5,7 @@ import pytest
 import torch
 
 from pedrl.rl.network import QNetwork
+from pedrl.rl.neural import command_means
 from pedrl.rl.ppo import PPOSettings, PPOUpdate, advantages, gaussian_logprob
 
 
@@ -54,7 +55,7 @@ def _update(processes=2, outputs=5, log_std=None, **changes):
     generator = torch.Generator().manual_seed(0)
     actor = QNetwork(processes, 3, (8,), outputs, generator=generator)
     critic = QNetwork(processes, 3, (8,), 1, generator=generator)
-    return PPOUpdate(actor, critic, PPOSettings(**settings), learning_rate=0.05, log_std=log_std)
+    return PPOUpdate(actor, critic, PPOSettings(**settings), learning_rate=0.05, log_std=log_std, company_column=2)
 
 
 def _rollout(update, reward: float, steps: int = 4, rows: int = 2):
@@ -173,3 +174,42 @@ def test_the_heading_prior_pulls_the_mean_heading_towards_the_goal_bearing(prior
         assert means()[..., 1].square().mean() < 0.5 * before[..., 1].square().mean()
     else:
         assert all(torch.equal(w, a) for w, a in zip(update.actor.weights, actor, strict=True))
+
+
+def test_a_company_heading_adds_its_term_only_where_another_is_sensed():
+    """``command_means``: two outputs are the means as they are; of three, the heading is the second output alone
+    where the company flag reads 0 and the second plus the third where it reads 1; the speed is the first."""
+    outputs = torch.tensor([[0.3, 0.2, -0.5], [0.3, 0.2, -0.5], [1.0, -0.1, 0.4]])
+    inputs = torch.tensor([[9.0, 0.0], [9.0, 1.0], [9.0, 1.0]])  # column 1: the company flag
+    means = command_means(outputs, inputs, 1)
+    torch.testing.assert_close(means, torch.tensor([[0.3, 0.2], [0.3, -0.3], [1.0, 0.3]]))
+    assert torch.equal(command_means(outputs[:, :2], inputs, 1), outputs[:, :2])
+
+
+def test_the_heading_prior_pulls_the_heading_alone_and_leaves_the_company_term():
+    """An actor with a company heading (three outputs; input column 2 the company flag), decisions without advantage:
+    the prior pulls the heading alone (output 1) towards the goal bearing (its mean square more than halves) and not
+    the company term: the last layer's weights and bias of output 2 stay as they were (no gradient reaches them), where
+    those of output 1 move."""
+    update = _update(processes=1, outputs=3, log_std=torch.zeros(1, 2), heading_prior=1.0)
+    steps, rows = 4, 3
+    inputs = torch.randn(steps, rows, 3, generator=torch.Generator().manual_seed(1))
+    inputs[..., 2] = (torch.arange(rows) % 2).float()  # rows 1: in company; rows 0 and 2: alone
+
+    def outputs():
+        with torch.no_grad():
+            return update.actor(inputs.reshape(1, -1, 3)).view(steps, rows, 3)
+
+    before = outputs()
+    ended = torch.zeros(steps, rows, dtype=torch.bool)
+    ended[-1] = True
+    zeros = torch.zeros(steps, rows)
+    rollout = {"inputs": inputs, "actions": command_means(before, inputs, 2), "logprobs": zeros, "values": zeros,
+               "rewards": zeros, "terminated": ended.clone(), "ended": ended,
+               "valid": torch.ones(steps, rows, dtype=torch.bool), "bootstrap": zeros}  # fmt: skip
+    last_w, last_b = update.actor.weights[-1].detach().clone(), update.actor.biases[-1].detach().clone()
+    update.learn(rollout, torch.zeros(rows, dtype=torch.int64), torch.Generator().manual_seed(0))
+    assert outputs()[..., 1].square().mean() < 0.5 * before[..., 1].square().mean()
+    assert torch.equal(update.actor.weights[-1][..., 2], last_w[..., 2])
+    assert torch.equal(update.actor.biases[-1][..., 2], last_b[..., 2])
+    assert not torch.equal(update.actor.weights[-1][..., 1], last_w[..., 1])
