@@ -86,7 +86,7 @@ def continuous_checkpoint(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def company_checkpoint(tmp_path_factory):
-    return train_dqn(tmp_path_factory, *PPO_GOAL, "algo.actions=continuous", "algo.company_heading=true", algo="ppo")
+    return train_dqn(tmp_path_factory, *PPO_GOAL, "algo.actions=continuous", "algo.company_heading=added", algo="ppo")
 
 
 @pytest.mark.parametrize("head", ["continuous_checkpoint", "company_checkpoint"])

@@ -39,7 +39,7 @@ from pedrl.common.checks import (
     check_number,
 )
 from pedrl.rl.network import QNetwork
-from pedrl.rl.neural import COMPANY_WIDTH, ContinuousPolicy, NeuralPolicy, squash
+from pedrl.rl.neural import COMPANY_HEADINGS, COMPANY_WIDTH, ContinuousPolicy, NeuralPolicy, squash
 from pedrl.rl.ppo import METRICS, PPOSettings, PPOUpdate, Rollout, gaussian_logprob
 from pedrl.sim import RoomEnv
 from pedrl.sim.actions import COMMAND_WIDTH
@@ -75,8 +75,10 @@ class PPOConfig(NetworkConfig):
         heading_prior: the weight of the continuous head's pull of its mean heading towards the goal bearing in every
             state (:mod:`pedrl.rl.ppo`; 0: none; only with ``actions=continuous``).
         prior_radius: that pull only on decisions with no other walker within this many m (0: on every decision).
-        company_heading: the continuous head's heading is a heading alone plus a term that acts only where the walker
-            senses another (:func:`pedrl.rl.neural.command_means`); the heading prior pulls the heading alone.
+        company_heading: :data:`pedrl.rl.neural.COMPANY_HEADINGS`: ``added``, the continuous head's heading is a
+            heading alone plus a term that acts only where the walker senses another, the heading prior pulling the
+            heading alone; ``routed``, so too, and a decision in company teaches the company term only
+            (:func:`pedrl.rl.neural.command_means`); ``none``: one heading.
     """
 
     learning_rate: float = 3e-4
@@ -92,7 +94,7 @@ class PPOConfig(NetworkConfig):
     init_std: float = 1.0
     heading_prior: float = 0.0
     prior_radius: float = 0.0
-    company_heading: bool = False
+    company_heading: str = "none"
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -107,16 +109,16 @@ class PPOConfig(NetworkConfig):
         check_number("init_std", self.init_std, low=0.0, high=10.0, low_open=True)
         check_number("heading_prior", self.heading_prior, low=0.0, high=1e6)
         check_number("prior_radius", self.prior_radius, low=0.0, high=MAX_DEVIATION_RADIUS)
-        check_bool("company_heading", self.company_heading)
+        check_choice("company_heading", self.company_heading, COMPANY_HEADINGS)
         if self.heading_prior and self.actions != "continuous":
             raise ValueError(
                 f"algo.heading_prior={self.heading_prior!r} is invalid with algo.actions={self.actions}: the pull of"
                 " the mean heading needs the continuous head (algo.actions=continuous), or heading_prior 0"
             )
-        if self.company_heading and self.actions != "continuous":
+        if self.company_heading != "none" and self.actions != "continuous":
             raise ValueError(
-                f"algo.company_heading=true is invalid with algo.actions={self.actions}: the company heading is a"
-                " term of the continuous head's heading (algo.actions=continuous), or company_heading false"
+                f"algo.company_heading={self.company_heading} is invalid with algo.actions={self.actions}: the company"
+                " heading is a term of the continuous head's heading (algo.actions=continuous), or company_heading none"
             )
 
     def update(self) -> PPOSettings:
@@ -224,7 +226,7 @@ class PPO(NetworkRun):
             self.policy_class = ContinuousPolicy
         self.outputs = self.env.num_actions
         if self.continuous:
-            self.outputs = COMPANY_WIDTH if self.algo.company_heading else COMMAND_WIDTH
+            self.outputs = COMMAND_WIDTH if self.algo.company_heading == "none" else COMPANY_WIDTH
         self.settings = self.algo.update()
         check_memory(
             self.memory_needs(),

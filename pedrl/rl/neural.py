@@ -43,6 +43,9 @@ CONTINUOUS_LEARNER: Final = "continuous"
 MAX_OFFSET: Final = math.pi / 2
 """Widest heading offset of a continuous command (rad): 90 degrees either side of the goal bearing, as the ``goal``
 frame's widest turns."""
+COMPANY_HEADINGS: Final = ("none", "added", "routed")
+"""Values of ``algo.company_heading``: no company term; a company term added where another walker is sensed
+(:func:`command_means`); that term with the decisions in company teaching it alone (``routed``)."""
 COMPANY_WIDTH: Final = COMMAND_WIDTH + 1
 """Outputs of a continuous network with a company heading (``algo.company_heading``): the speed, the heading alone
 and the heading's term added where another walker is sensed (:func:`command_means`)."""
@@ -359,18 +362,24 @@ class ContinuousPolicy(NeuralPolicy):
             )
 
 
-def command_means(outputs: torch.Tensor, inputs: torch.Tensor, company_column: int) -> torch.Tensor:
+def command_means(
+    outputs: torch.Tensor, inputs: torch.Tensor, company_column: int, *, routed: bool = False
+) -> torch.Tensor:
     """The Gaussian's means ``(..., 2)`` of a continuous network's ``outputs`` for its ``inputs (..., D)``: the outputs
     themselves where they are two; of :data:`COMPANY_WIDTH` outputs ``(u_speed, u_alone, u_company)``, the speed and
     the heading ``u_alone + c u_company``, ``c`` the input ``company_column`` (the nearest neighbour slot's presence
     flag: 1 where the walker senses another, 0 alone). The heading alone is then one output of the network, which the
     heading prior pulls towards the goal bearing (:mod:`pedrl.rl.ppo`), and what the walker learns of others goes into
     the company term, which only acts where someone is sensed: the decomposition that lets a walker head straight
-    alone and deviate in company."""
+    alone and deviate in company. ``routed`` (learning only; the values are the same): where ``c`` is 1 the heading
+    alone is held constant (``detach``), so that a decision in company teaches the company term and not the heading
+    alone, which learns from lone decisions and the prior only."""
     if outputs.shape[-1] == COMMAND_WIDTH:
         return outputs
-    company = inputs[..., company_column]
-    return torch.stack((outputs[..., 0], outputs[..., 1] + company * outputs[..., 2]), dim=-1)
+    company, alone = inputs[..., company_column], outputs[..., 1]
+    if routed:
+        alone = torch.where(company > 0, alone.detach(), alone)
+    return torch.stack((outputs[..., 0], alone + company * outputs[..., 2]), dim=-1)
 
 
 def squash(outputs: torch.Tensor) -> torch.Tensor:

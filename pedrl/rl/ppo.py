@@ -49,6 +49,7 @@ class PPOSettings:
     reward_scale: float
     normalize_advantages: bool = True
     heading_prior: float = 0.0
+    company_heading: str = "none"
 
 
 class Rollout:
@@ -204,7 +205,8 @@ class PPOUpdate:
             logprob = log_all.gather(2, batch["actions"].unsqueeze(2)).squeeze(2)
             entropy = -(log_all.exp() * log_all).sum(2)
         else:
-            outputs = command_means(raw, batch["inputs"], self.company_column)
+            routed = settings.company_heading == "routed"
+            outputs = command_means(raw, batch["inputs"], self.company_column, routed=routed)
             log_std = self.log_std.unsqueeze(1)  # (P, 1, 2)
             logprob = gaussian_logprob(batch["actions"], outputs, log_std)
             entropy = (log_std + 0.5 * (1.0 + math.log(2 * math.pi))).sum(2).expand_as(logprob)

@@ -107,8 +107,8 @@ def test_ppo_resume_refuses_another_network(train_config, tmp_path):
         ("algo.init_std=0", "init_std=0 is invalid"),
         ("algo.heading_prior=-1", "heading_prior=-1 is invalid"),
         ("algo.heading_prior=1", "algo.heading_prior=1 is invalid with algo.actions=discrete"),
-        ("algo.company_heading=true", "algo.company_heading=true is invalid with algo.actions=discrete"),
-        ("algo.company_heading=2", "company_heading=2 is invalid: must be true or false"),
+        ("algo.company_heading=routed", "algo.company_heading=routed is invalid with algo.actions=discrete"),
+        ("algo.company_heading=true", "company_heading=True is invalid: must be one of none, added, routed"),
         (
             "algo.actions=continuous env.action_frame=heading env.speed_ratios=[-1,-0.5,-0.25,-0.1,0,0.1,0.25,0.5,1]",
             "algo.actions=continuous is invalid with env.action_frame",

@@ -213,3 +213,27 @@ def test_the_heading_prior_pulls_the_heading_alone_and_leaves_the_company_term()
     assert torch.equal(update.actor.weights[-1][..., 2], last_w[..., 2])
     assert torch.equal(update.actor.biases[-1][..., 2], last_b[..., 2])
     assert not torch.equal(update.actor.weights[-1][..., 1], last_w[..., 1])
+
+
+@pytest.mark.parametrize("heading", ["added", "routed"])
+def test_routed_decisions_in_company_teach_the_company_term_only(heading):
+    """Every decision in company with an advantage (one good command taken): ``added`` moves the last layer's weights
+    of the heading alone (output 1) and of the company term (output 2); ``routed`` moves only the company term's, the
+    heading alone holding still (no gradient reaches it from a decision in company)."""
+    update = _update(processes=1, outputs=3, log_std=torch.zeros(1, 2), company_heading=heading)
+    steps, rows = 4, 3
+    inputs = torch.randn(steps, rows, 3, generator=torch.Generator().manual_seed(1))
+    inputs[..., 2] = 1.0  # everyone senses another
+    with torch.no_grad():
+        means = command_means(update.actor(inputs.reshape(1, -1, 3)).view(steps, rows, 3), inputs, 2)
+    ended = torch.zeros(steps, rows, dtype=torch.bool)
+    ended[-1] = True
+    zeros = torch.zeros(steps, rows)
+    logprobs = gaussian_logprob(means + 0.5, means, torch.zeros(1, 1, 2))
+    rollout = {"inputs": inputs, "actions": means + 0.5, "logprobs": logprobs, "values": zeros,
+               "rewards": torch.ones(steps, rows), "terminated": ended.clone(), "ended": ended,
+               "valid": torch.ones(steps, rows, dtype=torch.bool), "bootstrap": zeros}  # fmt: skip
+    last = update.actor.weights[-1].detach().clone()
+    update.learn(rollout, torch.zeros(rows, dtype=torch.int64), torch.Generator().manual_seed(0))
+    assert not torch.equal(update.actor.weights[-1][..., 2], last[..., 2])
+    assert torch.equal(update.actor.weights[-1][..., 1], last[..., 1]) == (heading == "routed")
