@@ -39,6 +39,7 @@ HISTORICAL_VALUES: Final = {
     "algo.n_step": 1,
     "algo.heading_prior": 0.0,
     "algo.prior_radius": 0.0,
+    "algo.company_heading": "none",
     "algo.tables": "agent",
     "algo.void_draws": "decision",
     "vq.distance_transform": "none",
