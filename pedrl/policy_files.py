@@ -191,8 +191,9 @@ PRETRAINED: Final = {
     "pedestrian_free.onnx and its contract pedestrian_free.onnx.json (pedrl-export out=....onnx)",
     "main_ppo": "experiment=main_ppo (PPO's continuous head), seed 0, its actor: the paper room's best crowd; "
     "beside it main_ppo.onnx and its contract main_ppo.onnx.json",
-    "pedestrian_walk_ppo": "experiment=pedestrian_walk_ppo (PPO's continuous head, deviation priced for a free "
-    "walker), seed 0, its actor: 6 of 6 validation tests; beside it pedestrian_walk_ppo.onnx and its contract",
+    "pedestrian_walk_ppo": "experiment=pedestrian_walk_ppo (PPO's continuous head with a heading alone and a company "
+    "term), seed 0, its actor: alone straight at v0 (the probe passes), 5 of 6 validation tests; beside it "
+    "pedestrian_walk_ppo.onnx and its contract",
 }
 """The policy files shipped with pedrl (``pedrl/policies/<name>.safetensors``), to try evaluation, validation and the
 PettingZoo adapter without training first."""

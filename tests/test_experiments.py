@@ -29,7 +29,7 @@ REWARDS |= {"main_heading": "tuned"}
 REWARDS |= {"tuned_in": "tuned", "pedestrian": "tuned", "pedestrian_mix": "tuned", "pedestrian_walk": "tuned"}
 REWARDS |= {"pedestrian_lanes": "tuned", "main_factored": "crowd", "pedestrian_walk_factored": "tuned"}
 REWARDS |= {"paper_it_full": "paper", "paper_in_full": "paper", "main_dqn": "crowd", "pedestrian_walk_dqn": "tuned"}
-REWARDS |= {"pedestrian_free_dqn": "walk", "main_ppo": "crowd", "pedestrian_walk_ppo": "free"}
+REWARDS |= {"pedestrian_free_dqn": "walk", "main_ppo": "crowd", "pedestrian_walk_ppo": "speed"}
 # the paper_faithful presets and the literal ones they build on
 FAITHFUL = {
     "paper_faithful_vqql": "paper_vqql",
