@@ -20,6 +20,9 @@ in every state: the mean term of a KL divergence to a default policy that walks 
 RL, Todorov 2007; Galashov et al. 2019), so that the actor turns off the goal bearing only where the advantages pay
 for it, where others are, and not where their signal is too weak to pin the heading down, alone. A rollout's optional
 ``alone`` field restricts the pull to the decisions it marks (``algo.prior_radius``: nobody within that radius).
+An actor with a company heading (``algo.company_heading``: three outputs, :func:`pedrl.rl.neural.command_means`) has
+the heading alone pulled, not the term that acts only where another walker is sensed; under ``routed`` a decision in
+company teaches that term only.
 """
 
 from __future__ import annotations

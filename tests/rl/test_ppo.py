@@ -118,6 +118,19 @@ def test_the_gaussian_log_density_is_torchs_normal():
     torch.testing.assert_close(gaussian_logprob(sample, mean, log_std), expected)
 
 
+def _continuous_rollout(inputs, actions, *, logprobs=None, rewards=None, **extra):
+    """One trajectory per row of ``inputs (T, rows, D)`` taking ``actions`` (terminal at its last step), values 0,
+    rewards and log-probabilities 0 unless given."""
+    steps, rows = inputs.shape[:2]
+    ended = torch.zeros(steps, rows, dtype=torch.bool)
+    ended[-1] = True
+    zeros = torch.zeros(steps, rows)
+    return {"inputs": inputs, "actions": actions, "logprobs": zeros if logprobs is None else logprobs,
+            "values": zeros, "rewards": zeros if rewards is None else rewards, "terminated": ended.clone(),
+            "ended": ended, "valid": torch.ones(steps, rows, dtype=torch.bool), "bootstrap": zeros,
+            **extra}  # fmt: skip
+
+
 @pytest.mark.parametrize(("reward", "direction"), [(1.0, 1), (-1.0, -1)], ids=["good", "bad"])
 def test_a_continuous_step_moves_the_mean_towards_a_good_command_and_away_from_a_bad_one(reward, direction):
     """Every row's sample lies 0.5 above the actor's mean on both outputs; a positive advantage moves the means
@@ -134,12 +147,7 @@ def test_a_continuous_step_moves_the_mean_towards_a_good_command_and_away_from_a
     _, mean = density(torch.zeros(steps, rows, 2))
     sample = mean + 0.5
     before, _ = density(sample)
-    ended = torch.zeros(steps, rows, dtype=torch.bool)
-    ended[-1] = True
-    zeros = torch.zeros(steps, rows)
-    rollout = {"inputs": inputs, "actions": sample, "logprobs": before, "values": zeros,
-               "rewards": torch.full((steps, rows), reward), "terminated": ended.clone(), "ended": ended,
-               "valid": torch.ones(steps, rows, dtype=torch.bool), "bootstrap": zeros}  # fmt: skip
+    rollout = _continuous_rollout(inputs, sample, logprobs=before, rewards=torch.full((steps, rows), reward))
     spread = update.log_std.detach().clone()
     update.learn(rollout, torch.zeros(rows, dtype=torch.int64), torch.Generator().manual_seed(0))
     after, _ = density(sample)
@@ -162,12 +170,7 @@ def test_the_heading_prior_pulls_the_mean_heading_towards_the_goal_bearing(prior
             return update.actor(inputs.reshape(1, -1, 3)).view(steps, rows, 2)
 
     before = means()
-    ended = torch.zeros(steps, rows, dtype=torch.bool)
-    ended[-1] = True
-    zeros = torch.zeros(steps, rows)
-    rollout = {"inputs": inputs, "actions": before.clone(), "logprobs": zeros, "values": zeros, "rewards": zeros,
-               "terminated": ended.clone(), "ended": ended, "valid": torch.ones(steps, rows, dtype=torch.bool),
-               "bootstrap": zeros, "alone": torch.full((steps, rows), alone)}  # fmt: skip
+    rollout = _continuous_rollout(inputs, before.clone(), alone=torch.full((steps, rows), alone))
     actor = [w.clone() for w in update.actor.weights]
     update.learn(rollout, torch.zeros(rows, dtype=torch.int64), torch.Generator().manual_seed(0))
     if prior and alone:
@@ -201,12 +204,7 @@ def test_the_heading_prior_pulls_the_heading_alone_and_leaves_the_company_term()
             return update.actor(inputs.reshape(1, -1, 3)).view(steps, rows, 3)
 
     before = outputs()
-    ended = torch.zeros(steps, rows, dtype=torch.bool)
-    ended[-1] = True
-    zeros = torch.zeros(steps, rows)
-    rollout = {"inputs": inputs, "actions": command_means(before, inputs, 2), "logprobs": zeros, "values": zeros,
-               "rewards": zeros, "terminated": ended.clone(), "ended": ended,
-               "valid": torch.ones(steps, rows, dtype=torch.bool), "bootstrap": zeros}  # fmt: skip
+    rollout = _continuous_rollout(inputs, command_means(before, inputs, 2))
     last_w, last_b = update.actor.weights[-1].detach().clone(), update.actor.biases[-1].detach().clone()
     update.learn(rollout, torch.zeros(rows, dtype=torch.int64), torch.Generator().manual_seed(0))
     assert outputs()[..., 1].square().mean() < 0.5 * before[..., 1].square().mean()
@@ -226,13 +224,8 @@ def test_routed_decisions_in_company_teach_the_company_term_only(heading):
     inputs[..., 2] = 1.0  # everyone senses another
     with torch.no_grad():
         means = command_means(update.actor(inputs.reshape(1, -1, 3)).view(steps, rows, 3), inputs, 2)
-    ended = torch.zeros(steps, rows, dtype=torch.bool)
-    ended[-1] = True
-    zeros = torch.zeros(steps, rows)
     logprobs = gaussian_logprob(means + 0.5, means, torch.zeros(1, 1, 2))
-    rollout = {"inputs": inputs, "actions": means + 0.5, "logprobs": logprobs, "values": zeros,
-               "rewards": torch.ones(steps, rows), "terminated": ended.clone(), "ended": ended,
-               "valid": torch.ones(steps, rows, dtype=torch.bool), "bootstrap": zeros}  # fmt: skip
+    rollout = _continuous_rollout(inputs, means + 0.5, logprobs=logprobs, rewards=torch.ones(steps, rows))
     last = update.actor.weights[-1].detach().clone()
     update.learn(rollout, torch.zeros(rows, dtype=torch.int64), torch.Generator().manual_seed(0))
     assert not torch.equal(update.actor.weights[-1][..., 2], last[..., 2])
