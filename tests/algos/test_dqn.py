@@ -27,7 +27,9 @@ def _greedy_return(policy: NeuralPolicy, factory, seed: int = 11) -> float:
 
 @pytest.mark.parametrize(
     "returns",
-    [("algo.trials=60",), ("algo.trials=120", "algo.n_step=3")],  # measured at 60 trials: 3-step returns -40, -40
+    # 120 trials: at 60 one-step learning was marginal, -56 to -6 on an earlier install and -56 to -43 on numba 0.68.1
+    # and numpy 2.4.6 (seeds 1 and 2 there: +33, +47); 3-step returns at 60 trials: -40, -40
+    [("algo.trials=120",), ("algo.trials=120", "algo.n_step=3")],
     ids=["one_step", "n_step"],
 )
 def test_dqn_learns_to_walk_better_than_its_untrained_network(returns, train_config, tmp_path):
@@ -41,7 +43,7 @@ def test_dqn_learns_to_walk_better_than_its_untrained_network(returns, train_con
         learned.std,
     )
     before, after = _greedy_return(untrained, factory), _greedy_return(learned, factory)
-    assert after > before + 30.0, (before, after)  # measured: -56 before, -6 after (3-step: -17)
+    assert after > before + 30.0, (before, after)  # measured: -56 before, 55 after (3-step: -17)
 
 
 def test_dqn_writes_a_checkpoint_per_iteration_and_the_tables_curve(train_config, tmp_path):
@@ -261,7 +263,8 @@ def test_a_checkpoint_names_its_learner_and_load_policy_reads_it_by_that_name(tr
     with pytest.raises(CheckpointError, match=f"metadata learner=.* is unknown: {allowed}"):
         load_policy(path)
     rewrite(lambda m: m.update(learner="continuous"))  # another kind's reader: it checks what the network gives
-    with pytest.raises(CheckpointError, match="the network gives 81 values: a continuous policy's gives 2$"):
+    gives = r"the network gives 81 values: a continuous policy's gives 2 \(or 3 with a company heading\)$"
+    with pytest.raises(CheckpointError, match=gives):
         load_policy(path)
     rewrite(lambda m: m.pop("learner"))  # as checkpoints were written before the key
     assert isinstance(load_policy(path), NeuralPolicy)
