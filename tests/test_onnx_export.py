@@ -135,3 +135,52 @@ def test_onnx_of_a_company_heading_drops_its_term_where_nobody_is_sensed(company
         assert bool(sensed.max() == 0) or bool(company.all())
         torch.testing.assert_close(expected, torch.stack((raw[:, 0], raw[:, 1] + company * raw[:, 2]), 1))
         assert bool(raw[:, 2].abs().min() > 1e-6)  # a term that acts where it is read
+
+
+def test_a_model_of_one_process_of_several_says_whose_replicas_it_agrees_with(dqn_checkpoint, tmp_path):
+    # pedrl's crowd acts with network i mod P in replica i; a model of process 0 disagrees with the others' replicas
+    from pedrl.export import written
+
+    processes = load_policy(dqn_checkpoint).num_processes
+    assert processes == 2  # debug=default
+    path = _export(dqn_checkpoint, tmp_path / "p.onnx")
+    lines = written(path, str(dqn_checkpoint))
+    assert lines[0].startswith(f"pedrl-export: wrote {path} (")
+    assert lines[1] == (
+        "pedrl-export: p.onnx holds the network of process 0 of 2: pedrl's crowd acts with network i mod 2 in replica"
+        " i, so this model agrees with the replicas of process 0 only (process=<index> writes another)"
+    )
+    assert json.loads((tmp_path / "p.onnx.json").read_text())["processes"] == processes
+    policy_file = _export(dqn_checkpoint, tmp_path / "p.safetensors")
+    assert len(written(policy_file, str(dqn_checkpoint))) == 1  # a policy file holds every process: nothing to say
+
+
+def test_a_tables_checkpoint_is_refused_for_onnx_in_one_line(tmp_path):
+    cfg = compose_config("train", ["debug=default", "algo=vqql", "algo.trials=2", "algo.iterations=1",
+                                   "logger=none", "threads=1", "progress=false"])  # fmt: skip
+    train(cfg, run_dir=tmp_path)
+    with pytest.raises(ValueError, match="ONNX export writes a network \\(algo=dqn\\)") as err:
+        _export(tmp_path / "checkpoints" / "last.safetensors", tmp_path / "p.onnx")
+    assert "\n" not in str(err.value) and not (tmp_path / "p.onnx").exists()
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        (["process=5"], "process=5 is invalid: must be an integer in \\[0, 1\\]"),
+        (["processes=1"], "processes=1 is invalid with out=<name>.onnx: pass process=<index>"),
+    ],
+)
+def test_bad_onnx_settings_are_one_line_and_write_nothing(dqn_checkpoint, tmp_path, overrides, message):
+    with pytest.raises(ValueError, match=message):
+        _export(dqn_checkpoint, tmp_path / "p.onnx", *overrides)
+    assert not (tmp_path / "p.onnx").exists()
+
+
+def test_a_network_exports_to_a_policy_file_that_acts_as_the_checkpoint(dqn_checkpoint, tmp_path):
+    path = _export(dqn_checkpoint, tmp_path / "policy.safetensors", "processes=1")
+    exported, original = load_policy(path), load_policy(dqn_checkpoint)
+    assert exported.num_processes == 1 and exported.metadata["algo"] == "dqn"
+    room = room_factory(exported)(num_replicas=1, num_agents=10)
+    obs, info = room.reset(seed=1)
+    assert torch.equal(exported.act(obs, info), original.act(obs, info))  # replica 0 acts with process 0 in both
