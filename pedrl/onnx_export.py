@@ -27,7 +27,15 @@ import torch
 from pedrl.common.checks import check_integer
 from pedrl.io.files import replace_atomically
 from pedrl.rl.network import head_values
-from pedrl.rl.neural import MAX_OFFSET, SPEED_OVERSHOOT, ContinuousPolicy, NeuralPolicy, command_means, squash
+from pedrl.rl.neural import (
+    MAX_OFFSET,
+    SPEED_OVERSHOOT,
+    ContinuousPolicy,
+    NeuralPolicy,
+    command_means,
+    company_column,
+    squash,
+)
 from pedrl.sim.sensing import distance_indices, feature_names
 
 OPSET: Final = 18
@@ -47,7 +55,7 @@ class _Exported(torch.nn.Module):
         self.register_buffer("mean", policy.mean.detach().cpu().clone())
         self.register_buffer("std", policy.std.detach().cpu().clone())
         self.register_buffer("slots", torch.arange(settings.num_neighbours))
-        self.company_column = settings.num_features
+        self.company_column = company_column(settings)
         network = policy.network
         self.head, self.continuous = network.head, isinstance(policy, ContinuousPolicy)
         self.weights = [w[process].detach().cpu().clone() for w in network.weights]

@@ -39,7 +39,14 @@ from pedrl.common.checks import (
     check_number,
 )
 from pedrl.rl.network import QNetwork
-from pedrl.rl.neural import COMPANY_HEADINGS, COMPANY_WIDTH, ContinuousPolicy, NeuralPolicy, squash
+from pedrl.rl.neural import (
+    COMPANY_HEADINGS,
+    COMPANY_WIDTH,
+    ContinuousPolicy,
+    NeuralPolicy,
+    company_column,
+    squash,
+)
 from pedrl.rl.ppo import METRICS, PPOSettings, PPOUpdate, Rollout, gaussian_logprob
 from pedrl.sim import RoomEnv
 from pedrl.sim.actions import COMMAND_WIDTH
@@ -267,7 +274,7 @@ class PPO(NetworkRun):
         if self.continuous:
             log_std = torch.full((self.processes, COMMAND_WIDTH), math.log(self.algo.init_std), device=self.device)
         return PPOUpdate(actor, critic, self.settings, self.algo.learning_rate, log_std=log_std,
-                         company_column=self.encoder_settings.num_features)  # fmt: skip
+                         company_column=company_column(self.encoder_settings))  # fmt: skip
 
     def network_shape(self) -> tuple[tuple[int, ...], str]:
         return (self.width, *self.hidden, self.outputs), "joint"

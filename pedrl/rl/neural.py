@@ -307,6 +307,12 @@ def _from_tensors(cls: type, settings: EncoderSettings, tensors: Mapping[str, to
     return policy
 
 
+def company_column(settings: EncoderSettings) -> int:
+    """The input column of the nearest neighbour slot's presence flag (the first flag after the ``F`` features): 1
+    where the walker senses another, the ``c`` of :func:`command_means`."""
+    return settings.num_features
+
+
 def input_width(settings: EncoderSettings, *, neighbour_velocity: bool = False) -> int:
     """Width of a network input over ``settings``' features: ``F + k`` (presence flags), ``+ 2k`` with the
     neighbours' velocities."""
@@ -338,7 +344,7 @@ class ContinuousPolicy(NeuralPolicy):
         outputs = super().values(inputs, process, network=network)
         if network is not None and network is not self.network:
             return outputs
-        return command_means(outputs, inputs, self.encoder.settings.num_features)
+        return command_means(outputs, inputs, company_column(self.encoder.settings))
 
     def choose(self, values: torch.Tensor, epsilon: float, generator: torch.Generator) -> torch.Tensor:
         """Commands ``(B, 2)`` of the network's outputs ``(B, 2)`` (:func:`squash`), a uniform one with probability

@@ -129,8 +129,8 @@ class PPOUpdate:
         learning_rate: Adam's step size.
         log_std: the continuous head: ``(P, 2)`` the log standard deviations of the Gaussian (learned); None: the
             discrete head.
-        company_column: the continuous head: the input column of the company flag of an actor with a company heading
-            (:func:`pedrl.rl.neural.command_means`).
+        company_column: the input column of the company flag, read by an actor with a company heading
+            (:func:`pedrl.rl.neural.company_column`; no default: column 0 is a feature, not the flag).
     """
 
     def __init__(
@@ -141,7 +141,7 @@ class PPOUpdate:
         learning_rate: float,
         *,
         log_std: torch.Tensor | None = None,
-        company_column: int = 0,
+        company_column: int,
     ) -> None:
         self.actor, self.critic, self.settings = actor, critic, settings
         self.company_column = company_column
